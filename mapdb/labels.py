@@ -75,22 +75,6 @@ class LabelTable:
                 f"{self.source}: no raster class table named {name!r} (have: {', '.join(sorted(self.rasters))})"
             ) from None
 
-    def as_dict(self) -> dict[str, Any]:
-        """A JSON-able summary, recorded in map headers as a build option."""
-        return {
-            "source": self.source,
-            "labels": list(self.labels),
-            "osm_rules": [
-                {"label": r.label, "key": r.key, "values": list(r.values) if r.values else None,
-                 "exclude": list(r.exclude), "geometry": sorted(r.geometry)}
-                for r in self.osm_rules
-            ],
-            "intersections": None if self.intersections is None else {
-                "label": self.intersections.label, "highways": list(self.intersections.highways),
-                "merge_distance_m": self.intersections.merge_distance_m},
-            "rasters": {name: {str(k): v for k, v in t.items()} for name, t in self.rasters.items()},
-        }
-
 
 def _read_toml(path: Path) -> dict[str, Any]:
     try:

@@ -1,0 +1,78 @@
+"""Readers that turn source files into :class:`~mapdb.objects.Objects`.
+
+Each reader returns objects in its source's own CRS (OSM: lon/lat); the
+builder reprojects.  The kind of a source is recognised by its file name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+from ..errors import MapdbIOError, SourceError
+from ..labels import LabelTable
+from ..objects import Objects
+
+__all__ = ["SOURCE_KINDS", "read_source", "source_kind"]
+
+SOURCE_KINDS = {
+    "osm": (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz"),
+    "landcover": (".tif", ".tiff", ".gtiff"),
+    "layer": (".geojson", ".json", ".gpkg", ".parquet", ".geoparquet", ".shp", ".fgb", ".csv"),
+}
+
+
+def source_kind(path: str | Path) -> str:
+    """``"osm"``, ``"landcover"`` or ``"layer"`` from the file name.
+
+    Examples
+    --------
+    >>> source_kind("monaco.osm.pbf"), source_kind("clc.TIF"), source_kind("mine.gpkg")
+    ('osm', 'landcover', 'layer')
+    """
+    name = Path(path).name.lower()
+    for kind, suffixes in SOURCE_KINDS.items():
+        if name.endswith(suffixes):
+            return kind
+    known = ", ".join(s for suffixes in SOURCE_KINDS.values() for s in suffixes)
+    raise SourceError(f"{path}: unknown kind of source (expected one of {known})")
+
+
+def check_readable(path: str | Path) -> Path:
+    """Fail early, with the file's name, on a missing, unreadable or empty source."""
+    path = Path(path)
+    if not path.exists():
+        raise MapdbIOError(f"{path}: no such file")
+    if path.is_dir():
+        raise MapdbIOError(f"{path}: is a directory")
+    if not path.suffix.lower() == ".shp" and path.stat().st_size == 0:
+        raise SourceError(f"{path}: empty file")
+    return path
+
+
+def read_source(
+    path: str | Path,
+    table: LabelTable,
+    *,
+    bbox: tuple[float, float, float, float] | None = None,
+    raster_classes: str | None = None,
+    min_area_m2: float = 10_000.0,
+    label_column: str = "label",
+    layer_crs: str | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Objects:
+    """Read one source of any kind, labelled with ``table``."""
+    kind = source_kind(path)
+    check_readable(path)
+    if kind == "osm":
+        from .osm import read_osm
+
+        return read_osm(path, table, bbox=bbox, progress=progress)
+    if kind == "landcover":
+        from .landcover import read_landcover
+
+        return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
+                              progress=progress)
+    from .layers import read_layer
+
+    return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox)

@@ -1,0 +1,595 @@
+"""The map file: labelled centroids in compressed, spatially compact pages with an R-tree.
+
+A map is one file (format described in ``docs/format.md``)::
+
+    magic "\\x89MAPDB\\r\\n" | u16 version | u16 flags | u32 header length | header (JSON)
+    | u32 CRC-32 of everything before it | page directory (36 bytes a page) | pages
+
+Objects are split into pages of at most ``page_capacity`` objects by recursive
+median cuts, so every page covers a compact area.  Inside a page, positions are
+integers at the quantum relative to the page origin; each label's objects form
+one run, sorted by their row-major key ``qy * (extent_x + 1) + qx`` and stored
+as Rice-coded key gaps (close to the entropy of a random point set, so labels
+cost nothing beyond their run headers).  Areas are log-quantized 16-bit codes,
+deflated.  The header, the directory and each page carry a CRC-32; pages are
+read and checked only when a query needs them.
+
+Reading a file never executes anything from it (JSON and fixed binary records
+only), and every length and count read from it is checked against the file
+size and the format's bounds before memory is allocated for it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import tempfile
+import zlib
+from collections import OrderedDict
+from collections.abc import Callable, Iterable
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+from pyproj import CRS, Transformer
+from rtree import index as rtree_index
+
+from . import __version__
+from .errors import EmptyMapError, MapdbIOError, MapFormatError, MapVersionError
+from .objects import Objects
+
+__all__ = [
+    "FORMAT_VERSION",
+    "MAGIC",
+    "MapBase",
+    "MemoryMap",
+    "MetaMap",
+    "open_map",
+    "write_map",
+]
+
+MAGIC = b"\x89MAPDB\r\n"
+FORMAT_VERSION = 1
+_PREFIX = struct.Struct("<8sHHI")
+_DIR_RECORD = struct.Struct("<qqIIIII")  # origin x, y (quanta), extent x, y, count, byte length, crc32
+_RUN_HEADER = struct.Struct("<BBHIQ")  # label code, rice k, count, unary byte length, first key
+_MAX_HEADER = 64 << 20
+_MAX_PAGE_OBJECTS = 65535
+_MAX_EXTENT = (1 << 24) - 1  # keeps the row-major key under 2**48
+_AREA_STEPS = 16  # codes per doubling of area: +-2.2 % relative precision
+_AREA_FLOOR_LOG2 = -16  # smallest non-zero area stored: 2**-16 m^2
+DEFAULT_PAGE_CAPACITY = 1024
+_CACHE_OBJECTS = 4_000_000
+
+T = TypeVar("T")
+
+
+# --------------------------------------------------------------------------------------------- coding
+
+
+def _area_encode(area: np.ndarray) -> np.ndarray:
+    code = np.zeros(area.shape, np.uint16)
+    pos = area > 0
+    log = (np.log2(area[pos]) - _AREA_FLOOR_LOG2) * _AREA_STEPS
+    code[pos] = np.clip(np.rint(log) + 1, 1, 65535).astype(np.uint16)
+    return code
+
+
+def _area_decode(code: np.ndarray) -> np.ndarray:
+    area = np.exp2((code.astype(np.float64) - 1) / _AREA_STEPS + _AREA_FLOOR_LOG2)
+    area[code == 0] = 0.0
+    return area
+
+
+def _rice_parameter(gaps: np.ndarray) -> int:
+    """The k that makes ``sum(gaps >> k) + n * (k + 1)`` (the coded size in bits) smallest."""
+    if gaps.size == 0:
+        return 0
+    top = int(gaps.max()).bit_length()
+    costs = [int((gaps >> k).sum()) + gaps.size * (k + 1) for k in range(top + 1)]
+    return int(np.argmin(costs))
+
+
+def _pack_bits_fixed(values: np.ndarray, k: int) -> bytes:
+    if k == 0 or values.size == 0:
+        return b""
+    shifts = np.arange(k - 1, -1, -1, dtype=np.uint64)
+    bits = ((values[:, None] >> shifts) & np.uint64(1)).astype(np.uint8)
+    return np.packbits(bits.reshape(-1)).tobytes()
+
+
+def _unpack_bits_fixed(buf: bytes, n: int, k: int) -> np.ndarray:
+    if k == 0 or n == 0:
+        return np.zeros(n, np.uint64)
+    bits = np.unpackbits(np.frombuffer(buf, np.uint8), count=n * k).reshape(n, k).astype(np.uint64)
+    return (bits << np.arange(k - 1, -1, -1, dtype=np.uint64)).sum(axis=1, dtype=np.uint64)
+
+
+def _encode_run(keys: np.ndarray) -> tuple[int, bytes, bytes]:
+    """Rice-code the gaps of sorted keys: unary quotients in one stream, k-bit remainders in another."""
+    gaps = np.diff(keys).astype(np.uint64)
+    k = _rice_parameter(gaps)
+    quotient = (gaps >> np.uint64(k)).astype(np.int64)
+    # Unary: quotient ones then a zero.  Zeros sit at cumulative positions.
+    nbits = int(quotient.sum()) + gaps.size
+    bits = np.ones(nbits, np.uint8)
+    if gaps.size:
+        bits[np.cumsum(quotient + 1) - 1] = 0
+    unary = np.packbits(bits).tobytes()
+    remainder = _pack_bits_fixed(gaps & np.uint64((1 << k) - 1), k)
+    return k, unary, remainder
+
+
+def _decode_run(first: int, n: int, k: int, unary: bytes, remainder: bytes, where: str) -> np.ndarray:
+    if n == 1:
+        return np.array([first], np.uint64)
+    bits = np.unpackbits(np.frombuffer(unary, np.uint8))
+    zeros = np.flatnonzero(bits == 0)
+    if zeros.size < n - 1 or len(remainder) * 8 < (n - 1) * k:
+        raise MapFormatError(f"{where}: page data is shorter than its counts")
+    quotient = np.diff(zeros[: n - 1], prepend=-1) - 1
+    gaps = (quotient.astype(np.uint64) << np.uint64(k)) | _unpack_bits_fixed(remainder, n - 1, k)
+    keys = np.empty(n, np.uint64)
+    keys[0] = first
+    np.cumsum(gaps, out=keys[1:])
+    keys[1:] += np.uint64(first)
+    return keys
+
+
+def _encode_page(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, area: np.ndarray) -> tuple[bytes, tuple]:
+    ox, oy = int(qx.min()), int(qy.min())
+    ex, ey = int(qx.max()) - ox, int(qy.max()) - oy
+    width = ex + 1
+    keys = (qy - oy).astype(np.uint64) * np.uint64(width) + (qx - ox).astype(np.uint64)
+    order = np.lexsort((keys, label))
+    keys, label_sorted, area_sorted = keys[order], label[order], area[order]
+    codes, starts, counts = np.unique(label_sorted, return_index=True, return_counts=True)
+    parts = [struct.pack("<B", codes.size)]
+    streams = []
+    for code, start, count in zip(codes, starts, counts, strict=True):
+        run = keys[start : start + count]
+        k, unary, remainder = _encode_run(run)
+        parts.append(_RUN_HEADER.pack(int(code), k, int(count), len(unary), int(run[0])))
+        streams += [unary, remainder]
+    area_code = _area_encode(area_sorted)
+    # Byte-shuffled (all low bytes, then all high bytes) so deflate sees the slowly varying high bytes together.
+    shuffled = area_code.astype("<u2").view(np.uint8).reshape(-1, 2).T.tobytes()
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
+    area_stream = packer.compress(shuffled) + packer.flush()
+    payload = b"".join(parts + streams + [struct.pack("<I", len(area_stream)), area_stream])
+    record = (ox, oy, ex, ey, int(qx.size), len(payload), zlib.crc32(payload))
+    return payload, record
+
+
+def _decode_page(payload: bytes, record: tuple, where: str) -> tuple[np.ndarray, ...]:
+    ox, oy, ex, ey, count = record[:5]
+    view = memoryview(payload)
+    try:
+        (n_runs,) = struct.unpack_from("<B", view, 0)
+        offset = 1
+        headers = []
+        for _ in range(n_runs):
+            headers.append(_RUN_HEADER.unpack_from(view, offset))
+            offset += _RUN_HEADER.size
+        width = np.uint64(ex + 1)
+        keys, labels = [], []
+        total = 0
+        for code, k, n, unary_len, first in headers:
+            rem_len = ((n - 1) * k + 7) // 8
+            if k > 48 or n == 0 or offset + unary_len + rem_len > len(payload):
+                raise MapFormatError(f"{where}: page run header is out of bounds")
+            unary = bytes(view[offset : offset + unary_len])
+            remainder = bytes(view[offset + unary_len : offset + unary_len + rem_len])
+            offset += unary_len + rem_len
+            keys.append(_decode_run(first, n, k, unary, remainder, where))
+            labels.append(np.full(n, code, np.int32))
+            total += n
+        if total != count:
+            raise MapFormatError(f"{where}: page holds {total} objects, its directory says {count}")
+        (area_len,) = struct.unpack_from("<I", view, offset)
+        offset += 4
+        if offset + area_len != len(payload):
+            raise MapFormatError(f"{where}: page length does not match its contents")
+        unpacker = zlib.decompressobj(-15)
+        shuffled = unpacker.decompress(bytes(view[offset:]), 2 * count)
+        if len(shuffled) != 2 * count or unpacker.unconsumed_tail:
+            raise MapFormatError(f"{where}: page area stream is corrupt")
+    except (struct.error, zlib.error):
+        raise MapFormatError(f"{where}: page is corrupt") from None
+    key = np.concatenate(keys)
+    if key.size and (key.max() >= width * np.uint64(ey + 1)):
+        raise MapFormatError(f"{where}: page position outside its extent")
+    qx = (key % width).astype(np.int64) + ox
+    qy = (key // width).astype(np.int64) + oy
+    area_code = np.frombuffer(shuffled, np.uint8).reshape(2, count).T.copy().view("<u2").reshape(-1)
+    return qx, qy, np.concatenate(labels), _area_decode(area_code)
+
+
+def _split_pages(qx: np.ndarray, qy: np.ndarray, capacity: int) -> list[np.ndarray]:
+    """Recursive median cuts on the longer side until each page fits its capacity and extent bounds."""
+    pages = []
+    stack = [np.arange(qx.size)]
+    while stack:
+        idx = stack.pop()
+        x, y = qx[idx], qy[idx]
+        dx, dy = int(x.max() - x.min()), int(y.max() - y.min())
+        if idx.size <= capacity and dx <= _MAX_EXTENT and dy <= _MAX_EXTENT:
+            pages.append(idx)
+            continue
+        if dx == 0 and dy == 0:  # more than a page of objects on one spot: chop in order
+            stack += [idx[:capacity], idx[capacity:]]
+            continue
+        axis = x if dx >= dy else y
+        order = np.argsort(axis, kind="stable")
+        half = idx.size // 2
+        stack += [idx[order[:half]], idx[order[half:]]]
+    return pages
+
+
+# --------------------------------------------------------------------------------------------- writing
+
+
+def _lonlat_bounds(crs: CRS, bounds: tuple[float, float, float, float]) -> list[float] | None:
+    try:
+        to_lonlat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+        return [float(v) for v in to_lonlat.transform_bounds(*bounds, densify_pts=21)]
+    except Exception:  # a CRS without a lon/lat relation (engineering CRS): no geographic bounds
+        return None
+
+
+def write_map(
+    path: str | Path,
+    objects: Objects,
+    *,
+    quantum: float = 0.1,
+    metadata: dict[str, Any] | None = None,
+    page_capacity: int = DEFAULT_PAGE_CAPACITY,
+) -> None:
+    """Write objects (in a projected CRS) to a map file, atomically.
+
+    The file is written beside ``path`` under a temporary name and renamed into
+    place, so a failed write leaves any earlier map of that name intact.
+
+    Parameters
+    ----------
+    path : str or Path
+        Destination ``.mapdb`` file.
+    objects : Objects
+        Centroids in projected metres; ``objects.crs`` names the CRS.
+    quantum : float
+        Stored resolution in metres; positions are rounded to multiples of it.
+    metadata : dict, optional
+        JSON-able entries kept in the header (``sources``, ``build`` options, ...).
+    page_capacity : int
+        Most objects in one page.
+
+    Raises
+    ------
+    EmptyMapError
+        If ``objects`` is empty.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> o = Objects.from_names([500000.0, 500010.0], [6e6, 6e6], ["park", "water"], crs="EPSG:32635")
+    >>> p = os.path.join(tempfile.mkdtemp(), "two.mapdb")
+    >>> write_map(p, o)
+    >>> with open_map(p) as m:
+    ...     m.label_counts
+    {'park': 1, 'water': 1}
+    """
+    path = Path(path)
+    if len(objects) == 0:
+        raise EmptyMapError(f"{path}: no objects to write")
+    if objects.crs is None:
+        raise ValueError("objects need a CRS to be written to a map")
+    if not (0 < quantum <= 1000) or not (1 <= page_capacity <= _MAX_PAGE_OBJECTS):
+        raise ValueError(f"quantum must be in (0, 1000] m and page capacity in [1, {_MAX_PAGE_OBJECTS}]")
+    if len(objects.labels) > 255:
+        raise ValueError("a map holds at most 255 labels")
+    finite = np.isfinite(objects.x) & np.isfinite(objects.y)
+    if not finite.all():
+        raise ValueError(f"{int((~finite).sum())} objects have non-finite coordinates")
+    crs = CRS.from_user_input(objects.crs)
+    qx = np.rint(objects.x / quantum).astype(np.int64)
+    qy = np.rint(objects.y / quantum).astype(np.int64)
+    area = np.where(np.isfinite(objects.area) & (objects.area > 0), objects.area, 0.0)
+
+    pages = _split_pages(qx, qy, page_capacity)
+    payloads, records = [], []
+    for idx in pages:
+        payload, record = _encode_page(qx[idx], qy[idx], objects.label[idx], area[idx])
+        payloads.append(payload)
+        records.append(record)
+    directory = b"".join(_DIR_RECORD.pack(*r) for r in records)
+
+    counts = np.bincount(objects.label, minlength=len(objects.labels))
+    bounds = (float(qx.min() * quantum), float(qy.min() * quantum),
+              float(qx.max() * quantum), float(qy.max() * quantum))
+    header = {
+        "format": "mapdb",
+        "format_version": FORMAT_VERSION,
+        "crs": crs.to_string(),
+        # An authority code names the CRS exactly; WKT (about a kilobyte) only when there is none.
+        "crs_wkt": None if crs.to_epsg() else crs.to_wkt(),
+        "quantum": quantum,
+        "area_log2_steps": _AREA_STEPS,
+        "area_floor_log2": _AREA_FLOOR_LOG2,
+        "count": len(objects),
+        "labels": [{"name": name, "code": i, "count": int(counts[i])} for i, name in enumerate(objects.labels)],
+        "bounds": list(bounds),
+        "bounds_lonlat": _lonlat_bounds(crs, bounds),
+        "page_capacity": page_capacity,
+        "pages": len(records),
+        "directory_crc32": zlib.crc32(directory),
+        "software": f"mapdb {__version__}",
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+    }
+    for key, value in (metadata or {}).items():
+        header.setdefault(key, value)
+    header_bytes = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, 0, len(header_bytes)) + header_bytes
+    prefix += struct.pack("<I", zlib.crc32(prefix))
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(prefix)
+            f.write(directory)
+            for payload in payloads:
+                f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# --------------------------------------------------------------------------------------------- reading
+
+
+class MapBase:
+    """Queries shared by file-backed and in-memory maps; subclasses provide ``query_bbox`` and ``all``."""
+
+    crs: str
+    quantum: float
+    labels: tuple[str, ...]
+    bounds: tuple[float, float, float, float]
+    metadata: dict[str, Any]
+
+    def __init__(self) -> None:
+        self._derived: dict[str, Any] = {}
+
+    @property
+    def label_counts(self) -> dict[str, int]:
+        return {d["name"]: d["count"] for d in self.metadata["labels"] if d["count"]}
+
+    def __len__(self) -> int:
+        return int(self.metadata["count"])
+
+    def __enter__(self) -> MapBase:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._derived.clear()
+
+    def cached(self, key: str, factory: Callable[[], T]) -> T:
+        """A value derived from this map (an index, say), computed once per open map."""
+        if key not in self._derived:
+            self._derived[key] = factory()
+        return self._derived[key]
+
+    def _label_filter(self, objects: Objects, labels: Iterable[str] | None) -> Objects:
+        if labels is None:
+            return objects
+        wanted = {self.labels.index(name) for name in labels if name in self.labels}
+        return objects.take(np.isin(objects.label, list(wanted)))
+
+    def query_bbox(self, minx: float, miny: float, maxx: float, maxy: float,
+                   labels: Iterable[str] | None = None) -> Objects:
+        raise NotImplementedError
+
+    def all(self) -> Objects:
+        raise NotImplementedError
+
+    def query_radius(self, x: float, y: float, r: float, labels: Iterable[str] | None = None) -> Objects:
+        """Objects within ``r`` metres of (x, y), optionally only of the named labels."""
+        found = self.query_bbox(x - r, y - r, x + r, y + r, labels)
+        return found.take((found.x - x) ** 2 + (found.y - y) ** 2 <= r * r)
+
+
+class MetaMap(MapBase):
+    """A map file opened for queries; pages are read, checked and decoded on demand.
+
+    Use :func:`open_map` to get one.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__()
+        self.path = Path(path)
+        where = str(self.path)
+        try:
+            self._file = open(self.path, "rb")  # noqa: SIM115 - kept open for page reads until close()
+        except FileNotFoundError:
+            raise MapdbIOError(f"{where}: no such map file") from None
+        except IsADirectoryError:
+            raise MapdbIOError(f"{where}: is a directory, not a map file") from None
+        except OSError as exc:
+            raise MapdbIOError(f"{where}: cannot open map file ({exc.strerror})") from None
+        try:
+            self._read_header(where)
+        except BaseException:
+            self._file.close()
+            raise
+        self._cache: OrderedDict[int, tuple[np.ndarray, ...]] = OrderedDict()
+        self._cached_objects = 0
+
+    def _read_header(self, where: str) -> None:
+        size = os.fstat(self._file.fileno()).st_size
+        self.file_size = size
+        if size == 0:
+            raise MapFormatError(f"{where}: empty file, not a map")
+        head = self._file.read(_PREFIX.size)
+        if len(head) < _PREFIX.size or not head.startswith(MAGIC):
+            raise MapFormatError(f"{where}: not a mapdb map (bad magic number)")
+        _, version, _flags, header_len = _PREFIX.unpack(head)
+        if version > FORMAT_VERSION:
+            raise MapVersionError(
+                f"{where}: written by a newer map format (version {version}); "
+                f"this mapdb {__version__} reads up to version {FORMAT_VERSION}"
+            )
+        if header_len > _MAX_HEADER or _PREFIX.size + header_len + 4 > size:
+            raise MapFormatError(f"{where}: truncated map file (header runs past the end)")
+        header_bytes = self._file.read(header_len)
+        (crc,) = struct.unpack("<I", self._file.read(4))
+        if zlib.crc32(head + header_bytes) != crc:
+            raise MapFormatError(f"{where}: header checksum mismatch (file is corrupt)")
+        try:
+            header = json.loads(header_bytes.decode("utf-8"))
+            n_pages = int(header["pages"])
+            self.quantum = float(header["quantum"])
+            self.crs = str(header.get("crs_wkt") or header["crs"])
+            self.labels = tuple(str(d["name"]) for d in header["labels"])
+            self.bounds = tuple(float(v) for v in header["bounds"])
+        except (ValueError, KeyError, TypeError):
+            raise MapFormatError(f"{where}: header is not valid map metadata") from None
+        dir_start = _PREFIX.size + header_len + 4
+        dir_len = n_pages * _DIR_RECORD.size
+        if n_pages < 0 or dir_start + dir_len > size:
+            raise MapFormatError(f"{where}: truncated map file (page directory runs past the end)")
+        directory = self._file.read(dir_len)
+        if zlib.crc32(directory) != header.get("directory_crc32"):
+            raise MapFormatError(f"{where}: page directory checksum mismatch (file is corrupt)")
+        records = [_DIR_RECORD.unpack_from(directory, i * _DIR_RECORD.size) for i in range(n_pages)]
+        lengths = np.array([r[5] for r in records], np.int64)
+        self._offsets = dir_start + dir_len + np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        end = dir_start + dir_len + int(lengths.sum())
+        if end > size:
+            raise MapFormatError(f"{where}: truncated map file ({size} bytes, pages need {end})")
+        if end < size:
+            raise MapFormatError(f"{where}: {size - end} unexpected bytes after the last page")
+        if any(r[4] > _MAX_PAGE_OBJECTS or r[2] > _MAX_EXTENT or r[3] > _MAX_EXTENT for r in records):
+            raise MapFormatError(f"{where}: page directory holds out-of-range values")
+        self._records = records
+        self.metadata = header
+        q = self.quantum
+        boxes = [(r[0] * q, r[1] * q, (r[0] + r[2]) * q, (r[1] + r[3]) * q) for r in records]
+        self._tree = rtree_index.Index((i, box, None) for i, box in enumerate(boxes)) if boxes else None
+
+    @property
+    def page_count(self) -> int:
+        return len(self._records)
+
+    def close(self) -> None:
+        super().close()
+        self._cache.clear()
+        self._file.close()
+
+    def _page(self, i: int) -> tuple[np.ndarray, ...]:
+        hit = self._cache.get(i)
+        if hit is not None:
+            self._cache.move_to_end(i)
+            return hit
+        record = self._records[i]
+        where = f"{self.path} page {i}"
+        payload = os.pread(self._file.fileno(), record[5], int(self._offsets[i]))
+        if len(payload) != record[5]:
+            raise MapFormatError(f"{where}: truncated")
+        if zlib.crc32(payload) != record[6]:
+            raise MapFormatError(f"{where}: checksum mismatch (file is corrupt)")
+        qx, qy, label, area = _decode_page(payload, record, where)
+        if label.size and label.max() >= len(self.labels):
+            raise MapFormatError(f"{where}: label code outside the label table")
+        page = (qx * self.quantum, qy * self.quantum, label, area)
+        self._cache[i] = page
+        self._cached_objects += label.size
+        while self._cached_objects > _CACHE_OBJECTS and len(self._cache) > 1:
+            _, old = self._cache.popitem(last=False)
+            self._cached_objects -= old[2].size
+        return page
+
+    def _objects(self, pages: Iterable[int]) -> Objects:
+        parts = [self._page(i) for i in pages]
+        if not parts:
+            return Objects.empty(self.labels, self.crs)
+        return Objects(*(np.concatenate(p) for p in zip(*parts, strict=True)), self.labels, self.crs)
+
+    def verify(self) -> None:
+        """Read and check every page; raises :class:`MapFormatError` at the first bad one."""
+        for i in range(self.page_count):
+            self._page(i)
+
+    def query_bbox(self, minx: float, miny: float, maxx: float, maxy: float,
+                   labels: Iterable[str] | None = None) -> Objects:
+        """Objects inside the box (projected metres, edges included)."""
+        if self._tree is None:
+            return Objects.empty(self.labels, self.crs)
+        hits = sorted(self._tree.intersection((minx, miny, maxx, maxy)))
+        found = self._objects(hits)
+        inside = (found.x >= minx) & (found.x <= maxx) & (found.y >= miny) & (found.y <= maxy)
+        return self._label_filter(found.take(inside), labels)
+
+    def all(self) -> Objects:
+        return self._objects(range(self.page_count))
+
+
+class MemoryMap(MapBase):
+    """The :class:`MetaMap` interface over objects held in memory (simulations, tests).
+
+    Positions are rounded to the quantum as a file would store them.
+
+    Examples
+    --------
+    >>> m = MemoryMap(Objects.from_names([0.0, 100.0], [0.0, 0.0], ["park", "park"], crs="EPSG:3857"))
+    >>> len(m.query_radius(0.0, 0.0, 10.0))
+    1
+    >>> len(m.query_bbox(500.0, 500.0, 600.0, 600.0))
+    0
+    """
+
+    def __init__(self, objects: Objects, quantum: float = 0.1, metadata: dict[str, Any] | None = None) -> None:
+        super().__init__()
+        self.path = None
+        self.quantum = quantum
+        self.crs = objects.crs or ""
+        self.labels = objects.labels
+        x = np.rint(objects.x / quantum) * quantum
+        y = np.rint(objects.y / quantum) * quantum
+        self._objects = Objects(x, y, objects.label, objects.area, objects.labels, objects.crs)
+        self.bounds = (float(x.min()), float(y.min()), float(x.max()), float(y.max())) if len(objects) else (
+            0.0, 0.0, 0.0, 0.0)
+        counts = np.bincount(objects.label, minlength=len(self.labels))
+        self.metadata = {"count": len(objects), "crs": self.crs, "quantum": quantum, "bounds": list(self.bounds),
+                         "labels": [{"name": n, "code": i, "count": int(counts[i])}
+                                    for i, n in enumerate(self.labels)], **(metadata or {})}
+
+    def query_bbox(self, minx: float, miny: float, maxx: float, maxy: float,
+                   labels: Iterable[str] | None = None) -> Objects:
+        o = self._objects
+        inside = (o.x >= minx) & (o.x <= maxx) & (o.y >= miny) & (o.y <= maxy)
+        return self._label_filter(o.take(inside), labels)
+
+    def all(self) -> Objects:
+        return self._objects
+
+
+def open_map(path: str | Path) -> MetaMap:
+    """Open a map file for queries (also a context manager).
+
+    Raises
+    ------
+    MapdbIOError
+        If the file is missing or unreadable.
+    MapFormatError
+        If it is not a map, is truncated or fails a checksum.
+    MapVersionError
+        If a newer format version wrote it.
+    """
+    return MetaMap(path)
