@@ -5,13 +5,15 @@ A map is one file (format described in ``docs/format.md``)::
     magic "\\x89MAPDB\\r\\n" | u16 version | u16 flags | u32 header length | header (JSON)
     | u32 CRC-32 of everything before it | page directory (36 bytes a page) | pages
 
+(the header is deflated JSON)
+
 Objects are split into pages of at most ``page_capacity`` objects by recursive
 median cuts, so every page covers a compact area.  Inside a page, positions are
 integers at the quantum relative to the page origin; each label's objects form
 one run, sorted by their row-major key ``qy * (extent_x + 1) + qx`` and stored
 as Rice-coded key gaps (close to the entropy of a random point set, so labels
-cost nothing beyond their run headers).  Areas are log-quantized 16-bit codes,
-deflated.  The header, the directory and each page carry a CRC-32; pages are
+cost nothing beyond their run headers).  Areas are log-quantized codes, stored
+as Rice-coded residuals from their run's median.  The header, the directory and each page carry a CRC-32; pages are
 read and checked only when a query needs them.
 
 Reading a file never executes anything from it (JSON and fixed binary records
@@ -54,7 +56,6 @@ MAGIC = b"\x89MAPDB\r\n"
 FORMAT_VERSION = 1
 _PREFIX = struct.Struct("<8sHHI")
 _DIR_RECORD = struct.Struct("<qqIIIII")  # origin x, y (quanta), extent x, y, count, byte length, crc32
-_RUN_HEADER = struct.Struct("<BBHIQ")  # label code, rice k, count, unary byte length, first key
 _MAX_HEADER = 64 << 20
 _MAX_PAGE_OBJECTS = 65535
 _MAX_EXTENT = (1 << 24) - 1  # keeps the row-major key under 2**48
@@ -107,103 +108,127 @@ def _unpack_bits_fixed(buf: bytes, n: int, k: int) -> np.ndarray:
     return (bits << np.arange(k - 1, -1, -1, dtype=np.uint64)).sum(axis=1, dtype=np.uint64)
 
 
-def _encode_run(keys: np.ndarray) -> tuple[int, bytes, bytes]:
-    """Rice-code the gaps of sorted keys: unary quotients in one stream, k-bit remainders in another."""
-    gaps = np.diff(keys).astype(np.uint64)
-    k = _rice_parameter(gaps)
-    quotient = (gaps >> np.uint64(k)).astype(np.int64)
-    # Unary: quotient ones then a zero.  Zeros sit at cumulative positions.
-    nbits = int(quotient.sum()) + gaps.size
-    bits = np.ones(nbits, np.uint8)
-    if gaps.size:
+def _rice_encode(values: np.ndarray) -> tuple[int, bytes, bytes]:
+    """Rice code of non-negative integers: unary quotients in one stream, k-bit remainders in another."""
+    values = values.astype(np.uint64)
+    k = _rice_parameter(values)
+    quotient = (values >> np.uint64(k)).astype(np.int64)
+    # Unary: quotient ones then a zero; the zeros sit at the cumulative positions.
+    bits = np.ones(int(quotient.sum()) + values.size, np.uint8)
+    if values.size:
         bits[np.cumsum(quotient + 1) - 1] = 0
-    unary = np.packbits(bits).tobytes()
-    remainder = _pack_bits_fixed(gaps & np.uint64((1 << k) - 1), k)
-    return k, unary, remainder
+    return k, np.packbits(bits).tobytes(), _pack_bits_fixed(values & np.uint64((1 << k) - 1), k)
 
 
-def _decode_run(first: int, n: int, k: int, unary: bytes, remainder: bytes, where: str) -> np.ndarray:
-    if n == 1:
-        return np.array([first], np.uint64)
-    bits = np.unpackbits(np.frombuffer(unary, np.uint8))
-    zeros = np.flatnonzero(bits == 0)
-    if zeros.size < n - 1 or len(remainder) * 8 < (n - 1) * k:
+def _rice_decode(n: int, k: int, unary: bytes, remainder: bytes, where: str) -> np.ndarray:
+    if n == 0:
+        return np.zeros(0, np.uint64)
+    zeros = np.flatnonzero(np.unpackbits(np.frombuffer(unary, np.uint8)) == 0)
+    if zeros.size < n or len(remainder) * 8 < n * k:
         raise MapFormatError(f"{where}: page data is shorter than its counts")
-    quotient = np.diff(zeros[: n - 1], prepend=-1) - 1
-    gaps = (quotient.astype(np.uint64) << np.uint64(k)) | _unpack_bits_fixed(remainder, n - 1, k)
-    keys = np.empty(n, np.uint64)
-    keys[0] = first
-    np.cumsum(gaps, out=keys[1:])
-    keys[1:] += np.uint64(first)
-    return keys
+    quotient = np.diff(zeros[:n], prepend=-1) - 1
+    return (quotient.astype(np.uint64) << np.uint64(k)) | _unpack_bits_fixed(remainder, n, k)
+
+
+def _put_varint(out: bytearray, value: int) -> None:
+    while value >= 0x80:
+        out.append((value & 0x7F) | 0x80)
+        value >>= 7
+    out.append(value)
+
+
+def _get_varint(view: memoryview, offset: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        if offset >= len(view) or shift > 63:
+            raise MapFormatError("varint runs past the page")
+        byte = view[offset]
+        offset += 1
+        value |= (byte & 0x7F) << shift
+        if byte < 0x80:
+            return value, offset
+        shift += 7
+
+
+def _zigzag(v: np.ndarray) -> np.ndarray:
+    return np.where(v >= 0, 2 * v, -2 * v - 1).astype(np.uint64)
+
+
+def _unzigzag(z: np.ndarray) -> np.ndarray:
+    z = z.astype(np.int64)
+    return np.where(z % 2 == 0, z // 2, -(z + 1) // 2)
 
 
 def _encode_page(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, area: np.ndarray) -> tuple[bytes, tuple]:
     ox, oy = int(qx.min()), int(qy.min())
     ex, ey = int(qx.max()) - ox, int(qy.max()) - oy
-    width = ex + 1
-    keys = (qy - oy).astype(np.uint64) * np.uint64(width) + (qx - ox).astype(np.uint64)
+    keys = (qy - oy).astype(np.uint64) * np.uint64(ex + 1) + (qx - ox).astype(np.uint64)
     order = np.lexsort((keys, label))
-    keys, label_sorted, area_sorted = keys[order], label[order], area[order]
-    codes, starts, counts = np.unique(label_sorted, return_index=True, return_counts=True)
-    parts = [struct.pack("<B", codes.size)]
+    keys, label, area_code = keys[order], label[order], _area_encode(area[order]).astype(np.int64)
+    codes, starts, counts = np.unique(label, return_index=True, return_counts=True)
+    head = bytearray([codes.size])
     streams = []
     for code, start, count in zip(codes, starts, counts, strict=True):
-        run = keys[start : start + count]
-        k, unary, remainder = _encode_run(run)
-        parts.append(_RUN_HEADER.pack(int(code), k, int(count), len(unary), int(run[0])))
-        streams += [unary, remainder]
-    area_code = _area_encode(area_sorted)
-    # Byte-shuffled (all low bytes, then all high bytes) so deflate sees the slowly varying high bytes together.
-    shuffled = area_code.astype("<u2").view(np.uint8).reshape(-1, 2).T.tobytes()
-    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
-    area_stream = packer.compress(shuffled) + packer.flush()
-    payload = b"".join(parts + streams + [struct.pack("<I", len(area_stream)), area_stream])
-    record = (ox, oy, ex, ey, int(qx.size), len(payload), zlib.crc32(payload))
-    return payload, record
+        run = slice(start, start + count)
+        k_key, unary_key, rem_key = _rice_encode(np.diff(keys[run]))
+        # Areas of one label cluster around a typical size: code them as residuals from the run's median.
+        median = int(np.median(area_code[run]))
+        k_area, unary_area, rem_area = _rice_encode(_zigzag(area_code[run] - median))
+        head += bytes([int(code), k_key, k_area])
+        for value in (int(count), int(keys[start]), len(unary_key), median, len(unary_area)):
+            _put_varint(head, value)
+        streams += [unary_key, rem_key, unary_area, rem_area]
+    payload = bytes(head) + b"".join(streams)
+    return payload, (ox, oy, ex, ey, int(qx.size), len(payload), zlib.crc32(payload))
 
 
 def _decode_page(payload: bytes, record: tuple, where: str) -> tuple[np.ndarray, ...]:
     ox, oy, ex, ey, count = record[:5]
     view = memoryview(payload)
     try:
-        (n_runs,) = struct.unpack_from("<B", view, 0)
+        runs = []
         offset = 1
-        headers = []
-        for _ in range(n_runs):
-            headers.append(_RUN_HEADER.unpack_from(view, offset))
-            offset += _RUN_HEADER.size
-        width = np.uint64(ex + 1)
-        keys, labels = [], []
-        total = 0
-        for code, k, n, unary_len, first in headers:
-            rem_len = ((n - 1) * k + 7) // 8
-            if k > 48 or n == 0 or offset + unary_len + rem_len > len(payload):
-                raise MapFormatError(f"{where}: page run header is out of bounds")
-            unary = bytes(view[offset : offset + unary_len])
-            remainder = bytes(view[offset + unary_len : offset + unary_len + rem_len])
-            offset += unary_len + rem_len
-            keys.append(_decode_run(first, n, k, unary, remainder, where))
-            labels.append(np.full(n, code, np.int32))
-            total += n
-        if total != count:
-            raise MapFormatError(f"{where}: page holds {total} objects, its directory says {count}")
-        (area_len,) = struct.unpack_from("<I", view, offset)
-        offset += 4
-        if offset + area_len != len(payload):
-            raise MapFormatError(f"{where}: page length does not match its contents")
-        unpacker = zlib.decompressobj(-15)
-        shuffled = unpacker.decompress(bytes(view[offset:]), 2 * count)
-        if len(shuffled) != 2 * count or unpacker.unconsumed_tail:
-            raise MapFormatError(f"{where}: page area stream is corrupt")
-    except (struct.error, zlib.error):
-        raise MapFormatError(f"{where}: page is corrupt") from None
+        for _ in range(payload[0]):
+            code, k_key, k_area = payload[offset : offset + 3]
+            offset += 3
+            fields = []
+            for _ in range(5):
+                value, offset = _get_varint(view, offset)
+                fields.append(value)
+            runs.append((code, k_key, k_area, *fields))
+    except (IndexError, ValueError, MapFormatError):
+        raise MapFormatError(f"{where}: page run headers are corrupt") from None
+    if sum(r[3] for r in runs) != count:
+        raise MapFormatError(f"{where}: page runs do not add up to its directory count {count}")
+    keys, labels, areas = [], [], []
+    for code, k_key, k_area, n, first, unary_key_len, median, unary_area_len in runs:
+        if n == 0 or k_key > 48 or k_area > 16 or median > 65535:
+            raise MapFormatError(f"{where}: page run header out of range")
+        parts = []
+        for length in (unary_key_len, ((n - 1) * k_key + 7) // 8, unary_area_len, (n * k_area + 7) // 8):
+            if offset + length > len(payload):
+                raise MapFormatError(f"{where}: page data is shorter than its run headers")
+            parts.append(bytes(view[offset : offset + length]))
+            offset += length
+        gaps = _rice_decode(n - 1, k_key, parts[0], parts[1], where)
+        run_keys = np.empty(n, np.uint64)
+        run_keys[0] = first
+        np.cumsum(gaps, out=run_keys[1:])
+        run_keys[1:] += np.uint64(first)
+        keys.append(run_keys)
+        labels.append(np.full(n, code, np.int32))
+        areas.append(median + _unzigzag(_rice_decode(n, k_area, parts[2], parts[3], where)))
+    if offset != len(payload):
+        raise MapFormatError(f"{where}: page length does not match its contents")
     key = np.concatenate(keys)
-    if key.size and (key.max() >= width * np.uint64(ey + 1)):
+    width = np.uint64(ex + 1)
+    if key.max() >= width * np.uint64(ey + 1):
         raise MapFormatError(f"{where}: page position outside its extent")
+    area_code = np.concatenate(areas)
+    if area_code.min() < 0 or area_code.max() > 65535:
+        raise MapFormatError(f"{where}: page area code out of range")
     qx = (key % width).astype(np.int64) + ox
     qy = (key // width).astype(np.int64) + oy
-    area_code = np.frombuffer(shuffled, np.uint8).reshape(2, count).T.copy().view("<u2").reshape(-1)
     return qx, qy, np.concatenate(labels), _area_decode(area_code)
 
 
@@ -329,7 +354,9 @@ def write_map(
     }
     for key, value in (metadata or {}).items():
         header.setdefault(key, value)
-    header_bytes = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    header_json = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
+    header_bytes = packer.compress(header_json) + packer.flush()
     prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, 0, len(header_bytes)) + header_bytes
     prefix += struct.pack("<I", zlib.crc32(prefix))
 
@@ -452,13 +479,17 @@ class MetaMap(MapBase):
         if zlib.crc32(head + header_bytes) != crc:
             raise MapFormatError(f"{where}: header checksum mismatch (file is corrupt)")
         try:
-            header = json.loads(header_bytes.decode("utf-8"))
+            unpacker = zlib.decompressobj(-15)
+            header_json = unpacker.decompress(header_bytes, _MAX_HEADER)
+            if unpacker.unconsumed_tail:
+                raise MapFormatError(f"{where}: header inflates past {_MAX_HEADER} bytes")
+            header = json.loads(header_json.decode("utf-8"))
             n_pages = int(header["pages"])
             self.quantum = float(header["quantum"])
             self.crs = str(header.get("crs_wkt") or header["crs"])
             self.labels = tuple(str(d["name"]) for d in header["labels"])
             self.bounds = tuple(float(v) for v in header["bounds"])
-        except (ValueError, KeyError, TypeError):
+        except (ValueError, KeyError, TypeError, zlib.error):
             raise MapFormatError(f"{where}: header is not valid map metadata") from None
         dir_start = _PREFIX.size + header_len + 4
         dir_len = n_pages * _DIR_RECORD.size

@@ -170,7 +170,8 @@ def test_newer_version_refused(written):
 
 
 def forge(path, header: dict, directory: bytes = b"", pages: bytes = b"") -> None:
-    body = json.dumps(header).encode()
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
+    body = packer.compress(json.dumps(header).encode()) + packer.flush()
     prefix = struct.pack("<8sHHI", MAGIC, 1, 0, len(body)) + body
     path.write_bytes(prefix + struct.pack("<I", zlib.crc32(prefix)) + directory + pages)
 

@@ -12,14 +12,13 @@ from pathlib import Path
 from ..errors import MapdbIOError, SourceError
 from ..labels import LabelTable
 from ..objects import Objects
+from .landcover import RASTER_SUFFIXES, read_landcover
+from .layers import LAYER_SUFFIXES, read_layer
+from .osm import OSM_SUFFIXES, read_osm
 
 __all__ = ["SOURCE_KINDS", "read_source", "source_kind"]
 
-SOURCE_KINDS = {
-    "osm": (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz"),
-    "landcover": (".tif", ".tiff", ".gtiff"),
-    "layer": (".geojson", ".json", ".gpkg", ".parquet", ".geoparquet", ".shp", ".fgb", ".csv"),
-}
+SOURCE_KINDS = {"osm": OSM_SUFFIXES, "landcover": RASTER_SUFFIXES, "layer": LAYER_SUFFIXES}
 
 
 def source_kind(path: str | Path) -> str:
@@ -65,14 +64,8 @@ def read_source(
     kind = source_kind(path)
     check_readable(path)
     if kind == "osm":
-        from .osm import read_osm
-
         return read_osm(path, table, bbox=bbox, progress=progress)
     if kind == "landcover":
-        from .landcover import read_landcover
-
         return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
                               progress=progress)
-    from .layers import read_layer
-
     return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox)

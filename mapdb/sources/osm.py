@@ -1,0 +1,481 @@
+"""OpenStreetMap source: labelled objects from ``.osm`` / ``.osm.pbf`` extracts.
+
+One pass of pyosmium's :class:`osmium.FileProcessor` with its node-location
+index and multipolygon assembly.  Tag filters run in C++, so only objects that
+some rule of the label table may match ever reach Python:
+
+* areas (closed ways and multipolygon relations, assembled by osmium) whose
+  tags match an ``"area"`` rule become one object at the area centroid, with
+  the area of the outer rings minus the inner rings;
+* tagged nodes matching a ``"node"`` rule become point objects (area 0);
+* ways matching a ``"way"`` rule (roundabouts drawn as rings) become one object
+  per group of such ways that share nodes, at the centroid of their lines;
+* road intersections are computed from the node lists of the highway ways named
+  in the table's intersection rule.
+
+Per object, Python does only the tag test and asks osmium for WKB; geometry
+(areas, centroids) is computed afterwards in batches with shapely and numpy.
+Coordinates stay in lon/lat (``EPSG:4326``); areas are in square metres.
+"""
+
+from __future__ import annotations
+
+import time
+from array import array
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import osmium
+import osmium.filter
+import shapely
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ..errors import MapdbIOError, SourceError
+from ..labels import IntersectionRule, LabelTable, TagRule
+from ..objects import Objects, concat
+
+__all__ = ["OSM_SUFFIXES", "is_osm_path", "read_osm"]
+
+OSM_SUFFIXES = (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz")
+
+# WGS84 ellipsoid.
+_A = 6378137.0
+_F = 1 / 298.257223563
+_E2 = _F * (2 - _F)
+
+# How often (seconds) a long read reports progress, and how many objects pass between clock checks.
+_PROGRESS_SECONDS = 2.0
+_PROGRESS_STRIDE = 4096
+
+Progress = Callable[[str], None]
+
+
+def is_osm_path(path: str | Path) -> bool:
+    """Whether a file name has one of the OSM suffixes in :data:`OSM_SUFFIXES`.
+
+    Examples
+    --------
+    >>> is_osm_path("monaco.osm.pbf"), is_osm_path("Area.OSM"), is_osm_path("map.tif")
+    (True, True, False)
+    """
+    return str(path).lower().endswith(OSM_SUFFIXES)
+
+
+def read_osm(
+    path: str | Path,
+    table: LabelTable,
+    bbox: tuple[float, float, float, float] | None = None,
+    progress: Progress | None = None,
+) -> Objects:
+    """Read the labelled objects of an OpenStreetMap extract.
+
+    Parameters
+    ----------
+    path : str or Path
+        An OSM file: ``.osm.pbf``, ``.osm`` XML, or XML compressed as ``.osm.gz`` / ``.osm.bz2``.
+    table : LabelTable
+        Labels and the OSM rules that produce them.  For each object only the
+        rules whose ``geometry`` includes the object's kind (area, node, way) are
+        tried, in table order; the first that matches gives the label.
+    bbox : (minlon, minlat, maxlon, maxlat), optional
+        Keep only objects whose centroid lies inside (edges included).
+    progress : callable, optional
+        Called with a one-line message now and then during long reads.
+
+    Returns
+    -------
+    Objects
+        ``x`` = longitude, ``y`` = latitude (``crs="EPSG:4326"``), label codes
+        into ``table.labels``, ``area`` in m^2 (0 for nodes and intersections).
+
+    Raises
+    ------
+    MapdbIOError
+        The file is missing or cannot be opened.
+    SourceError
+        The file is empty, truncated or not OSM data.
+
+    Examples
+    --------
+    >>> from mapdb.labels import default_label_table
+    >>> objects = read_osm("monaco.osm.pbf", default_label_table())  # doctest: +SKIP
+    >>> objects.counts()["building"]  # doctest: +SKIP
+    1205
+    """
+    path = Path(path)
+    _check_readable(path)
+    if bbox is not None:
+        bbox = tuple(float(v) for v in bbox)
+        if len(bbox) != 4 or not (bbox[0] <= bbox[2] and bbox[1] <= bbox[3]):
+            raise ValueError(f"bbox must be (minlon, minlat, maxlon, maxlat) with min <= max, got {bbox}")
+    report = progress or (lambda message: None)
+    started = time.monotonic()
+    report(f"{path}: reading OpenStreetMap data")
+    try:
+        collected = _scan(path, table, report)
+    except (RuntimeError, UnicodeDecodeError, osmium.InvalidLocationError) as exc:
+        # libosmium reports bad input (XML syntax, PBF framing, unknown format) as RuntimeError.
+        detail = " ".join(str(exc).split()) or exc.__class__.__name__
+        raise SourceError(f"{path}: not a readable OSM file ({detail})") from None
+
+    parts = [
+        _point_objects(collected.node_lon, collected.node_lat, collected.node_code, table.labels),
+        _area_objects(collected.area_wkb, collected.area_code, table.labels),
+        _way_objects(collected, table.labels),
+    ]
+    if table.intersections is not None:
+        parts.append(_intersection_objects(collected, table.intersections, table.labels))
+    objects = concat(parts, labels=table.labels)
+    if bbox is not None:
+        lon, lat = objects.x, objects.y
+        objects = objects.take((lon >= bbox[0]) & (lon <= bbox[2]) & (lat >= bbox[1]) & (lat <= bbox[3]))
+    counts = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
+    report(f"{path}: {len(objects):,} objects in {time.monotonic() - started:.1f} s ({counts})")
+    return objects
+
+
+# --------------------------------------------------------------------------------------------------
+# Reading
+
+
+def _check_readable(path: Path) -> None:
+    """Fail early with a clear message: osmium's own errors for these cases are less helpful."""
+    try:
+        with path.open("rb") as f:
+            first = f.read(1)
+    except FileNotFoundError:
+        raise MapdbIOError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise MapdbIOError(f"{path}: is a directory, not an OSM file") from None
+    except OSError as exc:
+        raise MapdbIOError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not first:
+        raise SourceError(f"{path}: not a readable OSM file (empty file)")
+    if not is_osm_path(path):
+        raise SourceError(f"{path}: not a readable OSM file (name must end in {', '.join(OSM_SUFFIXES)})")
+
+
+class _Collected:
+    """What the single pass over the file keeps: small per-object values in lists, arrays later."""
+
+    def __init__(self) -> None:
+        self.node_lon: list[float] = []
+        self.node_lat: list[float] = []
+        self.node_code: list[int] = []
+        self.area_wkb: list[str] = []
+        self.area_code: list[int] = []
+        # Ways matched by a "way" rule: node ids, locations and label code per way.
+        self.way_refs: list[list[int]] = []
+        self.way_lon: list[list[float]] = []
+        self.way_lat: list[list[float]] = []
+        self.way_code: list[int] = []
+        # Node ids of the road ways considered for intersections, flattened, with each way's length
+        # (typed arrays: 8 bytes an id instead of a Python int's 32, for country-sized extracts).
+        self.road_refs = array("q")
+        self.road_lengths = array("q")
+        self.locations: Any = None  # osmium's node location table, for looking up junction nodes
+
+
+def _rules_for(table: LabelTable, geometry: str) -> list[tuple[int, TagRule]]:
+    return [(table.code(r.label), r) for r in table.osm_rules if geometry in r.geometry]
+
+
+def _first_match(rules: list[tuple[int, TagRule]], tags: Any) -> int:
+    for code, rule in rules:
+        if rule.matches(tags.get(rule.key)):
+            return code
+    return -1
+
+
+def _tag_prefilter(rules: Sequence[TagRule], extra: Sequence[tuple[str, str]] = ()) -> Any:
+    """A C++ filter letting through (a superset of) the objects these rules can match; None if none can.
+
+    A TagFilter on (key, value) pairs is tighter, but a rule for any value of a key (``values``
+    omitted) needs a KeyFilter; the exact test, with ``exclude``, is made in Python.
+    """
+    if any(r.values is None for r in rules):
+        keys = sorted({r.key for r in rules} | {key for key, _ in extra})
+        return osmium.filter.KeyFilter(*keys)
+    pairs = sorted({(r.key, v) for r in rules for v in (r.values or ())} | set(extra))
+    return osmium.filter.TagFilter(*pairs) if pairs else None
+
+
+def _scan(path: Path, table: LabelTable, report: Progress) -> _Collected:
+    area_rules = _rules_for(table, "area")
+    node_rules = _rules_for(table, "node")
+    way_rules = _rules_for(table, "way")
+    roads = frozenset(table.intersections.highways) if table.intersections is not None else frozenset()
+
+    area_filter = _tag_prefilter([r for _, r in area_rules])
+    node_filter = _tag_prefilter([r for _, r in node_rules])
+    way_filter = _tag_prefilter([r for _, r in way_rules], [("highway", h) for h in sorted(roads)])
+
+    # flex_mem starts as a sparse index and turns dense only for big inputs: right for city and
+    # country extracts alike, and it is pyosmium's default.
+    processor = osmium.FileProcessor(str(path)).with_locations("flex_mem")
+    kinds = osmium.osm.NOTHING
+    if area_filter is not None:
+        # The same filter picks the multipolygon relations worth assembling in the first pass.
+        processor.with_areas(_tag_prefilter([r for _, r in area_rules]))
+        processor.with_filter(area_filter.enable_for(osmium.osm.AREA))
+        kinds |= osmium.osm.AREA
+    if node_filter is not None:
+        processor.with_filter(node_filter.enable_for(osmium.osm.NODE))
+        kinds |= osmium.osm.NODE
+    if way_filter is not None:
+        processor.with_filter(way_filter.enable_for(osmium.osm.WAY))
+        kinds |= osmium.osm.WAY
+    # Relations themselves (and changesets) are never objects: their areas come as Area objects.
+    processor.with_filter(osmium.filter.EntityFilter(kinds))
+
+    out = _Collected()
+    wkb = osmium.geom.WKBFactory()
+    seen = 0
+    last_report = time.monotonic()
+    for obj in processor:
+        seen += 1
+        if seen % _PROGRESS_STRIDE == 0 and time.monotonic() - last_report >= _PROGRESS_SECONDS:
+            last_report = time.monotonic()
+            report(f"{path}: {seen:,} tagged objects read")
+        kind = obj.type_str()
+        if kind == "a":
+            code = _first_match(area_rules, obj.tags)
+            if code >= 0:
+                try:
+                    geometry = wkb.create_multipolygon(obj)
+                except (RuntimeError, osmium.InvalidLocationError):  # no geometry: not an object
+                    continue
+                out.area_wkb.append(geometry)
+                out.area_code.append(code)
+        elif kind == "n":
+            code = _first_match(node_rules, obj.tags)
+            if code >= 0:
+                location = obj.location
+                if location.valid():
+                    out.node_lon.append(location.lon)
+                    out.node_lat.append(location.lat)
+                    out.node_code.append(code)
+        elif kind == "w":
+            tags = obj.tags
+            code = _first_match(way_rules, tags)
+            if code >= 0:
+                nodes = [n for n in obj.nodes if n.location.valid()]
+                if nodes:
+                    out.way_refs.append([n.ref for n in nodes])
+                    out.way_lon.append([n.lon for n in nodes])
+                    out.way_lat.append([n.lat for n in nodes])
+                    out.way_code.append(code)
+            if roads and tags.get("highway") in roads:
+                refs = [n.ref for n in obj.nodes]
+                if len(refs) >= 2:
+                    out.road_refs.extend(refs)
+                    out.road_lengths.append(len(refs))
+    out.locations = processor.node_location_storage
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# Geometry: local equal-area coordinates
+#
+# x = N(lat0) * cos(lat) * (lon - lon0), y = M(lat0) * (lat - lat0), in radians, with the meridional
+# (M) and prime-vertical (N) radii of curvature of the ellipsoid frozen at the object's reference
+# latitude lat0.  The Jacobian is M(lat0) N(lat0) cos(lat): the ellipsoid's own area element with
+# M and N taken constant, so areas are exact up to the change of M and N across one object (below
+# 1e-3 relative for objects under 100 km).  Centroids computed in these coordinates are area
+# centroids and map back exactly.
+
+
+def _radii(lat0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    s2 = np.sin(np.radians(lat0)) ** 2
+    w = np.sqrt(1 - _E2 * s2)
+    return _A * (1 - _E2) / w**3, _A / w
+
+
+def _to_local(lon: np.ndarray, lat: np.ndarray, lon0: np.ndarray, lat0: np.ndarray) -> np.ndarray:
+    m, n = _radii(lat0)
+    x = n * np.cos(np.radians(lat)) * np.radians(lon - lon0)
+    y = m * np.radians(lat - lat0)
+    return np.column_stack([x, y])
+
+
+def _from_local(
+    x: np.ndarray, y: np.ndarray, lon0: np.ndarray, lat0: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    m, n = _radii(lat0)
+    lat = lat0 + np.degrees(y / m)
+    lon = lon0 + np.degrees(x / (n * np.cos(np.radians(lat))))
+    return lon, lat
+
+
+def _point_objects(lon: list[float], lat: list[float], code: list[int], labels: tuple[str, ...]) -> Objects:
+    return Objects(np.asarray(lon, float), np.asarray(lat, float), np.asarray(code, np.int32),
+                   np.zeros(len(code)), labels, "EPSG:4326")
+
+
+def _area_objects(wkbs: list[str], codes: list[int], labels: tuple[str, ...]) -> Objects:
+    """Centroid and m^2 area of osmium's multipolygons, all in a few vectorised shapely calls."""
+    if not wkbs:
+        return Objects.empty(labels, "EPSG:4326")
+    geoms = shapely.from_wkb(np.asarray(wkbs, dtype=object))
+    bounds = shapely.bounds(geoms)
+    lon0 = (bounds[:, 0] + bounds[:, 2]) / 2
+    lat0 = (bounds[:, 1] + bounds[:, 3]) / 2
+    coords, owner = shapely.get_coordinates(geoms, return_index=True)
+    local = shapely.set_coordinates(geoms, _to_local(coords[:, 0], coords[:, 1], lon0[owner], lat0[owner]))
+    area = shapely.area(local)
+    centroid = shapely.get_coordinates(shapely.centroid(local))
+    lon, lat = _from_local(centroid[:, 0], centroid[:, 1], lon0, lat0)
+    keep = np.isfinite(lon) & np.isfinite(lat)
+    return Objects(lon[keep], lat[keep], np.asarray(codes, np.int32)[keep], area[keep], labels, "EPSG:4326")
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected-component id of each of ``n`` vertices joined by edges ``a[i]--b[i]``."""
+    graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _way_objects(c: _Collected, labels: tuple[str, ...]) -> Objects:
+    """One object per group of same-label ways sharing nodes (the pieces of one roundabout).
+
+    Centroid: length-weighted centroid of the group's lines.  Area: the convex hull of the
+    group's nodes, which for a roundabout ring is the ground it encloses (0 for a straight line).
+    """
+    if not c.way_code:
+        return Objects.empty(labels, "EPSG:4326")
+    lengths = np.array([len(r) for r in c.way_refs])
+    way_of_node = np.repeat(np.arange(lengths.size), lengths)
+    refs = np.concatenate([np.asarray(r, np.int64) for r in c.way_refs])
+    lon = np.concatenate([np.asarray(v, float) for v in c.way_lon])
+    lat = np.concatenate([np.asarray(v, float) for v in c.way_lat])
+    codes = np.asarray(c.way_code, np.int32)
+
+    # Ways join when they share a node and a label: components of the way--node bipartite graph,
+    # nodes keyed by (id, label) so that differently labelled ways never merge.
+    _, node_index = np.unique(np.column_stack([refs, codes[way_of_node]]), axis=0, return_inverse=True)
+    node_index = node_index.reshape(-1)
+    n_ways = lengths.size
+    group_of_way = _components(n_ways + int(node_index.max()) + 1, way_of_node, n_ways + node_index)[:n_ways]
+    _, group_of_way = np.unique(group_of_way, return_inverse=True)
+    n_groups = int(group_of_way.max()) + 1
+    group = group_of_way[way_of_node]
+
+    count = np.bincount(group, minlength=n_groups)
+    lon0 = np.bincount(group, lon, n_groups) / count
+    lat0 = np.bincount(group, lat, n_groups) / count
+    xy = _to_local(lon, lat, lon0[group], lat0[group])
+
+    # Segments inside each way (not across the boundary between two consecutive ways).
+    same_way = way_of_node[1:] == way_of_node[:-1]
+    seg_len = np.hypot(*(xy[1:] - xy[:-1]).T) * same_way
+    seg_mid = (xy[1:] + xy[:-1]) / 2
+    seg_group = group[1:]
+    total = np.bincount(seg_group, seg_len, n_groups)
+    mean_x = np.bincount(group, xy[:, 0], n_groups) / count
+    mean_y = np.bincount(group, xy[:, 1], n_groups) / count
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cx = np.where(total > 0, np.bincount(seg_group, seg_len * seg_mid[:, 0], n_groups) / total, mean_x)
+        cy = np.where(total > 0, np.bincount(seg_group, seg_len * seg_mid[:, 1], n_groups) / total, mean_y)
+    out_lon, out_lat = _from_local(cx, cy, lon0, lat0)
+
+    order = np.argsort(group, kind="stable")
+    hulls = shapely.convex_hull(shapely.multipoints(xy[order], indices=group[order]))
+    area = shapely.area(hulls)
+    group_code = np.zeros(n_groups, np.int32)
+    group_code[group_of_way] = codes
+    return Objects(out_lon, out_lat, group_code, area, labels, "EPSG:4326")
+
+
+# --------------------------------------------------------------------------------------------------
+# Road intersections
+
+
+def _ecef(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
+    """Earth-centred metric coordinates on the ellipsoid: straight-line distances are true metres."""
+    lam, phi = np.radians(lon), np.radians(lat)
+    n = _A / np.sqrt(1 - _E2 * np.sin(phi) ** 2)
+    return np.column_stack([n * np.cos(phi) * np.cos(lam), n * np.cos(phi) * np.sin(lam),
+                            n * (1 - _E2) * np.sin(phi)])
+
+
+def _ecef_to_lonlat(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    p = np.hypot(xyz[:, 0], xyz[:, 1])
+    # Exact on the ellipsoid's surface; means of points metres apart lie millimetres below it.
+    return np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0])), np.degrees(np.arctan2(xyz[:, 2], (1 - _E2) * p))
+
+
+def _junction_node_ids(refs: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Ids of nodes with three or more arms in the network of the given ways.
+
+    Parameters
+    ----------
+    refs : array of int
+        Node ids of all ways, concatenated.
+    lengths : array of int
+        Number of nodes of each way (each at least 2).
+
+    Returns
+    -------
+    ndarray of int64
+        Sorted ids of the nodes with edges to three or more distinct neighbour nodes.
+
+    Notes
+    -----
+    "Arms" are counted as distinct neighbouring nodes over all ways.  A node where one road simply
+    continues in its next way has two arms, whatever the names of the two ways (an unnamed road
+    split at a bridge, a road whose name changes): it is not an intersection.  Two or more distinct
+    roads meeting (a T has three arms, a crossing four) always give three or more.  This makes the
+    "distinct roads" test independent of ``name``/``ref`` tagging, which is often missing.
+
+    Examples
+    --------
+    A T junction: a road 1-2-3 split into two ways at node 2 and a side road 2-4.
+
+    >>> _junction_node_ids(np.array([1, 2, 2, 3, 2, 4]), np.array([2, 2, 2])).tolist()
+    [2]
+    """
+    refs = np.asarray(refs, np.int64)
+    lengths = np.asarray(lengths, np.int64)
+    if refs.size < 2:
+        return np.zeros(0, np.int64)
+    ids, index = np.unique(refs, return_inverse=True)
+    index = index.reshape(-1)
+    way = np.repeat(np.arange(lengths.size), lengths)
+    inside = (way[1:] == way[:-1]) & (index[1:] != index[:-1])
+    a, b = index[:-1][inside], index[1:][inside]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    edges = np.unique(lo * ids.size + hi)
+    arms = np.bincount(edges // ids.size, minlength=ids.size) + np.bincount(edges % ids.size, minlength=ids.size)
+    return ids[arms >= 3]
+
+
+def _intersection_objects(c: _Collected, rule: IntersectionRule, labels: tuple[str, ...]) -> Objects:
+    """Junction nodes of the road network, those of one crossing within ``merge_distance_m`` merged."""
+    junctions = _junction_node_ids(np.frombuffer(c.road_refs, np.int64), np.frombuffer(c.road_lengths, np.int64))
+    if c.way_refs:
+        # A junction on a way that is an object of its own (a roundabout ring) is part of that
+        # object: the camera sees one roundabout, not one intersection per entry.
+        junctions = junctions[~np.isin(junctions, np.concatenate([np.asarray(r) for r in c.way_refs]))]
+    lon, lat = [], []
+    for node_id in junctions.tolist():
+        try:
+            location = c.locations.get(node_id)
+        except KeyError:  # a node outside the extract: no location, no object
+            continue
+        lon.append(location.lon)
+        lat.append(location.lat)
+    if not lon:
+        return Objects.empty(labels, "EPSG:4326")
+    xyz = _ecef(np.asarray(lon), np.asarray(lat))
+    pairs = cKDTree(xyz).query_pairs(rule.merge_distance_m, output_type="ndarray")
+    cluster = _components(len(xyz), pairs[:, 0], pairs[:, 1])
+    n = int(cluster.max()) + 1
+    size = np.bincount(cluster, minlength=n)
+    mean = np.column_stack([np.bincount(cluster, xyz[:, k], n) / size for k in range(3)])
+    out_lon, out_lat = _ecef_to_lonlat(mean)
+    code = np.full(n, labels.index(rule.label), np.int32)
+    return Objects(out_lon, out_lat, code, np.zeros(n), labels, "EPSG:4326")
