@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -68,8 +69,13 @@ def export_map(m: MetaMap, output: str | Path, bbox: tuple[float, float, float, 
         elif EXPORT_FORMATS[suffix] is None:
             frame.to_parquet(tmp)
         else:
-            frame.to_file(tmp, driver=EXPORT_FORMATS[suffix], engine="pyogrio")
+            # the layer is named after the requested file, not the temporary one
+            layer = re.sub(r"\W", "_", output.stem) or "objects"
+            frame.to_file(tmp, driver=EXPORT_FORMATS[suffix], engine="pyogrio", layer=layer)
         os.replace(tmp, output)
+    except Exception as exc:
+        Path(tmp).unlink(missing_ok=True)
+        raise MapdbIOError(f"{output}: cannot write export ({exc})") from exc
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

@@ -49,7 +49,7 @@ def test_round_trip_positions_labels_areas(written):
         assert np.array_equal(stored.label[index], objects.label)
         nonzero = objects.area > 0
         rel = np.abs(stored.area[index][nonzero] / objects.area[nonzero] - 1)
-        assert rel.max() < 0.022
+        assert rel.max() < 0.045
         assert np.all(stored.area[index][~nonzero] == 0)
         # positions lie on the quantum grid
         assert np.allclose(np.round(stored.x / 0.1) * 0.1, stored.x)
@@ -110,8 +110,8 @@ def test_storage_is_compact(tmp_path):
     objects = random_objects(20000, span=3000.0)
     write_map(tmp_path / "c.mapdb", objects)
     # 20000 random objects of 4 labels over 3 x 1.8 km at 0.1 m: positions and labels carry about 2.4 bytes
-    # of entropy an object, log-quantized areas about 0.8; raw float64 columns would take 25 bytes.
-    assert (tmp_path / "c.mapdb").stat().st_size / len(objects) < 3.6
+    # of entropy an object, log-quantized areas about 0.6; raw float64 columns would take 25 bytes.
+    assert (tmp_path / "c.mapdb").stat().st_size / len(objects) < 3.3
 
 
 def test_failed_write_keeps_earlier_map(written):
