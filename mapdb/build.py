@@ -58,6 +58,16 @@ def _to_lonlat(objects: Objects) -> tuple[np.ndarray, np.ndarray]:
     return Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(objects.x, objects.y)
 
 
+def _projected_crs(crs: str) -> str:
+    try:
+        parsed = CRS.from_user_input(crs)
+    except Exception:
+        raise SourceError(f"--crs {crs}: not a CRS that pyproj knows") from None
+    if not parsed.is_projected:
+        raise SourceError(f"--crs {crs}: a map needs a projected CRS in metres")
+    return parsed.to_string()
+
+
 def build_map(
     sources: Sequence[str | Path],
     output: str | Path,
@@ -103,6 +113,7 @@ def build_map(
         raise SourceError("no sources given")
     for path in sources:  # fail on a bad name before spending time on the others
         source_kind(path)
+    target = None if crs == "auto" else _projected_crs(crs)
     table = load_label_table(labels)
     say = progress or (lambda message: None)
     parts, described = [], []
@@ -132,14 +143,6 @@ def build_map(
         all_lon = np.concatenate([lon for lon, _ in lonlat])
         all_lat = np.concatenate([lat for _, lat in lonlat])
         target = utm_crs_for(float(np.median(all_lon)), float(np.median(all_lat)))
-    else:
-        try:
-            target_crs = CRS.from_user_input(crs)
-        except Exception:
-            raise SourceError(f"--crs {crs}: not a CRS that pyproj knows") from None
-        if not target_crs.is_projected:
-            raise SourceError(f"--crs {crs}: a map needs a projected CRS in metres")
-        target = target_crs.to_string()
     projected = []
     to_target = Transformer.from_crs("EPSG:4326", target, always_xy=True)
     for p, (lon, lat) in zip(parts, lonlat, strict=True):
