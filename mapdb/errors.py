@@ -8,6 +8,10 @@ file it is about: the CLI prints ``str(exc)`` and nothing else.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
 __all__ = [
     "EmptyMapError",
     "ImageInputError",
@@ -17,6 +21,7 @@ __all__ = [
     "MapdbError",
     "MapdbIOError",
     "SourceError",
+    "reading",
 ]
 
 
@@ -50,3 +55,26 @@ class EmptyMapError(MapdbError, ValueError):
 
 class ImageInputError(MapdbError, ValueError):
     """An image-objects document (query input) is malformed."""
+
+
+@contextmanager
+def reading(path: str | Path, what: str = "file") -> Iterator[None]:
+    """Turn the OS errors of opening or reading ``path`` into one-line :class:`MapdbIOError` errors.
+
+    Examples
+    --------
+    >>> with reading("/no/such/place.osm", "OSM file"):
+    ...     open("/no/such/place.osm").close()
+    Traceback (most recent call last):
+    mapdb.errors.MapdbIOError: /no/such/place.osm: no such OSM file
+    """
+    try:
+        yield
+    except FileNotFoundError:
+        raise MapdbIOError(f"{path}: no such {what}") from None
+    except IsADirectoryError:
+        raise MapdbIOError(f"{path}: is a directory, not a {what}") from None
+    except OSError as exc:
+        if isinstance(exc, MapdbError):
+            raise
+        raise MapdbIOError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None

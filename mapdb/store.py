@@ -39,7 +39,7 @@ from pyproj import CRS, Transformer
 from rtree import index as rtree_index
 
 from . import __version__
-from .errors import EmptyMapError, MapdbIOError, MapFormatError, MapVersionError
+from .errors import EmptyMapError, MapFormatError, MapVersionError, reading
 from .objects import Objects
 
 __all__ = [
@@ -466,14 +466,8 @@ class MetaMap(MapBase):
         super().__init__()
         self.path = Path(path)
         where = str(self.path)
-        try:
+        with reading(where, "map file"):
             self._file = open(self.path, "rb")  # noqa: SIM115 - kept open for page reads until close()
-        except FileNotFoundError:
-            raise MapdbIOError(f"{where}: no such map file") from None
-        except IsADirectoryError:
-            raise MapdbIOError(f"{where}: is a directory, not a map file") from None
-        except OSError as exc:
-            raise MapdbIOError(f"{where}: cannot open map file ({exc.strerror})") from None
         try:
             self._read_header(where)
         except BaseException:

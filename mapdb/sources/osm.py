@@ -34,7 +34,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ..errors import MapdbIOError, SourceError
+from ..errors import SourceError, reading
 from ..labels import IntersectionRule, LabelTable, TagRule
 from ..objects import Objects, concat
 
@@ -144,15 +144,8 @@ def read_osm(
 
 def _check_readable(path: Path) -> None:
     """Fail early with a clear message: osmium's own errors for these cases are less helpful."""
-    try:
-        with path.open("rb") as f:
-            first = f.read(1)
-    except FileNotFoundError:
-        raise MapdbIOError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise MapdbIOError(f"{path}: is a directory, not an OSM file") from None
-    except OSError as exc:
-        raise MapdbIOError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    with reading(path, "file"), path.open("rb") as f:
+        first = f.read(1)
     if not first:
         raise SourceError(f"{path}: not a readable OSM file (empty file)")
     if not is_osm_path(path):
