@@ -14,6 +14,10 @@ COMMANDS = [
     "build",
     "info",
     "export",
+    "simulate",
+    "evaluate",
+    "bench",
+    "query",
 ]
 
 

@@ -1,0 +1,101 @@
+"""``mapdb simulate``: simulated camera images of a map, in the query input format, with their truth."""
+
+from __future__ import annotations
+
+import click
+
+from mapdb.simulate import map_bbox_from_lonlat, simulate_images, write_images
+from mapdb.store import open_map
+
+from .options import bbox_option, debug_option, handle_errors, progress_printer, quiet_option
+
+
+def parse_range(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
+    """``"100"`` -> 100.0; ``"60:400"`` -> (60.0, 400.0), drawn uniformly per image."""
+    if value is None:
+        return None
+    try:
+        parts = [float(v) for v in value.split(":")]
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a number or LOW:HIGH") from None
+    if len(parts) == 1 and parts[0] > 0:
+        return parts[0]
+    if len(parts) == 2 and 0 < parts[0] <= parts[1]:
+        return (parts[0], parts[1])
+    raise click.BadParameter(f"{value!r} must be a positive number or LOW:HIGH with 0 < LOW <= HIGH")
+
+
+def parse_size(ctx: click.Context | None, param: click.Parameter | None, value: str):
+    try:
+        w, h = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not WIDTHxHEIGHT (e.g. 640x480)") from None
+    if w <= 0 or h <= 0:
+        raise click.BadParameter(f"{value!r}: width and height must be positive")
+    return w, h
+
+
+def parse_yaw(ctx: click.Context | None, param: click.Parameter | None, value: str):
+    if value.lower() == "random":
+        return "random"
+    try:
+        return float(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not degrees or 'random'") from None
+
+
+rate = click.FloatRange(0.0, 1.0)
+non_negative = click.FloatRange(0.0, None)
+
+
+@click.command()
+@click.argument("map_file", metavar="MAP", type=click.Path())
+@click.option("-o", "--output", default="-", metavar="IMAGES.jsonl", help="Output file (default stdout).")
+@click.option("--n", "n_images", type=click.IntRange(0, None), default=100, show_default=True, help="Images.")
+@click.option("--altitude", default="100", callback=parse_range, show_default=True,
+              help="Height above ground, metres, or LOW:HIGH drawn per image.")
+@click.option("--fov", default="35", callback=parse_range, show_default=True,
+              help="Horizontal field of view, degrees, or LOW:HIGH drawn per image.")
+@click.option("--size", default="640x480", callback=parse_size, show_default=True, help="Image size WxH.")
+@click.option("--yaw", default="0", callback=parse_yaw, show_default=True,
+              help="Heading, degrees clockwise from north, or 'random'.")
+@click.option("--attitude-std", type=non_negative, default=0.0, show_default=True,
+              help="Roll and pitch error std, degrees.")
+@click.option("--pixel-std", type=non_negative, default=0.0, show_default=True,
+              help="Detector position error std per axis, pixels.")
+@click.option("--miss-rate", type=rate, default=0.0, show_default=True,
+              help="Fraction of visible objects the detector misses.")
+@click.option("--spurious-rate", type=non_negative, default=0.0, show_default=True,
+              help="Extra objects per true object, at random pixels.")
+@click.option("--label-noise", type=rate, default=0.0, show_default=True,
+              help="Fraction of objects given a wrong label.")
+@click.option("--with-prior", type=click.FloatRange(0.0, None, min_open=True), default=None, metavar="R",
+              help="Add a prior of radius R metres centred within R of the truth.")
+@click.option("--with-attitude", is_flag=True, help="Add the true roll and pitch (as an AHRS would).")
+@click.option("--with-altitude", is_flag=True, help="Add the true height above ground (as an altimeter would).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same images.")
+@bbox_option
+@quiet_option
+@debug_option
+@handle_errors
+def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std, pixel_std, miss_rate,
+             spurious_rate, label_noise, with_prior, with_attitude, with_altitude, seed, bbox, quiet, debug):
+    """Simulate downward-looking camera images of MAP, one JSON object per line.
+
+    Camera positions are uniform over the map (or --bbox), keeping the image footprint inside it. Each
+    image carries its "truth": camera nadir x, y (map CRS), heading, altitude, roll, pitch, the map
+    objects it shows, and the "bound" (the fit with the true correspondences).
+    """
+    say = progress_printer(quiet)
+    with open_map(map_file) as m:
+        area = map_bbox_from_lonlat(m.crs, bbox) if bbox else None
+        images = simulate_images(
+            m, n_images, altitude=altitude, fov_deg=fov, size=size, yaw=yaw, attitude_std=attitude_std,
+            pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
+            with_prior=with_prior, with_attitude=with_attitude, with_altitude=with_altitude, bbox=area,
+            seed=seed,
+        )
+    write_images(images, output)
+    if say:
+        n_obj = sum(len(im["objects"]) for im in images)
+        say(f"{len(images)} images, {n_obj / max(len(images), 1):.1f} objects per image -> {output}")

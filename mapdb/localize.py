@@ -1,0 +1,351 @@
+"""Localize images in a map: image objects in, position (or a reasoned rejection) out.
+
+:func:`localize` answers one image; :func:`localize_documents` answers every
+document of a JSON Lines file in input order, a malformed line becoming a
+``rejected`` record so that one bad line never stops a batch.
+
+The answer (one JSON-able dict)::
+
+    {"id": ..., "status": "ok", "x": ..., "y": ..., "lon": ..., "lat": ..., "crs": "EPSG:...",
+     "inliers": 14, "heading_deg": ..., "scale_m_per_px": ..., "sigma_m": ..., "score": ...,
+     "altitude_m": ...,                      # when the field of view is known
+     "candidates": [{"x": ..., "y": ..., "inliers": ..., "score": ...}, ...], "time_ms": ...}
+    {"id": ..., "status": "rejected", "reason": "...", "candidates": [...], "time_ms": ...}
+
+* ``x``, ``y``: the map point under the image centre; when roll, pitch and the
+  field of view are given, the image is first levelled
+  (:func:`mapdb.simulate.level_pixels`) and the point is the camera nadir.
+* ``heading_deg``: the direction the image's *up* points to, clockwise from map
+  north (the simulator's yaw).
+* ``scale_m_per_px``: ground size of a pixel at the image centre.
+* ``sigma_m``: estimated 1-sigma error of ``x`` (and of ``y``) in metres, from the
+  fit residuals and the inliers' spread; errors that shift all objects alike
+  (an attitude error not given) are not in it.
+* ``score``: ``-log10`` of the number of false alarms (fast method): above 3
+  means fewer than one chance in a thousand that so good a match arises from
+  objects unrelated to the map.  None for the paper method, which has no such
+  measure.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable, Iterator
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from .errors import ImageInputError
+from .images import ImageObjects, parse_image
+from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
+from .match.paper import PaperOptions, match_paper
+
+__all__ = [
+    "METHODS",
+    "SCALE_TOLERANCE",
+    "localize",
+    "localize_documents",
+    "prior_margin",
+]
+
+METHODS = ("fast", "paper")
+# With a known altitude and field of view the scale is known up to terrain relief and altimeter error;
+# hypotheses off by more than this factor are not considered.
+SCALE_TOLERANCE = 1.5
+# With a prior but no known scale, objects this far beyond the prior radius (or the radius itself, if
+# larger) are read so that the edges of the image are matched too.
+DEFAULT_PRIOR_MARGIN_M = 300.0
+# With a prior, quad indexes are built and cached per square tile of the map (only the pages near the
+# prior are read); a tile's anchors find their neighbours within this margin around it.
+TILE_SIZE_M = 1000.0
+TILE_PAD_M = 150.0
+
+
+def _rounded(value: float, digits: int) -> float:
+    return float(round(value, digits))
+
+
+@lru_cache(maxsize=16)
+def _transformer(src: str, dst: str) -> Any:
+    from pyproj import Transformer
+
+    return Transformer.from_crs(src, dst, always_xy=True)
+
+
+def _to_lonlat(crs: str, x: float, y: float) -> tuple[float | None, float | None]:
+    if not crs:
+        return None, None
+    try:
+        lon, lat = _transformer(crs, "EPSG:4326").transform(x, y)
+    except Exception:  # pyproj raises several kinds; lon/lat is a convenience, not the answer
+        return None, None
+    if not (math.isfinite(lon) and math.isfinite(lat)):
+        return None, None
+    return _rounded(lon, 8), _rounded(lat, 8)
+
+
+def _image_id(image: Any) -> Any:
+    if isinstance(image, ImageObjects):
+        return image.id
+    if isinstance(image, dict):
+        value = image.get("id")
+        return value if isinstance(value, str | int) and not isinstance(value, bool) else None
+    return None
+
+
+def prior_margin(radius: float, half_diagonal_m: float | None) -> float:
+    """How far beyond a prior's radius map objects are read: the footprint's half-diagonal if known."""
+    if half_diagonal_m is not None:
+        return 1.2 * half_diagonal_m
+    return max(radius, DEFAULT_PRIOR_MARGIN_M)
+
+
+def _fast_indexes(map_: Any, options: FastOptions, prior: tuple[float, float, float] | None, margin: float):
+    """The fast matcher's indexes: objects to verify against and quad indexes to look hypotheses up in.
+
+    Without a prior: the whole map's, built on first use and cached on the map.  With one: the objects
+    within the prior radius plus ``margin`` (read through the map's R-tree), and the quad indexes of the
+    map tiles that disc touches, each built on first use and cached (a flight revisits its tiles) - unless
+    the whole map's quad index is already in memory, which then serves every prior.
+    """
+    state = map_.cached("mapdb.match.fast/state", dict)
+    key = f"quads/neighbours={options.map_neighbours}"
+    if prior is None:
+        objects = map_.cached("mapdb.match.fast/objects", lambda: ObjectIndex(map_.all(), bounds=map_.bounds))
+        if key not in state:
+            state[key] = QuadIndex(map_.all(), options.map_neighbours)
+        return objects, [state[key]]
+    x, y, r = prior
+    reach = r + margin
+    bounds = (x - reach, y - reach, x + reach, y + reach)
+    objects = ObjectIndex(map_.query_radius(x, y, reach), bounds=bounds)
+    if key in state:
+        return objects, [state[key]]
+    t = TILE_SIZE_M
+    tiles = []
+    for ix in range(math.floor(bounds[0] / t), math.floor(bounds[2] / t) + 1):
+        for iy in range(math.floor(bounds[1] / t), math.floor(bounds[3] / t) + 1):
+            # Only tiles that the disc reaches.
+            dx = max(ix * t - x, 0.0, x - (ix + 1) * t)
+            dy = max(iy * t - y, 0.0, y - (iy + 1) * t)
+            if dx * dx + dy * dy <= reach * reach:
+                tiles.append(map_.cached(f"mapdb.match.fast/{key}/tile={t:g}/{ix},{iy}",
+                                         lambda ix=ix, iy=iy: _tile_quads(map_, ix, iy, options)))
+    return objects, tiles
+
+
+def _tile_quads(map_: Any, ix: int, iy: int, options: FastOptions) -> QuadIndex:
+    """Quads anchored in one tile; neighbours are read from a margin around it."""
+    t, pad = TILE_SIZE_M, TILE_PAD_M
+    x0, y0 = ix * t, iy * t
+    objects = map_.query_bbox(x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad)
+    # Half-open tiles: an object on a shared edge anchors its quads in one tile only.
+    anchors = (objects.x >= x0) & (objects.x < x0 + t) & (objects.y >= y0) & (objects.y < y0 + t)
+    return QuadIndex(objects, options.map_neighbours, anchors=anchors)
+
+
+def _rejected(image_id: Any, reason: str, start: float, candidates: list | None = None, **extra: Any) -> dict:
+    record = {"id": image_id, "status": "rejected", "reason": reason, "candidates": candidates or []}
+    record.update(extra)
+    record["time_ms"] = _rounded((time.perf_counter() - start) * 1000.0, 3)
+    return record
+
+
+def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float] | None):
+    if im.prior is None:
+        return prior
+    p = im.prior
+    if not p.lonlat:
+        return (p.x, p.y, p.radius)
+    if not crs:
+        raise ImageInputError("prior: given in lon/lat but the map has no CRS to convert it to")
+    x, y = _transformer("EPSG:4326", crs).transform(p.x, p.y)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise ImageInputError(f"prior: lon {p.x}, lat {p.y} is outside the map's CRS ({crs})")
+    return (float(x), float(y), p.radius)
+
+
+def localize(
+    image: dict[str, Any] | ImageObjects,
+    map: Any,
+    method: str = "fast",
+    prior: tuple[float, float, float] | None = None,
+    *,
+    options: FastOptions | PaperOptions | None = None,
+    source: str = "image",
+) -> dict[str, Any]:
+    """Find where an image was taken.
+
+    Parameters
+    ----------
+    image : dict or ImageObjects
+        An image document (see :mod:`mapdb.images`) or an already parsed one.
+    map : MetaMap or MemoryMap
+        The map (:func:`mapdb.store.open_map`).  The fast method caches its index on it.
+    method : {"fast", "paper"}
+        The fast matcher (:mod:`mapdb.match.fast`) or the paper's Algorithm 1 (:mod:`mapdb.match.paper`;
+        seconds to minutes per image).
+    prior : (x, y, radius), optional
+        Map-CRS metres; used for images that carry no prior of their own.
+    options : FastOptions or PaperOptions, optional
+        The method's tuning.
+    source : str
+        Names the image in rejection reasons.
+
+    Returns
+    -------
+    dict
+        The answer record (module docs).  Bad input gives ``status: "rejected"`` with the reason;
+        nothing about the image raises.
+
+    Examples
+    --------
+    >>> from mapdb.objects import Objects
+    >>> from mapdb.store import MemoryMap
+    >>> m = MemoryMap(Objects.from_names([0.0, 50.0], [0.0, 0.0], ["building"] * 2, crs="EPSG:32631"))
+    >>> localize({"width": 640, "height": 480, "objects": []}, m)["reason"]
+    '0 objects: at least 3 are needed'
+    """
+    start = time.perf_counter()
+    image_id = _image_id(image)
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    try:
+        im = image if isinstance(image, ImageObjects) else parse_image(image, source)
+        prior = _resolve_prior(im, map.crs, prior)
+    except ImageInputError as exc:
+        message = str(exc)
+        reason = message[len(source) + 2 :] if message.startswith(f"{source}: ") else message
+        return _rejected(image_id, reason, start)
+    image_id = im.id if isinstance(im.id, str | int) else None
+    n = len(im)
+    if n < 3:
+        return _rejected(image_id, f"{n} objects: at least 3 are needed", start)
+    map_labels = tuple(map.labels)
+    known = {name: code for code, name in enumerate(map_labels)}
+    unknown = sorted({str(name) for name in im.names if name not in known})
+    if unknown:
+        listed = ", ".join(repr(u) for u in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
+        return _rejected(
+            image_id, f"unknown label{'s' if len(unknown) > 1 else ''} {listed}: the map has {', '.join(map_labels)}",
+            start,
+        )
+    codes = np.fromiter((known[name] for name in im.names), dtype=np.int64, count=n)
+
+    u, v = im.x, im.y
+    notes = []
+    levelled = False
+    if im.roll_deg is not None or im.pitch_deg is not None:
+        if im.fov_deg is None:
+            notes.append("attitude ignored: levelling the image needs camera.fov_deg")
+        else:
+            from .simulate import Camera, level_pixels
+
+            u, v = level_pixels(u, v, Camera(im.width, im.height, im.fov_deg), im.roll_deg or 0.0,
+                                im.pitch_deg or 0.0)
+            if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
+                return _rejected(image_id, "attitude puts objects at or above the horizon", start)
+            levelled = True
+    z = (u - im.width / 2.0) + 1j * (im.height / 2.0 - v)
+    diag_px = math.hypot(im.width, im.height)
+    focal_px = None if im.fov_deg is None else (im.width / 2.0) / math.tan(math.radians(im.fov_deg) / 2.0)
+    scale_range = None
+    half_diag_m = None
+    if focal_px is not None and im.altitude_m is not None:
+        s0 = im.altitude_m / focal_px
+        scale_range = (s0 / SCALE_TOLERANCE, s0 * SCALE_TOLERANCE)
+        half_diag_m = scale_range[1] * diag_px / 2.0
+
+    margin = prior_margin(prior[2], half_diag_m) if prior is not None else 0.0
+    if method == "fast":
+        opts = options if isinstance(options, FastOptions) else FastOptions()
+        objects, quads = _fast_indexes(map, opts, prior, margin)
+        result = match_fast(z, codes, objects, quads, diag_px, options=opts, prior=prior, scale_range=scale_range)
+        candidates = [
+            {"x": _rounded(c.b.real, 3), "y": _rounded(c.b.imag, 3), "inliers": c.inliers,
+             "score": _rounded(c.score, 2), "sigma_m": _rounded(c.sigma_m, 3)}
+            for c in result.candidates
+        ]
+        extra = {"hypotheses": result.n_hypotheses}
+        if notes:
+            extra["notes"] = notes
+        if result.best is None:
+            return _rejected(image_id, result.reason or "no match", start, candidates, **extra)
+        best = result.best
+        a, b = best.a, best.b
+        sigma = best.sigma_m
+        inliers, score = best.inliers, _rounded(best.score, 2)
+    else:
+        opts = options if isinstance(options, PaperOptions) else PaperOptions()
+        if prior is not None:
+            objects = map.query_radius(prior[0], prior[1], prior[2] + margin)
+        else:
+            objects = map.all()
+        result = match_paper(z, codes, objects, options=opts)
+        extra = {"notes": notes} if notes else {}
+        if result.best is None:
+            return _rejected(image_id, result.reason, start, [], **extra)
+        best = result.best
+        a, b = best.a, best.b
+        sigma, inliers, score = None, best.matched, None
+        extra["error_std"] = _rounded(best.error_std, 6)
+        candidates = []
+
+    lon, lat = _to_lonlat(map.crs, b.real, b.imag)
+    record: dict[str, Any] = {
+        "id": image_id,
+        "status": "ok",
+        "x": _rounded(b.real, 3),
+        "y": _rounded(b.imag, 3),
+        "lon": lon,
+        "lat": lat,
+        "crs": map.crs or None,
+        "inliers": int(inliers),
+        "heading_deg": _rounded((-math.degrees(np.angle(a))) % 360.0, 3),
+        "scale_m_per_px": _rounded(abs(a), 6),
+        "sigma_m": None if sigma is None else _rounded(sigma, 3),
+        "score": score,
+    }
+    if focal_px is not None:
+        record["altitude_m"] = _rounded(abs(a) * focal_px, 2)
+    record["levelled"] = levelled
+    record["candidates"] = candidates
+    record.update(extra)
+    record["time_ms"] = _rounded((time.perf_counter() - start) * 1000.0, 3)
+    return record
+
+
+def localize_documents(
+    documents: Iterable[tuple[str, Any]],
+    map: Any,
+    method: str = "fast",
+    prior: tuple[float, float, float] | None = None,
+    *,
+    options: FastOptions | PaperOptions | None = None,
+) -> Iterator[dict[str, Any]]:
+    """Answer every document of a batch, in order; a document that failed to decode is rejected.
+
+    Parameters
+    ----------
+    documents : iterable of (where, document or ImageInputError)
+        As :func:`mapdb.images.split_image_documents` or :func:`~mapdb.images.read_image_documents`
+        give them.
+    map, method, prior, options
+        As for :func:`localize`.
+
+    Yields
+    ------
+    dict
+        One answer per document; rejection reasons start with ``where``.
+    """
+    for where, doc in documents:
+        if isinstance(doc, Exception):
+            start = time.perf_counter()
+            yield _rejected(None, str(doc), start)
+            continue
+        record = localize(doc, map, method, prior, options=options, source=where)
+        if record["status"] == "rejected" and not record["reason"].startswith(where):
+            record["reason"] = f"{where}: {record['reason']}"
+        yield record

@@ -1,0 +1,230 @@
+"""The paper's pattern matcher (Kim, "Aerial map-based navigation using semantic segmentation and
+pattern matching", Algorithm 1), as published: the reference the fast matcher is measured against.
+
+For every 2-combination ``(o_i, o_j)`` of image objects, in polar coordinates
+``(r, theta)`` about the image centre, and every 2-permutation ``(O_I, O_J)`` of
+map objects with the same labels, the map point ``c`` is found from which
+``O_I`` and ``O_J`` are seen with the same relative angle and radius ratio
+(``Theta_I - Theta_J = theta_i - theta_j`` and ``R_I : R_J = r_i : r_j``; of the
+two circle intersections, the one with the same sign of the relative angle).
+Every other image object ``o_k`` is then compared with every other map object
+``O_K`` of its label: it matches if ``|r_k/r_i - R_k/R_I| < delta_r`` and
+``|(theta_i - theta_k) - (Theta_I - Theta_K)| < delta_theta``, with the error
+``e_k`` the sum of the two.  ``N_matched`` starts at 2; a candidate with
+``N_matched >= N_min`` has ``E = std({e_k})`` and replaces the best if
+``N_matched >= N_best and E < E_best``.  The answer is the best candidate's ``c``.
+
+Where the paper leaves a choice, this implementation decides as follows:
+
+* **How many map objects one image object may match.**  Algorithm 1 increments
+  ``N_matched`` inside the loop over map objects but indexes the error by the
+  image object (``e_k``); we read it as one match per image object: ``o_k``
+  counts once if any ``O_K`` is within both tolerances, and its ``e_k`` is the
+  smallest error among those.
+* **Coordinates.**  Image y points down; the image is flipped to y up before
+  taking polar angles, so that "the same sign of the relative angle" means the
+  same orientation as in the map (x east, y north).  Without the flip the
+  algorithm would look for the mirror image of the pattern.
+* **The circle intersection** is computed in closed form: the similarity taking
+  ``o_i -> O_I`` and ``o_j -> O_J`` maps the image centre to the intersection
+  with the right sign (it preserves both the radius ratio and the angle).
+* **Angles** are in radians, differences wrapped to ``(-pi, pi]``; ``delta_theta
+  = 0.2`` is read as radians, since the paper states its angles in ``(-pi, pi]``.
+* **Degenerate pairs**: an image object exactly at the image centre (``r_i = 0``)
+  has no ratio; such pairs are skipped.  ``std`` is the population standard
+  deviation (numpy's default) of the ``e_k`` of the ``N_matched - 2`` other
+  objects; the two objects of the pair carry no error.
+* **Order**: pairs in lexicographic order of image indices (combinations) and
+  map indices (permutations); the update rule is order-dependent, as published.
+
+The loops over map objects and the other image objects are vectorised with
+numpy (in chunks of map pairs); nothing is pruned, so the cost stays
+``O(n_img^3 n_map^3)`` - minutes per image on the paper's 214-object map.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+
+from ..objects import Objects
+
+__all__ = ["PaperMatch", "PaperOptions", "PaperResult", "match_paper"]
+
+
+@dataclass(frozen=True)
+class PaperOptions:
+    """The published parameters, plus a guard against runs that would take days.
+
+    Attributes
+    ----------
+    delta_r, delta_theta : float
+        Tolerances on the radius ratio and the relative angle (radians); paper: 0.2 and 0.2.
+    n_min : int
+        Matched objects (the pair included) needed for a candidate; paper: 6.
+    chunk : int
+        Map pairs evaluated at once (memory: about ``chunk * n_img * n_map * 40`` bytes).
+    max_work : float
+        Refuse images for which ``pairs of image objects * pairs of map objects * n_img * n_map`` exceeds
+        this (the paper set-up is about 2e10; a city map would be 1e15).
+    """
+
+    delta_r: float = 0.2
+    delta_theta: float = 0.2
+    n_min: int = 6
+    chunk: int = 256
+    max_work: float = 5e11
+
+
+@dataclass(frozen=True)
+class PaperMatch:
+    """The best candidate: map point under the image centre ``b`` and the pair's similarity ``a``."""
+
+    a: complex
+    b: complex
+    matched: int
+    error_std: float
+
+
+@dataclass(frozen=True)
+class PaperResult:
+    best: PaperMatch | None
+    reason: str | None
+    candidates_tested: int
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    """Angles to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - angle, 2.0 * np.pi)
+
+
+def match_paper(
+    z: np.ndarray, img_label: np.ndarray, objects: Objects, *, options: PaperOptions | None = None
+) -> PaperResult:
+    """Run Algorithm 1.
+
+    Parameters
+    ----------
+    z : complex array (n,)
+        Image objects in pixels relative to the image centre, y up.
+    img_label : int array (n,)
+        Label codes, in the same label table as ``objects``.
+    objects : Objects
+        The map objects to search (all of them, or those near a prior).
+    options : PaperOptions, optional
+
+    Returns
+    -------
+    PaperResult
+        ``best`` is None when no candidate reached ``n_min`` matched objects.
+
+    Examples
+    --------
+    Four points and their images under a similarity: every image pair finds the true centre.
+
+    >>> pts = np.array([0, 10, 10j, 7 + 3j, -4 + 8j, 3 - 6j])
+    >>> objs = Objects(pts.real, pts.imag, np.zeros(6, int), np.zeros(6), ("b",))
+    >>> res = match_paper((pts - (2 + 2j)) / 0.5, np.zeros(6, int), objs)
+    >>> complex(np.round(res.best.b, 9)), res.best.matched
+    ((2+2j), 6)
+    """
+    opts = options or PaperOptions()
+    z = np.asarray(z, dtype=np.complex128)
+    img_label = np.asarray(img_label, dtype=np.int64)
+    n_img = z.size
+    n_map = len(objects)
+    if n_img < 2:
+        return PaperResult(None, f"{n_img} objects: the paper's method needs pairs", 0)
+    if n_map < 2:
+        return PaperResult(None, f"the map has {n_map} objects here: the paper's method needs pairs", 0)
+    work = n_img * (n_img - 1) / 2 * n_map * (n_map - 1) * n_img * n_map
+    if work > opts.max_work:
+        return PaperResult(
+            None,
+            f"too large for the paper's method ({n_img} image objects x {n_map} map objects, about "
+            f"{work:.0e} comparisons): give a prior or use the fast method",
+            0,
+        )
+    map_z = objects.x + 1j * objects.y
+    map_label = objects.label.astype(np.int64)
+    r = np.abs(z)
+    theta = np.angle(z)
+
+    n_best, e_best = 0, math.inf
+    best: PaperMatch | None = None
+    tested = 0
+    single_label = np.unique(map_label).size <= 1 and np.unique(img_label).size <= 1
+    cos_dt32 = np.float32(math.cos(opts.delta_theta) - 1e-4)
+    for i, j in combinations(range(n_img), 2):
+        if r[i] == 0.0 or z[j] == z[i]:
+            continue
+        others = np.array([k for k in range(n_img) if k != i and k != j], dtype=np.int64)
+        ratio_k = r[others] / r[i]
+        dtheta_k = _wrap(theta[i] - theta[others])
+        slack = 1e-4  # float32 pre-test only; see below
+        lo_k = (ratio_k - opts.delta_r - slack).astype(np.float32)
+        hi_k = (ratio_k + opts.delta_r + slack).astype(np.float32)
+        cos_k32, sin_k32 = np.cos(dtheta_k).astype(np.float32), np.sin(dtheta_k).astype(np.float32)
+        # Which map objects may stand for each other image object: same label.
+        same_label = None if single_label else img_label[others][:, None] == map_label[None, :]
+        big_i = np.flatnonzero(map_label == img_label[i])
+        big_j = np.flatnonzero(map_label == img_label[j])
+        if not big_i.size or not big_j.size:
+            continue
+        pi_, pj_ = np.meshgrid(big_i, big_j, indexing="ij")
+        keep = pi_ != pj_
+        perm_i, perm_j = pi_[keep], pj_[keep]  # 2-permutations, lexicographic in (I, J)
+        a_all = (map_z[perm_j] - map_z[perm_i]) / (z[j] - z[i])
+        centre_all = map_z[perm_i] - a_all * z[i]
+        for lo in range(0, perm_i.size, opts.chunk):
+            pi_c, pj_c = perm_i[lo : lo + opts.chunk], perm_j[lo : lo + opts.chunk]
+            centre = centre_all[lo : lo + opts.chunk]
+            rows = np.arange(pi_c.size)
+            rel = map_z[None, :] - centre[:, None]  # (C, n_map)
+            radius = np.abs(rel)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio_map = radius / radius[rows, pi_c][:, None]
+                # exp(i (Theta_I - Theta_K)) without trigonometry: unit vector of O_I times the conjugate of O_K's.
+                unit = rel / radius
+                turn = unit[rows, pi_c][:, None] * np.conj(unit)
+            # O_I and O_J are not candidates for the other image objects.
+            ratio_map[rows, pi_c] = np.inf
+            ratio_map[rows, pj_c] = np.inf
+            # Every other image object against every other map object, one image object at a time (a
+            # (C, n_map) slab stays in cache).  The tests run in float32 with a hair of slack and the angle
+            # test as cos(a - b) > cos(delta) (the same set for delta < pi, without trigonometry); every
+            # pair they pass is then re-tested exactly in float64, so the outcome is the exact one.
+            ratio32 = ratio_map.astype(np.float32)
+            cos32, sin32 = turn.real.astype(np.float32), turn.imag.astype(np.float32)
+            found_c, found_k, found_m = [], [], []
+            for col in range(others.size):
+                ok = (ratio32 > lo_k[col]) & (ratio32 < hi_k[col])
+                ok &= cos32 * cos_k32[col] + sin32 * sin_k32[col] > cos_dt32
+                if same_label is not None:
+                    ok &= same_label[col][None, :]
+                c_idx, m_idx = np.nonzero(ok)
+                found_c.append(c_idx)
+                found_m.append(m_idx)
+                found_k.append(np.full(c_idx.size, col))
+            c_idx, k_idx, m_idx = np.concatenate(found_c), np.concatenate(found_k), np.concatenate(found_m)
+            ratio_err = np.abs(ratio_k[k_idx] - ratio_map[c_idx, m_idx])
+            angle_err = np.abs(_wrap(dtheta_k[k_idx] - np.angle(turn[c_idx, m_idx])))
+            exact = (ratio_err < opts.delta_r) & (angle_err < opts.delta_theta)
+            c_idx, k_idx = c_idx[exact], k_idx[exact]
+            err = ratio_err[exact] + angle_err[exact]
+            e_k = np.full((pi_c.size, others.size), np.inf)
+            np.minimum.at(e_k, (c_idx, k_idx), err)  # best map match of each image object
+            matched_k = np.isfinite(e_k)
+            n_matched = 2 + matched_k.sum(axis=1)
+            tested += pi_c.size
+            for c in np.flatnonzero(n_matched >= opts.n_min):  # few; the update rule is sequential
+                e_ij = float(np.std(e_k[c, matched_k[c]]))
+                if n_matched[c] >= n_best and e_ij < e_best:
+                    n_best, e_best = int(n_matched[c]), e_ij
+                    best = PaperMatch(complex(a_all[lo + c]), complex(centre[c]), n_best, e_ij)
+    if best is None:
+        return PaperResult(None, f"no candidate matched at least N_min = {opts.n_min} objects", tested)
+    return PaperResult(best, None, tested)

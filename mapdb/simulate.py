@@ -1,0 +1,563 @@
+"""Simulated aerial images of a meta-map: the paper's feasibility study (Section III) and beyond.
+
+A pinhole camera fixed to an aircraft looks down at flat ground; the labelled
+objects of a map that fall inside its image become an image-objects document
+(the ``mapdb query`` input format) carrying the truth it was made from.
+
+Frames and sign conventions
+---------------------------
+* **Map**: ``x`` east, ``y`` north (projected metres), ground at ``z = 0``, ``z`` up.
+* **Aircraft body**: forward-right-down (FRD).  Its attitude against local
+  north-east-down (NED) is the aerospace Z-Y-X Euler sequence
+  ``R_body_to_ned = Rz(yaw) @ Ry(pitch) @ Rx(roll)``:
+
+  - ``yaw`` (= heading) is measured clockwise from north: 0 flies north, 90 flies east;
+  - ``pitch`` is positive nose up;
+  - ``roll`` is positive right wing down.
+* **Camera**: fixed to the body, optical axis along body *down*; image *right*
+  is body right and image *up* is body forward.  Pixels: ``u`` (x) to the
+  right, ``v`` (y) down, (0, 0) the top-left corner of the top-left pixel, the
+  principal point at ``(width / 2, height / 2)``, square pixels, focal length
+  ``f = (width / 2) / tan(fov_deg / 2)`` with ``fov_deg`` the *horizontal* field of view.
+
+Projection of a map point ``(X, Y, 0)`` seen from a camera at ``(x, y, altitude)``::
+
+    n = (Y - y, X - x, altitude)                  # NED vector camera -> point
+    (f_b, r_b, d_b) = R_body_to_ned.T @ n         # the same vector in the body frame
+    u = width / 2 + f * r_b / d_b
+    v = height / 2 - f * f_b / d_b
+
+What each angle does to the view:
+
+* ``yaw = 0``: image up is map north and image right is map east (a map seen
+  from above, not mirrored).  ``yaw = psi``: image up points along the heading
+  ``psi``, so map north appears rotated *counter-clockwise* by ``psi`` on the
+  displayed image (at ``yaw = 90`` north points to the image's left edge).
+* ``pitch > 0`` (nose up): the optical axis tilts forward; the ground point
+  under the image centre lies ``altitude * tan(pitch)`` ahead of the aircraft and
+  the nadir (the point straight below the camera) appears *below* the image
+  centre (``v > height / 2``).
+* ``roll > 0`` (right wing down): the optical axis tilts to the left; the ground
+  point under the image centre lies ``altitude * tan(roll)`` to the left and the
+  nadir appears *right* of the image centre (``u > width / 2``).
+
+:func:`level_pixels` removes a known roll and pitch (it re-projects pixels to
+those of a level camera at the same place and heading, in which the nadir is
+the image centre); :func:`image_to_ground` is the full inverse projection.
+
+The truth of a simulated image is the camera *nadir* ``(x, y)``.  A localizer
+that is given no attitude returns the point under the image centre, so attitude
+error is part of its error, as in the paper.
+
+Examples
+--------
+>>> cam = Camera(640, 480, 35.0)
+>>> u, v = project_to_image([500.0], [1000.0], Pose(500.0, 1000.0, 100.0), cam)
+>>> float(u[0]), float(v[0])
+(320.0, 240.0)
+>>> images = simulate_images(paper_map(), 3, pixel_std=1.0, seed=1)
+>>> len(images), sorted(images[0]["truth"])[:3]
+(3, ['altitude_m', 'bound', 'fov_deg'])
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .errors import EmptyMapError, MapdbIOError
+from .match.geometry import apply_similarity, fit_similarity
+from .objects import Objects
+
+__all__ = [
+    "PAPER_CRS",
+    "PAPER_ORIGIN",
+    "Camera",
+    "Pose",
+    "bound_fit",
+    "footprint",
+    "image_to_ground",
+    "level_pixels",
+    "map_bbox_from_lonlat",
+    "nadir_pixel",
+    "paper_density",
+    "paper_map",
+    "project_to_image",
+    "rotation_body_to_ned",
+    "simulate_images",
+    "write_images",
+]
+
+# The paper's map is abstract; it gets real-looking UTM metres so that every tool treats it like any
+# other map (lon/lat output, CRS checks).  UTM 31N at about 45.1 N, 3 E.
+PAPER_CRS = "EPSG:32631"
+PAPER_ORIGIN = (500_000.0, 5_000_000.0)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera: image size in pixels and horizontal field of view in degrees."""
+
+    width: int = 640
+    height: int = 480
+    fov_deg: float = 35.0
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        if not 0.0 < self.fov_deg < 180.0:
+            raise ValueError(f"field of view must be in (0, 180) degrees, got {self.fov_deg}")
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels."""
+        return (self.width / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
+
+    def gsd(self, altitude: float) -> float:
+        """Ground size of a pixel at the image centre of a level camera (metres per pixel)."""
+        return altitude / self.focal_px
+
+    def footprint_m(self, altitude: float) -> tuple[float, float]:
+        """Ground width and height (metres) seen by a level camera at ``altitude``."""
+        g = self.gsd(altitude)
+        return self.width * g, self.height * g
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Camera position (map metres, altitude above ground) and attitude in degrees (see module docs)."""
+
+    x: float
+    y: float
+    altitude: float
+    yaw_deg: float = 0.0
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+
+
+def rotation_body_to_ned(yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``: body (forward, right, down) vectors to (north, east, down)."""
+    cy, sy = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    cp, sp = math.cos(math.radians(pitch_deg)), math.sin(math.radians(pitch_deg))
+    cr, sr = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def _body_to_pixels(frd: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame vectors (3, n) -> pixels; NaN for points not in front of the camera."""
+    f = camera.focal_px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(frd[2] > 0.0, frd[2], np.nan)
+        u = camera.width / 2.0 + f * frd[1] / d
+        v = camera.height / 2.0 - f * frd[0] / d
+    return u, v
+
+
+def _pixels_to_body(u: np.ndarray, v: np.ndarray, camera: Camera) -> np.ndarray:
+    """Pixels -> body-frame ray directions (3, n) with unit down component."""
+    f = camera.focal_px
+    u = np.asarray(u, dtype=np.float64).reshape(-1)
+    v = np.asarray(v, dtype=np.float64).reshape(-1)
+    return np.stack([-(v - camera.height / 2.0) / f, (u - camera.width / 2.0) / f, np.ones_like(u)])
+
+
+def project_to_image(
+    x: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray, pose: Pose, camera: Camera
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions of ground points ``(x, y, 0)`` seen from ``pose``.
+
+    Points behind the camera (or on its horizon) get NaN; points outside the
+    image are returned as they are (callers decide what is visible).
+
+    Examples
+    --------
+    A point 10 m north of a level camera at 100 m, heading north, is ``10 * f / 100`` pixels above the centre:
+
+    >>> cam = Camera(640, 480, 35.0)
+    >>> u, v = project_to_image([0.0], [10.0], Pose(0.0, 0.0, 100.0), cam)
+    >>> round(float(u[0]), 6), round(float(240.0 - v[0]), 6) == round(cam.focal_px / 10.0, 6)
+    (320.0, True)
+    """
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    y = np.asarray(y, dtype=np.float64).reshape(-1)
+    ned = np.stack([y - pose.y, x - pose.x, np.full_like(x, pose.altitude)])
+    frd = rotation_body_to_ned(pose.yaw_deg, pose.pitch_deg, pose.roll_deg).T @ ned
+    return _body_to_pixels(frd, camera)
+
+
+def image_to_ground(
+    u: Sequence[float] | np.ndarray, v: Sequence[float] | np.ndarray, pose: Pose, camera: Camera
+) -> tuple[np.ndarray, np.ndarray]:
+    """Map ``(x, y)`` of the ground points seen at pixels ``(u, v)``: the inverse of :func:`project_to_image`.
+
+    NaN where the pixel's ray does not reach the ground (at or above the horizon).
+    """
+    ned = rotation_body_to_ned(pose.yaw_deg, pose.pitch_deg, pose.roll_deg) @ _pixels_to_body(u, v, camera)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(ned[2] > 0.0, pose.altitude / ned[2], np.nan)
+    return pose.x + t * ned[1], pose.y + t * ned[0]
+
+
+def level_pixels(
+    u: Sequence[float] | np.ndarray,
+    v: Sequence[float] | np.ndarray,
+    camera: Camera,
+    roll_deg: float = 0.0,
+    pitch_deg: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where pixels seen with ``roll_deg``/``pitch_deg`` would be in a level camera (same place and heading).
+
+    A homography that needs neither altitude nor heading, only the field of
+    view: after it, the camera nadir is the image centre and the image is a
+    similarity of the map (for flat ground).  NaN for pixels at or above the horizon.
+
+    Examples
+    --------
+    >>> cam = Camera(640, 480, 35.0)
+    >>> u, v = nadir_pixel(cam, roll_deg=2.0, pitch_deg=-1.0)
+    >>> [round(float(c), 9) for c in np.concatenate(level_pixels(u, v, cam, 2.0, -1.0))]
+    [320.0, 240.0]
+    """
+    level = rotation_body_to_ned(0.0, pitch_deg, roll_deg) @ _pixels_to_body(u, v, camera)
+    return _body_to_pixels(level, camera)
+
+
+def nadir_pixel(camera: Camera, roll_deg: float = 0.0, pitch_deg: float = 0.0) -> tuple[float, float]:
+    """The pixel at which the point straight below the camera appears, given roll and pitch."""
+    frd = rotation_body_to_ned(0.0, pitch_deg, roll_deg).T @ np.array([[0.0], [0.0], [1.0]])
+    u, v = _body_to_pixels(frd, camera)
+    return float(u[0]), float(v[0])
+
+
+def footprint(pose: Pose, camera: Camera) -> np.ndarray:
+    """Ground ``(x, y)`` of the image corners (top-left, top-right, bottom-right, bottom-left), (4, 2)."""
+    w, h = camera.width, camera.height
+    gx, gy = image_to_ground([0.0, w, w, 0.0], [0.0, 0.0, h, h], pose, camera)
+    return np.column_stack([gx, gy])
+
+
+def bound_fit(
+    u: np.ndarray,
+    v: np.ndarray,
+    map_x: np.ndarray,
+    map_y: np.ndarray,
+    camera: Camera,
+    roll_deg: float | None = None,
+    pitch_deg: float | None = None,
+) -> tuple[float, float] | None:
+    """Position from the least-squares similarity fit of image objects onto their *true* map objects.
+
+    This is the best any matcher can do from these pixels: the fit is given the
+    correspondences.  With ``roll_deg``/``pitch_deg`` (an attitude the
+    localizer is told) the pixels are levelled first and the estimate is the
+    nadir; without, it is the ground point under the image centre.  None if
+    fewer than two objects.
+    """
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    if u.size < 2:
+        return None
+    if roll_deg is not None or pitch_deg is not None:
+        u, v = level_pixels(u, v, camera, roll_deg or 0.0, pitch_deg or 0.0)
+    # Image y points down and map y north: flip so the fit needs no reflection.
+    src = np.column_stack([u, -v])
+    dst = np.column_stack([map_x, map_y])
+    try:
+        params = fit_similarity(src, dst)
+    except ValueError:
+        return None
+    cx, cy = apply_similarity(np.array([camera.width / 2.0, -camera.height / 2.0]), *params)
+    return float(cx), float(cy)
+
+
+def paper_density(objects_per_image: float = 17.0, altitude: float = 100.0, camera: Camera | None = None) -> float:
+    """Objects per square metre putting ``objects_per_image`` in a level image (paper: 17, 100 m, 35 deg)."""
+    w, h = (camera or Camera()).footprint_m(altitude)
+    return objects_per_image / (w * h)
+
+
+def paper_map(
+    seed: int = 0,
+    width: float = 250.0,
+    height: float = 150.0,
+    density: float | None = None,
+    label: str = "building",
+) -> Objects:
+    """The paper's map: objects of one label uniformly at random over ``width`` x ``height`` metres.
+
+    The count is ``round(density * width * height)``; the default density
+    (:func:`paper_density`) gives about 17 objects per 640x480 image from 100 m
+    at a 35 degree field of view, 214 objects on 250x150 m.  Coordinates are
+    UTM metres (:data:`PAPER_CRS`) offset by :data:`PAPER_ORIGIN`.
+
+    Examples
+    --------
+    >>> m = paper_map()
+    >>> len(m), m.crs, m.labels
+    (214, 'EPSG:32631', ('building',))
+    """
+    if density is None:
+        density = paper_density()
+    n = int(round(density * width * height))
+    rng = np.random.default_rng(seed)
+    x = PAPER_ORIGIN[0] + rng.uniform(0.0, width, n)
+    y = PAPER_ORIGIN[1] + rng.uniform(0.0, height, n)
+    return Objects(x, y, np.zeros(n, np.int32), np.zeros(n), (label,), PAPER_CRS)
+
+
+def _map_objects(map_: Any) -> tuple[Objects, dict[str, int]]:
+    """All objects of a map (MetaMap-like or :class:`Objects`) and its label counts."""
+    objects = map_ if isinstance(map_, Objects) else map_.all()
+    if not len(objects):
+        raise EmptyMapError(f"{getattr(map_, 'path', None) or 'map'}: the map has no objects to simulate images of")
+    counts = objects.counts()
+    return objects, counts
+
+
+def _draw_range(rng: np.random.Generator, value: float | tuple[float, float]) -> float:
+    if isinstance(value, tuple | list):
+        lo, hi = value
+        return float(rng.uniform(lo, hi))
+    return float(value)
+
+
+def simulate_images(
+    map: Any,
+    n: int,
+    *,
+    altitude: float | tuple[float, float] = 100.0,
+    fov_deg: float | tuple[float, float] = 35.0,
+    size: tuple[int, int] = (640, 480),
+    yaw: float | str = 0.0,
+    attitude_std: float = 0.0,
+    pixel_std: float = 0.0,
+    miss_rate: float = 0.0,
+    spurious_rate: float = 0.0,
+    label_noise: float = 0.0,
+    with_prior: float | None = None,
+    with_attitude: bool = False,
+    with_altitude: bool = False,
+    bbox: tuple[float, float, float, float] | None = None,
+    seed: int = 0,
+    id_prefix: str = "sim-",
+) -> list[dict[str, Any]]:
+    """Simulated image-objects documents over a map, each with its truth.
+
+    Parameters
+    ----------
+    map : MetaMap or Objects
+        Anything with ``.all()`` returning :class:`Objects` in projected metres, or the objects themselves.
+    n : int
+        Number of images.
+    altitude, fov_deg : float or (low, high)
+        Height above ground (m) and horizontal field of view (degrees); a pair draws uniformly per image.
+    size : (width, height)
+        Image size in pixels.
+    yaw : float or "random"
+        Heading in degrees (clockwise from north), or uniform in [0, 360) per image.
+    attitude_std : float
+        Standard deviation (degrees) of the roll and pitch (normal, independent): the camera's tilt error.
+    pixel_std : float
+        Standard deviation (pixels) of the detector's error on each object's x and y.
+    miss_rate : float
+        Probability that the detector misses each visible object.
+    spurious_rate : float
+        Mean number of extra objects per visible true object (Poisson), at uniform random pixels, labels
+        drawn from the map's label mix.
+    label_noise : float
+        Probability that an object (true or spurious) is given a wrong label, drawn from the map's label mix
+        without its own label; no effect on a map with a single label.
+    with_prior : float, optional
+        Adds ``"prior": {"x", "y", "radius": with_prior}`` centred at an offset drawn uniformly within the
+        radius of the truth.
+    with_attitude : bool
+        Adds the true roll and pitch as ``"attitude"`` (an AHRS).
+    with_altitude : bool
+        Adds the true height above ground as ``"altitude_m"`` (an altimeter).
+    bbox : (minx, miny, maxx, maxy), optional
+        Map-CRS box in which camera positions are drawn.  By default the map's extent, shrunk so that the
+        whole footprint stays inside it.
+    seed : int
+        Image ``i`` depends only on ``(seed, i)``: the same seed gives the same images, and the first
+        images of a longer run are those of a shorter one.
+    id_prefix : str
+        Images are named ``f"{id_prefix}{i:06d}"``.
+
+    Returns
+    -------
+    list of dict
+        Query-input documents (``id``, ``width``, ``height``, ``objects``, ``camera``, optional ``prior``,
+        ``attitude``, ``altitude_m``) with a ``truth`` entry: ``x``, ``y`` (the camera nadir),
+        ``heading_deg``, ``altitude_m``, ``roll_deg``, ``pitch_deg``, ``fov_deg``, ``map_index`` (per
+        object, its index in ``map.all()``, or -1 for a spurious object) and ``bound`` (``x``, ``y``,
+        ``error_m``, ``n`` of the least-squares fit with the true correspondences; None with < 2).
+    """
+    if n < 0:
+        raise ValueError(f"number of images must be >= 0, got {n}")
+    for name, rate in (("miss_rate", miss_rate), ("label_noise", label_noise)):
+        if not 0.0 <= rate <= 1.0:
+            raise ValueError(f"{name} must be in [0, 1], got {rate}")
+    if spurious_rate < 0 or attitude_std < 0 or pixel_std < 0:
+        raise ValueError("spurious_rate, attitude_std and pixel_std must be >= 0")
+    random_yaw = isinstance(yaw, str)
+    if random_yaw and yaw != "random":
+        raise ValueError(f"yaw must be degrees or 'random', got {yaw!r}")
+
+    objects, counts = _map_objects(map)
+    tree = cKDTree(np.column_stack([objects.x, objects.y]))
+    names = list(counts)
+    mix = np.array([counts[k] for k in names], dtype=np.float64)
+    mix /= mix.sum()
+    if bbox is None:
+        area = (
+            float(objects.x.min()),
+            float(objects.y.min()),
+            float(objects.x.max()),
+            float(objects.y.max()),
+        )
+        keep_inside = True
+    else:
+        area = tuple(float(b) for b in bbox)
+        keep_inside = False
+    width, height = int(size[0]), int(size[1])
+
+    images = []
+    for i in range(n):
+        rng = np.random.default_rng([seed, i])
+        # Draws that every configuration makes, in a fixed order, so that cases differing only in their
+        # error levels share camera positions (a paired comparison).
+        alt = _draw_range(rng, altitude)
+        camera = Camera(width, height, _draw_range(rng, fov_deg))
+        yaw_draw = float(rng.uniform(0.0, 360.0))
+        heading = yaw_draw if random_yaw else float(yaw)
+        roll, pitch = (float(a) for a in attitude_std * rng.standard_normal(2))
+        where = rng.random(2)
+
+        # Footprint corners relative to the camera decide how far from the edge the camera may be.
+        corners = footprint(Pose(0.0, 0.0, alt, heading, roll, pitch), camera)
+        if keep_inside and np.all(np.isfinite(corners)):
+            lo = area[0] - corners[:, 0].min(), area[1] - corners[:, 1].min()
+            hi = area[2] - corners[:, 0].max(), area[3] - corners[:, 1].max()
+        else:
+            lo, hi = area[:2], area[2:]
+        cam_x = lo[0] + where[0] * (hi[0] - lo[0]) if hi[0] > lo[0] else (area[0] + area[2]) / 2.0
+        cam_y = lo[1] + where[1] * (hi[1] - lo[1]) if hi[1] > lo[1] else (area[1] + area[3]) / 2.0
+        cam_x, cam_y = float(cam_x), float(cam_y)
+        pose = Pose(cam_x, cam_y, alt, heading, roll, pitch)
+
+        reach = np.nanmax(np.hypot(corners[:, 0], corners[:, 1])) if np.all(np.isfinite(corners)) else 50 * alt
+        near = np.asarray(tree.query_ball_point([cam_x, cam_y], reach * 1.001 + 1e-6), dtype=np.int64)
+        near.sort()
+        u, v = project_to_image(objects.x[near], objects.y[near], pose, camera)
+        seen = np.isfinite(u) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        index, u, v = near[seen], u[seen], v[seen]
+        n_visible = index.size
+
+        noise = pixel_std * rng.standard_normal((2, u.size))
+        u, v = u + noise[0], v + noise[1]
+        # A detector reports positions inside its image: noise that pushes an object out drops it.
+        kept = (u >= 0) & (u < width) & (v >= 0) & (v < height) & (rng.random(u.size) >= miss_rate)
+        index, u, v = index[kept], u[kept], v[kept]
+        label_names = np.asarray(objects.labels, dtype=object)[objects.label[index]]
+
+        n_spurious = int(rng.poisson(spurious_rate * n_visible)) if spurious_rate > 0 else 0
+        if n_spurious:
+            u = np.concatenate([u, rng.uniform(0.0, width, n_spurious)])
+            v = np.concatenate([v, rng.uniform(0.0, height, n_spurious)])
+            index = np.concatenate([index, np.full(n_spurious, -1, np.int64)])
+            label_names = np.concatenate(
+                [label_names, np.asarray(names, dtype=object)[rng.choice(len(names), n_spurious, p=mix)]]
+            )
+
+        if label_noise > 0 and len(names) > 1 and label_names.size:
+            flip = np.flatnonzero(rng.random(label_names.size) < label_noise)
+            code_of = {k: j for j, k in enumerate(names)}
+            for j in flip:  # few objects per image; the mix changes per object (own label excluded)
+                p = mix.copy()
+                p[code_of[label_names[j]]] = 0.0
+                if p.sum() > 0:
+                    label_names[j] = names[int(rng.choice(len(names), p=p / p.sum()))]
+
+        order = rng.permutation(index.size)
+        index, u, v, label_names = index[order], u[order], v[order], label_names[order]
+
+        true = index >= 0
+        att = (roll, pitch) if with_attitude else (None, None)
+        fit = bound_fit(u[true], v[true], objects.x[index[true]], objects.y[index[true]], camera, *att)
+        bound = None
+        if fit is not None:
+            bound = {
+                "x": fit[0],
+                "y": fit[1],
+                "error_m": math.hypot(fit[0] - cam_x, fit[1] - cam_y),
+                "n": int(true.sum()),
+            }
+
+        image: dict[str, Any] = {
+            "id": f"{id_prefix}{i:06d}",
+            "width": width,
+            "height": height,
+            "objects": [
+                {"label": str(lab), "x": float(px), "y": float(py)}
+                for lab, px, py in zip(label_names, u, v, strict=True)
+            ],
+            "camera": {"fov_deg": camera.fov_deg},
+        }
+        if with_prior is not None:
+            r = with_prior * math.sqrt(rng.random())
+            a = rng.uniform(0.0, 2.0 * math.pi)
+            image["prior"] = {
+                "x": cam_x + r * math.cos(a),
+                "y": cam_y + r * math.sin(a),
+                "radius": float(with_prior),
+            }
+        if with_attitude:
+            image["attitude"] = {"roll_deg": roll, "pitch_deg": pitch}
+        if with_altitude:
+            image["altitude_m"] = alt
+        image["truth"] = {
+            "x": cam_x,
+            "y": cam_y,
+            "heading_deg": heading,
+            "altitude_m": alt,
+            "roll_deg": roll,
+            "pitch_deg": pitch,
+            "fov_deg": camera.fov_deg,
+            "n_visible": int(n_visible),
+            "map_index": index.tolist(),
+            "bound": bound,
+        }
+        images.append(image)
+    return images
+
+
+def map_bbox_from_lonlat(crs: str, bbox: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+    """A lon/lat box as the smallest box of the map's projected CRS that contains it."""
+    from pyproj import Transformer
+
+    to_map = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    return tuple(float(b) for b in to_map.transform_bounds(*bbox, densify_pts=21))
+
+
+def write_images(images: Sequence[dict[str, Any]], path: str | Path | None) -> None:
+    """Write image documents as JSON Lines to ``path`` (stdout if None or ``"-"``)."""
+    text = "".join(json.dumps(im, separators=(",", ":")) + "\n" for im in images)
+    if path is None or str(path) == "-":
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return
+    try:
+        Path(path).write_text(text)
+    except OSError as exc:
+        raise MapdbIOError(f"{path}: cannot write images ({exc.strerror or exc})") from None

@@ -1,0 +1,233 @@
+"""The localizer: similarity geometry, the false-alarm model, the fast and paper matchers, localize()."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import binom
+
+from mapdb.localize import localize
+from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
+from mapdb.match.fast import ObjectIndex, QuadIndex, canonical_quads, match_fast, neighbour_quads
+from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
+from mapdb.match.paper import match_paper
+from mapdb.objects import Objects
+from mapdb.simulate import Camera, Pose, paper_map, project_to_image, simulate_images
+from mapdb.store import MemoryMap
+
+CRS = "EPSG:32631"
+X0, Y0 = 400_000.0, 4_700_000.0
+W, H = 640, 480
+
+
+def _random_map(n: int = 1200, size: float = 500.0, seed: int = 0, labels=("building", "road_intersection")):
+    rng = np.random.default_rng(seed)
+    names = np.array(labels, dtype=object)[rng.integers(0, len(labels), n)]
+    objects = Objects.from_names(X0 + rng.uniform(0, size, n), Y0 + rng.uniform(0, size, n), names, crs=CRS,
+                                 labels=("building", "road_intersection", "park"))
+    return MemoryMap(objects)
+
+
+def _image_of(m: MemoryMap, centre: complex, scale: float, heading_deg: float) -> dict:
+    """Image document of the map's objects seen with an exact similarity (no noise)."""
+    objs = m.all()
+    w = objs.x + 1j * objs.y
+    # Map = a * (pixels centred, y up) + centre; heading is clockwise from north, so a turns the other way.
+    a = scale * np.exp(-1j * math.radians(heading_deg))
+    z = (w - centre) / a
+    px, py = z.real + W / 2, H / 2 - z.imag
+    inside = (px >= 0) & (px <= W) & (py >= 0) & (py <= H)
+    names = objs.names()
+    return {
+        "id": "exact",
+        "width": W,
+        "height": H,
+        "objects": [{"label": str(names[i]), "x": float(px[i]), "y": float(py[i])} for i in np.flatnonzero(inside)],
+    }
+
+
+# --- geometry and decision -------------------------------------------------------------------------------
+
+
+def test_batched_similarity_fits_recover_transforms() -> None:
+    rng = np.random.default_rng(1)
+    src = rng.normal(size=(5, 7)) + 1j * rng.normal(size=(5, 7))
+    a_true = rng.uniform(0.1, 3, 5) * np.exp(1j * rng.uniform(-np.pi, np.pi, 5))
+    b_true = rng.normal(size=5) * 100 + 1j * rng.normal(size=5) * 100
+    dst = a_true[:, None] * src + b_true[:, None]
+    a, b = fit_similarity_complex(src, dst)
+    np.testing.assert_allclose(a, a_true, rtol=1e-12)
+    np.testing.assert_allclose(b, b_true, rtol=1e-12)
+    a2, b2 = similarity_from_pairs(src[:, 0], src[:, 1], dst[:, 0], dst[:, 1])
+    np.testing.assert_allclose(a2, a_true, rtol=1e-10)
+    # A masked-out outlier does not move the fit.
+    dst[:, 3] += 50.0
+    mask = np.ones(src.shape)
+    mask[:, 3] = 0
+    a3, _ = fit_similarity_complex(src, dst, mask)
+    np.testing.assert_allclose(a3, a_true, rtol=1e-12)
+    # Prediction variance at the centroid is 1/n.
+    assert prediction_variance_factor(src[0], at=src[0].mean()) == pytest.approx(1 / 7)
+
+
+@pytest.mark.parametrize("n, p", [(10, 0.01), (40, 0.2), (300, 1e-4)])
+def test_binomial_tail_matches_scipy(n: int, p: float) -> None:
+    k = np.arange(0, n + 2)
+    expected = np.log10(np.maximum(binom.sf(k - 1, n, p), 1e-300))
+    got = log10_binomial_tail(n, k, p)
+    finite = expected > -290
+    np.testing.assert_allclose(got[finite], expected[finite], rtol=1e-6, atol=1e-9)
+    assert got[-1] == -np.inf
+
+
+def test_nfa_curve_prefers_tight_consensus_and_shapes_reduce_to_plain() -> None:
+    rng = np.random.default_rng(2)
+    u = np.vstack([np.r_[np.full(8, 1e-3), rng.exponential(1, 8)], rng.exponential(1, 16)])
+    nfa, k = log10_nfa_curve(u, 4, 2.0)
+    assert nfa[0] < -5 < 0 < nfa[1] and k[0] == 8
+    shaped, k_shaped = log10_nfa_curve(u, 4, 2.0, shape=np.ones_like(u))
+    np.testing.assert_allclose(shaped, nfa)
+    assert k_shaped.tolist() == k.tolist()
+
+
+def test_quad_invariants_survive_similarity_but_not_reflection() -> None:
+    rng = np.random.default_rng(3)
+    zq = rng.normal(size=(50, 4)) + 1j * rng.normal(size=(50, 4))
+    order, inv, _ = canonical_quads(zq)
+    moved = (0.3 - 2.1j) * zq + (5 + 7j)
+    order2, inv2, _ = canonical_quads(moved[:, rng.permutation(4)])
+    np.testing.assert_allclose(np.sort(inv, axis=0), np.sort(inv2, axis=0), atol=1e-9)
+    mirrored = canonical_quads(np.conj(zq))[1]
+    assert np.abs(mirrored - inv).max() > 0.1
+    quads = neighbour_quads(np.column_stack([zq[:, 0].real, zq[:, 0].imag]), 5)
+    assert len(quads) == len(np.unique(quads, axis=0)) and np.all(np.diff(quads, axis=1) > 0)
+
+
+# --- fast: exact recovery, false alarms, rejections ------------------------------------------------------
+
+
+@pytest.mark.parametrize("heading, scale", [(0.0, 0.1), (37.0, 0.25), (181.5, 0.08), (300.0, 0.4)])
+def test_fast_recovers_a_known_similarity_exactly(heading: float, scale: float) -> None:
+    m = _random_map()
+    centre = complex(X0 + 250.0, Y0 + 240.0)
+    doc = _image_of(m, centre, scale, heading)
+    assert len(doc["objects"]) >= 6
+    out = localize(doc, m)
+    assert out["status"] == "ok", out
+    assert abs(complex(out["x"], out["y"]) - centre) < 2e-3  # output rounded to the millimetre
+    assert out["heading_deg"] == pytest.approx(heading, abs=1e-3)
+    assert out["scale_m_per_px"] == pytest.approx(scale, rel=1e-5)
+    assert out["inliers"] == len(doc["objects"]) and out["score"] > 3 and out["sigma_m"] < 1e-3
+    assert out["crs"] == CRS and 0 < out["lon"] < 3 and 42 < out["lat"] < 43
+
+
+def test_fast_with_simulated_paper_images_matches_the_bound() -> None:
+    m = MemoryMap(paper_map(seed=4))
+    for image in simulate_images(m, 6, pixel_std=1.0, yaw="random", seed=9):
+        out = localize(image, m)
+        truth = image["truth"]
+        assert out["status"] == "ok", out
+        assert math.hypot(out["x"] - truth["bound"]["x"], out["y"] - truth["bound"]["y"]) < 1e-3  # mm output
+        assert out["altitude_m"] == pytest.approx(100.0, rel=0.02)
+
+
+def test_attitude_and_field_of_view_level_the_image_to_the_nadir() -> None:
+    m = _random_map(seed=5)
+    cam = Camera(W, H, 40.0)
+    pose = Pose(X0 + 260.0, Y0 + 250.0, 120.0, yaw_deg=75.0, roll_deg=3.0, pitch_deg=-2.0)
+    objs = m.all()
+    u, v = project_to_image(objs.x, objs.y, pose, cam)
+    inside = np.isfinite(u) & (u >= 0) & (u <= W) & (v >= 0) & (v <= H)
+    names = objs.names()
+    doc = {"width": W, "height": H, "camera": {"fov_deg": 40.0},
+           "objects": [{"label": str(names[i]), "x": float(u[i]), "y": float(v[i])} for i in np.flatnonzero(inside)]}
+    plain = localize(doc, m)
+    levelled = localize({**doc, "attitude": {"roll_deg": 3.0, "pitch_deg": -2.0}}, m)
+    assert levelled["status"] == "ok" and levelled["levelled"]
+    assert math.hypot(levelled["x"] - pose.x, levelled["y"] - pose.y) < 2e-3
+    assert levelled["altitude_m"] == pytest.approx(120.0, abs=0.01)
+    assert levelled["heading_deg"] == pytest.approx(75.0, abs=1e-3)
+    # Without the attitude the answer is the point under the image centre, metres away (120 m * tan 3 deg).
+    assert plain["status"] == "ok" and math.hypot(plain["x"] - pose.x, plain["y"] - pose.y) > 4.0
+
+
+def test_images_unrelated_to_the_map_are_rejected() -> None:
+    m = MemoryMap(paper_map(seed=4))
+    rng = np.random.default_rng(11)
+    for i in range(6):
+        n = int(rng.integers(10, 30))
+        doc = {"id": i, "width": W, "height": H,
+               "objects": [{"label": "building", "x": float(x), "y": float(y)}
+                           for x, y in zip(rng.uniform(0, W, n), rng.uniform(0, H, n), strict=True)]}
+        out = localize(doc, m)
+        assert out["status"] == "rejected", out
+        assert "certain" in out["reason"] or "no consistent" in out["reason"]
+
+
+def test_prior_restricts_the_search() -> None:
+    m = _random_map()
+    centre = complex(X0 + 250.0, Y0 + 240.0)
+    doc = _image_of(m, centre, 0.12, 10.0)
+    near = localize({**doc, "prior": {"x": centre.real + 30, "y": centre.imag - 20, "radius": 100}}, m)
+    assert near["status"] == "ok" and abs(complex(near["x"], near["y"]) - centre) < 2e-3
+    # The true place lies outside this prior: nothing else there matches.
+    far = localize(doc, m, prior=(centre.real + 200, centre.imag, 50.0))
+    assert far["status"] == "rejected"
+    # No map objects at all around the prior.
+    empty = localize(doc, m, prior=(X0 + 50_000, Y0, 100.0))
+    assert empty["status"] == "rejected" and "objects here" in empty["reason"]
+
+
+@pytest.mark.parametrize(
+    "objects, reason",
+    [
+        ([{"label": "building", "x": 1, "y": 1}] * 2, "2 objects: at least 3 are needed"),
+        ([{"label": "tree", "x": 1, "y": 1}] * 5, "unknown label 'tree': the map has building"),
+        ([{"label": "building", "x": -1, "y": 1}] * 5, "objects[0].x is negative"),
+        ([{"label": "building", "x": float("nan"), "y": 1}] * 5, "objects[0].x is nan, not a finite number"),
+        ([{"label": "building", "x": 9999, "y": 1}] * 5, "objects[0] at (9999, 1) is outside the 640x480 image"),
+    ],
+)
+def test_bad_images_are_rejected_with_a_reason(objects, reason) -> None:
+    m = _random_map(n=50)
+    out = localize({"id": "bad", "width": W, "height": H, "objects": objects}, m)
+    assert out["status"] == "rejected" and out["id"] == "bad"
+    assert out["reason"].startswith(reason), out["reason"]
+    assert out["candidates"] == [] and out["time_ms"] >= 0
+
+
+def test_match_fast_needs_four_objects_and_a_map() -> None:
+    two = Objects.from_names([0.0, 1.0], [0.0, 1.0], ["b", "b"])
+    objects, quads = ObjectIndex(two), [QuadIndex(two)]
+    assert quads[0].n_quads == 0
+    res = match_fast(np.array([0, 1, 1j, 2 + 2j]), np.zeros(4, int), objects, quads, 800.0)
+    assert res.best is None and "only 2 objects here" in res.reason
+    res = match_fast(np.array([0, 1, 1j]), np.zeros(3, int), objects, quads, 800.0)
+    assert res.best is None and "3 objects" in res.reason
+
+
+# --- paper -----------------------------------------------------------------------------------------------
+
+
+def test_paper_method_finds_the_centre_of_a_noise_free_image() -> None:
+    m = _random_map(n=40, size=200.0, seed=6, labels=("building",))
+    centre = complex(X0 + 100.0, Y0 + 100.0)
+    doc = _image_of(m, centre, 0.15, 30.0)
+    objs = m.all()
+    z = np.array([complex(o["x"] - W / 2, H / 2 - o["y"]) for o in doc["objects"]])
+    res = match_paper(z, np.zeros(z.size, int), objs)
+    assert res.best is not None and abs(res.best.b - centre) < 1e-6
+    assert res.best.matched == z.size and res.best.error_std < 1e-9
+    out = localize(doc, m, method="paper")
+    assert out["status"] == "ok" and out["score"] is None
+    assert out["heading_deg"] == pytest.approx(30.0, abs=1e-6)
+
+
+def test_paper_method_rejects_below_n_min() -> None:
+    m = _random_map(n=40, size=200.0, seed=6, labels=("building",))
+    doc = _image_of(m, complex(X0 + 100.0, Y0 + 100.0), 0.15, 30.0)
+    doc["objects"] = doc["objects"][:5]
+    out = localize(doc, m, method="paper")
+    assert out["status"] == "rejected" and "N_min = 6" in out["reason"]
