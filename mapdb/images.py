@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
@@ -33,7 +34,7 @@ from typing import Any
 import numpy as np
 from jsonschema import Draft202012Validator
 
-from .errors import ImageInputError, MapdbIOError
+from .errors import ImageInputError, reading
 
 __all__ = [
     "IMAGE_SCHEMA_PATH",
@@ -277,21 +278,9 @@ def read_image_documents(path: str | Path) -> list[tuple[str, Any]]:
     ImageInputError
         If it is not UTF-8 text.
     """
-    import sys
-
-    name = str(path)
-    try:
-        if name == "-":
-            raw = sys.stdin.buffer.read()
-            name = "<stdin>"
-        else:
-            raw = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise MapdbIOError(f"{name}: no such images file") from None
-    except IsADirectoryError:
-        raise MapdbIOError(f"{name}: is a directory, not an images file") from None
-    except OSError as exc:
-        raise MapdbIOError(f"{name}: cannot read images ({exc.strerror or exc})") from None
+    name = "<stdin>" if str(path) == "-" else str(path)
+    with reading(name, "images file"):
+        raw = sys.stdin.buffer.read() if str(path) == "-" else Path(path).read_bytes()
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -61,6 +61,8 @@ DEFAULT_PRIOR_MARGIN_M = 300.0
 # prior are read); a tile's anchors find their neighbours within this margin around it.
 TILE_SIZE_M = 1000.0
 TILE_PAD_M = 150.0
+# A prior reaching over more tiles than this is served by the whole map's index instead.
+MAX_PRIOR_TILES = 64
 
 
 def _rounded(value: float, digits: int) -> float:
@@ -121,9 +123,12 @@ def _fast_indexes(map_: Any, options: FastOptions, prior: tuple[float, float, fl
     reach = r + margin
     bounds = (x - reach, y - reach, x + reach, y + reach)
     objects = ObjectIndex(map_.query_radius(x, y, reach), bounds=bounds)
+    t = TILE_SIZE_M
+    if key not in state and (2.0 * reach / t + 1.0) ** 2 > MAX_PRIOR_TILES:
+        # A prior this wide covers much of the map: one whole-map index serves it (and later images) better.
+        state[key] = QuadIndex(map_.all(), options.map_neighbours)
     if key in state:
         return objects, [state[key]]
-    t = TILE_SIZE_M
     tiles = []
     for ix in range(math.floor(bounds[0] / t), math.floor(bounds[2] / t) + 1):
         for iy in range(math.floor(bounds[1] / t), math.floor(bounds[3] / t) + 1):
@@ -161,7 +166,10 @@ def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float]
         return (p.x, p.y, p.radius)
     if not crs:
         raise ImageInputError("prior: given in lon/lat but the map has no CRS to convert it to")
-    x, y = _transformer("EPSG:4326", crs).transform(p.x, p.y)
+    try:
+        x, y = _transformer("EPSG:4326", crs).transform(p.x, p.y)
+    except Exception:  # pyproj raises several kinds for points a projection cannot take
+        x = y = math.nan
     if not (math.isfinite(x) and math.isfinite(y)):
         raise ImageInputError(f"prior: lon {p.x}, lat {p.y} is outside the map's CRS ({crs})")
     return (float(x), float(y), p.radius)
@@ -338,7 +346,8 @@ def localize_documents(
     Yields
     ------
     dict
-        One answer per document; rejection reasons start with ``where``.
+        One answer per document.  A rejection of a document without an ``id`` names its place
+        (``where``) in the reason, so that it can be found in the input.
     """
     for where, doc in documents:
         if isinstance(doc, Exception):
@@ -346,6 +355,6 @@ def localize_documents(
             yield _rejected(None, str(doc), start)
             continue
         record = localize(doc, map, method, prior, options=options, source=where)
-        if record["status"] == "rejected" and not record["reason"].startswith(where):
+        if record["status"] == "rejected" and record["id"] is None and not record["reason"].startswith(where):
             record["reason"] = f"{where}: {record['reason']}"
         yield record

@@ -85,7 +85,8 @@ def test_bad_documents_raise_one_line_errors_naming_the_field(change, message) -
 
 @pytest.mark.parametrize("literal", ["NaN", "Infinity", "-Infinity"])
 def test_non_finite_numbers_from_python_json_are_rejected(literal: str) -> None:
-    line = '{"width": 640, "height": 480, "objects": [{"label": "b", "x": 1, "y": %s}]}' % literal
+    template = '{"width": 640, "height": 480, "objects": [{"label": "b", "x": 1, "y": LITERAL}]}'
+    line = template.replace("LITERAL", literal)
     doc = json.loads(line)  # Python's reader accepts these literals
     assert not math.isfinite(doc["objects"][0]["y"])
     with pytest.raises(ImageInputError, match=r"objects\[0\]\.y is .*not a finite number"):

@@ -231,3 +231,24 @@ def test_paper_method_rejects_below_n_min() -> None:
     doc["objects"] = doc["objects"][:5]
     out = localize(doc, m, method="paper")
     assert out["status"] == "rejected" and "N_min = 6" in out["reason"]
+
+
+def test_lonlat_prior_and_the_precision_gate() -> None:
+    from pyproj import Transformer
+
+    from mapdb.match.fast import FastOptions
+
+    m = _random_map()
+    centre = complex(X0 + 250.0, Y0 + 240.0)
+    doc = _image_of(m, centre, 0.12, 200.0)
+    lon, lat = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True).transform(centre.real + 20, centre.imag)
+    out = localize({**doc, "prior": {"lon": lon, "lat": lat, "radius": 60.0}}, m)
+    assert out["status"] == "ok" and abs(complex(out["x"], out["y"]) - centre) < 2e-3
+    # An answer less precise than max_sigma_m is withheld but still offered as a candidate.
+    rng = np.random.default_rng(8)
+    noisy = {**doc, "objects": [{**o, "x": min(max(o["x"] + rng.normal(0, 2), 0), W),
+                                 "y": min(max(o["y"] + rng.normal(0, 2), 0), H)} for o in doc["objects"]]}
+    strict = localize(noisy, m, options=FastOptions(max_sigma_m=1e-4))
+    assert strict["status"] == "rejected" and strict["reason"].startswith("imprecise")
+    best = strict["candidates"][0]
+    assert abs(complex(best["x"], best["y"]) - centre) < 1.0 and best["sigma_m"] > 1e-4

@@ -2,11 +2,11 @@
 
 The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC:
 
-1. **Index** (once per map, cached on it).  Every map object and three of its
-   ``map_neighbours`` nearest neighbours form a *quad*.  Its two most distant
-   points ``A``, ``B`` define a frame in which ``A = 0`` and ``B = 1``
-   (complex numbers); the other two points' coordinates in that frame,
-   ``t = (P - A) / (B - A)``, are four numbers invariant to translation,
+1. **Index** (built once per map, or per map tile, and cached).  Every map object
+   and three of its ``map_neighbours`` nearest neighbours form a *quad*.  Its two
+   most distant points ``A``, ``B`` define a frame in which ``A = 0`` and
+   ``B = 1`` (complex numbers); the other two points' coordinates in that
+   frame, ``t = (P - A) / (B - A)``, are four numbers invariant to translation,
    rotation and scale, but not to reflection (images are not mirrored).  The
    labels of ``A, B, C, D`` are part of the key.  ``(A, B)`` and ``(C, D)`` are
    ordered canonically so that each quad is stored once, in a cKDTree over
@@ -19,22 +19,29 @@ The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC:
    noise cannot hide a quad behind a flip.  Each hit gives four
    correspondences and a least-squares similarity ``z -> a z + b`` (pixels,
    centred, y up, to map metres): ``b`` is the map point under the image centre.
-3. **Verification**, all hypotheses at once: project image objects into the map,
-   find each one's nearest map object of its label (cKDTree per label), and
-   turn the distances into the chance of a random match
-   (:mod:`mapdb.match.decision`).  When there are more hypotheses than
-   ``max_verified``, the ones whose poses agree with most other hypotheses
-   (votes in a coarse pose grid) go first.
-4. **Refinement** of the best few: re-associate, keep the inliers that the
-   a contrario curve selects (plus those within 3.5 sigma of the fit), one map
-   object per image object, least-squares similarity over all of them; twice
-   more.  The final NFA uses the label densities around the answer.
-5. **Decision**: accepted when ``log10 NFA < log10_epsilon`` and no distinct
-   runner-up comes within ``ambiguity_margin`` of the winner's score.
+   Objects nearest the image centre anchor the first quads (their
+   neighbourhoods are least cut by the image edge), a few anchors per round;
+   the search stops at the first round that accepts.
+3. **Verification**, all hypotheses at once: project image objects into the map
+   and find each one's nearest map object of its label (a cKDTree per label).
+   A cheap screen (the objects around each quad, the region's mean densities)
+   ranks the hypotheses; the best are tested on every image object.
+4. **Decision** (:mod:`mapdb.match.decision`): the number of false alarms of a
+   hypothesis *as it came from its quad* (refitting a model to its own inliers
+   makes it look better than chance says), with tolerance discs shaped by how
+   far each object lies from the quad, the quad's own map points excluded
+   from the evidence, and the label densities counted around the answer.
+   Accepted when ``log10 NFA < log10_epsilon``, no distinct runner-up comes
+   within ``ambiguity_margin`` of the winner's score, and the final position's
+   estimated error is within ``max_sigma_m``.
+5. **Refinement** of the winner: re-association and least-squares similarity
+   (Umeyama, no reflection) over all inliers, twice, then a final optimal
+   one-to-one assignment (``linear_sum_assignment``) and fit: with the true
+   correspondences found, the position is the least-squares bound.
 
 Lookup tolerances are tried in passes (``pixel_sigmas``): a tight one first,
 a wider one only when the first finds nothing certain, so the usual image costs
-the tight pass.  Every hypothesis of every pass counts as a test.
+the tight pass.  Every hypothesis of every round counts as a test.
 """
 
 from __future__ import annotations
@@ -85,7 +92,7 @@ class FastOptions:
     max_hits_per_quad : int
         At most this many nearest map quads per lookup.
     max_verified : int
-        Hypotheses verified per pass (the best-supported ones when there are more).
+        Hypotheses screened per round (the best-supported ones when there are more).
     screen_objects : int
         Image objects (around each hypothesis's quad) used to screen hypotheses; the shortlist is
         tested on all objects.
@@ -95,7 +102,7 @@ class FastOptions:
     shortlist : int
         Best screened hypotheses given the full test.
     refine_candidates : int
-        Distinct hypotheses refined per pass.
+        Distinct places per round given the decision test and refined.
     log10_epsilon : float
         Accept when log10 NFA is below this.
     ambiguity_margin : float
@@ -118,9 +125,9 @@ class FastOptions:
     max_hits_per_quad: int = 16
     max_verified: int = 3000
     screen_objects: int = 12
-    anchors_per_batch: int = 8
+    anchors_per_batch: int = 6
     shortlist: int = 16
-    refine_candidates: int = 6
+    refine_candidates: int = 4
     log10_epsilon: float = -3.0
     ambiguity_margin: float = 1.0
     density_radius_factor: float = 1.5
@@ -252,6 +259,7 @@ class ObjectIndex:
         for code in np.flatnonzero(counts):
             members = np.flatnonzero(self.label == code)
             self.label_trees[int(code)] = (cKDTree(np.column_stack([objects.x[members], objects.y[members]])), members)
+        self._codes = np.array(sorted(self.label_trees), dtype=np.int64)
 
     def __len__(self) -> int:
         return int(self.z.size)
@@ -279,18 +287,21 @@ class ObjectIndex:
         positions that row ``h`` may not use: the map points a hypothesis was built from.
         """
         shape = w.shape
+        codes = np.unique(img_label) if np.ndim(img_label) == 1 else self._codes
         labels = np.broadcast_to(img_label, shape).ravel()
         flat = w.ravel()
         rows = np.repeat(np.arange(shape[0]), shape[1])
         dist = np.full(flat.size, np.inf)
         index = np.full(flat.size, -1, dtype=np.int64)
         k = 1 if exclude is None else 1 + exclude.shape[1]
-        for code in np.unique(labels):
+        for code in codes:
             entry = self.label_trees.get(int(code))
             if entry is None:
                 continue
             tree, members = entry
             sel = np.flatnonzero(labels == code)
+            if not sel.size:
+                continue
             lam = np.min(density[..., code]) if np.ndim(density) > 1 else density[code]
             reach = math.sqrt(_U_MAX / (math.pi * lam))
             kk = min(k, members.size)
@@ -299,7 +310,8 @@ class ObjectIndex:
             found = np.isfinite(d)
             i = np.where(found, members[np.minimum(i, members.size - 1)], -1)
             if exclude is not None:
-                taken = (np.abs(self.z[np.maximum(i, 0)][:, :, None] - exclude[rows[sel]][:, None, :]) < 1e-6).any(axis=2)
+                near = np.abs(self.z[np.maximum(i, 0)][:, :, None] - exclude[rows[sel]][:, None, :])
+                taken = (near < 1e-6).any(axis=2)
                 found &= ~taken
                 first = np.argmax(found, axis=1)  # nearest allowed (column 0 if none: then not found)
                 pick = np.arange(sel.size)
@@ -343,6 +355,9 @@ class QuadIndex:
             quads = neighbour_quads(np.column_stack([objects.x, objects.y]), neighbours, anchors=anchors)
         else:
             quads = np.zeros((0, 4), np.int64)
+        if len(quads):
+            # Four objects on one spot (duplicates in the sources) have no frame.
+            quads = quads[np.abs(z[quads] - z[quads[:, :1]]).max(axis=1) > 0.0]
         if len(quads):
             order, inv, _ = canonical_quads(z[quads])
             quads = np.take_along_axis(quads, order, axis=1)
@@ -417,6 +432,7 @@ def _image_hypotheses(
         pair = by_length[:, rank]
         length = d[np.arange(len(d)), pair]
         use = np.ones(len(d), bool) if rank == 0 else longest - length < 3.0 * math.sqrt(2.0) * sigma_px
+        use &= length > 0.0  # four objects on one spot have no frame
         if not use.any():
             continue
         sel = np.flatnonzero(use)
@@ -613,7 +629,8 @@ def match_fast(
         Image diagonal in pixels (sets the footprint for densities and pose bins).
     options : FastOptions, optional
     prior : (x, y, radius), optional
-        The map point under the image centre must lie within ``radius`` of ``(x, y)``.
+        The map point under the image centre must lie within ``radius`` of ``(x, y)`` (hypotheses
+        within 1.1 times the radius are tried).
     scale_range : (low, high), optional
         Allowed metres per pixel (from a known altitude and field of view).
 
@@ -628,8 +645,10 @@ def match_fast(
     if n < 4:
         return MatchResult(None, [], f"{n} objects: the fast matcher needs at least 4", 0, 0)
     index = objects
-    if len(index) < 4 or not any(q.tree is not None for q in quads):
+    if len(index) < 4:
         return MatchResult(None, [], f"the map has only {len(index)} objects here: at least 4 are needed", 0, 0)
+    if not any(q.tree is not None for q in quads):
+        return MatchResult(None, [], f"the map's {len(index)} objects here form no pattern to match", 0, 0)
 
     # Each hypothesis is screened on the image objects around its quad (the neighbours of its first
     # point), where a right hypothesis predicts positions best.
@@ -660,7 +679,8 @@ def match_fast(
         a, b = fit_similarity_complex(z[img_ids], map_z)
         ok = np.isfinite(a) & (np.abs(a) > 0)
         if prior is not None:
-            ok &= np.abs(b - complex(prior[0], prior[1])) <= prior[2]
+            # A little slack: a quad's estimate of the centre is noisier than the final answer.
+            ok &= np.abs(b - complex(prior[0], prior[1])) <= 1.1 * prior[2]
         if scale_range is not None:
             ok &= (np.abs(a) >= scale_range[0]) & (np.abs(a) <= scale_range[1])
         a, b, img_ids, map_z = a[ok], b[ok], img_ids[ok], map_z[ok]
@@ -669,7 +689,7 @@ def match_fast(
             continue
         log10_tests = math.log10(n_tests)
 
-        # Screen: a cheap NFA (global densities, a sample of the objects) ranks the hypotheses ...
+        # Screen: a cheap NFA (the region's mean densities, the objects around each quad) ranks them ...
         pick = _prioritise(a, b, diag_px, opts.max_verified)
         a, b, img_ids, map_z = a[pick], b[pick], img_ids[pick], map_z[pick]
         screen = screen_of[img_ids[:, 0]]
