@@ -26,7 +26,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 from typing import Any
 
@@ -197,6 +197,68 @@ def _worker_run(image: dict[str, Any]) -> tuple[dict[str, Any], float]:
     return _localize_timed(_WORKER["map"], image, _WORKER["method"])
 
 
+def _worker_spec(map_: Any) -> tuple[str, Any]:
+    path = getattr(map_, "path", None)
+    if path is not None:
+        return ("path", str(path))
+    return ("memory", (map_.all(), getattr(map_, "quantum", 0.1)))
+
+
+def _run_budgeted(
+    map_: Any,
+    images: Sequence[dict[str, Any]],
+    method: str,
+    jobs: int,
+    budget_s: float,
+    cost: Callable[[dict[str, Any]], float],
+    say: Callable[[str], None],
+) -> dict[int, tuple[dict[str, Any], float]]:
+    """Localize images in order while each is predicted to finish within ``budget_s`` of the start.
+
+    The prediction is the image's ``cost`` times the largest time per unit of cost seen so far (nothing is
+    stopped before the first image finishes).  The first image predicted to overrun ends the run: skipping
+    it for a later, cheaper one would bias the sample towards images with few objects.  A running image
+    is never interrupted, so the budget can be exceeded by at most a misprediction.
+    """
+    start = time.perf_counter()
+    rate: float | None = None  # ms per unit of cost
+    done: dict[int, tuple[dict[str, Any], float]] = {}
+
+    def fits(i: int) -> bool:
+        elapsed_ms = (time.perf_counter() - start) * 1000.0
+        return rate is None or elapsed_ms + rate * cost(images[i]) <= budget_s * 1000.0
+
+    def record(i: int, result: tuple[dict[str, Any], float]) -> None:
+        nonlocal rate
+        done[i] = result
+        per_unit = result[1] / max(cost(images[i]), 1e-12)
+        rate = per_unit if rate is None else max(rate, per_unit)
+        say(f"{method}: {len(done)} images done, {time.perf_counter() - start:.0f} s")
+
+    pending = list(range(len(images)))
+    if jobs <= 1:
+        for i in pending:
+            if not fits(i):
+                break
+            record(i, _localize_timed(map_, images[i], method))
+        return done
+    with ProcessPoolExecutor(jobs, initializer=_init_worker, initargs=(_worker_spec(map_), method)) as pool:
+        running: dict[Any, int] = {}
+        while pending or running:
+            while pending and len(running) < jobs:
+                if not fits(pending[0]):
+                    pending.clear()
+                    break
+                i = pending.pop(0)
+                running[pool.submit(_worker_run, images[i])] = i
+            if not running:
+                break
+            finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
+            for future in finished:
+                record(running.pop(future), future.result())
+    return done
+
+
 def evaluate_images(
     map: Any,
     images: Sequence[dict[str, Any]],
@@ -204,6 +266,8 @@ def evaluate_images(
     method: str = "fast",
     jobs: int = 1,
     fp_threshold: float = 2.0,
+    budget_s: float | None = None,
+    cost: Callable[[dict[str, Any]], float] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Localize every image against ``map`` and compare with its truth.
@@ -220,31 +284,36 @@ def evaluate_images(
         Worker processes (1: in this process).  Times are per image, measured inside the worker.
     fp_threshold : float
         Accepted answers farther than this (metres) from the truth are false positives.
+    budget_s : float, optional
+        Wall-clock budget: images are taken in order until one is predicted to finish later; it and the
+        rest are left out of the outcomes.  For a slow method; the prediction scales the time seen so far by ``cost``.
+    cost : callable, optional
+        Relative cost of an image for the budget (default: 1 per image).
     progress : callable, optional
         Receives a short message now and then.
 
     Returns
     -------
     outcomes, summary
-        One :func:`outcome` per image (input order) and :func:`summarize` of them.
+        One :func:`outcome` per image localized (input order) and :func:`summarize` of them.
     """
     say = progress or (lambda message: None)
+    jobs = max(1, min(jobs, len(images), os.cpu_count() or 1))
+    if budget_s is not None:
+        done = _run_budgeted(map, images, method, jobs, budget_s, cost or (lambda image: 1.0), say)
+        outcomes = [outcome(images[i], *done[i]) for i in sorted(done)]
+        return outcomes, summarize(outcomes, fp_threshold)
     results: list[tuple[dict[str, Any], float]] = []
     step = max(1, len(images) // 10)
-    if jobs <= 1 or len(images) < 2:
+    if jobs <= 1:
         for i, image in enumerate(images, 1):
             results.append(_localize_timed(map, image, method))
             if i % step == 0:
                 say(f"{method}: {i}/{len(images)} images")
     else:
-        path = getattr(map, "path", None)
-        if path is not None:
-            spec = ("path", str(path))
-        else:
-            spec = ("memory", (map.all(), getattr(map, "quantum", 0.1)))
-        jobs = min(jobs, len(images), os.cpu_count() or 1)
-        with ProcessPoolExecutor(jobs, initializer=_init_worker, initargs=(spec, method)) as pool:
-            for i, result in enumerate(pool.map(_worker_run, images, chunksize=max(1, len(images) // (8 * jobs))), 1):
+        with ProcessPoolExecutor(jobs, initializer=_init_worker, initargs=(_worker_spec(map), method)) as pool:
+            chunk = max(1, len(images) // (8 * jobs))
+            for i, result in enumerate(pool.map(_worker_run, images, chunksize=chunk), 1):
                 results.append(result)
                 if i % step == 0:
                     say(f"{method}: {i}/{len(images)} images")
@@ -333,6 +402,7 @@ def plot_evaluation(
         if mask.any():
             ax_map.scatter(tx[mask], ty[mask], s=10, color=colour, label=f"{name} ({int(mask.sum())})", zorder=2)
     ax_map.set_aspect("equal")
+    ax_map.ticklabel_format(useOffset=False, style="plain")
     ax_map.set_xlabel("x (m)")
     ax_map.set_ylabel("y (m)")
     ax_map.set_title("image positions by outcome")

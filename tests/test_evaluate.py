@@ -12,10 +12,11 @@ import pytest
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
+from mapdb.bench import bench_paper, format_bench
 from mapdb.errors import ImageInputError, MapdbIOError
-from mapdb.evaluate import format_summary, load_images, outcome, plot_evaluation, summarize
+from mapdb.evaluate import evaluate_images, format_summary, load_images, outcome, plot_evaluation, summarize
 from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import write_map
+from mapdb.store import MemoryMap, write_map
 
 HAS_LOCALIZER = importlib.util.find_spec("mapdb.localize") is not None
 
@@ -120,3 +121,25 @@ def test_evaluate_command_on_simulated_images(tmp_path: Path) -> None:
     assert png.exists()
     result = runner.invoke(cli, ["evaluate", str(map_path), str(tmp_path / "missing.jsonl")])
     assert result.exit_code == 1 and result.output.startswith("mapdb: error:")
+
+
+@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize is not written yet")
+def test_evaluate_images_in_process_and_within_a_budget() -> None:
+    m = MemoryMap(paper_map())
+    images = simulate_images(m, 4, seed=5)
+    outcomes, summary = evaluate_images(m, images, method="fast")
+    assert [o["id"] for o in outcomes] == [im["id"] for im in images]
+    assert summary["accepted"] == 4 and summary["max_m"] < 0.01  # zero error: exact answers
+    # A zero budget runs the first image (nothing to predict from yet) and stops before the second.
+    outcomes, summary = evaluate_images(m, images, method="fast", budget_s=0.0)
+    assert [o["id"] for o in outcomes] == [images[0]["id"]] and summary["images"] == 1
+
+
+@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize is not written yet")
+def test_bench_paper_table_shape() -> None:
+    result = bench_paper(n=4, methods=("fast",), cases=[1, 5], budget_s=None)
+    assert [c["case"] for c in result["cases"]] == [1, 5]
+    assert all(c["fast"]["images"] == 4 and "paper" not in c for c in result["cases"])
+    assert result["cases"][1]["objects_mean"] > result["cases"][0]["objects_mean"]  # wider field of view
+    table = format_bench(result)
+    assert "0/500 (0.0%)" in table and "9/500 (1.8%)" in table and "Case 5" in table
