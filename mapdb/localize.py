@@ -31,7 +31,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Iterator
+from collections import OrderedDict
+from collections.abc import Callable, Iterable, Iterator
 from functools import lru_cache
 from typing import Any
 
@@ -63,6 +64,10 @@ TILE_SIZE_M = 1000.0
 TILE_PAD_M = 150.0
 # A prior reaching over more tiles than this is served by the whole map's index instead.
 MAX_PRIOR_TILES = 64
+# Blocks of tiles around a prior (their objects and one quad index over them; each holds a copy of its
+# tiles' quads) kept in memory, the least recently used dropped first: a flight wandering over 3 x 3
+# tiles never rebuilds one.
+MAX_CACHED_BLOCKS = 9
 
 
 def _rounded(value: float, digits: int) -> float:
@@ -107,10 +112,12 @@ def prior_margin(radius: float, half_diagonal_m: float | None) -> float:
 def _fast_indexes(map_: Any, options: FastOptions, prior: tuple[float, float, float] | None, margin: float):
     """The fast matcher's indexes: objects to verify against and quad indexes to look hypotheses up in.
 
-    Without a prior: the whole map's, built on first use and cached on the map.  With one: the objects
-    within the prior radius plus ``margin`` (read through the map's R-tree), and the quad indexes of the
-    map tiles that disc touches, each built on first use and cached (a flight revisits its tiles) - unless
-    the whole map's quad index is already in memory, which then serves every prior.
+    Without a prior: the whole map's, built on first use and cached on the map.  With one: the block of
+    map tiles around the tile under the prior's centre that holds the disc of the prior radius plus
+    ``margin``.  The block's objects (read through the map's R-tree) and one quad index over its tiles
+    (each tile's quads built once and cached) are kept for the ``MAX_CACHED_BLOCKS`` blocks used last,
+    so that the images of a flight cost no map reading and no index building.  The whole map's quad
+    index, when already in memory, serves every prior instead of the tiles'.
     """
     state = map_.cached("mapdb.match.fast/state", dict)
     key = f"quads/neighbours={options.map_neighbours}"
@@ -121,24 +128,51 @@ def _fast_indexes(map_: Any, options: FastOptions, prior: tuple[float, float, fl
         return objects, [state[key]]
     x, y, r = prior
     reach = r + margin
-    bounds = (x - reach, y - reach, x + reach, y + reach)
-    objects = ObjectIndex(map_.query_radius(x, y, reach), bounds=bounds)
     t = TILE_SIZE_M
-    if key not in state and (2.0 * reach / t + 1.0) ** 2 > MAX_PRIOR_TILES:
-        # A prior this wide covers much of the map: one whole-map index serves it (and later images) better.
-        state[key] = QuadIndex(map_.all(), options.map_neighbours)
+    # The block of tiles around the one under the prior's centre, wide enough to hold the disc: its key
+    # changes only when the prior moves to another tile, so a flight reuses the block from image to image.
+    k = max(1, math.ceil(reach / t))
+    cx, cy = math.floor(x / t), math.floor(y / t)
+    if (2 * k + 1) ** 2 > MAX_PRIOR_TILES:
+        # A prior this wide covers much of the map: the whole map's indexes serve it (and later images) better.
+        return _fast_indexes(map_, options, None, 0.0)
+    block = (cx, cy, k)
+    x0, y0, x1, y1 = (cx - k) * t, (cy - k) * t, (cx + k + 1) * t, (cy + k + 1) * t
+    objects = _recently_used(state, "objects", block, MAX_CACHED_BLOCKS,
+                             lambda: ObjectIndex(map_.query_bbox(x0, y0, x1, y1), bounds=(x0, y0, x1, y1)))
     if key in state:
         return objects, [state[key]]
-    tiles = []
-    for ix in range(math.floor(bounds[0] / t), math.floor(bounds[2] / t) + 1):
-        for iy in range(math.floor(bounds[1] / t), math.floor(bounds[3] / t) + 1):
-            # Only tiles that the disc reaches.
-            dx = max(ix * t - x, 0.0, x - (ix + 1) * t)
-            dy = max(iy * t - y, 0.0, y - (iy + 1) * t)
-            if dx * dx + dy * dy <= reach * reach:
-                tiles.append(map_.cached(f"mapdb.match.fast/{key}/tile={t:g}/{ix},{iy}",
-                                         lambda ix=ix, iy=iy: _tile_quads(map_, ix, iy, options)))
-    return objects, tiles
+
+    def tile(ix: int, iy: int) -> QuadIndex:
+        return map_.cached(f"mapdb.match.fast/{key}/tile={t:g}/{ix},{iy}", lambda: _tile_quads(map_, ix, iy, options))
+
+    cells = [(ix, iy) for ix in range(cx - k, cx + k + 1) for iy in range(cy - k, cy + k + 1)]
+    merged: OrderedDict = state.setdefault(f"recent/{key}", OrderedDict())
+    previous, state["previous block"] = state.get("previous block"), block
+    if block not in merged and block != previous:
+        # Look up in the tiles the disc reaches, one by one.  Merging them (tens of milliseconds) pays for
+        # a block that images in a row fall in, as a flight's do; scattered images would merge one per image.
+        reached = [
+            tile(ix, iy) for ix, iy in cells
+            if max(ix * t - x, 0.0, x - (ix + 1) * t) ** 2 + max(iy * t - y, 0.0, y - (iy + 1) * t) ** 2 <= reach**2
+        ]
+        return objects, reached
+    # One tree over the block's tiles: a lookup per image quad instead of one per tile and image quad.
+    quads = _recently_used(state, key, block, MAX_CACHED_BLOCKS,
+                           lambda: QuadIndex.merged([tile(ix, iy) for ix, iy in cells]))
+    return objects, [quads]
+
+
+def _recently_used(state: dict, kind: str, key: tuple, limit: int, factory: Callable[[], Any]) -> Any:
+    """A value of a cache of ``limit`` entries, the least recently used dropped first."""
+    cache: OrderedDict = state.setdefault(f"recent/{kind}", OrderedDict())
+    if key in cache:
+        cache.move_to_end(key)
+        return cache[key]
+    cache[key] = factory()
+    while len(cache) > limit:
+        cache.popitem(last=False)
+    return cache[key]
 
 
 def _tile_quads(map_: Any, ix: int, iy: int, options: FastOptions) -> QuadIndex:

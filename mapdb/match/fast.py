@@ -374,6 +374,33 @@ class QuadIndex:
     def n_quads(self) -> int:
         return int(len(self.quad_z))
 
+    @classmethod
+    def merged(cls, parts: Sequence[QuadIndex]) -> QuadIndex:
+        """One index over the quads of several (the tiles around a prior): one lookup instead of one per part.
+
+        Examples
+        --------
+        >>> rng = np.random.default_rng(0)
+        >>> parts = [QuadIndex(Objects.from_names(rng.uniform(0, 100, 30), rng.uniform(0, 100, 30), ["b"] * 30))
+        ...          for _ in range(2)]
+        >>> QuadIndex.merged(parts).n_quads == parts[0].n_quads + parts[1].n_quads
+        True
+        """
+        parts = [q for q in parts if q.tree is not None]
+        merged = cls.__new__(cls)
+        merged.labels = parts[0].labels if parts else ()
+        if not parts:
+            merged.tree = None
+            merged.quad_z = np.zeros((0, 4), np.complex128)
+            merged.quad_label = np.zeros((0, 4), np.int64)
+            return merged
+        merged.tree = cKDTree(
+            np.concatenate([q.tree.data for q in parts]), balanced_tree=False, compact_nodes=False
+        )
+        merged.quad_z = np.concatenate([q.quad_z for q in parts])
+        merged.quad_label = np.concatenate([q.quad_label for q in parts])
+        return merged
+
 
 @dataclass
 class Candidate:
