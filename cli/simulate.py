@@ -25,6 +25,14 @@ def parse_range(ctx: click.Context | None, param: click.Parameter | None, value:
     raise click.BadParameter(f"{value!r} must be a positive number or LOW:HIGH with 0 < LOW <= HIGH")
 
 
+def parse_fov(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
+    """Like :func:`parse_range`, and below 180 degrees."""
+    fov = parse_range(ctx, param, value)
+    if fov is not None and max(fov if isinstance(fov, tuple) else (fov,)) >= 180.0:
+        raise click.BadParameter(f"{value!r}: a field of view must be below 180 degrees")
+    return fov
+
+
 def parse_size(ctx: click.Context | None, param: click.Parameter | None, value: str):
     try:
         w, h = (int(v) for v in value.lower().split("x"))
@@ -54,7 +62,7 @@ non_negative = click.FloatRange(0.0, None)
 @click.option("--n", "n_images", type=click.IntRange(0, None), default=100, show_default=True, help="Images.")
 @click.option("--altitude", default="100", callback=parse_range, show_default=True,
               help="Height above ground, metres, or LOW:HIGH drawn per image.")
-@click.option("--fov", default="35", callback=parse_range, show_default=True,
+@click.option("--fov", default="35", callback=parse_fov, show_default=True,
               help="Horizontal field of view, degrees, or LOW:HIGH drawn per image.")
 @click.option("--size", default="640x480", callback=parse_size, show_default=True, help="Image size WxH.")
 @click.option("--yaw", default="0", callback=parse_yaw, show_default=True,
@@ -73,13 +81,16 @@ non_negative = click.FloatRange(0.0, None)
               help="Add a prior of radius R metres centred within R of the truth.")
 @click.option("--with-attitude", is_flag=True, help="Add the true roll and pitch (as an AHRS would).")
 @click.option("--with-altitude", is_flag=True, help="Add the true height above ground (as an altimeter would).")
+@click.option("--min-objects", type=click.IntRange(0, None), default=0, show_default=True,
+              help="Redraw camera positions until at least this many map objects are in view (sparse maps).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same images.")
 @bbox_option
 @quiet_option
 @debug_option
 @handle_errors
 def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std, pixel_std, miss_rate,
-             spurious_rate, label_noise, with_prior, with_attitude, with_altitude, seed, bbox, quiet, debug):
+             spurious_rate, label_noise, with_prior, with_attitude, with_altitude, min_objects, seed, bbox, quiet,
+             debug):
     """Simulate downward-looking camera images of MAP, one JSON object per line.
 
     Camera positions are uniform over the map (or --bbox), keeping the image footprint inside it. Each
@@ -93,7 +104,7 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
             m, n_images, altitude=altitude, fov_deg=fov, size=size, yaw=yaw, attitude_std=attitude_std,
             pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
             with_prior=with_prior, with_attitude=with_attitude, with_altitude=with_altitude, bbox=area,
-            seed=seed,
+            min_objects=min_objects, seed=seed,
         )
     write_images(images, output)
     if say:

@@ -349,6 +349,8 @@ def simulate_images(
     with_attitude: bool = False,
     with_altitude: bool = False,
     bbox: tuple[float, float, float, float] | None = None,
+    min_objects: int = 0,
+    max_tries: int = 10_000,
     seed: int = 0,
     id_prefix: str = "sim-",
 ) -> list[dict[str, Any]]:
@@ -388,6 +390,12 @@ def simulate_images(
     bbox : (minx, miny, maxx, maxy), optional
         Map-CRS box in which camera positions are drawn.  By default the map's extent, shrunk so that the
         whole footprint stays inside it.
+    min_objects : int
+        Draw camera positions (up to ``max_tries`` proposals, else :class:`EmptyMapError`) uniformly over
+        the places from which at least this many map objects are in the image, before detector errors.  For
+        sparse real maps, where most of the bounding box shows nothing.
+    max_tries : int
+        Position draws per image allowed by ``min_objects``.
     seed : int
         Image ``i`` depends only on ``(seed, i)``: the same seed gives the same images, and the first
         images of a longer run are those of a shorter one.
@@ -408,6 +416,8 @@ def simulate_images(
     for name, rate in (("miss_rate", miss_rate), ("label_noise", label_noise)):
         if not 0.0 <= rate <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {rate}")
+    if min_objects < 0 or max_tries < 1:
+        raise ValueError(f"min_objects must be >= 0 and max_tries >= 1, got {min_objects} and {max_tries}")
     if spurious_rate < 0 or attitude_std < 0 or pixel_std < 0:
         raise ValueError("spurious_rate, attitude_std and pixel_std must be >= 0")
     random_yaw = isinstance(yaw, str)
@@ -442,25 +452,46 @@ def simulate_images(
         yaw_draw = float(rng.uniform(0.0, 360.0))
         heading = yaw_draw if random_yaw else float(yaw)
         roll, pitch = (float(a) for a in attitude_std * rng.standard_normal(2))
-        where = rng.random(2)
 
         # Footprint corners relative to the camera decide how far from the edge the camera may be.
-        corners = footprint(Pose(0.0, 0.0, alt, heading, roll, pitch), camera)
+        relative_pose = Pose(0.0, 0.0, alt, heading, roll, pitch)
+        corners = footprint(relative_pose, camera)
         if keep_inside and np.all(np.isfinite(corners)):
             lo = area[0] - corners[:, 0].min(), area[1] - corners[:, 1].min()
             hi = area[2] - corners[:, 0].max(), area[3] - corners[:, 1].max()
         else:
             lo, hi = area[:2], area[2:]
-        cam_x = lo[0] + where[0] * (hi[0] - lo[0]) if hi[0] > lo[0] else (area[0] + area[2]) / 2.0
-        cam_y = lo[1] + where[1] * (hi[1] - lo[1]) if hi[1] > lo[1] else (area[1] + area[3]) / 2.0
-        cam_x, cam_y = float(cam_x), float(cam_y)
-        pose = Pose(cam_x, cam_y, alt, heading, roll, pitch)
-
         reach = np.nanmax(np.hypot(corners[:, 0], corners[:, 1])) if np.all(np.isfinite(corners)) else 50 * alt
-        near = np.asarray(tree.query_ball_point([cam_x, cam_y], reach * 1.001 + 1e-6), dtype=np.int64)
-        near.sort()
-        u, v = project_to_image(objects.x[near], objects.y[near], pose, camera)
-        seen = np.isfinite(u) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        for _attempt in range(max_tries if min_objects > 0 else 1):
+            if min_objects > 0:
+                # Sparse maps: propose a camera that puts a random map object at a random pixel, so that
+                # proposals land where there is something to see.  Their density is proportional to the
+                # number of objects in view, n; accepting with probability min_objects / n makes the
+                # accepted positions uniform over those showing at least min_objects objects.
+                anchor = int(rng.integers(len(objects)))
+                off_x, off_y = image_to_ground(rng.random() * width, rng.random() * height, relative_pose, camera)
+                cam_x = float(objects.x[anchor] - off_x[0])
+                cam_y = float(objects.y[anchor] - off_y[0])
+                if not (lo[0] <= cam_x <= hi[0] and lo[1] <= cam_y <= hi[1]):
+                    continue
+            else:
+                where = rng.random(2)
+                cam_x = lo[0] + where[0] * (hi[0] - lo[0]) if hi[0] > lo[0] else (area[0] + area[2]) / 2.0
+                cam_y = lo[1] + where[1] * (hi[1] - lo[1]) if hi[1] > lo[1] else (area[1] + area[3]) / 2.0
+                cam_x, cam_y = float(cam_x), float(cam_y)
+            pose = Pose(cam_x, cam_y, alt, heading, roll, pitch)
+            near = np.asarray(tree.query_ball_point([cam_x, cam_y], reach * 1.001 + 1e-6), dtype=np.int64)
+            near.sort()
+            u, v = project_to_image(objects.x[near], objects.y[near], pose, camera)
+            seen = np.isfinite(u) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+            n_seen = int(seen.sum())
+            if min_objects == 0 or (n_seen >= min_objects and rng.random() * n_seen < min_objects):
+                break
+        else:
+            raise EmptyMapError(
+                f"{getattr(map, 'path', None) or 'map'}: no camera position out of {max_tries} tried shows "
+                f"{min_objects} objects (image {i}); lower min_objects or choose a denser bbox"
+            )
         index, u, v = near[seen], u[seen], v[seen]
         n_visible = index.size
 

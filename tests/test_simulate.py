@@ -11,6 +11,7 @@ import pytest
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
+from mapdb.errors import EmptyMapError
 from mapdb.match.geometry import apply_similarity, fit_similarity
 from mapdb.objects import Objects
 from mapdb.simulate import (
@@ -248,3 +249,37 @@ def test_simulate_command_writes_json_lines(tmp_path: Path) -> None:
     assert bad.exit_code == 1 and "mapdb: error:" in bad.output and "Traceback" not in bad.output
     bad = runner.invoke(cli, ["simulate", str(map_path), "-o", str(again), "--size", "640by480"])
     assert bad.exit_code == 2
+
+
+def test_min_objects_redraws_positions_over_empty_ground() -> None:
+    # A dense cluster in one corner of a large, otherwise empty map.
+    rng = np.random.default_rng(3)
+    x = np.concatenate([X0 + rng.uniform(0, 100, 300), [X0 + 2000.0]])
+    y = np.concatenate([Y0 + rng.uniform(0, 100, 300), [Y0 + 2000.0]])
+    objects = Objects(x, y, np.zeros(x.size, np.int32), np.zeros(x.size), ("building",), "EPSG:32631")
+    plain = simulate_images(objects, 20, seed=0)
+    assert sum(len(im["objects"]) >= 6 for im in plain) < 5
+    dense = simulate_images(objects, 20, seed=0, min_objects=6)
+    assert all(len(im["objects"]) >= 6 for im in dense)
+    with pytest.raises(EmptyMapError, match="no camera position"):
+        simulate_images(objects, 1, seed=0, min_objects=10_000, max_tries=50)
+
+
+def test_min_objects_positions_are_uniform_over_qualifying_places() -> None:
+    # Two clusters of different density; a place qualifies if it shows >= 6 objects.  The share of images
+    # over the left cluster must match the share of qualifying area there (found by brute force), not the
+    # share of objects (which the object-anchored proposal would give without its acceptance step).
+    rng = np.random.default_rng(8)
+    left = (X0 + rng.uniform(0, 120, 400), Y0 + rng.uniform(0, 120, 400))
+    right = (X0 + 600 + rng.uniform(0, 200, 150), Y0 + rng.uniform(0, 200, 150))
+    x, y = np.concatenate([left[0], right[0]]), np.concatenate([left[1], right[1]])
+    objects = Objects(x, y, np.zeros(x.size, np.int32), np.zeros(x.size), ("building",), "EPSG:32631")
+    images = simulate_images(objects, 1500, min_objects=6, seed=4)
+    share = np.mean([im["truth"]["x"] < X0 + 400 for im in images])
+
+    probe = simulate_images(objects, 6000, seed=5)  # uniform positions, footprint inside the map
+    qualifies = np.array([len(im["objects"]) >= 6 for im in probe])
+    probe_left = np.array([im["truth"]["x"] < X0 + 400 for im in probe])
+    expected = probe_left[qualifies].mean()
+    assert 0.2 < expected < 0.8  # both clusters matter
+    assert abs(share - expected) < 0.06
