@@ -252,3 +252,87 @@ def test_lonlat_prior_and_the_precision_gate() -> None:
     assert strict["status"] == "rejected" and strict["reason"].startswith("imprecise")
     best = strict["candidates"][0]
     assert abs(complex(best["x"], best["y"]) - centre) < 1.0 and best["sigma_m"] > 1e-4
+
+
+def _paper_case(
+    seed: int, n_labels: int, n_image: int = 9, spurious: int = 0
+) -> tuple[np.ndarray, np.ndarray, Objects]:
+    """A small map (40-60 objects) and a noisy image of it (pixels about the centre, y up) for the paper method."""
+    rng = np.random.default_rng(seed)
+    n_map = int(rng.integers(40, 61))
+    x, y = X0 + rng.uniform(0, 200, n_map), Y0 + rng.uniform(0, 150, n_map)
+    label = rng.integers(0, n_labels, n_map)
+    objects = Objects(x, y, label, np.zeros(n_map), ("building", "road_intersection"), CRS)
+    centre = complex(X0 + rng.uniform(40, 160), Y0 + rng.uniform(40, 110))
+    a = rng.uniform(0.08, 0.16) * np.exp(1j * rng.uniform(-np.pi, np.pi))
+    z = (x + 1j * y - centre) / a
+    seen = np.flatnonzero((np.abs(z.real) < W / 2) & (np.abs(z.imag) < H / 2))[:n_image]
+    z = z[seen] + rng.normal(0, 1.5, (seen.size, 2)) @ np.array([1, 1j])
+    extra = rng.uniform(-W / 2, W / 2, spurious) + 1j * rng.uniform(-H / 2, H / 2, spurious)
+    return np.concatenate([z, extra]), np.concatenate([label[seen], rng.integers(0, n_labels, spurious)]), objects
+
+
+def test_paper_bound_never_undercounts_a_candidate() -> None:
+    # Brute force: every hypothesis's float64 N_matched (before the float32 pre-test, so at least the
+    # matcher's) must be within the bound, for thresholds from 3 to "every object".
+    from itertools import combinations
+
+    from mapdb.match.paper import PaperOptions, _NearestBound, _wrap
+
+    opts = PaperOptions()
+    for seed, n_labels in ((11, 1), (12, 2)):
+        z, codes, objects = _paper_case(seed, n_labels, n_image=7, spurious=1)
+        map_z, map_label = objects.x + 1j * objects.y, objects.label.astype(np.int64)
+        keys = [None] if n_labels == 1 else [0, 1]
+        bound = _NearestBound(map_z, map_label, keys)
+        r, theta = np.abs(z), np.angle(z)
+        checked = pruned = 0
+        for i, j in combinations(range(z.size), 2):
+            others = np.array([k for k in range(z.size) if k not in (i, j)], dtype=np.int64)
+            perm = [(p, q) for p in np.flatnonzero(map_label == codes[i]) for q in np.flatnonzero(map_label == codes[j])
+                    if p != q]
+            big_i, big_j = np.array(perm).T
+            a = (map_z[big_j] - map_z[big_i]) / (z[j] - z[i])
+            centre = map_z[big_i] - a * z[i]
+            rel = map_z[None, :] - centre[:, None]
+            ratio_map = np.abs(rel) / np.abs(rel[np.arange(big_i.size), big_i])[:, None]
+            angle_map = np.angle(rel[np.arange(big_i.size), big_i])[:, None] - np.angle(rel)
+            ratio_map[np.arange(big_i.size), big_i] = ratio_map[np.arange(big_i.size), big_j] = np.inf
+            count = np.full(big_i.size, 2)
+            for k in others:
+                ok = np.abs(r[k] / r[i] - ratio_map) < opts.delta_r
+                ok &= np.abs(_wrap(_wrap(theta[i] - theta[k]) - angle_map)) < opts.delta_theta
+                if n_labels > 1:
+                    ok &= map_label[None, :] == codes[k]
+                count += ok.any(axis=1)
+            key_k = [None] * others.size if n_labels == 1 else [int(c) for c in codes[others]]
+            for need in (3, opts.n_min, others.size + 2):
+                kept, most = bound.survivors(centre, map_z[big_i] - centre, r[others] / r[i],
+                                             _wrap(theta[i] - theta[others]), key_k, need, opts)
+                upper = np.zeros(big_i.size, dtype=int)
+                upper[kept] = most
+                reach = count >= need
+                assert np.all(upper[reach] >= count[reach]), (seed, i, j, need)
+                checked += int(reach.sum())
+                pruned += big_i.size - kept.size
+        assert checked > 0 and pruned > 0  # the check covered candidates, and the bound did rule some out
+
+
+def test_paper_pruning_gives_the_same_results_as_the_full_test() -> None:
+    from mapdb.match.paper import PaperOptions
+
+    outcomes = set()
+    cases = [(21, 1, 9, 0), (22, 2, 9, 2), (23, 2, 8, 1), (24, 1, 9, 3), (25, 2, 5, 0), (26, 1, 2, 0)]
+    for seed, n_labels, n_image, spurious in cases:
+        z, codes, objects = _paper_case(seed, n_labels, n_image, spurious)
+        full = match_paper(z, codes, objects, options=PaperOptions(prune=False))
+        pruned = match_paper(z, codes, objects, options=PaperOptions(prune=True))
+        assert pruned.candidates_tested == full.candidates_tested
+        assert pruned.reason == full.reason
+        assert (pruned.best is None) == (full.best is None)
+        if full.best is not None:
+            # Bit for bit: the same candidate, found by the same arithmetic.
+            assert (pruned.best.a, pruned.best.b) == (full.best.a, full.best.b)
+            assert (pruned.best.matched, pruned.best.error_std) == (full.best.matched, full.best.error_std)
+        outcomes.add(full.best is not None)
+    assert outcomes == {True, False}  # both accepted and rejected images were compared
