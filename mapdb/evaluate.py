@@ -23,10 +23,11 @@ Examples
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -213,54 +214,42 @@ def _run_budgeted(
     cost: Callable[[dict[str, Any]], float],
     say: Callable[[str], None],
 ) -> dict[int, tuple[dict[str, Any], float]]:
-    """Localize images in order while each is predicted to finish within ``budget_s`` of the start.
+    """Localize images in order, in worker processes, until ``budget_s`` runs out: a hard limit.
 
-    The prediction is the image's ``cost`` times 1.5 x the mean time per unit of cost seen so far (nothing
-    is stopped before the first image finishes).  The mean with a margin, not the worst rate seen: the
-    pruned paper method's time per unit of cost varies tenfold between images, and the worst rate would end
-    the run with most of the budget unused.  The first image predicted to overrun ends the run: skipping
-    it for a later, cheaper one would bias the sample towards images with few objects.  A running image
-    is never interrupted, so the budget can be exceeded by at most a misprediction.
+    An image is started only while it is predicted (its ``cost`` times 1.5 x the mean time per unit of
+    cost so far) to finish within the budget; the first one predicted to overrun ends the run, because
+    skipping it for a later, cheaper one would bias the sample towards images with few objects.  The
+    paper's method varies tenfold in time per unit of cost, so predictions can miss: at the deadline,
+    images still running are stopped and left out.
     """
-    start = time.perf_counter()
-    spent_ms, spent_cost = 0.0, 0.0
+    deadline = time.perf_counter() + budget_s
     done: dict[int, tuple[dict[str, Any], float]] = {}
-
-    def fits(i: int) -> bool:
-        if not done:
-            return True
-        elapsed_ms = (time.perf_counter() - start) * 1000.0
-        rate = 1.5 * spent_ms / max(spent_cost, 1e-12)  # ms per unit of cost
-        return elapsed_ms + rate * cost(images[i]) <= budget_s * 1000.0
-
-    def record(i: int, result: tuple[dict[str, Any], float]) -> None:
-        nonlocal spent_ms, spent_cost
-        done[i] = result
-        spent_ms += result[1]
-        spent_cost += cost(images[i])
-        say(f"{method}: {len(done)} images done, {time.perf_counter() - start:.0f} s")
-
+    spent_ms, spent_cost = 0.0, 0.0
     pending = list(range(len(images)))
-    if jobs <= 1:
-        for i in pending:
-            if not fits(i):
-                break
-            record(i, _localize_timed(map_, images[i], method))
-        return done
-    with ProcessPoolExecutor(jobs, initializer=_init_worker, initargs=(_worker_spec(map_), method)) as pool:
-        running: dict[Any, int] = {}
+    # The pool's context exit terminates its workers, which is what stops images running at the deadline.
+    with multiprocessing.Pool(max(jobs, 1), initializer=_init_worker, initargs=(_worker_spec(map_), method)) as pool:
+        running: dict[int, Any] = {}
         while pending or running:
-            while pending and len(running) < jobs:
-                if not fits(pending[0]):
-                    pending.clear()
-                    break
+            while pending and len(running) < max(jobs, 1):
+                if done:
+                    rate_s = 1.5 * spent_ms / max(spent_cost, 1e-12) / 1000.0
+                    if time.perf_counter() + rate_s * cost(images[pending[0]]) > deadline:
+                        pending.clear()
+                        break
                 i = pending.pop(0)
-                running[pool.submit(_worker_run, images[i])] = i
+                running[i] = pool.apply_async(_worker_run, (images[i],))
             if not running:
                 break
-            finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
-            for future in finished:
-                record(running.pop(future), future.result())
+            if time.perf_counter() > deadline:
+                say(f"{method}: budget of {budget_s:.0f} s reached; {len(running)} running image(s) stopped, "
+                    "left out")
+                break
+            for i in [i for i, job in running.items() if job.ready()]:
+                done[i] = running.pop(i).get()
+                spent_ms += done[i][1]
+                spent_cost += cost(images[i])
+                say(f"{method}: {len(done)} images done, {budget_s - (deadline - time.perf_counter()):.0f} s")
+            time.sleep(0.02)
     return done
 
 

@@ -130,9 +130,12 @@ def test_evaluate_images_in_process_and_within_a_budget() -> None:
     outcomes, summary = evaluate_images(m, images, method="fast")
     assert [o["id"] for o in outcomes] == [im["id"] for im in images]
     assert summary["accepted"] == 4 and summary["max_m"] < 0.01  # zero error: exact answers
-    # A zero budget runs the first image (nothing to predict from yet) and stops before the second.
+    # The budget is a hard limit: with none left, images already started are stopped and left out.
     outcomes, summary = evaluate_images(m, images, method="fast", budget_s=0.0)
-    assert [o["id"] for o in outcomes] == [images[0]["id"]] and summary["images"] == 1
+    assert outcomes == [] and summary["images"] == 0
+    # A budget that suffices answers every image, in input order, in worker processes.
+    outcomes, summary = evaluate_images(m, images, method="fast", budget_s=600.0, jobs=2)
+    assert [o["id"] for o in outcomes] == [im["id"] for im in images] and summary["accepted"] == 4
 
 
 @pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize is not written yet")
