@@ -27,7 +27,6 @@ import multiprocessing
 import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -305,9 +304,9 @@ def evaluate_images(
             if i % step == 0:
                 say(f"{method}: {i}/{len(images)} images")
     else:
-        with ProcessPoolExecutor(jobs, initializer=_init_worker, initargs=(_worker_spec(map), method)) as pool:
+        with multiprocessing.Pool(jobs, initializer=_init_worker, initargs=(_worker_spec(map), method)) as pool:
             chunk = max(1, len(images) // (8 * jobs))
-            for i, result in enumerate(pool.map(_worker_run, images, chunksize=chunk), 1):
+            for i, result in enumerate(pool.imap(_worker_run, images, chunksize=chunk), 1):
                 results.append(result)
                 if i % step == 0:
                     say(f"{method}: {i}/{len(images)} images")
