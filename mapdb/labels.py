@@ -14,7 +14,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from .errors import LabelTableError, MapdbIOError
+from .errors import LabelTableError, reading
 
 __all__ = [
     "DEFAULT_LABELS_PATH",
@@ -77,12 +77,8 @@ class LabelTable:
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
-    try:
+    with reading(path, "label file"):
         text = path.read_bytes()
-    except FileNotFoundError:
-        raise MapdbIOError(f"{path}: no such label file") from None
-    except OSError as exc:
-        raise MapdbIOError(f"{path}: cannot read label file ({exc.strerror})") from None
     try:
         return tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from ..errors import MapdbIOError, SourceError
+from ..errors import SourceError
 from ..labels import LabelTable
 from ..objects import Objects
 from .landcover import RASTER_SUFFIXES, read_landcover
@@ -37,18 +37,6 @@ def source_kind(path: str | Path) -> str:
     raise SourceError(f"{path}: unknown kind of source (expected one of {known})")
 
 
-def check_readable(path: str | Path) -> Path:
-    """Fail early, with the file's name, on a missing, unreadable or empty source."""
-    path = Path(path)
-    if not path.exists():
-        raise MapdbIOError(f"{path}: no such file")
-    if path.is_dir():
-        raise MapdbIOError(f"{path}: is a directory")
-    if not path.suffix.lower() == ".shp" and path.stat().st_size == 0:
-        raise SourceError(f"{path}: empty file")
-    return path
-
-
 def read_source(
     path: str | Path,
     table: LabelTable,
@@ -60,9 +48,8 @@ def read_source(
     layer_crs: str | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> Objects:
-    """Read one source of any kind, labelled with ``table``."""
+    """Read one source of any kind, labelled with ``table``; each reader checks its own file."""
     kind = source_kind(path)
-    check_readable(path)
     if kind == "osm":
         return read_osm(path, table, bbox=bbox, progress=progress)
     if kind == "landcover":
