@@ -14,7 +14,16 @@ from .errors import (  # noqa: E402
     MapVersionError,
     SourceError,
 )
-from .objects import Objects, concat  # noqa: E402
+
+
+def __getattr__(name: str):
+    # Objects imports numpy: loaded on first use, so that ``import mapdb`` (and ``mapdb --help``) stays light.
+    if name in ("Objects", "concat"):
+        from . import objects
+
+        return getattr(objects, name)
+    raise AttributeError(f"module 'mapdb' has no attribute {name!r}")
+
 
 __all__ = [
     "EmptyMapError",

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from functools import lru_cache
@@ -45,9 +46,11 @@ from .match.paper import PaperOptions, match_paper
 
 __all__ = [
     "METHODS",
+    "Localizer",
     "SCALE_TOLERANCE",
     "localize",
     "localize_documents",
+    "localizer_for",
     "prior_margin",
 ]
 
@@ -68,6 +71,9 @@ MAX_PRIOR_TILES = 64
 # tiles' quads) kept in memory, the least recently used dropped first: a flight wandering over 3 x 3
 # tiles never rebuilds one.
 MAX_CACHED_BLOCKS = 9
+# Quads of the tiles' own indexes kept in memory (about 100 bytes each), the least recently used tile
+# dropped first: a long flight's memory stays bounded.
+MAX_CACHED_QUADS = 4_000_000
 
 
 def _rounded(value: float, digits: int) -> float:
@@ -109,80 +115,157 @@ def prior_margin(radius: float, half_diagonal_m: float | None) -> float:
     return max(radius, DEFAULT_PRIOR_MARGIN_M)
 
 
-def _fast_indexes(map_: Any, options: FastOptions, prior: tuple[float, float, float] | None, margin: float):
-    """The fast matcher's indexes: objects to verify against and quad indexes to look hypotheses up in.
+class _Recent:
+    """A least-recently-used cache holding at most ``limit`` units (entries, or the ``size`` of each)."""
 
-    Without a prior: the whole map's, built on first use and cached on the map.  With one: the block of
-    map tiles around the tile under the prior's centre that holds the disc of the prior radius plus
-    ``margin``.  The block's objects (read through the map's R-tree) and one quad index over its tiles
-    (each tile's quads built once and cached) are kept for the ``MAX_CACHED_BLOCKS`` blocks used last,
-    so that the images of a flight cost no map reading and no index building.  The whole map's quad
-    index, when already in memory, serves every prior instead of the tiles'.
+    def __init__(self, limit: int, size: Callable[[Any], int] = lambda value: 1) -> None:
+        self.limit = limit
+        self.size = size
+        self.entries: OrderedDict = OrderedDict()
+        self.held = 0
+
+    def __contains__(self, key: Any) -> bool:
+        return key in self.entries
+
+    def get(self, key: Any, factory: Callable[[], Any]) -> Any:
+        if key in self.entries:
+            self.entries.move_to_end(key)
+            return self.entries[key]
+        value = factory()
+        self.entries[key] = value
+        self.held += self.size(value)
+        while self.held > self.limit and len(self.entries) > 1:
+            _, old = self.entries.popitem(last=False)
+            self.held -= self.size(old)
+        return value
+
+
+class Localizer:
+    """A map with the matcher's indexes and options: answers images one after another.
+
+    One object owns every cache the matcher needs, each bounded: the whole map's indexes (built on
+    the first image without a prior), the quad index of each map tile a prior reached (at most
+    ``MAX_CACHED_QUADS`` quads in all, the least recently used dropped first), and the objects and
+    merged quad index of the last ``MAX_CACHED_BLOCKS`` blocks of tiles.  A flight's images fall in
+    the same block and cost no map reading and no index building.
+
+    Parameters
+    ----------
+    map : MetaMap or MemoryMap
+        The map (:func:`mapdb.store.open_map`); the localizer does not close it.
+    method : {"fast", "paper"}
+    options : FastOptions or PaperOptions, optional
+        The method's tuning (defaults when None or of the other method).
+    prior : (x, y, radius), optional
+        Map-CRS metres; used for images that carry no prior of their own.
+
+    Examples
+    --------
+    >>> from mapdb.objects import Objects
+    >>> from mapdb.store import MemoryMap
+    >>> loc = Localizer(MemoryMap(Objects.from_names([0.0, 50.0], [0.0, 0.0], ["park"] * 2, crs="EPSG:32631")))
+    >>> loc.localize({"width": 640, "height": 480, "objects": []})["reason"]
+    '0 objects: at least 3 are needed'
     """
-    state = map_.cached("mapdb.match.fast/state", dict)
-    key = f"quads/neighbours={options.map_neighbours}"
-    if prior is None:
-        objects = map_.cached("mapdb.match.fast/objects", lambda: ObjectIndex(map_.all(), bounds=map_.bounds))
-        if key not in state:
-            state[key] = QuadIndex(map_.all(), options.map_neighbours)
-        return objects, [state[key]]
-    x, y, r = prior
-    reach = r + margin
-    t = TILE_SIZE_M
-    # The block of tiles around the one under the prior's centre, wide enough to hold the disc: its key
-    # changes only when the prior moves to another tile, so a flight reuses the block from image to image.
-    k = max(1, math.ceil(reach / t))
-    cx, cy = math.floor(x / t), math.floor(y / t)
-    if (2 * k + 1) ** 2 > MAX_PRIOR_TILES:
-        # A prior this wide covers much of the map: the whole map's indexes serve it (and later images) better.
-        return _fast_indexes(map_, options, None, 0.0)
-    block = (cx, cy, k)
-    x0, y0, x1, y1 = (cx - k) * t, (cy - k) * t, (cx + k + 1) * t, (cy + k + 1) * t
-    objects = _recently_used(state, "objects", block, MAX_CACHED_BLOCKS,
-                             lambda: ObjectIndex(map_.query_bbox(x0, y0, x1, y1), bounds=(x0, y0, x1, y1)))
-    if key in state:
-        return objects, [state[key]]
 
-    def tile(ix: int, iy: int) -> QuadIndex:
-        return map_.cached(f"mapdb.match.fast/{key}/tile={t:g}/{ix},{iy}", lambda: _tile_quads(map_, ix, iy, options))
+    def __init__(self, map: Any, method: str = "fast", options: FastOptions | PaperOptions | None = None,
+                 prior: tuple[float, float, float] | None = None) -> None:
+        if method not in METHODS:
+            raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+        self.map = map
+        self.method = method
+        wanted = FastOptions if method == "fast" else PaperOptions
+        self.options = options if isinstance(options, wanted) else wanted()
+        self.prior = prior
+        self._whole_objects: ObjectIndex | None = None
+        self._whole_quads: QuadIndex | None = None
+        self._tiles = _Recent(MAX_CACHED_QUADS, size=lambda quads: max(quads.n_quads, 1))
+        self._block_objects = _Recent(MAX_CACHED_BLOCKS)
+        self._block_quads = _Recent(MAX_CACHED_BLOCKS)
+        self._previous_block: tuple | None = None
 
-    cells = [(ix, iy) for ix in range(cx - k, cx + k + 1) for iy in range(cy - k, cy + k + 1)]
-    merged: OrderedDict = state.setdefault(f"recent/{key}", OrderedDict())
-    previous, state["previous block"] = state.get("previous block"), block
-    if block not in merged and block != previous:
-        # Look up in the tiles the disc reaches, one by one.  Merging them (tens of milliseconds) pays for
-        # a block that images in a row fall in, as a flight's do; scattered images would merge one per image.
-        reached = [
-            tile(ix, iy) for ix, iy in cells
-            if max(ix * t - x, 0.0, x - (ix + 1) * t) ** 2 + max(iy * t - y, 0.0, y - (iy + 1) * t) ** 2 <= reach**2
-        ]
-        return objects, reached
-    # One tree over the block's tiles: a lookup per image quad instead of one per tile and image quad.
-    quads = _recently_used(state, key, block, MAX_CACHED_BLOCKS,
-                           lambda: QuadIndex.merged([tile(ix, iy) for ix, iy in cells]))
-    return objects, [quads]
+    def localize(self, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None = None, *,
+                 source: str = "image") -> dict[str, Any]:
+        """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own."""
+        return _answer(self, image, self.prior if prior is None else prior, source)
+
+    # ------------------------------------------------------------------------------------ indexes
+
+    def whole_map_indexes(self) -> tuple[ObjectIndex, QuadIndex]:
+        """The whole map's object and quad indexes, built on first use."""
+        if self._whole_objects is None:
+            objects = self.map.all()
+            self._whole_objects = ObjectIndex(objects, bounds=self.map.bounds)
+            self._whole_quads = QuadIndex(objects, self.options.map_neighbours)
+        return self._whole_objects, self._whole_quads
+
+    def fast_indexes(self, prior: tuple[float, float, float] | None, margin: float):
+        """Objects to verify against and quad indexes to look hypotheses up in.
+
+        Without a prior: the whole map's.  With one: the block of map tiles around the tile under the
+        prior's centre that holds the disc of the prior radius plus ``margin``; its key changes only when
+        the prior moves to another tile, so a flight reuses the block from image to image.  The whole
+        map's quad index, when already in memory, serves every prior instead of the tiles'.
+        """
+        if prior is None:
+            objects, quads = self.whole_map_indexes()
+            return objects, [quads]
+        x, y, r = prior
+        reach = r + margin
+        t = TILE_SIZE_M
+        k = max(1, math.ceil(reach / t))
+        if (2 * k + 1) ** 2 > MAX_PRIOR_TILES:
+            # A prior this wide covers much of the map: the whole map's indexes serve it (and later images).
+            return self.fast_indexes(None, 0.0)
+        cx, cy = math.floor(x / t), math.floor(y / t)
+        block = (cx, cy, k)
+        x0, y0, x1, y1 = (cx - k) * t, (cy - k) * t, (cx + k + 1) * t, (cy + k + 1) * t
+        objects = self._block_objects.get(
+            block, lambda: ObjectIndex(self.map.query_bbox(x0, y0, x1, y1), bounds=(x0, y0, x1, y1)))
+        if self._whole_quads is not None:
+            return objects, [self._whole_quads]
+        cells = [(ix, iy) for ix in range(cx - k, cx + k + 1) for iy in range(cy - k, cy + k + 1)]
+        previous, self._previous_block = self._previous_block, block
+        if block not in self._block_quads and block != previous:
+            # Look up in the tiles the disc reaches, one by one.  Merging them (tens of milliseconds) pays
+            # for a block that images in a row fall in, as a flight's do; scattered images would merge one
+            # per image.
+            reached = [
+                self._tile(ix, iy) for ix, iy in cells
+                if max(ix * t - x, 0.0, x - (ix + 1) * t) ** 2 + max(iy * t - y, 0.0, y - (iy + 1) * t) ** 2
+                <= reach**2
+            ]
+            return objects, reached
+        # One tree over the block's tiles: a lookup per image quad instead of one per tile and image quad.
+        quads = self._block_quads.get(block, lambda: QuadIndex.merged([self._tile(ix, iy) for ix, iy in cells]))
+        return objects, [quads]
+
+    def _tile(self, ix: int, iy: int) -> QuadIndex:
+        """Quads anchored in one tile; neighbours are read from a margin around it."""
+
+        def build() -> QuadIndex:
+            t, pad = TILE_SIZE_M, TILE_PAD_M
+            x0, y0 = ix * t, iy * t
+            objects = self.map.query_bbox(x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad)
+            # Half-open tiles: an object on a shared edge anchors its quads in one tile only.
+            anchors = (objects.x >= x0) & (objects.x < x0 + t) & (objects.y >= y0) & (objects.y < y0 + t)
+            return QuadIndex(objects, self.options.map_neighbours, anchors=anchors)
+
+        return self._tiles.get((ix, iy), build)
 
 
-def _recently_used(state: dict, kind: str, key: tuple, limit: int, factory: Callable[[], Any]) -> Any:
-    """A value of a cache of ``limit`` entries, the least recently used dropped first."""
-    cache: OrderedDict = state.setdefault(f"recent/{kind}", OrderedDict())
-    if key in cache:
-        cache.move_to_end(key)
-        return cache[key]
-    cache[key] = factory()
-    while len(cache) > limit:
-        cache.popitem(last=False)
-    return cache[key]
+# Localizers of the maps that :func:`localize` was called with, so that repeated calls reuse the indexes;
+# dropped with the map.
+_LOCALIZERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _tile_quads(map_: Any, ix: int, iy: int, options: FastOptions) -> QuadIndex:
-    """Quads anchored in one tile; neighbours are read from a margin around it."""
-    t, pad = TILE_SIZE_M, TILE_PAD_M
-    x0, y0 = ix * t, iy * t
-    objects = map_.query_bbox(x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad)
-    # Half-open tiles: an object on a shared edge anchors its quads in one tile only.
-    anchors = (objects.x >= x0) & (objects.x < x0 + t) & (objects.y >= y0) & (objects.y < y0 + t)
-    return QuadIndex(objects, options.map_neighbours, anchors=anchors)
+def localizer_for(map: Any, method: str = "fast", options: FastOptions | PaperOptions | None = None) -> Localizer:
+    """The :class:`Localizer` that :func:`localize` keeps for this map, method and options."""
+    per_map = _LOCALIZERS.setdefault(map, {})
+    key = (method, options)
+    if key not in per_map:
+        per_map[key] = Localizer(map, method, options)
+    return per_map[key]
 
 
 def _rejected(image_id: Any, reason: str, start: float, candidates: list | None = None, **extra: Any) -> dict:
@@ -225,7 +308,7 @@ def localize(
     image : dict or ImageObjects
         An image document (see :mod:`mapdb.images`) or an already parsed one.
     map : MetaMap or MemoryMap
-        The map (:func:`mapdb.store.open_map`).  The fast method caches its index on it.
+        The map (:func:`mapdb.store.open_map`).  Calls on one map share one :class:`Localizer` (its indexes).
     method : {"fast", "paper"}
         The fast matcher (:mod:`mapdb.match.fast`) or the paper's Algorithm 1 (:mod:`mapdb.match.paper`;
         seconds to minutes per image).
@@ -250,10 +333,16 @@ def localize(
     >>> localize({"width": 640, "height": 480, "objects": []}, m)["reason"]
     '0 objects: at least 3 are needed'
     """
-    start = time.perf_counter()
-    image_id = _image_id(image)
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    return localizer_for(map, method, options).localize(image, prior, source=source)
+
+
+def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
+            prior: tuple[float, float, float] | None, source: str) -> dict[str, Any]:
+    start = time.perf_counter()
+    image_id = _image_id(image)
+    map = localizer.map
     try:
         im = image if isinstance(image, ImageObjects) else parse_image(image, source)
         prior = _resolve_prior(im, map.crs, prior)
@@ -301,9 +390,9 @@ def localize(
         half_diag_m = scale_range[1] * diag_px / 2.0
 
     margin = prior_margin(prior[2], half_diag_m) if prior is not None else 0.0
-    if method == "fast":
-        opts = options if isinstance(options, FastOptions) else FastOptions()
-        objects, quads = _fast_indexes(map, opts, prior, margin)
+    opts = localizer.options
+    if localizer.method == "fast":
+        objects, quads = localizer.fast_indexes(prior, margin)
         result = match_fast(z, codes, objects, quads, diag_px, options=opts, prior=prior, scale_range=scale_range)
         candidates = [
             {"x": _rounded(c.b.real, 3), "y": _rounded(c.b.imag, 3), "inliers": c.inliers,
@@ -320,7 +409,6 @@ def localize(
         sigma = best.sigma_m
         inliers, score = best.inliers, _rounded(best.score, 2)
     else:
-        opts = options if isinstance(options, PaperOptions) else PaperOptions()
         if prior is not None:
             objects = map.query_radius(prior[0], prior[1], prior[2] + margin)
         else:
@@ -380,9 +468,22 @@ def localize_documents(
     Yields
     ------
     dict
-        One answer per document.  A rejection of a document without an ``id`` names its place
-        (``where``) in the reason, so that it can be found in the input.
+        One answer per document, as soon as that document is read (a lazy ``documents``, such as
+        :func:`~mapdb.images.read_image_documents` gives, is consumed one document at a time).  A
+        rejection of a document without an ``id`` names its place (``where``) in the reason, so that
+        it can be found in the input.  Every number in an answer is finite (strict JSON): a value
+        that is not, such as the score of a candidate with no evidence, is given as None.
     """
+
+    def strict(value: Any) -> Any:
+        if isinstance(value, float):
+            return value if math.isfinite(value) else None
+        if isinstance(value, dict):
+            return {key: strict(item) for key, item in value.items()}
+        if isinstance(value, list | tuple):
+            return [strict(item) for item in value]
+        return value
+
     for where, doc in documents:
         if isinstance(doc, Exception):
             start = time.perf_counter()
@@ -391,4 +492,4 @@ def localize_documents(
         record = localize(doc, map, method, prior, options=options, source=where)
         if record["status"] == "rejected" and record["id"] is None and not record["reason"].startswith(where):
             record["reason"] = f"{where}: {record['reason']}"
-        yield record
+        yield strict(record)

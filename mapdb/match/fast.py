@@ -115,6 +115,17 @@ class FastOptions:
         Withhold (reject as imprecise, listing it as a candidate) an answer whose estimated 1-sigma
         position error exceeds this many metres: a few objects in one corner of the image place its
         centre poorly, and an answer metres off is worse than none.
+    max_objects : int
+        An image with more objects is matched on the ``max_objects`` nearest its centre (ties broken
+        by input order): the decision's cost grows with the square of the objects, and a few hundred
+        objects place an image as well as thousands.  This bounds memory and time per image.
+    density_neighbours : int
+        The decision's label density around each projected image object comes from the distance to
+        its ``density_neighbours``-th nearest map object of its label (0: one density per label around
+        the answer, as the ranking uses).
+    max_batches : int
+        Anchor batches tried per lookup pass: an image that matches nowhere costs at most
+        ``len(pixel_sigmas) * max_batches`` rounds, whatever its number of objects.
     """
 
     map_neighbours: int = 8
@@ -133,6 +144,9 @@ class FastOptions:
     density_radius_factor: float = 1.5
     max_candidates: int = 5
     max_sigma_m: float | None = 1.0
+    max_objects: int = 256
+    density_neighbours: int = 6
+    max_batches: int = 8
 
 
 def neighbour_quads(
@@ -275,6 +289,32 @@ class ObjectIndex:
             count = tree.query_ball_point([centre.real, centre.imag], radius, return_length=True)
             density[code] = max(int(count), 1) / area
         return density
+
+    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int) -> np.ndarray:
+        """Objects per square metre of each projected image object's label around where it lands.
+
+        ``(k - 1) / (pi d_k^2)``, ``d_k`` the distance to the ``k``-th nearest map object of that label: a
+        density that follows the map's clustering (a dense old town beside empty slopes), where one
+        density over the footprint would make chance alignments in the town look significant.  A label
+        with a single map object gets ``1 / (pi d_1^2)``; a label absent from the map, the region's floor.
+        ``w`` is ``(H, n)`` complex; ``img_label`` ``(n,)``.  Returns ``(H, n)``.
+        """
+        shape = w.shape
+        labels = np.broadcast_to(img_label, shape).ravel()
+        flat = w.ravel()
+        minx, miny, maxx, maxy = self.bounds
+        out = np.full(flat.size, 1.0 / max((maxx - minx) * (maxy - miny), 1.0))
+        for code in np.unique(labels):
+            entry = self.label_trees.get(int(code))
+            if entry is None:
+                continue
+            tree, members = entry
+            sel = np.flatnonzero(labels == code)
+            kk = min(k, members.size)
+            d, _ = tree.query(np.column_stack([flat[sel].real, flat[sel].imag]), k=kk)
+            d_k = d.reshape(sel.size, kk)[:, -1]
+            out[sel] = max(kk - 1, 1) / (math.pi * np.maximum(d_k, 1e-3) ** 2)
+        return out.reshape(shape)
 
     def nearest(
         self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray, exclude: np.ndarray | None = None
@@ -518,6 +558,7 @@ def _decision_nfa(
     index: ObjectIndex,
     density: np.ndarray,
     log10_tests: float,
+    local_neighbours: int = 0,
 ) -> np.ndarray:
     """log10 NFA of quad hypotheses over all image objects, tolerances shaped by each quad's geometry.
 
@@ -526,10 +567,16 @@ def _decision_nfa(
     each object scales with that, so a near object must match tightly and a far one loosely.
     """
     h, n = len(a), z.size
+    w = a[:, None] * z[None, :] + b[:, None]
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
-    dist, _ = index.nearest(a[:, None] * z[None, :] + b[:, None], img_label, density, exclude=map_z)
+    dist, _ = index.nearest(w, img_label, density, exclude=map_z)
     lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
+    if local_neighbours:
+        # The larger of the two densities: neither a dense old town beside empty slopes (the footprint's
+        # mean density is too low there) nor an isolated object on a slope (its neighbours' distances
+        # say the map is emptier than it is around the footprint) makes a chance alignment look rarer.
+        lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours))
     u = lam * math.pi * dist**2
     zq = z[img_ids]
     mean = zq.mean(axis=1)
@@ -668,6 +715,9 @@ def match_fast(
     opts = options or FastOptions()
     z = np.asarray(z, dtype=np.complex128)
     img_label = np.asarray(img_label, dtype=np.int64)
+    if z.size > opts.max_objects:
+        central = np.sort(np.argsort(np.abs(z), kind="stable")[: opts.max_objects])
+        z, img_label = z[central], img_label[central]
     n = z.size
     if n < 4:
         return MatchResult(None, [], f"{n} objects: the fast matcher needs at least 4", 0, 0)
@@ -691,7 +741,7 @@ def match_fast(
     _, first = np.unique(img_quads[by_batch], axis=0, return_index=True)
     keep = np.zeros(len(img_quads), bool)
     keep[by_batch[first]] = True  # each quad once, in its earliest batch
-    n_batches = int(batch_of.max()) + 1 if len(img_quads) else 0
+    n_batches = min(int(batch_of.max()) + 1, opts.max_batches) if len(img_quads) else 0
     batches = [img_quads[keep & (batch_of == i)] for i in range(n_batches)]
 
     n_tests = 0
@@ -734,7 +784,8 @@ def match_fast(
         # looks better than chance says); refinement then only improves the position.
         radius = opts.density_radius_factor * np.abs(a) * diag_px / 2.0
         density = np.stack([index.local_density(complex(bi), float(ri)) for bi, ri in zip(b, radius, strict=True)])
-        nfa = _decision_nfa(a, b, img_ids, map_z, z, img_label, index, density, log10_tests)
+        nfa = _decision_nfa(a, b, img_ids, map_z, z, img_label, index, density, log10_tests,
+                            opts.density_neighbours)
         a, b, _, inlier, mid, dist = _refine(a, b, z, img_label, index, density, log10_tests, 2)
         for j in range(len(a)):
             k = int(inlier[j].sum())
