@@ -24,7 +24,7 @@ The answer (one JSON-able dict)::
 * ``score``: ``-log10`` of the number of false alarms (fast method): above 3
   means fewer than one chance in a thousand that so good a match arises from
   objects unrelated to the map.  None for the paper method, which has no such
-  measure.
+  measure.  ``expected_false_alarms`` is that number, ``10 ** -score``.
 """
 
 from __future__ import annotations
@@ -437,6 +437,10 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         "scale_m_per_px": _rounded(abs(a), 6),
         "sigma_m": None if sigma is None else _rounded(sigma, 3),
         "score": score,
+        # The number of false alarms the score stands for: how many answers this good the search would be
+        # expected to find by chance in a map that does not hold the place (benchmarks/false_alarms.py
+        # measures how that holds on real places not in the map).
+        "expected_false_alarms": None if score is None else float(f"{10.0 ** -score:.3g}"),
     }
     if focal_px is not None:
         record["altitude_m"] = _rounded(abs(a) * focal_px, 2)

@@ -139,7 +139,7 @@ class FastOptions:
     anchors_per_batch: int = 6
     shortlist: int = 16
     refine_candidates: int = 4
-    log10_epsilon: float = -3.0
+    log10_epsilon: float = -4.0
     ambiguity_margin: float = 1.0
     density_radius_factor: float = 1.5
     max_candidates: int = 5
@@ -414,6 +414,39 @@ class QuadIndex:
     def n_quads(self) -> int:
         return int(len(self.quad_z))
 
+    def lookup(
+        self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray, k: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Map quads near image quads: the query row of each hit and the hit's four map points.
+
+        Parameters
+        ----------
+        invariants : (m, 4) float
+            ``Re t_C, Im t_C, Re t_D, Im t_D`` of each image quad in its (canonical) vertex order.
+        labels : (m, 4) int
+            Label codes of ``A, B, C, D``.
+        radius : (m,) float
+            Lookup radius in invariant space, per query.
+        k : int
+            At most this many nearest map quads per query.
+
+        Returns
+        -------
+        rows : (h,) int
+            Query row of each hit.
+        map_z : (h, 4) complex
+            The hit's map points ``A, B, C, D`` (projected metres).
+        """
+        if self.tree is None or not len(invariants):
+            return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
+        query = np.column_stack([invariants, _label_keys(labels, len(self.labels)) * _LABEL_GAP])
+        k = min(k, self.n_quads)
+        dist, hit = self.tree.query(query, k=k, distance_upper_bound=float(radius.max()))
+        dist = dist.reshape(len(query), k)
+        hit = hit.reshape(len(query), k)
+        rows, cols = np.nonzero(dist <= radius[:, None])
+        return rows, self.quad_z[hit[rows, cols]]
+
     @classmethod
     def merged(cls, parts: Sequence[QuadIndex]) -> QuadIndex:
         """One index over the quads of several (the tiles around a prior): one lookup instead of one per part.
@@ -485,7 +518,7 @@ def _image_hypotheses(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex)."""
     empty = np.zeros((0, 4), np.int64)
-    indexes = [ix for ix in indexes if ix.tree is not None]
+    indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:
         return empty, np.zeros((0, 4), np.complex128)
     zq = z[quads]
@@ -535,16 +568,11 @@ def _image_hypotheses(
     img_ids = np.take_along_axis(quads[row], order, axis=1)
     inv = np.concatenate(invs)
     radius = np.concatenate(radii)
-    query = np.column_stack([inv, _label_keys(img_label[img_ids], len(indexes[0].labels)) * _LABEL_GAP])
     found_img, found_map = [], []
     for index in indexes:
-        k = min(opts.max_hits_per_quad, index.n_quads)
-        dist, hit = index.tree.query(query, k=k, distance_upper_bound=float(radius.max()))
-        dist = dist.reshape(len(inv), k)
-        hit = hit.reshape(len(inv), k)
-        q_row, q_col = np.nonzero(dist <= radius[:, None])
+        q_row, map_z = index.lookup(inv, img_label[img_ids], radius, opts.max_hits_per_quad)
         found_img.append(img_ids[q_row])
-        found_map.append(index.quad_z[hit[q_row, q_col]])
+        found_map.append(map_z)
     return np.concatenate(found_img), np.concatenate(found_map)
 
 
@@ -724,7 +752,7 @@ def match_fast(
     index = objects
     if len(index) < 4:
         return MatchResult(None, [], f"the map has only {len(index)} objects here: at least 4 are needed", 0, 0)
-    if not any(q.tree is not None for q in quads):
+    if not any(q.n_quads for q in quads):
         return MatchResult(None, [], f"the map's {len(index)} objects here form no pattern to match", 0, 0)
 
     # Each hypothesis is screened on the image objects around its quad (the neighbours of its first

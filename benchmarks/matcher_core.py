@@ -1,0 +1,113 @@
+"""The matcher core side by side with an earlier commit: time per image and process start-up.
+
+1. Andorra (``../shared/data/osm``, all labels) images as issue 8 measures them: 300 m, 60 degree field of
+   view, random heading, 1 px and 0.05 degree errors, at least 6 objects; median time per ``localize``
+   call with a 300 m prior in each image and without a prior (the whole map's index built once first,
+   outside the timing), and how many were localized within 2 m.
+2. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, process start to answer.
+
+Both run for this tree and, with ``--baseline REV``, for the code of that revision, in one run.
+
+Run from the repository root::
+
+    python benchmarks/matcher_core.py --baseline 98b7ab6
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _baseline import ROOT, baseline_code, run_python  # noqa: E402
+
+ANDORRA = ROOT.parent / "shared" / "data" / "osm" / "andorra-2021-06-22.osm.pbf"
+
+WORKER = r"""
+import json, math, statistics, sys, time
+from mapdb.localize import localize
+from mapdb.store import open_map
+images = [json.loads(line) for line in open(sys.argv[2])]
+result = {}
+with open_map(sys.argv[1]) as m:
+    for case in ("prior", "no prior"):
+        subset = images if case == "prior" else [{k: v for k, v in im.items() if k != "prior"} for im in images]
+        localize(subset[0], m)  # index built once, outside the timing
+        times, good = [], 0
+        for im in subset:
+            start = time.perf_counter()
+            a = localize(im, m)
+            times.append((time.perf_counter() - start) * 1000.0)
+            good += a["status"] == "ok" and math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"]) <= 2
+        result[case] = {"median_ms": statistics.median(times), "localized": good, "images": len(subset)}
+print(json.dumps(result))
+"""
+
+def startup(map_path: Path, one_image: Path, cwd: Path, repeats: int) -> dict[str, float]:
+    """Median seconds of ``mapdb --help`` and of a one-image query with a prior, process start to exit."""
+    out = {}
+    for label, args in (("--help", ["--help"]), ("one-image query", ["query", str(map_path), str(one_image)])):
+        runs = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            subprocess.run(["mapdb", *args], check=True, capture_output=True, cwd=cwd)
+            runs.append(time.perf_counter() - start)
+        out[label] = statistics.median(runs)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--n", type=int, default=300, help="images")
+    parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument("--baseline", metavar="REV", help="also run the matcher of this git revision")
+    parser.add_argument("--repeats", type=int, default=5, help="runs of each start-up measurement")
+    args = parser.parse_args()
+    if not ANDORRA.exists():
+        sys.exit(f"skipped: {ANDORRA} not found")
+    from mapdb.build import build_map
+    from mapdb.simulate import simulate_images
+    from mapdb.store import open_map
+
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        map_path = work / "andorra.mapdb"
+        build_map([ANDORRA], map_path)
+        with open_map(map_path) as m:
+            images = simulate_images(m, args.n, altitude=300.0, fov_deg=60.0, yaw="random", pixel_std=1.0,
+                                     attitude_std=0.05, min_objects=6, with_prior=300.0, seed=args.seed)
+        images_path = work / "images.jsonl"
+        images_path.write_text("".join(json.dumps(im) + "\n" for im in images))
+        one_image = work / "one.jsonl"
+        one_image.write_text(json.dumps(images[0]) + "\n")
+        runs = [("this tree", None)]
+        if args.baseline:
+            runs.append((f"baseline {args.baseline}", baseline_code(args.baseline, work)))
+        results = {}
+        for label, code in runs:
+            results[label] = json.loads(run_python(code, WORKER, str(map_path), str(images_path), cwd=work))
+        print(f"Andorra, {args.n} images: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects "
+              f"({statistics.mean(len(im['objects']) for im in images):.1f} objects per image)")
+        print(f"  {'code':<24} {'case':<9} {'median ms':>9} {'localized':>10}")
+        for label, res in results.items():
+            for case, r in res.items():
+                print(f"  {label:<24} {case:<9} {r['median_ms']:9.2f} {r['localized']:6d}/{r['images']}")
+        if args.baseline:
+            base = results[runs[1][0]]
+            for case in ("prior", "no prior"):
+                ratio = base[case]["median_ms"] / results["this tree"][case]["median_ms"]
+                print(f"  {case}: this tree is {ratio:.2f}x the baseline's speed")
+        times = startup(map_path, one_image, work, args.repeats)
+        print("start-up (this tree, median of "
+              f"{args.repeats}): mapdb --help {times['--help']:.3f} s; "
+              f"one-image query with a prior {times['one-image query']:.3f} s")
+
+
+if __name__ == "__main__":
+    main()
