@@ -2,16 +2,23 @@
 
 from __future__ import annotations
 
-import json
-
 import click
 
 from mapdb.bench import bench_paper, format_bench
+from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 from mapdb.simulate import paper_map
 from mapdb.store import write_map
 
-from .options import debug_option, handle_errors, json_option, progress_printer, quiet_option
-from .simulate import parse_yaw
+from .options import (
+    debug_option,
+    finite_float,
+    handle_errors,
+    json_option,
+    overwrite_option,
+    progress_printer,
+    quiet_option,
+)
+from .simulate import MAX_PRIOR_RADIUS, MAX_SPURIOUS_RATE, parse_yaw
 
 
 @click.group()
@@ -24,27 +31,28 @@ def bench() -> None:
               help="Images per case for --method fast and the bound (the paper: 500).")
 @click.option("--paper-images", type=click.IntRange(0, None), default=500, show_default=True,
               help="At most this many images per case for --method paper (minutes each); 0 skips it.")
-@click.option("--budget", type=click.FloatRange(0.0, None), default=540.0, show_default=True,
+@click.option("--budget", type=finite_float(0.0, None), default=540.0, show_default=True,
               help="Wall-clock seconds for the whole run: --method paper runs on the images predicted to fit "
                    "(round-robin over the cases); 0 for no limit.")
 @click.option("--cases", default="1,2,3,4,5", show_default=True, help="Comma-separated case numbers.")
 @click.option("--yaw", default="0", callback=parse_yaw, show_default=True, help="Degrees, or 'random'.")
-@click.option("--miss-rate", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True)
-@click.option("--spurious-rate", type=click.FloatRange(0.0, None), default=0.0, show_default=True)
-@click.option("--label-noise", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True)
-@click.option("--with-prior", type=click.FloatRange(0.0, None, min_open=True), default=None, metavar="R",
+@click.option("--miss-rate", type=finite_float(0.0, 1.0), default=0.0, show_default=True)
+@click.option("--spurious-rate", type=finite_float(0.0, MAX_SPURIOUS_RATE), default=0.0, show_default=True)
+@click.option("--label-noise", type=finite_float(0.0, 1.0), default=0.0, show_default=True)
+@click.option("--with-prior", type=finite_float(0.0, MAX_PRIOR_RADIUS, min_open=True), default=None, metavar="R",
               help="Give each image a prior of radius R metres.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the images.")
 @click.option("--map-seed", type=int, default=0, show_default=True, help="Seed of the paper's map.")
 @click.option("--jobs", "-j", type=click.IntRange(1, None), default=2, show_default=True, help="Worker processes.")
 @click.option("--save-map", type=click.Path(), default=None, metavar="FILE.mapdb",
               help="Also write the paper's map, for `mapdb simulate` / `mapdb evaluate`.")
+@overwrite_option
 @json_option
 @quiet_option
 @debug_option
 @handle_errors
 def paper(n_images, paper_images, budget, cases, yaw, miss_rate, spurious_rate, label_noise, with_prior, seed, map_seed,
-          jobs, save_map, as_json, quiet, debug):
+          jobs, save_map, overwrite, as_json, quiet, debug):
     """Reproduce the paper's Table 1: published figures, --method paper, --method fast and the bound."""
     try:
         chosen = sorted({int(c) for c in cases.split(",")})
@@ -52,10 +60,12 @@ def paper(n_images, paper_images, budget, cases, yaw, miss_rate, spurious_rate, 
         raise click.BadParameter(f"{cases!r} is not a list of case numbers", param_hint="--cases") from None
     if not chosen or not set(chosen) <= {1, 2, 3, 4, 5}:
         raise click.BadParameter(f"{cases!r}: cases are numbered 1 to 5", param_hint="--cases")
+    check_outputs([save_map], [])
+    refuse_existing(save_map, overwrite)
     if save_map:
         write_map(save_map, paper_map(seed=map_seed), metadata={"description": "paper Table 1 map"})
     result = bench_paper(n=n_images, paper_images=paper_images, budget_s=budget or None, cases=chosen, yaw=yaw,
                          miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
                          with_prior=with_prior, seed=seed, map_seed=map_seed, jobs=jobs,
                          progress=progress_printer(quiet))
-    click.echo(json.dumps(result, indent=2) if as_json else format_bench(result))
+    click.echo(dumps_strict(result, indent=2) if as_json else format_bench(result))

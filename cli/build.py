@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
-import json
-
 import click
 
 from mapdb.build import build_map
+from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 
-from .options import bbox_option, debug_option, handle_errors, progress_printer, quiet_option
+from .options import (
+    bbox_option,
+    debug_option,
+    finite_float,
+    handle_errors,
+    overwrite_option,
+    progress_printer,
+    quiet_option,
+)
 
 
 @click.command()
@@ -17,23 +24,27 @@ from .options import bbox_option, debug_option, handle_errors, progress_printer,
 @click.option("--labels", "labels_file", type=click.Path(), help="TOML label table read over the defaults.")
 @click.option("--crs", default="auto", show_default=True, help="'auto' (UTM zone of the data) or e.g. EPSG:32631.")
 @bbox_option
-@click.option("--quantum", default=0.1, show_default=True, type=click.FloatRange(min=0.001, max=1000),
+@click.option("--quantum", default=0.1, show_default=True, type=finite_float(0.001, 1000),
               help="Stored resolution in metres.")
 @click.option("--raster-classes", help="Class table for rasters: worldcover, corine or one from --labels.")
-@click.option("--min-area", default=10_000.0, show_default=True, type=click.FloatRange(min=0),
+@click.option("--min-area", default=10_000.0, show_default=True, type=finite_float(0),
               help="Smallest land-cover patch kept, m^2.")
 @click.option("--label-column", default="label", show_default=True, help="Label column of point/polygon layers.")
 @click.option("--layer-crs", help="CRS of CSV layers with x,y columns.")
+@overwrite_option
 @quiet_option
 @debug_option
 @handle_errors
 def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_area, label_column, layer_crs,
-          quiet, debug):
+          overwrite, quiet, debug):
     """Build a map from OSM extracts, land-cover rasters and point/polygon layers.
 
-    Prints a JSON summary (object counts per label) on stdout.
+    Prints a JSON summary (object counts per label) on stdout.  An existing OUTPUT is replaced only
+    with --overwrite, and never when it is one of the sources or the labels file.
     """
+    check_outputs([output], [*sources, labels_file])
+    refuse_existing(output, overwrite)
     summary = build_map(sources, output, labels=labels_file, crs=crs, bbox=bbox, quantum=quantum,
                         raster_classes=raster_classes, min_area_m2=min_area, label_column=label_column,
                         layer_crs=layer_crs, progress=progress_printer(quiet))
-    click.echo(json.dumps(summary))
+    click.echo(dumps_strict(summary))

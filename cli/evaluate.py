@@ -2,15 +2,27 @@
 
 from __future__ import annotations
 
-import json
+from pathlib import Path
 
 import click
 
-from mapdb.errors import MapdbIOError
 from mapdb.evaluate import evaluate_images, format_summary, load_images, plot_evaluation
+from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
 from mapdb.store import open_map
 
-from .options import debug_option, handle_errors, json_option, progress_printer, quiet_option
+from .options import debug_option, finite_float, handle_errors, json_option, progress_printer, quiet_option
+
+
+def parse_plot(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
+    """A picture path whose ending matplotlib knows (it picks the format from it)."""
+    if value is None:
+        return None
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    known = FigureCanvasBase.get_supported_filetypes()
+    if Path(value).suffix.lower().lstrip(".") not in known:
+        raise click.BadParameter(f"{value!r}: the file name must end in one of .{', .'.join(sorted(known))}")
+    return value
 
 
 @click.command()
@@ -19,9 +31,9 @@ from .options import debug_option, handle_errors, json_option, progress_printer,
 @click.option("--method", type=click.Choice(["fast", "paper"]), default="fast", show_default=True,
               help="Localizer: the fast matcher or the paper's Algorithm 1 (seconds per image).")
 @click.option("--jobs", "-j", type=click.IntRange(1, None), default=1, show_default=True, help="Worker processes.")
-@click.option("--fp-threshold", type=click.FloatRange(0.0, None, min_open=True), default=2.0, show_default=True,
+@click.option("--fp-threshold", type=finite_float(0.0, None, min_open=True), default=2.0, show_default=True,
               help="Accepted answers farther than this many metres from the truth are false positives.")
-@click.option("--plot", "plot_file", type=click.Path(), default=None, metavar="FILE.png",
+@click.option("--plot", "plot_file", callback=parse_plot, default=None, metavar="FILE.png",
               help="Save the error distribution and a map of image positions coloured by outcome.")
 @click.option("--outcomes", "outcomes_file", type=click.Path(), default=None, metavar="FILE.jsonl",
               help="Also write one line per image: status, position, error, time.")
@@ -36,22 +48,22 @@ def evaluate(map_file, images_file, method, jobs, fp_threshold, plot_file, outco
     positives (accepted with error above --fp-threshold) as a fraction of accepted, the error of the fit
     with the true correspondences (the bound), and time per image.
     """
+    check_outputs([outcomes_file, plot_file], [map_file, images_file])
     images = load_images(images_file)
     with open_map(map_file) as m:
         outcomes, summary = evaluate_images(m, images, method=method, jobs=jobs, fp_threshold=fp_threshold,
                                             progress=progress_printer(quiet))
         map_objects = m.all() if plot_file else None
     if outcomes_file:
-        try:
-            with open(outcomes_file, "w") as f:
-                f.writelines(json.dumps(o) + "\n" for o in outcomes)
-        except OSError as exc:
-            raise MapdbIOError(f"{outcomes_file}: cannot write outcomes ({exc.strerror or exc})") from None
+        with atomic_open(outcomes_file) as f:
+            f.writelines(dumps_strict(o) + "\n" for o in outcomes)
     if plot_file:
-        plot_evaluation(outcomes, plot_file, fp_threshold=fp_threshold, map_objects=map_objects,
-                        title=f"{images_file} on {map_file} ({method})")
+        # the temporary name keeps the ending, from which matplotlib picks the format
+        with atomic_path(plot_file, keep_suffix=True) as tmp:
+            plot_evaluation(outcomes, tmp, fp_threshold=fp_threshold, map_objects=map_objects,
+                            title=f"{images_file} on {map_file} ({method})")
     summary = {"map": str(map_file), "images_file": str(images_file), "method": method, **summary}
     if as_json:
-        click.echo(json.dumps(summary, indent=2))
+        click.echo(dumps_strict(summary, indent=2))
     else:
         click.echo(format_summary(summary, title=f"{images_file} on {map_file}, method {method}"))

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-import json
-
 import click
 
 from mapdb.export import map_info
+from mapdb.outputs import dumps_strict
 from mapdb.store import open_map
 
 from .options import debug_option, handle_errors, json_option
@@ -22,7 +21,7 @@ def info(map_file, as_json, debug):
     with open_map(map_file) as m:
         facts = map_info(m)
     if as_json:
-        click.echo(json.dumps(facts, indent=2))
+        click.echo(dumps_strict(facts, indent=2))
         return
     b, ll = facts["bounds"], facts["bounds_lonlat"]
     lines = [

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import click
 
+from mapdb.outputs import check_outputs
 from mapdb.simulate import map_bbox_from_lonlat, simulate_images, write_images
 from mapdb.store import open_map
 
-from .options import bbox_option, debug_option, handle_errors, progress_printer, quiet_option
+from .options import bbox_option, debug_option, finite, finite_float, handle_errors, progress_printer, quiet_option
 
 
 def parse_range(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
@@ -15,9 +16,9 @@ def parse_range(ctx: click.Context | None, param: click.Parameter | None, value:
     if value is None:
         return None
     try:
-        parts = [float(v) for v in value.split(":")]
+        parts = [finite(v) for v in value.split(":")]
     except ValueError:
-        raise click.BadParameter(f"{value!r} is not a number or LOW:HIGH") from None
+        raise click.BadParameter(f"{value!r} is not a finite number or LOW:HIGH") from None
     if len(parts) == 1 and parts[0] > 0:
         return parts[0]
     if len(parts) == 2 and 0 < parts[0] <= parts[1]:
@@ -47,13 +48,17 @@ def parse_yaw(ctx: click.Context | None, param: click.Parameter | None, value: s
     if value.lower() == "random":
         return "random"
     try:
-        return float(value)
+        return finite(value)
     except ValueError:
-        raise click.BadParameter(f"{value!r} is not degrees or 'random'") from None
+        raise click.BadParameter(f"{value!r} is not finite degrees or 'random'") from None
 
 
-rate = click.FloatRange(0.0, 1.0)
-non_negative = click.FloatRange(0.0, None)
+rate = finite_float(0.0, 1.0)
+# Past these the simulation means nothing, and huge values only cost memory or overflow.
+MAX_SPURIOUS_RATE = 100.0
+MAX_ATTITUDE_STD = 90.0
+MAX_PRIOR_RADIUS = 2.0e7  # half the Earth's circumference, metres
+MAX_PIXEL_STD = 1.0e6
 
 
 @click.command()
@@ -67,17 +72,17 @@ non_negative = click.FloatRange(0.0, None)
 @click.option("--size", default="640x480", callback=parse_size, show_default=True, help="Image size WxH.")
 @click.option("--yaw", default="0", callback=parse_yaw, show_default=True,
               help="Heading, degrees clockwise from north, or 'random'.")
-@click.option("--attitude-std", type=non_negative, default=0.0, show_default=True,
+@click.option("--attitude-std", type=finite_float(0.0, MAX_ATTITUDE_STD), default=0.0, show_default=True,
               help="Roll and pitch error std, degrees.")
-@click.option("--pixel-std", type=non_negative, default=0.0, show_default=True,
+@click.option("--pixel-std", type=finite_float(0.0, MAX_PIXEL_STD), default=0.0, show_default=True,
               help="Detector position error std per axis, pixels.")
 @click.option("--miss-rate", type=rate, default=0.0, show_default=True,
               help="Fraction of visible objects the detector misses.")
-@click.option("--spurious-rate", type=non_negative, default=0.0, show_default=True,
+@click.option("--spurious-rate", type=finite_float(0.0, MAX_SPURIOUS_RATE), default=0.0, show_default=True,
               help="Extra objects per true object, at random pixels.")
 @click.option("--label-noise", type=rate, default=0.0, show_default=True,
               help="Fraction of objects given a wrong label.")
-@click.option("--with-prior", type=click.FloatRange(0.0, None, min_open=True), default=None, metavar="R",
+@click.option("--with-prior", type=finite_float(0.0, MAX_PRIOR_RADIUS, min_open=True), default=None, metavar="R",
               help="Add a prior of radius R metres centred within R of the truth.")
 @click.option("--with-attitude", is_flag=True, help="Add the true roll and pitch (as an AHRS would).")
 @click.option("--with-altitude", is_flag=True, help="Add the true height above ground (as an altimeter would).")
@@ -97,6 +102,7 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
     image carries its "truth": camera nadir x, y (map CRS), heading, altitude, roll, pitch, the map
     objects it shows, and the "bound" (the fit with the true correspondences).
     """
+    check_outputs([output], [map_file])
     say = progress_printer(quiet)
     with open_map(map_file) as m:
         area = map_bbox_from_lonlat(m.crs, bbox) if bbox else None

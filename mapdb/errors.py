@@ -20,6 +20,8 @@ __all__ = [
     "MapVersionError",
     "MapdbError",
     "MapdbIOError",
+    "OutputClashError",
+    "OutputExistsError",
     "SourceError",
     "reading",
 ]
@@ -31,6 +33,14 @@ class MapdbError(Exception):
 
 class MapdbIOError(MapdbError, OSError):
     """A file could not be read or written (missing, empty, unreadable)."""
+
+
+class OutputClashError(MapdbError, ValueError):
+    """An output path is one of the command's inputs (or another of its outputs); writing would destroy it."""
+
+
+class OutputExistsError(MapdbError, FileExistsError):
+    """An output file exists and the command was not told it may replace it (``--overwrite``)."""
 
 
 class SourceError(MapdbError, ValueError):

@@ -71,7 +71,7 @@ def test_progress_on_stderr_results_on_stdout(town: Path, tmp_path: Path) -> Non
     result = run("build", town, "-o", tmp_path / "m.mapdb")
     assert "reading" in result.stderr
     json.loads(result.stdout)  # nothing but the summary
-    quiet = run("build", town, "-o", tmp_path / "m.mapdb", "-q")
+    quiet = run("build", town, "-o", tmp_path / "m.mapdb", "-q", "--overwrite")
     assert quiet.stderr == ""
 
 
@@ -82,10 +82,10 @@ def test_forced_crs_and_bbox(town: Path, tmp_path: Path) -> None:
         assert m.crs == "EPSG:3857"
     lon0, lat0 = lonlat(-15.0, -10.0)
     lon1, lat1 = lonlat(15.0, 10.0)
-    assert run("build", town, "-o", out, "--bbox", f"{lon0},{lat0},{lon1},{lat1}").exit_code == 0
+    assert run("build", town, "-o", out, "--bbox", f"{lon0},{lat0},{lon1},{lat1}", "--overwrite").exit_code == 0
     with open_map(out) as m:
         assert m.label_counts == {"building": 1}
-    assert_one_line_error(run("build", town, "-o", out, "--crs", "EPSG:4326"), "projected")
+    assert_one_line_error(run("build", town, "-o", out, "--crs", "EPSG:4326", "--overwrite"), "projected")
 
 
 @pytest.mark.parametrize("suffix", [".gpkg", ".geojson", ".parquet", ".fgb", ".csv"])
@@ -180,7 +180,8 @@ def test_empty_bbox_keeps_the_earlier_map(town: Path, tmp_path: Path) -> None:
     out = tmp_path / "m.mapdb"
     run("build", town, "-o", out)
     before = out.read_bytes()
-    assert_one_line_error(run("build", town, "-o", out, "--bbox", "0,0,0.01,0.01"), "no labelled objects")
+    assert_one_line_error(run("build", town, "-o", out, "--bbox", "0,0,0.01,0.01", "--overwrite"),
+                          "no labelled objects")
     assert out.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.mapdb", "town.osm"]
 
