@@ -236,7 +236,11 @@ def _label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
 
 
 class ObjectIndex:
-    """Map objects for verification: a cKDTree per label, label densities, the region's bounds.
+    """Map objects for verification: one cKDTree over all labels, label densities, the region's bounds.
+
+    The tree holds ``(x, y, label * gap)``: with a search bound below the gap, one query finds the
+    nearest objects of each query's own label, whatever the mix of labels, instead of one query per
+    label (a cKDTree query costs tens of microseconds whatever its size).
 
     Parameters
     ----------
@@ -249,8 +253,13 @@ class ObjectIndex:
     Examples
     --------
     >>> idx = ObjectIndex(Objects.from_names([0.0, 10.0, 20.0], [0.0, 0.0, 5.0], ["b", "b", "p"]))
-    >>> len(idx), sorted(idx.label_trees)
-    (3, [0, 1])
+    >>> len(idx), idx.counts.tolist()
+    (3, [2, 1])
+    >>> dist, which = idx.nearest(np.array([[1.0 + 0j, 19.0 + 4j]]), np.array([0, 1]), idx.density)
+    >>> dist.round(2).tolist(), which.tolist()
+    ([[1.0, 1.41]], [[0, 2]])
+    >>> len(ObjectIndex(Objects.empty(["b"])))
+    0
     """
 
     def __init__(self, objects: Objects, bounds: tuple[float, float, float, float] | None = None) -> None:
@@ -265,30 +274,46 @@ class ObjectIndex:
                 else (0.0, 0.0, 0.0, 0.0)
             )
         self.bounds = tuple(float(v) for v in bounds)
-        area = max((self.bounds[2] - self.bounds[0]) * (self.bounds[3] - self.bounds[1]), 1.0)
-        counts = np.bincount(self.label, minlength=len(self.labels)) if n else np.zeros(len(self.labels), int)
+        self.area = max((self.bounds[2] - self.bounds[0]) * (self.bounds[3] - self.bounds[1]), 1.0)
+        self.counts = np.bincount(self.label, minlength=len(self.labels)) if n else np.zeros(len(self.labels), int)
         # Densities over the whole region only rank hypotheses; the decision uses local ones.
-        self.density = np.maximum(counts, 1) / area
-        self.label_trees: dict[int, tuple[cKDTree, np.ndarray]] = {}
-        for code in np.flatnonzero(counts):
-            members = np.flatnonzero(self.label == code)
-            self.label_trees[int(code)] = (cKDTree(np.column_stack([objects.x[members], objects.y[members]])), members)
-        self._codes = np.array(sorted(self.label_trees), dtype=np.int64)
+        self.density = np.maximum(self.counts, 1) / self.area
+        # Far beyond any search bound (those stay below the region's size, see ``_bound``), so a bounded
+        # search never crosses from one label to another.
+        self.gap = 1e3 * (math.sqrt(self.area) + 1e4)
+        self.tree = cKDTree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
 
     def __len__(self) -> int:
         return int(self.z.size)
 
-    def local_density(self, centre: complex, radius: float) -> np.ndarray:
-        """Objects per square metre of each label within ``radius`` of ``centre`` (inside the bounds)."""
+    def _points(self, w: np.ndarray, labels: np.ndarray) -> np.ndarray:
+        return np.column_stack([w.real, w.imag, labels * self.gap])
+
+    def _bound(self, reach: float) -> float:
+        return float(min(reach, 0.5 * self.gap))
+
+    def local_density(self, centres: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Objects per square metre of each label within ``radius`` of each centre (inside the bounds).
+
+        ``centres`` (complex) and ``radius`` have shape ``(H,)``; the result ``(H, L)``.  A label with no
+        object in a disc counts one, so that no density is zero.
+        """
+        centres = np.atleast_1d(np.asarray(centres, np.complex128))
+        radius = np.broadcast_to(np.asarray(radius, np.float64), centres.shape)
+        h, n_labels = centres.size, len(self.labels)
         minx, miny, maxx, maxy = self.bounds
-        disc = centre + radius * _DISC
+        disc = centres[:, None] + radius[:, None] * _DISC[None, :]
         inside = (disc.real >= minx) & (disc.real <= maxx) & (disc.imag >= miny) & (disc.imag <= maxy)
-        area = math.pi * radius * radius * max(float(inside.mean()), 1.0 / _DISC.size)
-        density = np.full(len(self.labels), 1.0 / area)
-        for code, (tree, _) in self.label_trees.items():
-            count = tree.query_ball_point([centre.real, centre.imag], radius, return_length=True)
-            density[code] = max(int(count), 1) / area
-        return density
+        area = math.pi * radius**2 * np.maximum(inside.mean(axis=1), 1.0 / _DISC.size)
+        count = np.ones((h, n_labels))
+        present = np.flatnonzero(self.counts)
+        if self.tree is not None and present.size:
+            w = np.repeat(centres, present.size)
+            codes = np.tile(present, h)
+            r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
+            found = self.tree.query_ball_point(self._points(w, codes), r, return_length=True)
+            count[:, present] = np.maximum(np.asarray(found).reshape(h, present.size), 1)
+        return count / area[:, None]
 
     def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int) -> np.ndarray:
         """Objects per square metre of each projected image object's label around where it lands.
@@ -301,19 +326,16 @@ class ObjectIndex:
         """
         shape = w.shape
         labels = np.broadcast_to(img_label, shape).ravel()
-        flat = w.ravel()
-        minx, miny, maxx, maxy = self.bounds
-        out = np.full(flat.size, 1.0 / max((maxx - minx) * (maxy - miny), 1.0))
-        for code in np.unique(labels):
-            entry = self.label_trees.get(int(code))
-            if entry is None:
-                continue
-            tree, members = entry
-            sel = np.flatnonzero(labels == code)
-            kk = min(k, members.size)
-            d, _ = tree.query(np.column_stack([flat[sel].real, flat[sel].imag]), k=kk)
-            d_k = d.reshape(sel.size, kk)[:, -1]
-            out[sel] = max(kk - 1, 1) / (math.pi * np.maximum(d_k, 1e-3) ** 2)
+        out = np.full(labels.size, 1.0 / self.area)
+        kk = np.minimum(k, self.counts[labels])
+        sel = np.flatnonzero(kk > 0)
+        if self.tree is None or not sel.size:
+            return out.reshape(shape)
+        k_max = int(kk[sel].max())
+        d, _ = self.tree.query(self._points(w.ravel()[sel], labels[sel]), k=k_max,
+                               distance_upper_bound=self._bound(0.5 * self.gap))
+        d = d.reshape(sel.size, k_max)[np.arange(sel.size), kk[sel] - 1]
+        out[sel] = np.maximum(kk[sel] - 1, 1) / (math.pi * np.maximum(d, 1e-3) ** 2)
         return out.reshape(shape)
 
     def nearest(
@@ -327,40 +349,38 @@ class ObjectIndex:
         positions that row ``h`` may not use: the map points a hypothesis was built from.
         """
         shape = w.shape
-        codes = np.unique(img_label) if np.ndim(img_label) == 1 else self._codes
         labels = np.broadcast_to(img_label, shape).ravel()
-        flat = w.ravel()
-        rows = np.repeat(np.arange(shape[0]), shape[1])
-        dist = np.full(flat.size, np.inf)
-        index = np.full(flat.size, -1, dtype=np.int64)
+        dist = np.full(labels.size, np.inf)
+        index = np.full(labels.size, -1, dtype=np.int64)
+        if self.tree is None:
+            return dist.reshape(shape), index.reshape(shape)
+        lam = np.min(density, axis=0) if np.ndim(density) > 1 else np.asarray(density)
+        reach = np.sqrt(_U_MAX / (math.pi * lam))[labels]
         k = 1 if exclude is None else 1 + exclude.shape[1]
-        for code in codes:
-            entry = self.label_trees.get(int(code))
-            if entry is None:
-                continue
-            tree, members = entry
-            sel = np.flatnonzero(labels == code)
-            if not sel.size:
-                continue
-            lam = np.min(density[..., code]) if np.ndim(density) > 1 else density[code]
-            reach = math.sqrt(_U_MAX / (math.pi * lam))
-            kk = min(k, members.size)
-            d, i = tree.query(np.column_stack([flat[sel].real, flat[sel].imag]), k=kk, distance_upper_bound=reach)
-            d, i = d.reshape(sel.size, kk), i.reshape(sel.size, kk)
-            found = np.isfinite(d)
-            i = np.where(found, members[np.minimum(i, members.size - 1)], -1)
-            if exclude is not None:
-                near = np.abs(self.z[np.maximum(i, 0)][:, :, None] - exclude[rows[sel]][:, None, :])
-                taken = (near < 1e-6).any(axis=2)
-                found &= ~taken
-                first = np.argmax(found, axis=1)  # nearest allowed (column 0 if none: then not found)
-                pick = np.arange(sel.size)
-                d, i, found = d[pick, first], i[pick, first], found[pick, first]
-            else:
-                d, i, found = d[:, 0], i[:, 0], found[:, 0]
-            dist[sel] = np.where(found, d, np.inf)
-            index[sel] = np.where(found, i, -1)
+        d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(reach.max()))
+        d, i = d.reshape(labels.size, k), i.reshape(labels.size, k)
+        found = d <= reach[:, None]
+        if exclude is not None:
+            rows = np.repeat(np.arange(shape[0]), shape[1])
+            near = np.abs(self.z[np.minimum(i, len(self) - 1)][:, :, None] - exclude[rows][:, None, :])
+            found &= ~(near < 1e-6).any(axis=2)
+        first = np.argmax(found, axis=1)  # nearest allowed (column 0 if none: then not found)
+        pick = np.arange(labels.size)
+        ok = found[pick, first]
+        dist[ok] = d[pick, first][ok]
+        index[ok] = i[pick, first][ok]
         return dist.reshape(shape), index.reshape(shape)
+
+    def within(self, w: np.ndarray, img_label: np.ndarray, gate: float, k: int) -> tuple[np.ndarray, ...]:
+        """Pairs (image object, map object, squared distance) within ``gate`` metres, up to ``k`` per object."""
+        if self.tree is None or not w.size:
+            empty = np.zeros(0, np.int64)
+            return empty, empty, np.zeros(0)
+        k = max(1, min(k, len(self)))
+        d, i = self.tree.query(self._points(w, img_label), k=k, distance_upper_bound=self._bound(gate))
+        d, i = d.reshape(w.size, k), i.reshape(w.size, k)
+        rows, cols = np.nonzero(np.isfinite(d))
+        return rows, i[rows, cols], d[rows, cols] ** 2
 
 
 class QuadIndex:
@@ -811,7 +831,7 @@ def match_fast(
         # hypotheses as they came from their quads (AC-RANSAC's rule: a model refitted to its own inliers
         # looks better than chance says); refinement then only improves the position.
         radius = opts.density_radius_factor * np.abs(a) * diag_px / 2.0
-        density = np.stack([index.local_density(complex(bi), float(ri)) for bi, ri in zip(b, radius, strict=True)])
+        density = index.local_density(b, radius)
         nfa = _decision_nfa(a, b, img_ids, map_z, z, img_label, index, density, log10_tests,
                             opts.density_neighbours)
         a, b, _, inlier, mid, dist = _refine(a, b, z, img_label, index, density, log10_tests, 2)
@@ -885,24 +905,9 @@ def _polish(
     pairs = cand.pairs
     for _ in range(iterations):
         w = a * z + b
-        rows, cols, costs = [], [], []
-        for code in np.unique(img_label):
-            entry = index.label_trees.get(int(code))
-            if entry is None:
-                continue
-            tree, members = entry
-            sel = np.flatnonzero(img_label == code)
-            k = min(3, members.size)
-            d, i = tree.query(np.column_stack([w[sel].real, w[sel].imag]), k=k, distance_upper_bound=gate)
-            d, i = d.reshape(sel.size, k), i.reshape(sel.size, k)
-            hit = np.isfinite(d)
-            r_, c_ = np.nonzero(hit)
-            rows.append(sel[r_])
-            cols.append(members[i[r_, c_]])
-            costs.append(d[r_, c_] ** 2)
-        if not rows or not sum(len(r) for r in rows):
+        rows, cols, costs = index.within(w, img_label, gate, 3)
+        if not rows.size:
             return cand
-        rows, cols, costs = np.concatenate(rows), np.concatenate(cols), np.concatenate(costs)
         img_u, img_inv = np.unique(rows, return_inverse=True)
         map_u, map_inv = np.unique(cols, return_inverse=True)
         big = 1e6 * (gate * gate + 1.0)
