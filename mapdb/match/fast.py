@@ -36,7 +36,7 @@ The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC:
    estimated error is within ``max_sigma_m``.
 5. **Refinement** of the winner: re-association and least-squares similarity
    (Umeyama, no reflection) over all inliers, twice, then a final optimal
-   one-to-one assignment (``linear_sum_assignment``) and fit: with the true
+   one-to-one assignment (minimum-weight bipartite matching) and fit: with the true
    correspondences found, the position is the least-squares bound.
 
 Lookup tolerances are tried in passes (``pixel_sigmas``): a tight one first,
@@ -52,7 +52,8 @@ from dataclasses import dataclass, field
 from itertools import combinations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
+from scipy.sparse import csr_array
+from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 from scipy.spatial import cKDTree
 
 from ..objects import Objects
@@ -897,7 +898,7 @@ def _polish(
     objects lie closer together than the noise (the loser's own map object is its second nearest).
     Here every image object may take any map object of its label within the gate (3.5 sigma of the
     current fit, and at least its farthest inlier), and the pairs minimising the total squared
-    distance are kept (``scipy.optimize.linear_sum_assignment``).
+    distance are kept (a minimum-weight full bipartite matching).
     """
     a, b = cand.a, cand.b
     farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
@@ -913,7 +914,15 @@ def _polish(
         big = 1e6 * (gate * gate + 1.0)
         cost = np.full((img_u.size, map_u.size), big)
         cost[img_inv, map_inv] = costs
-        r_opt, c_opt = linear_sum_assignment(cost)
+        # Every pair is an edge (non-pairs at a prohibitive cost), so a full matching always exists; this is
+        # linear_sum_assignment without importing scipy.optimize (a tenth of a second at start-up).
+        # Costs are shifted by one so that no pair (a zero distance) reads as a missing edge; every full
+        # matching has the same number of pairs, so the shift changes none.
+        edges = csr_array(cost + 1.0)
+        if img_u.size <= map_u.size:
+            r_opt, c_opt = np.arange(img_u.size), min_weight_full_bipartite_matching(edges)[1]
+        else:
+            r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
         good = cost[r_opt, c_opt] < big
         pairs = np.column_stack([img_u[r_opt[good]], map_u[c_opt[good]]])
         if len(pairs) < 3:
