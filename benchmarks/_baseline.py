@@ -1,33 +1,31 @@
-"""Run code of this tree and of an earlier commit side by side (shared by the benchmarks)."""
+"""The mapdb of an earlier commit beside this tree's, in one process (shared by the benchmarks).
+
+Timing two versions in separate runs on a shared, noisy machine compares the load more than the code;
+importing both into one process lets a benchmark alternate between them image by image.
+"""
 
 from __future__ import annotations
 
-import os
+import importlib
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def baseline_code(rev: str, workdir: Path) -> Path:
-    """The ``mapdb`` package of git revision ``rev``, extracted under ``workdir``; a PYTHONPATH entry."""
-    base = workdir / f"baseline-{rev}"
-    base.mkdir(exist_ok=True)
-    archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb"], check=True,
-                             capture_output=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(base)], input=archive, check=True)
-    return base
+def import_baseline(rev: str, workdir: Path, module: str = "localize") -> ModuleType:
+    """``mapdb.<module>`` as of git revision ``rev``, imported as package ``mapdb_baseline``.
 
-
-def run_python(code_dir: Path | None, script: str, *args: str, cwd: Path) -> str:
-    """Run ``script`` (Python source) with the mapdb of ``code_dir`` (None: this tree's); its stdout.
-
-    It runs from ``cwd``: ``python -c`` puts the current directory first on sys.path, and from the
-    repository root that would shadow the baseline's code.
+    mapdb's modules import each other relatively, so the old package works under another name.
     """
-    env = dict(os.environ)
-    if code_dir is not None:
-        env["PYTHONPATH"] = str(code_dir)
-    return subprocess.run([sys.executable, "-c", script, *args], check=True, env=env, cwd=cwd,
-                          capture_output=True, text=True).stdout
+    pkg_dir = workdir / "baseline"
+    if not (pkg_dir / "mapdb_baseline").is_dir():
+        pkg_dir.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(pkg_dir)], input=archive, check=True)
+        (pkg_dir / "mapdb").rename(pkg_dir / "mapdb_baseline")
+        sys.path.insert(0, str(pkg_dir))
+    return importlib.import_module(f"mapdb_baseline.{module}")

@@ -28,10 +28,11 @@ import math
 import statistics
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, baseline_code, run_python  # noqa: E402
+from _baseline import ROOT, import_baseline  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "osm"
 EXTRACTS = {
@@ -94,28 +95,25 @@ def write_cases(maps: dict[str, Path], n: int, seed: int, world: int, workdir: P
     return cases
 
 
-WORKER = r"""
-import json, math, sys, time
-from mapdb.localize import localize
-from mapdb.store import open_map
-cases = json.load(open(sys.argv[1]))
-out = []
-for case in cases:
-    images = [json.loads(line) for line in open(case["images"])]
-    for target, path in case["maps"].items():
-        with open_map(path) as m:
-            localize(images[0], m)  # builds the whole map's index once, outside the timing
-            for im in images:
-                start = time.perf_counter()
-                a = localize(im, m)
-                ms = (time.perf_counter() - start) * 1000.0
-                scores = [c["score"] for c in a.get("candidates", []) if c.get("score") is not None]
-                best = a["score"] if a["status"] == "ok" else max(scores, default=None)
-                err = math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"]) if a["status"] == "ok" else None
-                out.append({"extract": case["extract"], "target": target, "status": a["status"], "score": best,
-                            "error_m": err, "ms": ms})
-json.dump(out, open(sys.argv[2], "w"))
-"""
+def localize_all(localize, store, cases: list[dict]) -> list[dict]:
+    """Every case's images against every target map, with one version's ``localize`` and ``open_map``."""
+    out = []
+    for case in cases:
+        images = [json.loads(line) for line in open(case["images"])]
+        for target, path in case["maps"].items():
+            with store.open_map(path) as m:
+                localize(images[0], m)  # builds the whole map's index once, outside the timing
+                for im in images:
+                    start = time.perf_counter()
+                    a = localize(im, m)
+                    ms = (time.perf_counter() - start) * 1000.0
+                    scores = [c["score"] for c in a.get("candidates", []) if c.get("score") is not None]
+                    best = a["score"] if a["status"] == "ok" else max(scores, default=None)
+                    err = (math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"])
+                           if a["status"] == "ok" else None)
+                    out.append({"extract": case["extract"], "target": target, "status": a["status"],
+                                "score": best, "error_m": err, "ms": ms})
+    return out
 
 
 def table(rows: list[dict], label: str) -> None:
@@ -147,15 +145,14 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp)
         cases = write_cases(build_maps(), args.n, args.seed, args.world, workdir)
-        cases_file = workdir / "cases.json"
-        cases_file.write_text(json.dumps(cases))
-        runs = [("this tree", None)]
-        if args.baseline:
-            runs.append((f"baseline {args.baseline}", baseline_code(args.baseline, workdir)))
-        for label, code in runs:
-            run_python(code, WORKER, str(cases_file), str(workdir / "out.json"), cwd=workdir)
-            table(json.loads((workdir / "out.json").read_text()), label)
+        from mapdb import localize as tree_localize
+        from mapdb import store as tree_store
 
+        table(localize_all(tree_localize.localize, tree_store, cases), "this tree")
+        if args.baseline:
+            old = import_baseline(args.baseline, workdir)
+            table(localize_all(old.localize, import_baseline(args.baseline, workdir, "store"), cases),
+                  f"baseline {args.baseline}")
 
 if __name__ == "__main__":
     main()

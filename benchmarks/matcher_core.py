@@ -6,7 +6,8 @@
    outside the timing), and how many were localized within 2 m.
 2. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, process start to answer.
 
-Both run for this tree and, with ``--baseline REV``, for the code of that revision, in one run.
+With ``--baseline REV`` the code of that revision runs in the same process, image by image in turn with
+this tree's, so both meet the same load.
 
 Run from the repository root::
 
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import subprocess
 import sys
@@ -25,29 +27,33 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, baseline_code, run_python  # noqa: E402
+from _baseline import ROOT, import_baseline  # noqa: E402
 
 ANDORRA = ROOT.parent / "shared" / "data" / "osm" / "andorra-2021-06-22.osm.pbf"
 
-WORKER = r"""
-import json, math, statistics, sys, time
-from mapdb.localize import localize
-from mapdb.store import open_map
-images = [json.loads(line) for line in open(sys.argv[2])]
-result = {}
-with open_map(sys.argv[1]) as m:
+def time_images(versions: dict, map_path: Path, images: list[dict]) -> dict:
+    """Median ms per image of each version's ``localize``, alternating versions image by image."""
+    result = {}
     for case in ("prior", "no prior"):
         subset = images if case == "prior" else [{k: v for k, v in im.items() if k != "prior"} for im in images]
-        localize(subset[0], m)  # index built once, outside the timing
-        times, good = [], 0
+        maps = {label: store.open_map(map_path) for label, (localize, store) in versions.items()}
+        times = {label: [] for label in versions}
+        good = dict.fromkeys(versions, 0)
+        for label, (localize, _) in versions.items():
+            localize(subset[0], maps[label])  # the whole map's index built once, outside the timing
         for im in subset:
-            start = time.perf_counter()
-            a = localize(im, m)
-            times.append((time.perf_counter() - start) * 1000.0)
-            good += a["status"] == "ok" and math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"]) <= 2
-        result[case] = {"median_ms": statistics.median(times), "localized": good, "images": len(subset)}
-print(json.dumps(result))
-"""
+            for label, (localize, _) in versions.items():
+                start = time.perf_counter()
+                answer = localize(im, maps[label])
+                times[label].append((time.perf_counter() - start) * 1000.0)
+                good[label] += answer["status"] == "ok" and math.hypot(
+                    answer["x"] - im["truth"]["x"], answer["y"] - im["truth"]["y"]) <= 2.0
+        for label in versions:
+            maps[label].close()
+            result.setdefault(label, {})[case] = {"median_ms": statistics.median(times[label]),
+                                                  "localized": good[label], "images": len(subset)}
+    return result
+
 
 def startup(map_path: Path, one_image: Path, cwd: Path, repeats: int) -> dict[str, float]:
     """Median seconds of ``mapdb --help`` and of a one-image query with a prior, process start to exit."""
@@ -86,12 +92,14 @@ def main() -> None:
         images_path.write_text("".join(json.dumps(im) + "\n" for im in images))
         one_image = work / "one.jsonl"
         one_image.write_text(json.dumps(images[0]) + "\n")
-        runs = [("this tree", None)]
+        from mapdb import localize as tree_localize
+        from mapdb import store as tree_store
+
+        versions = {"this tree": (tree_localize.localize, tree_store)}
         if args.baseline:
-            runs.append((f"baseline {args.baseline}", baseline_code(args.baseline, work)))
-        results = {}
-        for label, code in runs:
-            results[label] = json.loads(run_python(code, WORKER, str(map_path), str(images_path), cwd=work))
+            old = import_baseline(args.baseline, work)
+            versions[f"baseline {args.baseline}"] = (old.localize, import_baseline(args.baseline, work, "store"))
+        results = time_images(versions, map_path, images)
         print(f"Andorra, {args.n} images: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects "
               f"({statistics.mean(len(im['objects']) for im in images):.1f} objects per image)")
         print(f"  {'code':<24} {'case':<9} {'median ms':>9} {'localized':>10}")
@@ -99,7 +107,7 @@ def main() -> None:
             for case, r in res.items():
                 print(f"  {label:<24} {case:<9} {r['median_ms']:9.2f} {r['localized']:6d}/{r['images']}")
         if args.baseline:
-            base = results[runs[1][0]]
+            base = results[f"baseline {args.baseline}"]
             for case in ("prior", "no prior"):
                 ratio = base[case]["median_ms"] / results["this tree"][case]["median_ms"]
                 print(f"  {case}: this tree is {ratio:.2f}x the baseline's speed")

@@ -67,8 +67,8 @@ TILE_SIZE_M = 1000.0
 TILE_PAD_M = 150.0
 # A prior reaching over more tiles than this is served by the whole map's index instead.
 MAX_PRIOR_TILES = 64
-# Blocks of tiles around a prior (their objects and one quad index over them; each holds a copy of its
-# tiles' quads) kept in memory, the least recently used dropped first: a flight wandering over 3 x 3
+# Blocks of tiles around a prior (one quad index over them, holding a copy of its tiles' quads) kept in
+# memory, the least recently used dropped first: a flight wandering over 3 x 3
 # tiles never rebuilds one.
 MAX_CACHED_BLOCKS = 9
 # Quads of the tiles' own indexes kept in memory (about 100 bytes each), the least recently used tile
@@ -145,9 +145,10 @@ class Localizer:
 
     One object owns every cache the matcher needs, each bounded: the whole map's indexes (built on
     the first image without a prior), the quad index of each map tile a prior reached (at most
-    ``MAX_CACHED_QUADS`` quads in all, the least recently used dropped first), and the objects and
-    merged quad index of the last ``MAX_CACHED_BLOCKS`` blocks of tiles.  A flight's images fall in
-    the same block and cost no map reading and no index building.
+    ``MAX_CACHED_QUADS`` quads in all, the least recently used dropped first), and the merged quad
+    index of the last ``MAX_CACHED_BLOCKS`` blocks of tiles.  A flight's images fall in the same block
+    and cost no index building; each reads only the objects around its prior (from the map's page
+    cache) into a small object index.
 
     Parameters
     ----------
@@ -180,7 +181,6 @@ class Localizer:
         self._whole_objects: ObjectIndex | None = None
         self._whole_quads: QuadIndex | None = None
         self._tiles = _Recent(MAX_CACHED_QUADS, size=lambda quads: max(quads.n_quads, 1))
-        self._block_objects = _Recent(MAX_CACHED_BLOCKS)
         self._block_quads = _Recent(MAX_CACHED_BLOCKS)
         self._previous_block: tuple | None = None
 
@@ -202,28 +202,30 @@ class Localizer:
     def fast_indexes(self, prior: tuple[float, float, float] | None, margin: float):
         """Objects to verify against and quad indexes to look hypotheses up in.
 
-        Without a prior: the whole map's.  With one: the block of map tiles around the tile under the
-        prior's centre that holds the disc of the prior radius plus ``margin``; its key changes only when
-        the prior moves to another tile, so a flight reuses the block from image to image.  The whole
-        map's quad index, when already in memory, serves every prior instead of the tiles'.
+        Without a prior: the whole map's.  With one, the prior is applied before anything is read: the
+        objects within ``1.1 radius + 1.5 margin`` of its centre, and the quads anchored in the map tiles
+        that disc reaches.  Tiles are cached; a flight's consecutive images fall in the same block
+        of tiles, whose quads are then merged into one index (one lookup instead of one per tile).  The
+        whole map's quad index, when already in memory, serves every prior instead of the tiles'.
         """
         if prior is None:
             objects, quads = self.whole_map_indexes()
             return objects, [quads]
         x, y, r = prior
-        reach = r + margin
+        # Hypotheses may put the image centre 1.1 radius away; its objects reach ``margin`` beyond, and the
+        # decision counts label densities up to half as far again.
+        reach = 1.1 * r + 1.5 * margin
         t = TILE_SIZE_M
         k = max(1, math.ceil(reach / t))
         if (2 * k + 1) ** 2 > MAX_PRIOR_TILES:
             # A prior this wide covers much of the map: the whole map's indexes serve it (and later images).
             return self.fast_indexes(None, 0.0)
-        cx, cy = math.floor(x / t), math.floor(y / t)
-        block = (cx, cy, k)
-        x0, y0, x1, y1 = (cx - k) * t, (cy - k) * t, (cx + k + 1) * t, (cy + k + 1) * t
-        objects = self._block_objects.get(
-            block, lambda: ObjectIndex(self.map.query_bbox(x0, y0, x1, y1), bounds=(x0, y0, x1, y1)))
+        box = (x - reach, y - reach, x + reach, y + reach)
+        objects = ObjectIndex(self.map.query_bbox(*box), bounds=box)
         if self._whole_quads is not None:
             return objects, [self._whole_quads]
+        cx, cy = math.floor(x / t), math.floor(y / t)
+        block = (cx, cy, k)
         cells = [(ix, iy) for ix in range(cx - k, cx + k + 1) for iy in range(cy - k, cy + k + 1)]
         previous, self._previous_block = self._previous_block, block
         if block not in self._block_quads and block != previous:
