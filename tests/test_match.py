@@ -10,9 +10,10 @@ from scipy.stats import binom
 
 from mapdb.localize import localize
 from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
-from mapdb.match.fast import ObjectIndex, QuadIndex, canonical_quads, match_fast, neighbour_quads
+from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
 from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
 from mapdb.match.paper import match_paper
+from mapdb.match.quads import canonical_quads, neighbour_quads
 from mapdb.objects import Objects
 from mapdb.simulate import Camera, Pose, paper_map, project_to_image, simulate_images
 from mapdb.store import MemoryMap

@@ -1,12 +1,15 @@
 """Pattern matchers: image objects against map objects.
 
-* :mod:`mapdb.match.fast` - the default: quad invariants looked up in an index, every hypothesis verified
-  at once, an a contrario decision (number of false alarms), a least-squares fit over all inliers.
+* :mod:`mapdb.match.fast` - the default, :func:`match_fast`, a driver handing each stage the next:
+  :mod:`~mapdb.match.quads` (quad invariants and the map's quad index), :mod:`~mapdb.match.hypotheses`
+  (image quads looked up, similarity hypotheses), :mod:`~mapdb.match.verify` (projected objects against
+  the map's objects), :mod:`~mapdb.match.decision` (the number of false alarms) and
+  :mod:`~mapdb.match.refine` (one candidate per place, the final least-squares fit).
 * :mod:`mapdb.match.paper` - the seed paper's Algorithm 1 as published, the reference.
-* :mod:`mapdb.match.decision` - the false-alarm model; :mod:`mapdb.match.geometry` - similarity fits.
+* :mod:`mapdb.match.geometry` - similarity fits.
 
-Most callers want :func:`mapdb.localize.localize`, which parses an image document, picks the map
-region and formats the answer.
+Most callers want :func:`mapdb.localize.localize` (or a :class:`mapdb.localize.Localizer`), which parses
+an image document, picks the map region and formats the answer.
 """
 
 from __future__ import annotations

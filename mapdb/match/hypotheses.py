@@ -1,0 +1,165 @@
+"""Hypotheses: image quads looked up in the map's quad indexes, each hit a similarity ``z -> a z + b``.
+
+Image quads (each object with three of its ``image_neighbours`` nearest, fewer than the map's so that a
+missing or extra object still leaves quads whose members are all among the map's neighbours) are looked
+up with a radius from the pixel error and the quad's size; near the canonical-order boundaries every
+ordering is looked up, so noise cannot hide a quad behind a flip.  Objects nearest the image centre anchor
+the first quads (their neighbourhoods are least cut by the image edge), a few anchors per round.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .geometry import fit_similarity_complex
+from .quads import PAIRS, QuadIndex, neighbour_quads, quad_frames
+
+if TYPE_CHECKING:
+    from .fast import FastOptions
+
+__all__ = ["anchor_batches", "lookup_hypotheses", "prioritise", "round_hypotheses"]
+
+
+def anchor_batches(z: np.ndarray, opts: FastOptions) -> list[np.ndarray]:
+    """Image quads ``(m, 4)`` in rounds: anchors nearest the image centre first, each quad in its earliest
+    round, at most ``opts.max_batches`` rounds."""
+    n = z.size
+    img_quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag]), opts.image_neighbours, with_anchor=True)
+    if not len(img_quads):
+        return []
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(np.abs(z), kind="stable")] = np.arange(n)
+    batch_of = rank[anchor] // opts.anchors_per_batch
+    by_batch = np.argsort(batch_of, kind="stable")
+    _, first = np.unique(img_quads[by_batch], axis=0, return_index=True)
+    keep = np.zeros(len(img_quads), bool)
+    keep[by_batch[first]] = True
+    n_batches = min(int(batch_of.max()) + 1, opts.max_batches)
+    return [img_quads[keep & (batch_of == i)] for i in range(n_batches)]
+
+
+def round_hypotheses(
+    z: np.ndarray,
+    img_label: np.ndarray,
+    batch: np.ndarray,
+    quads: Sequence[QuadIndex],
+    opts: FastOptions,
+    sigma_px: float,
+    prior: tuple[float, float, float] | None,
+    scale_range: tuple[float, float] | None,
+) -> tuple[np.ndarray, ...]:
+    """One round's hypotheses: ``a``, ``b`` (complex), image ids ``(H, 4)`` and map points ``(H, 4)``.
+
+    Hypotheses whose image centre falls outside the prior (with a little slack: a quad's estimate of the
+    centre is noisier than the final answer) or whose scale is outside ``scale_range`` are dropped.
+    """
+    img_ids, map_z = lookup_hypotheses(z, img_label, batch, quads, opts, sigma_px)
+    a, b = fit_similarity_complex(z[img_ids], map_z)
+    ok = np.isfinite(a) & (np.abs(a) > 0)
+    if prior is not None:
+        ok &= np.abs(b - complex(prior[0], prior[1])) <= PRIOR_SLACK * prior[2]
+    if scale_range is not None:
+        ok &= (np.abs(a) >= scale_range[0]) & (np.abs(a) <= scale_range[1])
+    return a[ok], b[ok], img_ids[ok], map_z[ok]
+
+
+# Hypotheses may put the image centre this many prior radii from the prior's centre.
+PRIOR_SLACK = 1.1
+# Poses are binned, to count the hypotheses that share one, in cells of this fraction of the footprint's
+# diagonal (with 10 degrees of rotation and 10 % of scale).
+POSE_BIN_FRACTION = 1.0 / 20.0
+
+
+def lookup_hypotheses(
+    z: np.ndarray,
+    img_label: np.ndarray,
+    quads: np.ndarray,
+    indexes: Sequence[QuadIndex],
+    opts: FastOptions,
+    sigma_px: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex)."""
+    empty = np.zeros((0, 4), np.int64)
+    indexes = [ix for ix in indexes if ix.n_quads]
+    if not len(quads) or not indexes:
+        return empty, np.zeros((0, 4), np.complex128)
+    zq = z[quads]
+    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
+    by_length = np.argsort(-d, axis=1)
+    longest = d[np.arange(len(d)), by_length[:, 0]]
+    rows, orders, invs, radii = [], [], [], []
+    # The longest pair decides the frame; when the second longest is within noise of it, a noisy image can
+    # pick either, so both frames are looked up.
+    for rank in (0, 1):
+        pair = by_length[:, rank]
+        length = d[np.arange(len(d)), pair]
+        use = np.ones(len(d), bool) if rank == 0 else longest - length < 3.0 * math.sqrt(2.0) * sigma_px
+        use &= length > 0.0  # four objects on one spot have no frame
+        if not use.any():
+            continue
+        sel = np.flatnonzero(use)
+        order0, t0 = quad_frames(zq[sel], pair[sel])
+        # Predicted standard error of the four invariants (see the module docs of decision): per point
+        # sigma^2 (1 + |1 - t|^2 + |t|^2) / |AB|^2 per axis.
+        spread = (1.0 + np.abs(1.0 - t0) ** 2 + np.abs(t0) ** 2).sum(axis=1)
+        radius = opts.tolerance_factor * sigma_px * np.sqrt(spread) / length[sel]
+        for swap_ab in (False, True):
+            for swap_cd in (False, True):
+                order = order0.copy()
+                t = t0.copy()
+                if swap_ab:
+                    order[:, :2] = order[:, 1::-1]
+                    t = 1.0 - t
+                if swap_cd:
+                    order[:, 2:] = order[:, :1:-1]
+                    t = t[:, ::-1]
+                # Only orderings that could be the canonical one within the lookup radius.
+                slack = radius * math.sqrt(2.0)
+                ok = (t.real.sum(axis=1) - 1.0 <= slack) & (t[:, 0].real - t[:, 1].real <= slack)
+                ok &= radius <= opts.max_invariant_radius
+                if not ok.any():
+                    continue
+                rows.append(sel[ok])
+                orders.append(order[ok])
+                invs.append(np.column_stack([t[ok, 0].real, t[ok, 0].imag, t[ok, 1].real, t[ok, 1].imag]))
+                radii.append(radius[ok])
+    if not rows:
+        return empty, np.zeros((0, 4), np.complex128)
+    row = np.concatenate(rows)
+    order = np.concatenate(orders)
+    img_ids = np.take_along_axis(quads[row], order, axis=1)
+    inv = np.concatenate(invs)
+    radius = np.concatenate(radii)
+    found_img, found_map = [], []
+    for index in indexes:
+        q_row, map_z = index.lookup(inv, img_label[img_ids], radius, opts.max_hits_per_quad)
+        found_img.append(img_ids[q_row])
+        found_map.append(map_z)
+    return np.concatenate(found_img), np.concatenate(found_map)
+
+
+def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` hypotheses, those whose pose most others share first.
+
+    Poses are binned coarsely (10 degrees of rotation, 10% of scale, a twentieth of the footprint
+    diagonal in position) and each hypothesis counts the hypotheses in its bin.
+    """
+    if len(a) <= limit:
+        return np.arange(len(a))
+    scale = np.abs(a)
+    cell = scale * diag_px * POSE_BIN_FRACTION
+    key = np.column_stack(
+        [
+            np.floor(np.log(scale) / 0.1),
+            np.floor(np.angle(a) / math.radians(10.0)),
+            np.floor(b.real / cell),
+            np.floor(b.imag / cell),
+        ]
+    ).astype(np.int64)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    votes = counts[inverse.reshape(-1)]
+    return np.argsort(-votes, kind="stable")[:limit]

@@ -1,0 +1,227 @@
+"""Quads: four map or image objects and their similarity invariants, and the map's index of them.
+
+Every object and three of its nearest neighbours form a *quad*.  Its two most distant points ``A``, ``B``
+define a frame in which ``A = 0`` and ``B = 1`` (complex numbers); the other two points' coordinates in that
+frame, ``t = (P - A) / (B - A)``, are four numbers invariant to translation, rotation and scale, but not to
+reflection (images are not mirrored).  The labels of ``A, B, C, D`` are part of the key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from itertools import combinations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..objects import Objects
+
+__all__ = ["LABEL_GAP", "QuadIndex", "canonical_quads", "label_keys", "neighbour_quads", "quad_frames"]
+
+# The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
+# crosses from one label combination to another.
+LABEL_GAP = 100.0
+
+# The six point pairs of a quad and, for each, the two other points.
+PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+
+OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
+
+
+
+def neighbour_quads(
+    xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | None = None, with_anchor: bool = False
+):
+    """Quads ``(m, 4)``: each (anchor) point with every triple of its ``neighbours`` nearest.
+
+    Rows are sorted point indices.  By default duplicates (the same four points reached from different
+    anchors) are removed; with ``with_anchor`` every anchor keeps its own quads and the anchor of each
+    row is returned too, so that an image can be searched anchor by anchor.
+
+    Examples
+    --------
+    >>> q = neighbour_quads(np.array([[0, 0], [1, 0], [0, 1], [1, 1], [5, 5.0]]), 3)
+    >>> q.shape[1], len(q) > 0, bool(np.all(np.diff(q, axis=1) > 0))
+    (4, True, True)
+    """
+    n = len(xy)
+    k = min(neighbours, n - 1)
+    anchor_ids = np.arange(n) if anchors is None else np.flatnonzero(anchors)
+    if k < 3 or not anchor_ids.size:
+        empty = np.zeros((0, 4), dtype=np.int64)
+        return (empty, np.zeros(0, np.int64)) if with_anchor else empty
+    _, nn = cKDTree(xy).query(xy[anchor_ids], k + 1)
+    # The point itself is usually first, but not when another point sits on it: drop it wherever it is.
+    own = nn == anchor_ids[:, None]
+    own[~own.any(axis=1), -1] = True
+    nn = nn[~own].reshape(anchor_ids.size, k)
+    triples = np.array(list(combinations(range(k), 3)))
+    anchor = np.repeat(anchor_ids, len(triples))
+    quads = np.concatenate([anchor[:, None], nn[:, triples].reshape(-1, 3)], axis=1)
+    quads.sort(axis=1)
+    if with_anchor:
+        return quads, anchor
+    if n < 55_000:  # n**4 fits in int64: deduplicate on one integer key, much faster than rows
+        key = ((quads[:, 0] * n + quads[:, 1]) * n + quads[:, 2]) * n + quads[:, 3]
+        _, first = np.unique(key, return_index=True)
+        return quads[np.sort(first)]
+    return np.unique(quads, axis=0)
+
+
+def quad_frames(zq: np.ndarray, pair: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex order ``(A, B, C, D)`` per quad for the chosen pair index, and ``t_C``, ``t_D``."""
+    rows = np.arange(len(zq))
+    order = np.concatenate([PAIRS[pair], OTHERS[pair]], axis=1)
+    a, b = zq[rows, order[:, 0]], zq[rows, order[:, 1]]
+    t = (zq[rows[:, None], order[:, 2:]] - a[:, None]) / (b - a)[:, None]
+    return order, t
+
+
+def canonical_quads(zq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Canonical vertex order and invariants of quads given as complex points ``(m, 4)``.
+
+    ``A, B`` is the most distant pair, ordered so that ``Re t_C + Re t_D <= 1``; ``C, D`` are ordered
+    so that ``Re t_C <= Re t_D``.
+
+    Returns
+    -------
+    order : (m, 4) int
+        Positions (0..3) of ``A, B, C, D`` in each input row.
+    invariants : (m, 4) float
+        ``Re t_C, Im t_C, Re t_D, Im t_D``.
+    ab : (m,) float
+        Length of ``AB``.
+    """
+    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
+    pair = np.argmax(d, axis=1)
+    order, t = quad_frames(zq, pair)
+    swap_ab = t.real.sum(axis=1) > 1.0
+    order[swap_ab, :2] = order[swap_ab, 1::-1]
+    t[swap_ab] = 1.0 - t[swap_ab]
+    swap_cd = t[:, 0].real > t[:, 1].real
+    order[swap_cd, 2:] = order[swap_cd, :1:-1]
+    t[swap_cd] = t[swap_cd, ::-1]
+    return order, np.column_stack([t[:, 0].real, t[:, 0].imag, t[:, 1].real, t[:, 1].imag]), d[
+        np.arange(len(zq)), pair
+    ]
+
+
+def label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
+    """One number per ordered label 4-tuple ``(m, 4)``."""
+    base = max(n_labels, 1)
+    key = np.zeros(len(labels), dtype=np.float64)
+    for j in range(4):
+        key = key * base + labels[:, j]
+    return key
+
+
+class QuadIndex:
+    """Quad invariants of map objects in a cKDTree: where image quads are looked up.
+
+    A quad index keeps the map coordinates of its quads' points (not indices into a map), so that
+    indexes of separate tiles of a map can be built, cached and searched independently.
+
+    Parameters
+    ----------
+    objects : Objects
+        Map objects in projected metres: the anchors and everything that may be their neighbours.
+    neighbours : int
+        Neighbours per anchor in the quads (``FastOptions.map_neighbours``).
+    anchors : bool array, optional
+        Which objects anchor quads (default all): a tile anchors its own objects and reads a margin
+        around them for their neighbours.
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> idx = QuadIndex(Objects.from_names(rng.uniform(0, 100, 50), rng.uniform(0, 100, 50), ["b"] * 50))
+    >>> idx.n_quads > 0, idx.quad_z.shape[1]
+    (True, 4)
+    """
+
+    def __init__(self, objects: Objects, neighbours: int = 8, anchors: np.ndarray | None = None) -> None:
+        self.labels = tuple(objects.labels)
+        z = objects.x + 1j * objects.y
+        label = objects.label.astype(np.int64)
+        if len(objects) >= 4:
+            quads = neighbour_quads(np.column_stack([objects.x, objects.y]), neighbours, anchors=anchors)
+        else:
+            quads = np.zeros((0, 4), np.int64)
+        if len(quads):
+            # Four objects on one spot (duplicates in the sources) have no frame.
+            quads = quads[np.abs(z[quads] - z[quads[:, :1]]).max(axis=1) > 0.0]
+        if len(quads):
+            order, inv, _ = canonical_quads(z[quads])
+            quads = np.take_along_axis(quads, order, axis=1)
+            keys = label_keys(label[quads], len(self.labels))
+            self.tree: cKDTree | None = cKDTree(
+                np.column_stack([inv, keys * LABEL_GAP]), balanced_tree=False, compact_nodes=False
+            )
+        else:
+            self.tree = None
+        self.quad_z = z[quads]
+        self.quad_label = label[quads]
+
+    @property
+    def n_quads(self) -> int:
+        return int(len(self.quad_z))
+
+    def lookup(
+        self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray, k: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Map quads near image quads: the query row of each hit and the hit's four map points.
+
+        Parameters
+        ----------
+        invariants : (m, 4) float
+            ``Re t_C, Im t_C, Re t_D, Im t_D`` of each image quad in its (canonical) vertex order.
+        labels : (m, 4) int
+            Label codes of ``A, B, C, D``.
+        radius : (m,) float
+            Lookup radius in invariant space, per query.
+        k : int
+            At most this many nearest map quads per query.
+
+        Returns
+        -------
+        rows : (h,) int
+            Query row of each hit.
+        map_z : (h, 4) complex
+            The hit's map points ``A, B, C, D`` (projected metres).
+        """
+        if self.tree is None or not len(invariants):
+            return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
+        query = np.column_stack([invariants, label_keys(labels, len(self.labels)) * LABEL_GAP])
+        k = min(k, self.n_quads)
+        dist, hit = self.tree.query(query, k=k, distance_upper_bound=float(radius.max()))
+        dist = dist.reshape(len(query), k)
+        hit = hit.reshape(len(query), k)
+        rows, cols = np.nonzero(dist <= radius[:, None])
+        return rows, self.quad_z[hit[rows, cols]]
+
+    @classmethod
+    def merged(cls, parts: Sequence[QuadIndex]) -> QuadIndex:
+        """One index over the quads of several (the tiles around a prior): one lookup instead of one per part.
+
+        Examples
+        --------
+        >>> rng = np.random.default_rng(0)
+        >>> parts = [QuadIndex(Objects.from_names(rng.uniform(0, 100, 30), rng.uniform(0, 100, 30), ["b"] * 30))
+        ...          for _ in range(2)]
+        >>> QuadIndex.merged(parts).n_quads == parts[0].n_quads + parts[1].n_quads
+        True
+        """
+        parts = [q for q in parts if q.tree is not None]
+        merged = cls.__new__(cls)
+        merged.labels = parts[0].labels if parts else ()
+        if not parts:
+            merged.tree = None
+            merged.quad_z = np.zeros((0, 4), np.complex128)
+            merged.quad_label = np.zeros((0, 4), np.int64)
+            return merged
+        merged.tree = cKDTree(
+            np.concatenate([q.tree.data for q in parts]), balanced_tree=False, compact_nodes=False
+        )
+        merged.quad_z = np.concatenate([q.quad_z for q in parts])
+        merged.quad_label = np.concatenate([q.quad_label for q in parts])
+        return merged

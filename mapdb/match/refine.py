@@ -1,0 +1,147 @@
+"""Refinement: candidates from verified hypotheses, one per place, and the final least-squares fit.
+
+The winner is re-associated by an optimal one-to-one assignment and refitted (Umeyama similarity, no
+reflection): with the true correspondences found, the position is the least-squares bound.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse import csr_array
+from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+
+from .geometry import fit_similarity_complex, prediction_variance_factor
+from .verify import ObjectIndex
+
+__all__ = ["Candidate", "candidates", "distinct", "merge_candidates", "polish"]
+
+# Two answers closer than this fraction of the footprint's diagonal are one place.
+PLACE_FRACTION = 1.0 / 20.0
+
+
+@dataclass
+class Candidate:
+    """One refined hypothesis."""
+
+    a: complex
+    b: complex
+    log10_nfa: float
+    inliers: int
+    sigma_axis_m: float
+    variance_factor: float
+    pairs: np.ndarray = field(repr=False)  # (k, 2): image index, map index
+
+    @property
+    def score(self) -> float:
+        return -self.log10_nfa
+
+    @property
+    def sigma_m(self) -> float:
+        """Estimated 1-sigma error (per axis, metres) of the map point under the image centre."""
+        return self.sigma_axis_m * math.sqrt(self.variance_factor)
+
+
+def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray, mid: np.ndarray,
+               dist: np.ndarray, z: np.ndarray) -> list[Candidate]:
+    """Refined hypotheses with at least three inliers as :class:`Candidate` s."""
+    out = []
+    for j in range(len(a)):
+        k = int(inlier[j].sum())
+        if not np.isfinite(a[j]) or k < 3:
+            continue
+        out.append(Candidate(
+            a=complex(a[j]),
+            b=complex(b[j]),
+            log10_nfa=float(nfa[j]),
+            inliers=k,
+            sigma_axis_m=residual_sigma(dist[j, inlier[j]]),
+            variance_factor=float(prediction_variance_factor(z[inlier[j]])),
+            pairs=np.column_stack([np.flatnonzero(inlier[j]), mid[j, inlier[j]]]),
+        ))
+    return out
+
+
+def residual_sigma(dist: np.ndarray) -> float:
+    """Per-axis error of a similarity fitted to ``k`` pairs: ``sqrt(sum r^2 / (2k - 4))`` (4 parameters)."""
+    k = dist.size
+    return math.sqrt(float(np.sum(dist**2)) / max(2 * k - 4, 1))
+
+
+def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: int) -> list[int]:
+    """Greedy non-maximum suppression: indices (in ``order``) at least ``separation`` apart."""
+    chosen: list[int] = []
+    for i in order:
+        if all(abs(b[i] - b[j]) > max(separation[i], separation[j]) for j in chosen):
+            chosen.append(int(i))
+            if len(chosen) >= limit:
+                break
+    return chosen
+
+
+def polish(
+    cand: Candidate, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, iterations: int = 2
+) -> Candidate:
+    """Final association by optimal assignment, then the least-squares fit over it.
+
+    Nearest-neighbour association with one image object per map object loses a true pair when two map
+    objects lie closer together than the noise (the loser's own map object is its second nearest).
+    Here every image object may take any map object of its label within the gate (3.5 sigma of the
+    current fit, and at least its farthest inlier), and the pairs minimising the total squared
+    distance are kept (a minimum-weight full bipartite matching).
+    """
+    a, b = cand.a, cand.b
+    farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
+    gate = max(3.5 * cand.sigma_axis_m, farthest, 1e-9)
+    pairs = cand.pairs
+    for _ in range(iterations):
+        w = a * z + b
+        rows, cols, costs = index.within(w, img_label, gate, 3)
+        if not rows.size:
+            return cand
+        img_u, img_inv = np.unique(rows, return_inverse=True)
+        map_u, map_inv = np.unique(cols, return_inverse=True)
+        big = 1e6 * (gate * gate + 1.0)
+        cost = np.full((img_u.size, map_u.size), big)
+        cost[img_inv, map_inv] = costs
+        # Every pair is an edge (non-pairs at a prohibitive cost), so a full matching always exists; this is
+        # linear_sum_assignment without importing scipy.optimize (a tenth of a second at start-up).
+        # Costs are shifted by one so that no pair (a zero distance) reads as a missing edge; every full
+        # matching has the same number of pairs, so the shift changes none.
+        edges = csr_array(cost + 1.0)
+        if img_u.size <= map_u.size:
+            r_opt, c_opt = np.arange(img_u.size), min_weight_full_bipartite_matching(edges)[1]
+        else:
+            r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
+        good = cost[r_opt, c_opt] < big
+        pairs = np.column_stack([img_u[r_opt[good]], map_u[c_opt[good]]])
+        if len(pairs) < 3:
+            return cand
+        a_new, b_new = fit_similarity_complex(z[pairs[:, 0]], index.z[pairs[:, 1]])
+        if not np.isfinite(a_new):
+            return cand
+        a, b = complex(a_new), complex(b_new)
+    dist = np.abs(a * z[pairs[:, 0]] + b - index.z[pairs[:, 1]])
+    k = len(pairs)
+    return Candidate(
+        a=a,
+        b=b,
+        log10_nfa=cand.log10_nfa,
+        inliers=k,
+        sigma_axis_m=residual_sigma(dist),
+        variance_factor=float(prediction_variance_factor(z[pairs[:, 0]])),
+        pairs=pairs,
+    )
+
+
+def merge_candidates(pool: list[Candidate], diag_px: float) -> list[Candidate]:
+    """Best first, one candidate per place (refinement often brings several hypotheses to one pose)."""
+    pool = sorted(pool, key=lambda c: (c.log10_nfa, -c.inliers))
+    kept: list[Candidate] = []
+    for c in pool:
+        sep = abs(c.a) * diag_px * PLACE_FRACTION
+        if all(abs(c.b - k.b) > sep for k in kept):
+            kept.append(c)
+    return kept
