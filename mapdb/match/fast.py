@@ -206,7 +206,8 @@ def match_fast(
     screen_of = cKDTree(np.column_stack([z.real, z.imag])).query(
         np.column_stack([z.real, z.imag]), k=min(opts.screen_objects, n)
     )[1].reshape(n, -1)
-    rounds = [(sigma_px, batch) for sigma_px in opts.pixel_sigmas for batch in anchor_batches(z, opts)]
+    batches = anchor_batches(z, opts)
+    rounds = [(sigma_px, batch) for sigma_px in opts.pixel_sigmas for batch in batches]
     n_tests = 0
     pool: list[Candidate] = []
     done_rounds = 0

@@ -101,6 +101,12 @@ def polish(
         rows, cols, costs = index.within(w, img_label, gate, 3)
         if not rows.size:
             return cand
+        if np.unique(rows).size == rows.size and np.unique(cols).size == cols.size:
+            pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign
+            a, b = _fit_pairs(z, index, pairs, a, b)
+            if a is None:
+                return cand
+            continue
         img_u, img_inv = np.unique(rows, return_inverse=True)
         map_u, map_inv = np.unique(cols, return_inverse=True)
         big = 1e6 * (gate * gate + 1.0)
@@ -117,12 +123,9 @@ def polish(
             r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
         good = cost[r_opt, c_opt] < big
         pairs = np.column_stack([img_u[r_opt[good]], map_u[c_opt[good]]])
-        if len(pairs) < 3:
+        a, b = _fit_pairs(z, index, pairs, a, b)
+        if a is None:
             return cand
-        a_new, b_new = fit_similarity_complex(z[pairs[:, 0]], index.z[pairs[:, 1]])
-        if not np.isfinite(a_new):
-            return cand
-        a, b = complex(a_new), complex(b_new)
     dist = np.abs(a * z[pairs[:, 0]] + b - index.z[pairs[:, 1]])
     k = len(pairs)
     return Candidate(
@@ -134,6 +137,16 @@ def polish(
         variance_factor=float(prediction_variance_factor(z[pairs[:, 0]])),
         pairs=pairs,
     )
+
+
+def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, a: complex, b: complex):
+    """The similarity fitted to ``pairs`` (image id, map id), or ``(None, None)`` when they cannot fix one."""
+    if len(pairs) < 3:
+        return None, None
+    a_new, b_new = fit_similarity_complex(z[pairs[:, 0]], index.z[pairs[:, 1]])
+    if not np.isfinite(a_new):
+        return None, None
+    return complex(a_new), complex(b_new)
 
 
 def merge_candidates(pool: list[Candidate], diag_px: float) -> list[Candidate]:
