@@ -3,35 +3,48 @@
 from __future__ import annotations
 
 import json
-import sys
+import os
+import stat
 
 import click
 
-from mapdb.errors import MapdbIOError
-from mapdb.images import read_image_documents
+from mapdb.errors import ImageInputError
+from mapdb.images import check_prior, read_image_documents
 from mapdb.localize import METHODS, localize_documents
+from mapdb.outputs import atomic_open, check_outputs
 from mapdb.store import open_map
 
 from .options import debug_option, handle_errors
 
 
 def parse_prior(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
-    """``X,Y,R`` (map CRS metres) -> (x, y, r), or None."""
+    """``X,Y,R`` (map CRS metres) -> (x, y, r), or None; the ranges of an image's prior apply."""
     if value is None:
         return None
     try:
         x, y, r = (float(v) for v in value.split(","))
     except ValueError:
         raise click.BadParameter(f"{value!r} is not three comma-separated numbers X,Y,R") from None
-    if not all(map(lambda v: v == v and abs(v) != float("inf"), (x, y, r))) or r <= 0:
-        raise click.BadParameter(f"{value!r}: X and Y must be finite and R positive")
-    return (x, y, r)
+    try:
+        p = check_prior(x, y, r, repr(value))
+    except ImageInputError as exc:
+        raise click.BadParameter(str(exc)) from None
+    return (p.x, p.y, p.radius)
+
+
+def _stdin_file() -> str | None:
+    """``/dev/stdin`` when standard input is a regular file (``< a.jsonl -o a.jsonl`` must be refused too)."""
+    try:
+        return "/dev/stdin" if stat.S_ISREG(os.fstat(0).st_mode) else None
+    except OSError:
+        return None
 
 
 @click.command()
 @click.argument("map_file", metavar="MAP", type=click.Path())
 @click.argument("images_file", metavar="IMAGES", type=click.Path())
-@click.option("-o", "--output", default="-", metavar="OUT.jsonl", help="Answers file (default stdout).")
+@click.option("-o", "--output", default="-", metavar="OUT.jsonl",
+              help="Answers file (default stdout), written whole at the end or not at all.")
 @click.option("--method", type=click.Choice(METHODS), default="fast", show_default=True,
               help="The fast matcher, or the paper's Algorithm 1 (seconds to minutes per image).")
 @click.option("--prior", callback=parse_prior, metavar="X,Y,R",
@@ -42,23 +55,24 @@ def query(map_file, images_file, output, method, prior, debug):
     """Localize every image of IMAGES (JSON Lines; '-' for stdin) in MAP.
 
     Writes one JSON answer per image, in input order: status "ok" with the position (map CRS and
-    lon/lat), heading, scale, 1-sigma error and score, or status "rejected" with the reason.  A malformed
-    line is rejected on its own; the other images are still answered.
+    lon/lat), heading, scale, 1-sigma error and score, or status "rejected" with the reason.
+
+    Every line on its own: lines are split on "\\n" only, blank lines are skipped, and each other
+    line gets exactly one answer, in order.  A line that is not UTF-8, not JSON, not a JSON object,
+    or has a number out of range (see the image schema) is rejected on its own; the other images
+    are still answered.  A file that is one pretty-printed JSON object or array (up to 16 MiB) is
+    read too.
+
+    Streaming: input is read line by line and each answer is written (to stdout, flushed) before the
+    next line is read, so a process can feed frames through a pipe one at a time.  With -o the
+    answers go to a temporary file renamed to OUT.jsonl at the end: an error (a damaged map) leaves
+    any earlier OUT.jsonl as it was.  OUT.jsonl may not be MAP or IMAGES.
     """
+    check_outputs([output], [map_file, _stdin_file() if images_file == "-" else images_file])
     documents = read_image_documents(images_file)
-    with open_map(map_file) as m:
-        try:
-            out = sys.stdout if output == "-" else open(output, "w", encoding="utf-8")  # noqa: SIM115
-        except OSError as exc:
-            raise MapdbIOError(f"{output}: cannot write answers ({exc.strerror or exc})") from None
-        try:
-            for record in localize_documents(documents, m, method, prior):
-                line = json.dumps(record, separators=(",", ":")) + "\n"
-                try:
-                    out.write(line)
-                    out.flush()  # a long batch streams its answers
-                except OSError as exc:
-                    raise MapdbIOError(f"{output}: cannot write answers ({exc.strerror or exc})") from None
-        finally:
-            if out is not sys.stdout:
-                out.close()
+    with open_map(map_file) as m, atomic_open(output) as out:
+        streaming = output == "-"
+        for record in localize_documents(documents, m, method, prior):
+            out.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
+            if streaming:
+                out.flush()  # the answer reaches a reader on a pipe before the next line is read
