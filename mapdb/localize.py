@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ImageInputError
-from .images import ImageObjects, parse_image
+from .images import ImageObjects, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from .match.paper import PaperOptions, match_paper
 
@@ -78,6 +78,11 @@ MAX_CACHED_QUADS = 4_000_000
 
 def _rounded(value: float, digits: int) -> float:
     return float(round(value, digits))
+
+
+def _finite(value: float, digits: int) -> float | None:
+    """Rounded, or None where there is no finite value (a candidate without evidence scores -inf)."""
+    return _rounded(value, digits) if math.isfinite(value) else None
 
 
 @lru_cache(maxsize=16)
@@ -279,6 +284,10 @@ def _rejected(image_id: Any, reason: str, start: float, candidates: list | None 
 
 def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float] | None):
     if im.prior is None:
+        if prior is not None:
+            # A caller's prior meets the same ranges as an image's (a radius of 1e308 would overflow the tiles).
+            checked = check_prior(*prior, source="prior argument")
+            return (checked.x, checked.y, checked.radius)
         return prior
     p = im.prior
     if not p.lonlat:
@@ -398,7 +407,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         result = match_fast(z, codes, objects, quads, diag_px, options=opts, prior=prior, scale_range=scale_range)
         candidates = [
             {"x": _rounded(c.b.real, 3), "y": _rounded(c.b.imag, 3), "inliers": c.inliers,
-             "score": _rounded(c.score, 2), "sigma_m": _rounded(c.sigma_m, 3)}
+             "score": _finite(c.score, 2), "sigma_m": _finite(c.sigma_m, 3)}
             for c in result.candidates
         ]
         extra = {"hypotheses": result.n_hypotheses}

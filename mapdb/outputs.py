@@ -370,8 +370,8 @@ def atomic_open(path: PathLike, mode: str = "w", encoding: str | None = "utf-8",
             yield stream
             stream.flush()
         except OSError as exc:
-            if isinstance(exc, MapdbError):
-                raise
+            if isinstance(exc, MapdbError | BrokenPipeError):
+                raise  # a reader that stopped reading (``| head``) is not an error to report: the CLI exits quietly
             raise MapdbIOError(f"<stdout>: cannot write ({exc.strerror or exc})") from None
         return
     with atomic_path(path) as tmp:
