@@ -11,10 +11,11 @@ import click
 from mapdb.errors import ImageInputError
 from mapdb.images import check_prior, read_image_documents
 from mapdb.localize import METHODS, localize_documents
+from mapdb.match.fast import FastOptions
 from mapdb.outputs import atomic_open, check_outputs
 from mapdb.store import open_map
 
-from .options import debug_option, handle_errors
+from .options import debug_option, finite_float, handle_errors
 
 
 def parse_prior(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
@@ -49,9 +50,12 @@ def _stdin_file() -> str | None:
               help="The fast matcher, or the paper's Algorithm 1 (seconds to minutes per image).")
 @click.option("--prior", callback=parse_prior, metavar="X,Y,R",
               help="Search within R metres of X,Y (map CRS) for images that carry no prior of their own.")
+@click.option("--min-score", type=finite_float(0.0, 300.0), default=-FastOptions().log10_epsilon, show_default=True,
+              help="Accept an answer only above this score (-log10 of its expected false alarms; the default "
+                   "was calibrated on real places not in the map, see the README).")
 @debug_option
 @handle_errors
-def query(map_file, images_file, output, method, prior, debug):
+def query(map_file, images_file, output, method, prior, min_score, debug):
     """Localize every image of IMAGES (JSON Lines; '-' for stdin) in MAP.
 
     Writes one JSON answer per image, in input order: status "ok" with the position (map CRS and
@@ -72,7 +76,8 @@ def query(map_file, images_file, output, method, prior, debug):
     documents = read_image_documents(images_file)
     with open_map(map_file) as m, atomic_open(output) as out:
         streaming = output == "-"
-        for record in localize_documents(documents, m, method, prior):
+        options = FastOptions(log10_epsilon=-min_score) if method == "fast" else None
+        for record in localize_documents(documents, m, method, prior, options=options):
             out.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
             if streaming:
                 out.flush()  # the answer reaches a reader on a pipe before the next line is read
