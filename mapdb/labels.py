@@ -18,6 +18,8 @@ from .errors import LabelTableError, reading
 
 __all__ = [
     "DEFAULT_LABELS_PATH",
+    "MAX_LABEL_FILE_BYTES",
+    "MAX_MERGE_DISTANCE_M",
     "IntersectionRule",
     "LabelTable",
     "TagRule",
@@ -77,98 +79,158 @@ class LabelTable:
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
-    with reading(path, "label file"):
-        text = path.read_bytes()
+    with reading(path, "label file"), path.open("rb") as f:
+        text = f.read(MAX_LABEL_FILE_BYTES + 1)
+    if len(text) > MAX_LABEL_FILE_BYTES:
+        raise LabelTableError(f"{path}: a label file may hold at most {MAX_LABEL_FILE_BYTES:,} bytes")
     try:
         return tomllib.loads(text.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise LabelTableError(f"{path}: not a valid TOML label file ({exc})") from None
+        raise LabelTableError(f"{path}: not a valid TOML label file ({' '.join(str(exc).split())})") from None
+    except RecursionError:  # tomllib recurses once per level of nested arrays or inline tables
+        raise LabelTableError(f"{path}: not a valid TOML label file (nested too deep)") from None
 
 
-def _str_list(where: str, value: Any, what: str) -> tuple[str, ...]:
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise LabelTableError(f"{where}: {what} must be a list of strings")
-    return tuple(value)
+# The schema of a label file: the keys each table may hold.  Anything else is refused by name, so a
+# misspelt key ("valeus") is an error rather than a rule that silently matches everything.
+_TOP_KEYS = ("labels", "osm", "raster")
+_OSM_KEYS = ("rules", "intersections")
+_RULE_KEYS = ("label", "key", "values", "exclude", "geometry")
+_INTERSECTION_KEYS = ("label", "highways", "merge_distance_m")
+# Junctions closer than this are one intersection; a bigger distance would pair up every junction
+# of a city with every other (quadratic memory), and no crossing is that wide.
+MAX_MERGE_DISTANCE_M = 100.0
+_MAX_LABELS = 255
+# The default table is 5 KB; a label file a thousand times that is not a label file.
+MAX_LABEL_FILE_BYTES = 1 << 22
+
+
+class _Schema:
+    """Checks for one label file: each failure is one line naming the file and the key."""
+
+    def __init__(self, where: str) -> None:
+        self.where = where
+
+    def fail(self, key: str, problem: str) -> LabelTableError:
+        return LabelTableError(f"{self.where}: {key}: {problem}")
+
+    def table(self, key: str, value: Any, allowed: tuple[str, ...]) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.fail(key, f"must be a table, not {_kind(value)}")
+        unknown = [k for k in value if k not in allowed]
+        if unknown:
+            raise self.fail(f"{key}.{unknown[0]}" if key else unknown[0],
+                            f"unknown key (expected one of {', '.join(allowed)})")
+        return value
+
+    def strings(self, key: str, value: Any, *, empty: bool = True) -> tuple[str, ...]:
+        if not isinstance(value, list) or not all(isinstance(v, str) and v for v in value):
+            raise self.fail(key, f"must be a list of non-empty strings, not {_kind(value)}")
+        if not empty and not value:
+            raise self.fail(key, "must not be empty")
+        return tuple(value)
+
+    def string(self, key: str, value: Any) -> str:
+        if not isinstance(value, str) or not value:
+            raise self.fail(key, f"must be a non-empty string, not {_kind(value)}")
+        return value
+
+    def number(self, key: str, value: Any, low: float, high: float) -> float:
+        if isinstance(value, bool) or not isinstance(value, int | float) or not (low <= value <= high):
+            raise self.fail(key, f"must be a number in [{low:g}, {high:g}], not {_kind(value)}")
+        return float(value)
+
+
+def _kind(value: Any) -> str:
+    """A short description of a TOML value for error messages (never the whole value)."""
+    if isinstance(value, bool):
+        return f"the boolean {str(value).lower()}"
+    if isinstance(value, int | float):
+        return f"the number {value!r}"
+    if isinstance(value, str):
+        return f"the string {value[:40]!r}"
+    return {dict: "a table", list: "a list"}.get(type(value), type(value).__name__)
 
 
 def _parse(doc: dict[str, Any], where: str, base: LabelTable | None) -> LabelTable:
-    unknown = set(doc) - {"labels", "osm", "raster"}
-    if unknown:
-        raise LabelTableError(f"{where}: unknown section(s) {', '.join(sorted(unknown))}")
+    schema = _Schema(where)
+    schema.table("", doc, _TOP_KEYS)
     if "labels" in doc:
-        labels = _str_list(where, doc["labels"], "labels")
-        if len(set(labels)) != len(labels) or not labels:
-            raise LabelTableError(f"{where}: labels must be a non-empty list without repeats")
-        if len(labels) > 255:
-            raise LabelTableError(f"{where}: at most 255 labels, got {len(labels)}")
+        labels = schema.strings("labels", doc["labels"], empty=False)
+        if len(set(labels)) != len(labels):
+            raise schema.fail("labels", "must not repeat a name")
+        if len(labels) > _MAX_LABELS:
+            raise schema.fail("labels", f"at most {_MAX_LABELS} labels, got {len(labels)}")
     elif base is not None:
         labels = base.labels
     else:
-        raise LabelTableError(f"{where}: no labels list")
+        raise schema.fail("labels", "missing")
 
-    def check(label: Any, context: str) -> str:
-        if not isinstance(label, str) or label not in labels:
-            raise LabelTableError(f"{where}: {context} maps to unknown label {label!r} (not in labels)")
-        return label
+    def check(label: Any, key: str) -> str:
+        name = schema.string(key, label)
+        if name not in labels:
+            raise schema.fail(key, f"unknown label {name!r} (not in labels)")
+        return name
 
     if "osm" in doc:
-        osm = doc["osm"]
-        if not isinstance(osm, dict):
-            raise LabelTableError(f"{where}: [osm] must be a table")
+        osm = schema.table("osm", doc["osm"], _OSM_KEYS)
+        rule_list = osm.get("rules", [])
+        if not isinstance(rule_list, list):
+            raise schema.fail("osm.rules", f"must be a list of tables ([[osm.rules]]), not {_kind(rule_list)}")
         rules = []
-        for i, r in enumerate(osm.get("rules", [])):
-            ctx = f"osm rule {i + 1}"
-            if not isinstance(r, dict) or not isinstance(r.get("key"), str):
-                raise LabelTableError(f"{where}: {ctx} needs a string 'key'")
-            geometry = frozenset(_str_list(where, r.get("geometry", ["area"]), f"{ctx} geometry"))
-            if not geometry or geometry - _GEOMETRIES:
-                raise LabelTableError(f"{where}: {ctx} geometry must be among {sorted(_GEOMETRIES)}")
+        for i, r in enumerate(rule_list):
+            ctx = f"osm.rules[{i + 1}]"
+            schema.table(ctx, r, _RULE_KEYS)
+            geometry = frozenset(schema.strings(f"{ctx}.geometry", r.get("geometry", ["area"]), empty=False))
+            if geometry - _GEOMETRIES:
+                raise schema.fail(f"{ctx}.geometry", f"must be among {', '.join(sorted(_GEOMETRIES))}")
             values = r.get("values")
             rules.append(TagRule(
-                label=check(r.get("label"), ctx),
-                key=r["key"],
-                values=None if values is None else _str_list(where, values, f"{ctx} values"),
-                exclude=_str_list(where, r.get("exclude", []), f"{ctx} exclude"),
+                label=check(r.get("label"), f"{ctx}.label"),
+                key=schema.string(f"{ctx}.key", r.get("key")),
+                values=None if values is None else schema.strings(f"{ctx}.values", values),
+                exclude=schema.strings(f"{ctx}.exclude", r.get("exclude", [])),
                 geometry=geometry,
             ))
-        inter = osm.get("intersections")
         intersections = None
-        if inter is not None:
-            dist = inter.get("merge_distance_m", 5.0)
-            if not isinstance(dist, int | float) or dist < 0:
-                raise LabelTableError(f"{where}: intersections merge_distance_m must be a number >= 0")
+        if "intersections" in osm:
+            inter = schema.table("osm.intersections", osm["intersections"], _INTERSECTION_KEYS)
             intersections = IntersectionRule(
-                label=check(inter.get("label", "road_intersection"), "osm intersections"),
-                highways=_str_list(where, inter.get("highways", []), "intersections highways"),
-                merge_distance_m=float(dist),
+                label=check(inter.get("label", "road_intersection"), "osm.intersections.label"),
+                highways=schema.strings("osm.intersections.highways", inter.get("highways", [])),
+                merge_distance_m=schema.number("osm.intersections.merge_distance_m",
+                                               inter.get("merge_distance_m", 5.0), 0.0, MAX_MERGE_DISTANCE_M),
             )
         osm_rules: tuple[TagRule, ...] = tuple(rules)
     else:
         osm_rules = base.osm_rules if base else ()
         intersections = base.intersections if base else None
         for r in osm_rules:
-            check(r.label, f"default osm rule for {r.key}")
+            check(r.label, f"osm rule for {r.key} (default)")
         if intersections:
-            check(intersections.label, "default osm intersections")
+            check(intersections.label, "osm.intersections.label (default)")
 
     rasters = {name: dict(t) for name, t in (base.rasters.items() if base else ())}
     raster_doc = doc.get("raster", {})
     if not isinstance(raster_doc, dict):
-        raise LabelTableError(f"{where}: [raster] must be a table of class tables")
+        raise schema.fail("raster", f"must be a table of class tables ([raster.NAME]), not {_kind(raster_doc)}")
     for name, table in raster_doc.items():
         if not isinstance(table, dict):
-            raise LabelTableError(f"{where}: [raster.{name}] must map class codes to labels")
+            raise schema.fail(f"raster.{name}", f"must map class codes to labels, not {_kind(table)}")
         parsed = {}
         for code, label in table.items():
             try:
-                parsed[int(code)] = check(label, f"raster.{name} class {code}")
+                number = int(code)
             except ValueError:
-                raise LabelTableError(f"{where}: raster.{name} class {code!r} is not an integer") from None
+                raise schema.fail(f"raster.{name}.{code}", "a class code must be an integer") from None
+            if not -(2**63) <= number < 2**64:
+                raise schema.fail(f"raster.{name}.{code}", "a class code must fit in 64 bits")
+            parsed[number] = check(label, f"raster.{name}.{code}")
         rasters[name] = parsed
     if "labels" in doc and "raster" not in doc:
         for name, table in rasters.items():
             for code, label in table.items():
-                check(label, f"default raster.{name} class {code}")
+                check(label, f"raster.{name}.{code} (default)")
     return LabelTable(labels, osm_rules, intersections, rasters, where)
 
 

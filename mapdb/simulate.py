@@ -64,7 +64,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -73,9 +72,10 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import EmptyMapError, MapdbIOError
+from .errors import EmptyMapError
 from .match.geometry import apply_similarity, fit_similarity
 from .objects import Objects
+from .outputs import atomic_open
 
 __all__ = [
     "PAPER_CRS",
@@ -438,7 +438,16 @@ def simulate_images(
         )
         keep_inside = True
     else:
-        area = tuple(float(b) for b in bbox)
+        # Cameras go where the box and the map meet: a box spanning the world (or one side of it)
+        # means the whole map, not a strip of empty ground.
+        area = (
+            max(float(bbox[0]), float(objects.x.min())),
+            max(float(bbox[1]), float(objects.y.min())),
+            min(float(bbox[2]), float(objects.x.max())),
+            min(float(bbox[3]), float(objects.y.max())),
+        )
+        if not (area[0] <= area[2] and area[1] <= area[3]):
+            raise EmptyMapError(f"{getattr(map, 'path', None) or 'map'}: no object inside bbox {tuple(bbox)}")
         keep_inside = False
     width, height = int(size[0]), int(size[1])
 
@@ -573,22 +582,28 @@ def simulate_images(
     return images
 
 
-def map_bbox_from_lonlat(crs: str, bbox: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
-    """A lon/lat box as the smallest box of the map's projected CRS that contains it."""
-    from pyproj import Transformer
+def map_bbox_from_lonlat(
+    crs: str,
+    bbox: tuple[float, float, float, float],
+    within: tuple[float, float, float, float] | None = None,
+) -> tuple[float, float, float, float]:
+    """A box of the map's projected CRS holding every place of ``within`` whose lon/lat is in ``bbox``.
 
-    to_map = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-    return tuple(float(b) for b in to_map.transform_bounds(*bbox, densify_pts=21))
+    ``bbox`` may span the world, touch the poles or cross the antimeridian (``minlon > maxlon``).
+    ``within`` is where the map lies (its ``bounds``); without it, the CRS's area of use.  The box
+    may be larger than needed, and is unbounded (infinite) when the CRS cannot say;
+    :func:`simulate_images` cuts it to the map's objects.  :class:`EmptyMapError` if the two do not meet.
+    """
+    from .geo import bbox_text, check_bbox, projected_window
+
+    window = projected_window(crs, check_bbox(bbox), within=within)
+    if window is None:
+        raise EmptyMapError(f"bbox {bbox_text(bbox)} does not meet the map")
+    return window
 
 
 def write_images(images: Sequence[dict[str, Any]], path: str | Path | None) -> None:
-    """Write image documents as JSON Lines to ``path`` (stdout if None or ``"-"``)."""
-    text = "".join(json.dumps(im, separators=(",", ":")) + "\n" for im in images)
-    if path is None or str(path) == "-":
-        sys.stdout.write(text)
-        sys.stdout.flush()
-        return
-    try:
-        Path(path).write_text(text)
-    except OSError as exc:
-        raise MapdbIOError(f"{path}: cannot write images ({exc.strerror or exc})") from None
+    """Write image documents as strict JSON Lines to ``path`` (stdout if None or ``"-"``), atomically."""
+    with atomic_open("-" if path is None else path) as f:
+        for im in images:
+            f.write(json.dumps(im, separators=(",", ":"), allow_nan=False) + "\n")

@@ -102,33 +102,35 @@ def expected(connectivity: int) -> list[tuple[str, float, float, float]]:
     return sorted((n, round(x, 6), round(y, 6), round(a, 6)) for n, x, y, a in rows)
 
 
-@pytest.mark.parametrize("strip_rows", [None, 1, 3, 8])
+@pytest.mark.parametrize("tile", [None, (1, 40), (3, 40), (8, 40), (8, 7), (5, 3), (1, 1), (24, 9)])
 @pytest.mark.parametrize("connectivity", [8, 4])
-def test_patches_centroids_and_areas_exact_across_strip_seams(patches_tif: Path, strip_rows, connectivity) -> None:
-    objects = read_landcover(patches_tif, TABLE, min_area_m2=1000.0, connectivity=connectivity,
-                             _strip_rows=strip_rows)
+def test_patches_centroids_and_areas_exact_across_tile_edges(patches_tif: Path, tile, connectivity) -> None:
+    objects = read_landcover(patches_tif, TABLE, min_area_m2=1000.0, connectivity=connectivity, _tile=tile)
     assert objects.crs == "EPSG:32632"
     assert objects.labels == TABLE.labels
     assert as_set(objects) == expected(connectivity)
 
 
 def test_min_area_keeps_small_patches_when_lowered(patches_tif: Path) -> None:
-    objects = read_landcover(patches_tif, TABLE, min_area_m2=0.0, _strip_rows=8)
+    objects = read_landcover(patches_tif, TABLE, min_area_m2=0.0, _tile=(8, 40))
     pond = ("water", *(round(v, 6) for v in patch_reference(POND)))
     assert pond in as_set(objects)
     assert objects.counts() == {"water": 3, "forest": 1}
 
 
-def test_patch_spanning_many_strips_is_one_object(tmp_path: Path) -> None:
-    # A diagonal staircase one pixel wide: every pixel meets the next only at a corner.
+@pytest.mark.parametrize("tile", [(1, 50), (5, 5), (7, 3), (1, 1), (3, 8)])
+@pytest.mark.parametrize("direction", [1, -1])
+def test_patch_spanning_many_tiles_is_one_object(tmp_path: Path, tile, direction: int) -> None:
+    # A diagonal staircase one pixel wide: every pixel meets the next only at a corner, and with square
+    # tiles it crosses from tile to tile exactly at tile corners (above-left, or above-right going -1).
     array = np.zeros((50, 50), np.uint8)
     idx = np.arange(50)
-    array[idx, idx] = FOREST
+    array[idx, idx[::direction]] = FOREST
     path = write_raster(tmp_path / "clc_diagonal.tif", array)
-    eight = read_landcover(path, TABLE, min_area_m2=0.0, _strip_rows=1)
+    eight = read_landcover(path, TABLE, min_area_m2=0.0, _tile=tile)
     assert len(eight) == 1 and eight.area[0] == pytest.approx(50 * PIXEL * PIXEL)
     assert eight.x[0] == pytest.approx(X0 + PIXEL * 25) and eight.y[0] == pytest.approx(Y0 - PIXEL * 25)
-    four = read_landcover(path, TABLE, min_area_m2=0.0, connectivity=4, _strip_rows=7)
+    four = read_landcover(path, TABLE, min_area_m2=0.0, connectivity=4, _tile=tile)
     assert len(four) == 50
 
 
@@ -173,7 +175,7 @@ def test_geographic_raster_areas_and_centroids(tmp_path: Path) -> None:
     array[20:140, 10:40] = WATER       # a tall patch: pixel area changes along it
     array[200:230, 50:90] = FOREST
     path = write_raster(tmp_path / "clc_lonlat.tif", array, crs="EPSG:4326", transform=transform)
-    objects = read_landcover(path, TABLE, min_area_m2=0.0, _strip_rows=64)
+    objects = read_landcover(path, TABLE, min_area_m2=0.0, _tile=(64, 100))
     assert objects.crs == "EPSG:4326"
     geod = Geod(ellps="WGS84")
     for name, (r0, r1, c0, c1) in [("water", (20, 140, 10, 40)), ("forest", (200, 230, 50, 90))]:
@@ -388,10 +390,11 @@ def _reference_patches(path: Path) -> list[tuple[str, float, float, float]]:
     return sorted(out)
 
 
+@pytest.mark.parametrize("tile", [None, (7, 100), (50, 37)])
 @pytest.mark.parametrize("name", sorted(CORINE_FILES))
-def test_real_corine_rasters(name: str) -> None:
+def test_real_corine_rasters(name: str, tile) -> None:
     path = _real(name)
-    objects = read_landcover(path, TABLE, _strip_rows=7)  # many seams on real data
+    objects = read_landcover(path, TABLE, _tile=tile)  # many tile edges on real data
     assert objects.crs == CORINE_FILES[name]
     counts = objects.counts()
     assert counts["forest"] > 50 and counts["built_up"] > 20 and counts["farmland"] > 10

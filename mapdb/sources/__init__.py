@@ -6,6 +6,7 @@ builder reprojects.  The kind of a source is recognised by its file name.
 
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
@@ -16,9 +17,19 @@ from .landcover import RASTER_SUFFIXES, read_landcover
 from .layers import LAYER_SUFFIXES, read_layer
 from .osm import OSM_SUFFIXES, read_osm
 
-__all__ = ["SOURCE_KINDS", "read_source", "source_kind"]
+__all__ = ["SKIPPED_KINDS", "SOURCE_KINDS", "read_source", "source_kind"]
 
 SOURCE_KINDS = {"osm": OSM_SUFFIXES, "landcover": RASTER_SUFFIXES, "layer": LAYER_SUFFIXES}
+
+# What a reader may skip or repair instead of failing, as counted in ``read_source(counts=...)``.
+SKIPPED_KINDS = {
+    "invalid_coordinates": "objects skipped: a coordinate not a finite number, or outside lon [-180, 180] / "
+                           "lat [-90, 90]",
+    "unclosed_rings": "ways tagged as areas skipped: they do not close",
+    "invalid_geometries": "invalid polygons skipped: nothing with an area left after repair",
+    "repaired_geometries": "invalid polygons repaired (shapely make_valid) and kept",
+    "outside_crs": "objects skipped: no position in the map's CRS",
+}
 
 
 def source_kind(path: str | Path) -> str:
@@ -47,12 +58,16 @@ def read_source(
     label_column: str = "label",
     layer_crs: str | None = None,
     progress: Callable[[str], None] | None = None,
+    counts: Counter[str] | None = None,
 ) -> Objects:
-    """Read one source of any kind, labelled with ``table``; each reader checks its own file."""
+    """Read one source of any kind, labelled with ``table``; each reader checks its own file.
+
+    ``counts`` is incremented with what the reader skipped or repaired (keys of :data:`SKIPPED_KINDS`).
+    """
     kind = source_kind(path)
     if kind == "osm":
-        return read_osm(path, table, bbox=bbox, progress=progress)
+        return read_osm(path, table, bbox=bbox, progress=progress, counts=counts)
     if kind == "landcover":
         return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
                               progress=progress)
-    return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox)
+    return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox, counts=counts)

@@ -11,16 +11,21 @@ stricter rule.
 Each patch of at least ``min_area_m2`` becomes one object at its area-weighted
 centroid, in the raster's own CRS (the caller reprojects).
 
-The raster is read in full-width row strips aligned to the file's blocks, so
-memory stays bounded whatever its size (a 36000 x 36000 WorldCover tile needs a
-few hundred MB, not the 1.3 GB of its array).  Within a strip every label
-present is labelled with :func:`scipy.ndimage.label`; per-component sums (area,
-area-weighted column and row) are accumulated from pixel runs.  Components
-that touch the strip's last row stay *open*: the next strip's first row is
-joined to them across the seam with a connected-components pass over the
-(open + new) components, and a component is emitted as soon as it can no
-longer grow.  Only the open components and the emitted objects are kept
-between strips.
+The raster is read in *tiles*: windows of whole blocks of the file (its ``block_shapes``),
+a few thousand pixels each way, so that memory stays bounded whatever the raster's
+width or height (a 36000 x 36000 WorldCover tile needs a few hundred MB, not the
+1.3 GB of its array; a 2e9 x 1 raster needs no 2e9-wide row).  Tiles whose blocks
+are all absent from a sparse GeoTIFF (written with ``SPARSE_OK``: their offsets in
+the file are 0) are skipped without being read, when the value GDAL fills them
+with (nodata, else 0) is not a class: a 1e6 x 1e6 raster with a few blocks of data
+costs what those blocks cost.  Within a tile every label present is labelled with
+:func:`scipy.ndimage.label`; per-component sums (area, area-weighted column and
+row) are accumulated from pixel runs.  Components are joined across tile edges
+(left and above, diagonals included with 8-connectivity) with a
+connected-components pass at the end of each row of tiles; a component is
+emitted as soon as it does not touch that row's last pixel row, since then it can
+no longer grow.  Only these open components and the emitted objects are kept
+between rows of tiles.
 
 Pixel area: for a projected CRS, the area of the pixel's parallelogram in
 CRS units (converted to metres), the same everywhere; the projection's own
@@ -49,6 +54,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..errors import MapdbIOError, SourceError
+from ..geo import check_bbox, in_bbox, projected_window
 from ..labels import LabelTable
 from ..objects import Objects
 
@@ -56,9 +62,12 @@ __all__ = ["RASTER_SUFFIXES", "is_raster_path", "read_landcover", "raster_class_
 
 RASTER_SUFFIXES = (".tif", ".tiff", ".gtiff")
 
-# Pixels per strip: big enough that per-strip overheads vanish, small enough that the strip, its
+# Pixels per tile: big enough that per-tile overheads vanish, small enough that the tile, its
 # per-label label image (int32) and temporaries stay in the low hundreds of MB.
-_STRIP_PIXELS = 32_000_000
+_TILE_PIXELS = 1 << 24
+# GDAL inflates a whole block into memory to give any part of it (even an uncompressed strip): a
+# block that holds data may take at most this many bytes (a 2e9-pixel strip would take 2 GB).
+_MAX_BLOCK_BYTES = 1 << 28
 # GDAL's block cache defaults to 5% of RAM and would hold every decompressed block we read; each
 # block is read once here, so a small cache is enough and keeps the peak memory bounded.
 _GDAL_CACHE_MB = 64
@@ -113,7 +122,7 @@ def read_landcover(
     progress: ProgressCallback | None = None,
     *,
     connectivity: int = 8,
-    _strip_rows: int | None = None,
+    _tile: tuple[int, int] | None = None,
 ) -> Objects:
     """One object per land-cover patch of at least ``min_area_m2``.
 
@@ -138,6 +147,9 @@ def read_landcover(
         Called with a one-line message now and then.
     connectivity : {8, 4}
         Neighbourhood that joins pixels into patches.
+    _tile : (rows, cols), optional
+        Tile size for tests (many tile edges on a small raster); default: whole blocks, about
+        :data:`_TILE_PIXELS` pixels.
 
     Returns
     -------
@@ -151,7 +163,8 @@ def read_landcover(
         The file is missing or unreadable.
     SourceError
         Not a raster, truncated, no CRS, more than one band, non-integer
-        pixels, or no class table could be chosen.
+        pixels, no class table could be chosen, or a block that holds data is
+        too big to be read piecewise (more than :data:`_MAX_BLOCK_BYTES`).
 
     Examples
     --------
@@ -161,6 +174,8 @@ def read_landcover(
     12
     """
     path = Path(path)
+    if bbox is not None:
+        bbox = check_bbox(bbox)
     if connectivity not in (4, 8):
         raise ValueError(f"connectivity must be 4 or 8, not {connectivity!r}")
     if not path.exists():
@@ -181,10 +196,13 @@ def read_landcover(
         window = _bbox_window(src, bbox) if bbox is not None else Window(0, 0, src.width, src.height)
         if window is None:
             return Objects.empty(labels, crs_string)
-        patches = _Patches(int(window.width), int(window.col_off), min_area_m2, connectivity)
-        _scan(path, src, window, _ClassMasks(src.dtypes[0], code_labels, labels, src.nodata),
-              _pixel_area_fn(path, crs, t), patches, _strip_rows or _choose_strip_rows(src, int(window.width)),
-              progress)
+        class_masks = _ClassMasks(src.dtypes[0], code_labels, labels, src.nodata)
+        # GDAL gives an absent block of a sparse file the nodata value, else 0: when that is a class,
+        # absent blocks are patches and must be read like the others.
+        fill = src.nodata if src.nodata is not None else 0
+        tiling = _Tiling(path, src, window, skip_absent=not class_masks.is_class(fill), shape=_tile)
+        patches = _Patches(min_area_m2, connectivity)
+        _scan(path, src, tiling, class_masks, _pixel_area_fn(path, crs, t), patches, progress)
         col, row, label_code, area = patches.result()
 
     x = t.a * col + t.b * row + t.c
@@ -192,8 +210,7 @@ def read_landcover(
     objects = Objects(x, y, label_code - 1, area, labels, crs_string)
     if bbox is not None and len(objects):
         lon, lat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(objects.x, objects.y)
-        inside = (lon >= bbox[0]) & (lon <= bbox[2]) & (lat >= bbox[1]) & (lat <= bbox[3])
-        objects = objects.take(np.flatnonzero(inside))
+        objects = objects.take(np.flatnonzero(in_bbox(bbox, lon, lat)))
     return objects
 
 
@@ -207,30 +224,185 @@ def _open_raster(path: Path) -> Any:
         raise SourceError(f"{path}: not a readable raster ({_one_line(exc)})") from None
 
 
-def _scan(path: Path, src: Any, window: Window, class_masks: _ClassMasks,
-          pixel_area: Callable[[int, int], np.ndarray], patches: _Patches, strip_rows: int,
+def _scan(path: Path, src: Any, tiling: _Tiling, class_masks: _ClassMasks,
+          pixel_area: Callable[[int, int], np.ndarray], patches: _Patches,
           progress: ProgressCallback | None) -> None:
-    """Feed ``window`` of ``src`` to ``patches`` in full-width strips of ``strip_rows`` rows."""
-    row0, row_end = int(window.row_off), int(window.row_off + window.height)
+    """Feed the tiles of ``tiling`` that hold data to ``patches``, row of tiles by row of tiles."""
     use_mask = _has_mask_band(src)
     next_report = 0.1
-    r = row0
-    while r < row_end:
-        # Strips end on multiples of strip_rows so reads stay aligned with the file's blocks.
-        r1 = min(row_end, (r // strip_rows + 1) * strip_rows)
-        strip = Window(window.col_off, r, window.width, r1 - r)
-        try:
-            data = src.read(1, window=strip)
-            valid = src.read_masks(1, window=strip) if use_mask else None
-        except rasterio.errors.RasterioError as exc:
-            raise SourceError(f"{path}: not a readable raster ({_one_line(exc)})") from None
-        patches.add_strip(class_masks(data, valid), r, pixel_area(r, r1), last=(r1 == row_end))
-        del data, valid
-        r = r1
-        done = (r - row0) / (row_end - row0)
-        if progress is not None and (done >= next_report or r == row_end):
-            progress(f"{path.name}: {r - row0}/{row_end - row0} rows, {patches.n_emitted} patches")
+    span = tiling.row_end - tiling.row0
+    for r0, r1, tiles in tiling.rows():
+        if tiles or patches.has_open:
+            patches.begin_row()
+            area = pixel_area(r0, r1)
+            for tc, c0, c1 in tiles:
+                tiling.check_block_size(r0, c0)
+                window = Window(c0, r0, c1 - c0, r1 - r0)
+                try:
+                    data = src.read(1, window=window)
+                    valid = src.read_masks(1, window=window) if use_mask else None
+                except rasterio.errors.RasterioError as exc:
+                    raise SourceError(f"{path}: not a readable raster ({_one_line(exc)})") from None
+                patches.add_tile(tc, c0, class_masks(data, valid), r0, area)
+                del data, valid
+            patches.end_row()
+        done = (r1 - tiling.row0) / span
+        if progress is not None and (done >= next_report or r1 == tiling.row_end):
+            progress(f"{path.name}: {r1 - tiling.row0}/{span} rows, {patches.n_emitted} patches")
             next_report = done + 0.1
+    patches.finish()
+
+
+class _Tiling:
+    """A raster window cut into tiles of whole blocks, and which tiles hold any block of data.
+
+    Tiles are aligned with the file's blocks (so each block is read once), about
+    :data:`_TILE_PIXELS` pixels each, and never wider or taller than that: a block bigger than a
+    tile (a 2e9-pixel strip) is read in parts, if it takes at most :data:`_MAX_BLOCK_BYTES`.  With
+    ``skip_absent``, tiles whose blocks are all absent from a sparse GeoTIFF are left out.
+    """
+
+    def __init__(self, path: Path, src: Any, window: Window, skip_absent: bool,
+                 shape: tuple[int, int] | None = None) -> None:
+        self.path = path
+        self.row0, self.col0 = int(window.row_off), int(window.col_off)
+        self.row_end = self.row0 + int(window.height)
+        self.col_end = self.col0 + int(window.width)
+        self.block_rows, self.block_cols = (int(v) for v in src.block_shapes[0])
+        self.block_bytes = self.block_rows * self.block_cols * np.dtype(src.dtypes[0]).itemsize
+        self.tile_rows, self.tile_cols = shape if shape is not None else self._shape()
+        self.present = _block_presence(path, src, self.block_rows, self.block_cols) if skip_absent else None
+
+    def _shape(self) -> tuple[int, int]:
+        """Whole blocks, near-square, about _TILE_PIXELS pixels, within the window's size in blocks."""
+        bh, bw = self.block_rows, self.block_cols
+        height, width = self.row_end - self.row0, self.col_end - self.col0
+        if bh * bw > _TILE_PIXELS:  # a block bigger than a tile: read it in parts
+            rows = min(bh, max(1, math.isqrt(_TILE_PIXELS)), height)
+            return rows, min(bw, _TILE_PIXELS // rows)
+        budget = _TILE_PIXELS // (bh * bw)  # blocks per tile
+        max_r, max_c = -(-height // bh), -(-width // bw)
+        kr = min(max_r, max(1, math.isqrt(budget)))
+        kc = min(max_c, max(1, budget // kr))
+        kr = min(max_r, max(1, budget // kc))
+        return kr * bh, kc * bw
+
+    def rows(self) -> Iterator[tuple[int, int, list[tuple[int, int, int]]]]:
+        """For each row of tiles, its first and end pixel rows and its tiles ``(index, first col, end col)``."""
+        th, tw = self.tile_rows, self.tile_cols
+        tc = np.arange(self.col0 // tw, -(-self.col_end // tw))
+        c0 = np.maximum(tc * tw, self.col0)
+        c1 = np.minimum((tc + 1) * tw, self.col_end)
+        for tr in range(self.row0 // th, -(-self.row_end // th)):
+            r0, r1 = max(tr * th, self.row0), min((tr + 1) * th, self.row_end)
+            keep = slice(None)
+            if self.present is not None:
+                # Blocks of these rows holding data, summed per tile over the block columns it covers.
+                row_has = self.present[r0 // self.block_rows:(r1 - 1) // self.block_rows + 1].any(axis=0)
+                total = np.concatenate([[0], np.cumsum(row_has)])
+                keep = np.flatnonzero(total[(c1 - 1) // self.block_cols + 1] > total[c0 // self.block_cols])
+            yield r0, r1, list(zip(tc[keep].tolist(), c0[keep].tolist(), c1[keep].tolist(), strict=True))
+
+    def check_block_size(self, row: int, col: int) -> None:
+        """Refuse to read part of a block that GDAL would inflate whole into more than _MAX_BLOCK_BYTES."""
+        if self.block_bytes > _MAX_BLOCK_BYTES:
+            raise SourceError(
+                f"{self.path}: blocks of {self.block_cols} x {self.block_rows} pixels hold data and are too big "
+                f"to read in parts (over {_MAX_BLOCK_BYTES >> 20} MiB each); retile the raster, e.g. "
+                "gdal_translate -co TILED=YES")
+
+
+# TIFF tags and field types needed to find which blocks a GeoTIFF stores.
+_TIFF_TAGS = {256: "width", 257: "height", 277: "samples", 278: "rows_per_strip", 279: "strip_counts",
+              322: "tile_width", 323: "tile_height", 325: "tile_counts"}
+_TIFF_TYPES = {3: "u2", 4: "u4", 16: "u8"}
+
+
+def _block_presence(path: Path, src: Any, block_rows: int, block_cols: int) -> np.ndarray | None:
+    """Which blocks of a GeoTIFF are stored (True) or absent from a sparse file (False), or None if unsure.
+
+    Read from the byte counts of the first image directory (the full-resolution image): a block GDAL
+    never wrote (``SPARSE_OK``) has 0 bytes.  GDAL gives no vectorised access to these (one
+    ``BLOCK_SIZE_i_j`` metadata query per block would take minutes for millions of blocks), so the
+    directory is read here; anything unexpected gives None, and then every block is read.
+    """
+    if src.driver != "GTiff":
+        return None
+    try:
+        with open(path, "rb") as f:
+            fields = _first_ifd(f)
+            if fields is None:
+                return None
+            width, height = fields.get("width"), fields.get("height")
+            if (width, height) != (src.width, src.height) or fields.get("samples", 1) != 1:
+                return None
+            if "tile_counts" in fields:
+                shape = (fields.get("tile_height"), fields.get("tile_width"))
+                counts = fields["tile_counts"]
+            else:
+                shape = (min(fields.get("rows_per_strip", height), height), width)
+                counts = fields.get("strip_counts")
+            if counts is None or shape != (block_rows, block_cols):
+                return None
+            grid = (-(-height // block_rows), -(-width // block_cols))
+            if isinstance(counts, np.ndarray):
+                sizes = counts
+            else:
+                offset, dtype, n = counts
+                f.seek(offset)
+                sizes = np.fromfile(f, dtype=dtype, count=n)
+    except (OSError, ValueError):
+        return None
+    if sizes.size != grid[0] * grid[1]:
+        return None
+    return (sizes != 0).reshape(grid)
+
+
+def _first_ifd(f: Any) -> dict[str, Any] | None:
+    """The fields of a TIFF's first image directory that :func:`_block_presence` needs.
+
+    Scalars are ints; a byte-count array is ``(file offset, numpy dtype, count)``, or the array itself
+    when it is short enough to sit in its directory entry.
+    """
+    head = f.read(16)
+    if head[:2] == b"II":
+        order = "<"
+    elif head[:2] == b"MM":
+        order = ">"
+    else:
+        return None
+    magic = int.from_bytes(head[2:4], "little" if order == "<" else "big")
+    if magic == 42:
+        big, ifd = False, int.from_bytes(head[4:8], "little" if order == "<" else "big")
+    elif magic == 43:
+        big, ifd = True, int.from_bytes(head[8:16], "little" if order == "<" else "big")
+    else:
+        return None
+    f.seek(ifd)
+    count_type = np.dtype(order + ("u8" if big else "u2"))
+    n_entries = int(np.frombuffer(f.read(count_type.itemsize), count_type)[0])
+    entry = np.dtype([("tag", order + "u2"), ("type", order + "u2"), ("count", order + ("u8" if big else "u4")),
+                      ("value", "V8" if big else "V4")])
+    entries = np.frombuffer(f.read(entry.itemsize * n_entries), entry)
+    if entries.size != n_entries:
+        return None
+    inline = 8 if big else 4
+    fields: dict[str, Any] = {}
+    for tag, kind, count, value in entries.tolist():
+        name = _TIFF_TAGS.get(tag)
+        if name is None or kind not in _TIFF_TYPES:
+            continue
+        dtype = np.dtype(order + _TIFF_TYPES[kind])
+        raw = bytes(value)
+        if name.endswith("_counts"):
+            if count * dtype.itemsize <= inline:  # one or two blocks: the counts are in the entry itself
+                fields[name] = np.frombuffer(raw[:count * dtype.itemsize], dtype)
+            else:
+                offset = int(np.frombuffer(raw, np.dtype(order + ("u8" if big else "u4")))[0])
+                fields[name] = (offset, dtype, int(count))
+        elif count >= 1:
+            fields[name] = int(np.frombuffer(raw[:dtype.itemsize], dtype)[0])
+    return fields
 
 
 def _one_line(exc: BaseException) -> str:
@@ -259,25 +431,18 @@ def _has_mask_band(src: Any) -> bool:
     return MaskFlags.per_dataset in flags and MaskFlags.nodata not in flags
 
 
-def _choose_strip_rows(src: Any, width: int) -> int:
-    block_rows = max(1, src.block_shapes[0][0])
-    target = max(1, _STRIP_PIXELS // max(1, width))
-    if block_rows * width > 4 * _STRIP_PIXELS:
-        # Huge blocks (e.g. a striped TIFF stored as one strip): alignment is not worth the memory.
-        return target
-    return max(1, target // block_rows) * block_rows
-
-
 def _bbox_window(src: Any, bbox: tuple[float, float, float, float]) -> Window | None:
-    """The pixel window (rounded outwards, clipped to the raster) covering a lon/lat box, or None."""
-    from rasterio.warp import transform_bounds
+    """The pixel window (rounded outwards, clipped to the raster) that may hold a lon/lat box, or None.
 
-    try:
-        minx, miny, maxx, maxy = transform_bounds("EPSG:4326", src.crs, *bbox, densify_pts=21)
-    except (rasterio.errors.RasterioError, ValueError):
-        return None  # the box is outside where the raster's projection is defined
-    if not all(map(math.isfinite, (minx, miny, maxx, maxy))):
+    Found with :func:`mapdb.geo.projected_window`: a box that spans the world, touches a pole or crosses
+    the antimeridian still gives the right window (at worst the whole raster); the exact test is made on
+    the patches' centroids.
+    """
+    b = src.bounds
+    found = projected_window(src.crs.to_wkt(), bbox, within=(b.left, b.bottom, b.right, b.top))
+    if found is None:
         return None
+    minx, miny, maxx, maxy = found
     inv = ~src.transform
     cols, rows = zip(*(inv @ (x, y) for x, y in ((minx, miny), (minx, maxy), (maxx, miny), (maxx, maxy))),
                      strict=True)
@@ -339,6 +504,7 @@ class _ClassMasks:
         pairs = {int(c): index[name] for c, name in code_labels.items() if info.min <= int(c) <= info.max}
         if nodata is not None and math.isfinite(nodata) and float(nodata).is_integer():
             pairs.pop(int(nodata), None)
+        self.codes_present = frozenset(pairs)
         self.by_class: dict[int, list[int]] = {}
         for code, cls in sorted(pairs.items()):
             self.by_class.setdefault(cls, []).append(code)
@@ -353,6 +519,10 @@ class _ClassMasks:
             order = sorted(pairs)
             self.codes = np.array(order, dtype=dtype_)
             self.values = np.array([pairs[c] for c in order], dtype=np.uint8)
+
+    def is_class(self, value: float) -> bool:
+        """Whether pixels of this value belong to some label."""
+        return float(value).is_integer() and int(value) in self.codes_present
 
     def _classes(self, data: np.ndarray) -> np.ndarray:
         if hasattr(self, "table"):
@@ -389,7 +559,7 @@ def _rows_with_values(data: np.ndarray, values: list[int]) -> list[np.ndarray]:
     """For each value, the rows of ``data`` where it occurs.
 
     One pass over ``data`` in cache-sized row chunks, comparing each chunk with every value: a
-    full-size comparison per value would stream the whole strip through memory once per value.
+    full-size comparison per value would stream the whole tile through memory once per value.
     """
     h, w = data.shape
     chunk = max(1, 1_000_000 // max(1, w))
@@ -405,40 +575,58 @@ def _rows_with_values(data: np.ndarray, values: list[int]) -> list[np.ndarray]:
 
 
 class _Patches:
-    """Connected components accumulated over row strips, emitted once they can no longer grow.
+    """Connected components accumulated tile by tile, emitted once they can no longer grow.
 
-    Per component we keep the sums ``area``, ``area * col`` and ``area * row`` (pixel-centre
-    coordinates in the full raster's pixel grid), from which the centroid follows.
+    Tiles come in rows (``begin_row``, ``add_tile`` left to right, ``end_row``); per component we
+    keep the sums ``area``, ``area * col`` and ``area * row`` (pixel-centre coordinates in the full
+    raster's pixel grid), from which the centroid follows.  Within a row of tiles, components are
+    *nodes*: first the components left open by the row above, then each tile's own.  Pairs of nodes
+    touching across a tile edge are joined at ``end_row`` by one connected-components pass.
     """
 
-    def __init__(self, width: int, col_off: int, min_area: float, connectivity: int) -> None:
-        self.width = width
-        self.col_off = col_off
+    def __init__(self, min_area: float, connectivity: int) -> None:
         self.min_area = min_area
         self.structure = ndimage.generate_binary_structure(2, 2 if connectivity == 8 else 1)
         self.diagonal = connectivity == 8
-        # Open components (touching the last row read): sums, class, and which one each column holds.
+        # Open components (touching the last pixel row of the row of tiles above): sums and class,
+        # and for each tile column of that row, which open component each pixel of its last row holds.
         self.open_sums = np.zeros((3, 0))
         self.open_cls = np.zeros(0, np.uint8)
-        self.seam = np.full(width, -1, np.int64)
+        self.seam: dict[int, np.ndarray] = {}
         self.out: list[tuple[np.ndarray, ...]] = []
         self.n_emitted = 0
         self._buffer = np.empty(0, np.int32)
 
-    def add_strip(self, class_masks: Iterable[tuple[int, int, np.ndarray]], row_off: int,
-                  row_area: np.ndarray, last: bool) -> None:
-        """Label one strip starting at raster row ``row_off``, given as ``(class, first row, mask)``."""
-        h, w = row_area.size, self.width
-        sums_parts = [self.open_sums]
-        cls_parts = [self.open_cls]
-        first = np.full(w, -1, np.int64)
-        final = np.full(w, -1, np.int64)
-        n_nodes = self.open_cls.size
+    @property
+    def has_open(self) -> bool:
+        return self.open_cls.size > 0
+
+    def begin_row(self) -> None:
+        self._sums = [self.open_sums]
+        self._cls = [self.open_cls]
+        self._n = self.open_cls.size
+        self._pairs: list[tuple[np.ndarray, np.ndarray]] = []
+        self._bottoms: dict[int, np.ndarray] = {}
+        self._left: tuple[int, np.ndarray] | None = None
+
+    def add_tile(self, tc: int, col_off: int, class_masks: Iterable[tuple[int, int, np.ndarray]], row_off: int,
+                 row_area: np.ndarray) -> None:
+        """Label one tile (tile column ``tc``, first pixel at ``row_off, col_off``).
+
+        ``class_masks`` gives ``(class, first row, mask of rows first..last)`` for each class present.
+        """
+        h = row_area.size
+        w = None
+        first = last = left = right = None
         for c, mask_row0, mask in class_masks:
+            if w is None:
+                w = mask.shape[1]
+                first, last = np.full(w, -1, np.int64), np.full(w, -1, np.int64)
+                left, right = np.full(h, -1, np.int64), np.full(h, -1, np.int64)
             rows = np.flatnonzero(mask.any(axis=1))
             if rows.size == 0:
                 continue
-            # Label only the bounding box of this class in the strip; r0, r1 are strip rows.
+            # Label only the bounding box of this class in the tile; r0, r1 are tile rows.
             crop_rows = mask[rows[0]:rows[-1] + 1]
             r0, r1 = mask_row0 + int(rows[0]), mask_row0 + int(rows[-1]) + 1
             cols = np.flatnonzero(crop_rows.any(axis=0))
@@ -447,28 +635,65 @@ class _Patches:
             del mask, crop_rows
             comp = self._label_buffer(crop.shape)
             n = ndimage.label(crop, structure=self.structure, output=comp)
-            sums = _component_sums(crop, comp, n, row_area[r0:r1], row_off + r0, self.col_off + c0)
-            sums_parts.append(sums)
-            cls_parts.append(np.full(n, c, np.uint8))
-            # Components on the strip's first and last rows, as node numbers, for the seams.
-            if r0 == 0:
-                top = comp[0]
-                first[c0:c1] = np.where(top > 0, top.astype(np.int64) + (n_nodes - 1), first[c0:c1])
-            if r1 == h:
-                bottom = comp[-1]
-                final[c0:c1] = np.where(bottom > 0, bottom.astype(np.int64) + (n_nodes - 1), final[c0:c1])
-            n_nodes += n
+            self._sums.append(_component_sums(crop, comp, n, row_area[r0:r1], row_off + r0, col_off + c0))
+            self._cls.append(np.full(n, c, np.uint8))
+            # Node numbers of the components on the tile's four edges, for the joins.
+            base = self._n - 1
+            for edge, at, span, pixels in ((first, r0 == 0, slice(c0, c1), comp[0]),
+                                           (last, r1 == h, slice(c0, c1), comp[-1]),
+                                           (left, c0 == 0, slice(r0, r1), comp[:, 0]),
+                                           (right, c1 == w, slice(r0, r1), comp[:, -1])):
+                if at:
+                    edge[span] = np.where(pixels > 0, pixels.astype(np.int64) + base, edge[span])
+            self._n += n
             del crop
-        node_sums = np.concatenate(sums_parts, axis=1)
-        node_cls = np.concatenate(cls_parts)
+        if w is None:  # no class present (the generator yielded nothing): nothing to join
+            self._left = None
+            return
+        self._join(self.seam.get(tc), first)
+        if self.diagonal:
+            above_left, above_right = self.seam.get(tc - 1), self.seam.get(tc + 1)
+            if above_left is not None:
+                self._pairs.append((above_left[-1:], first[:1]))
+            if above_right is not None:
+                self._pairs.append((above_right[:1], first[-1:]))
+        if self._left is not None and self._left[0] == tc - 1:
+            self._join(self._left[1], left)
+        self._left = (tc, right)
+        if (last >= 0).any():
+            self._bottoms[tc] = last
 
-        group, n_groups = self._join_seam(first, node_cls, n_nodes)
+    def _join(self, a: np.ndarray | None, b: np.ndarray) -> None:
+        """Node pairs facing each other across an edge (``a`` on one side, ``b`` on the other)."""
+        if a is None:
+            return
+        self._pairs.append((a, b))
+        if self.diagonal:
+            self._pairs += [(a[:-1], b[1:]), (a[1:], b[:-1])]
+
+    def end_row(self, last: bool = False) -> None:
+        """Join the row's nodes, emit the components that can no longer grow, keep the others open."""
+        node_sums = np.concatenate(self._sums, axis=1)
+        node_cls = np.concatenate(self._cls)
+        n_nodes = node_cls.size
+        group, n_groups = np.arange(n_nodes), n_nodes
+        if self._pairs:
+            a = np.concatenate([p[0] for p in self._pairs])
+            b = np.concatenate([p[1] for p in self._pairs])
+            hit = (a >= 0) & (b >= 0)
+            a, b = a[hit], b[hit]
+            same = node_cls[a] == node_cls[b]
+            a, b = a[same], b[same]
+            if a.size:
+                graph = coo_matrix((np.ones(a.size, np.int8), (a, b)), shape=(n_nodes, n_nodes))
+                n_groups, group = connected_components(graph, directed=False)
         group_sums = np.stack([np.bincount(group, weights=s, minlength=n_groups) for s in node_sums])
         group_cls = np.zeros(n_groups, np.uint8)
         group_cls[group] = node_cls
         still_open = np.zeros(n_groups, bool)
         if not last:
-            still_open[group[final[final >= 0]]] = True
+            for bottom in self._bottoms.values():
+                still_open[group[bottom[bottom >= 0]]] = True
         closed = ~still_open & (group_sums[0] >= self.min_area) & (group_sums[0] > 0)
         if closed.any():
             s = group_sums[:, closed]
@@ -479,9 +704,14 @@ class _Patches:
         renumber[open_ids] = np.arange(open_ids.size)
         self.open_sums = group_sums[:, open_ids]
         self.open_cls = group_cls[open_ids]
-        self.seam = np.full(final.size, -1, np.int64)
-        on_seam = final >= 0
-        self.seam[on_seam] = renumber[group[final[on_seam]]]
+        self.seam = {tc: np.where(bottom >= 0, renumber[group[np.maximum(bottom, 0)]], -1)
+                     for tc, bottom in self._bottoms.items()}
+        self.seam = {tc: ids for tc, ids in self.seam.items() if (ids >= 0).any()}
+
+    def finish(self) -> None:
+        """Emit every component still open (after the window's last row of tiles)."""
+        self.begin_row()
+        self.end_row(last=True)
 
     def _label_buffer(self, shape: tuple[int, int]) -> np.ndarray:
         # Reused between labellings: a fresh 100+ MB array per call costs as much in page faults as
@@ -490,27 +720,6 @@ class _Patches:
         if self._buffer.size < size:
             self._buffer = np.empty(size, np.int32)
         return self._buffer[:size].reshape(shape)
-
-    def _join_seam(self, first: np.ndarray, node_cls: np.ndarray, n_nodes: int) -> tuple[np.ndarray, int]:
-        """Group numbers of the nodes (open components + this strip's) once joined across the seam."""
-        above, below = self.seam, first
-        pairs = [(above, below)]
-        if self.diagonal:
-            pairs += [(above[:-1], below[1:]), (above[1:], below[:-1])]
-        src_parts, dst_parts = [], []
-        for a, b in pairs:
-            hit = (a >= 0) & (b >= 0)
-            a, b = a[hit], b[hit]
-            same = node_cls[a] == node_cls[b]
-            src_parts.append(a[same])
-            dst_parts.append(b[same])
-        src = np.concatenate(src_parts)
-        dst = np.concatenate(dst_parts)
-        if src.size == 0:
-            return np.arange(n_nodes), n_nodes
-        graph = coo_matrix((np.ones(src.size, np.int8), (src, dst)), shape=(n_nodes, n_nodes))
-        n_groups, group = connected_components(graph, directed=False)
-        return group, n_groups
 
     def result(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Centroid column and row (pixel units, full raster), class number and area of every patch kept."""

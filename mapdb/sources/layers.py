@@ -8,6 +8,13 @@ Every feature with a label becomes one object:
   OSM source applies to features drawn as lines, such as roundabouts;
 - null or empty geometries, and rows without a label, are skipped.
 
+Broken input is skipped or repaired, and counted, rather than failing the read:
+a coordinate that is not finite (or, in a geographic CRS, lies outside lon
+[-180, 180] / lat [-90, 90]) drops its feature (``"invalid_coordinates"``); a
+polygon whose rings do not close or cross themselves is repaired with shapely
+(``"repaired_geometries"``) or dropped when nothing with an area is left
+(``"invalid_geometries"``).
+
 Centroids and areas of polygons in a geographic layer are computed in a
 Lambert azimuthal equal-area projection centred on the layer (areas exact,
 centroids good to well under a metre for features up to a few km across) and
@@ -19,6 +26,8 @@ longitude and ``y`` the latitude, whatever the CRS's official axis order.
 from __future__ import annotations
 
 import os
+import warnings
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -31,6 +40,7 @@ from pyproj.crs.coordinate_operation import LambertAzimuthalEqualAreaConversion
 from pyproj.exceptions import CRSError
 
 from ..errors import MapdbIOError, SourceError
+from ..geo import check_bbox, in_bbox
 from ..objects import Objects
 
 __all__ = ["LAYER_SUFFIXES", "is_layer_path", "read_layer"]
@@ -57,6 +67,7 @@ def read_layer(
     label_column: str = "label",
     crs: str | None = None,
     bbox: tuple[float, float, float, float] | None = None,
+    counts: Counter[str] | None = None,
 ) -> Objects:
     """Read a labelled point or polygon layer as objects.
 
@@ -74,7 +85,10 @@ def read_layer(
         CRS of a CSV's ``x, y`` columns, or of a layer file that carries none
         (a shapefile without ``.prj``).  Ignored when the file names its CRS.
     bbox : (minlon, minlat, maxlon, maxlat), optional
-        Keep only objects whose centroid lies inside this box.
+        Keep only objects whose centroid lies inside this box (``minlon > maxlon`` crosses the
+        antimeridian).
+    counts : Counter, optional
+        Incremented with the features skipped or repaired (see the module notes).
 
     Returns
     -------
@@ -100,14 +114,17 @@ def read_layer(
     """
     path = Path(path)
     labels = tuple(labels)
+    counts = counts if counts is not None else Counter()
+    if bbox is not None:
+        bbox = check_bbox(bbox)
     if not path.exists():
         raise MapdbIOError(f"{path}: no such file")
     if path.is_dir() and path.suffix.lower() != ".gdb":
         raise MapdbIOError(f"{path}: is a directory, not a layer file")
     if path.suffix.lower() == ".csv":
-        x, y, names, area, layer_crs = _read_csv(path, label_column, crs)
+        x, y, names, area, layer_crs = _read_csv(path, label_column, crs, counts)
     else:
-        x, y, names, area, layer_crs = _read_vector(path, label_column, crs)
+        x, y, names, area, layer_crs = _read_vector(path, label_column, crs, counts)
 
     unknown = sorted(set(np.unique(names).tolist()) - set(labels)) if names.size else []
     if unknown:
@@ -120,9 +137,16 @@ def read_layer(
     objects = Objects.from_names(x, y, names, area=area, crs=layer_crs.to_string(), labels=labels)
     if bbox is not None and len(objects):
         lon, lat = _to_lonlat(layer_crs, objects.x, objects.y)
-        inside = (lon >= bbox[0]) & (lon <= bbox[2]) & (lat >= bbox[1]) & (lat <= bbox[3])
-        objects = objects.take(np.flatnonzero(inside))
+        objects = objects.take(np.flatnonzero(in_bbox(bbox, lon, lat)))
     return objects
+
+
+def _valid_coordinates(crs: CRS, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Finite, and in a geographic CRS within lon [-180, 180] and lat [-90, 90]."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    if crs.is_geographic:
+        ok &= (np.abs(x) <= 180.0) & (np.abs(y) <= 90.0)
+    return ok
 
 
 def _parse_crs(path: Path, crs: str) -> CRS:
@@ -148,7 +172,7 @@ def _label_strings(values: Any) -> tuple[np.ndarray, np.ndarray]:
     return names, series.notna().to_numpy() & (names != "")
 
 
-def _read_csv(path: Path, label_column: str, crs: str | None
+def _read_csv(path: Path, label_column: str, crs: str | None, counts: Counter[str]
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CRS]:
     import pandas as pd
 
@@ -168,19 +192,26 @@ def _read_csv(path: Path, label_column: str, crs: str | None
         raise SourceError(f"{path}: CSV with x,y columns needs their CRS (--layer-crs EPSG:n on the command line)")
     else:
         raise SourceError(f"{path}: CSV needs columns x,y or lon,lat (columns: {', '.join(columns)})")
-    coords = table[[xcol, ycol]].apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
+    raw = table[[xcol, ycol]]
+    coords = raw.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
     names, keep = _label_strings(table[label_column])
-    bad = keep & ~np.isfinite(coords).all(axis=1)
+    # Text that is no number at all is a broken file; an empty cell, "nan", "inf" or a number out of
+    # range is a bad coordinate: that row is skipped and counted.
+    text = (raw.notna() & np.isnan(coords)).to_numpy().any(axis=1)
+    bad = keep & text
     if bad.any():
         line = int(np.flatnonzero(bad)[0]) + 2  # 1-based, after the header line
         raise SourceError(f"{path}: line {line}: {xcol},{ycol} are not numbers")
+    valid = _valid_coordinates(layer_crs, coords[:, 0], coords[:, 1])
+    counts["invalid_coordinates"] += int((keep & ~valid).sum())
+    keep &= valid
     x, y = coords[keep, 0], coords[keep, 1]
     return x, y, names[keep], np.zeros(x.size), layer_crs
 
 
-def _read_vector(path: Path, label_column: str, crs: str | None
+def _read_vector(path: Path, label_column: str, crs: str | None, counts: Counter[str]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CRS]:
-    gdf = _read_frame(path)
+    gdf = _read_frame(path, counts)
     if label_column not in gdf.columns:
         columns = [str(c) for c in gdf.columns if c != gdf.geometry.name]
         raise SourceError(f"{path}: no column {label_column!r} (columns: {', '.join(columns) or 'none'})")
@@ -195,6 +226,7 @@ def _read_vector(path: Path, label_column: str, crs: str | None
     geoms = gdf.geometry.to_numpy()
     keep &= ~(shapely.is_missing(geoms) | shapely.is_empty(geoms))
     geoms, names = geoms[keep], names[keep]
+    geoms, names = _sound_geometries(geoms, names, layer_crs, counts)
 
     # Multipoints become one object per point; everything else one object per feature.
     kind = shapely.get_type_id(geoms)
@@ -217,21 +249,59 @@ def _read_vector(path: Path, label_column: str, crs: str | None
     return x, y, names, area, layer_crs
 
 
-def _read_frame(path: Path) -> Any:
-    """The file as a GeoDataFrame; SourceError if it is not a readable vector layer."""
+def _read_frame(path: Path, counts: Counter[str]) -> Any:
+    """The file as a GeoDataFrame; SourceError if it is not a readable vector layer.
+
+    Geometries whose encoding is broken (a ring that does not close) make the plain read fail;
+    the file is then read again with shapely fixing what it can, and the geometries fixed or
+    lost are counted.
+    """
     import geopandas
     import pyogrio.errors
+    import pyogrio.raw
 
     try:
-        if path.suffix.lower() in _PARQUET_SUFFIXES:
-            return geopandas.read_parquet(path)
-        return geopandas.read_file(path, engine="pyogrio")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # GDAL's note on unclosed rings: counted below
+            if path.suffix.lower() in _PARQUET_SUFFIXES:
+                return geopandas.read_parquet(path)
+            try:
+                return geopandas.read_file(path, engine="pyogrio")
+            except shapely.errors.ShapelyError:
+                frame = geopandas.read_file(path, engine="pyogrio", on_invalid="fix")
+                wkb = pyogrio.raw.read(path, columns=[])[2]
+        present = np.asarray([g is not None for g in wkb], bool)
+        broken = present & shapely.is_missing(shapely.from_wkb(wkb, on_invalid="ignore"))
+        fixed = broken & ~shapely.is_missing(frame.geometry.to_numpy())
+        counts["repaired_geometries"] += int(fixed.sum())
+        counts["invalid_geometries"] += int((broken & ~fixed).sum())
+        return frame
     except (pyogrio.errors.DataSourceError, pyogrio.errors.DataLayerError, pyogrio.errors.GeometryError,
-            pyogrio.errors.FieldError, ValueError, OSError) as exc:
+            pyogrio.errors.FieldError, shapely.errors.ShapelyError, ValueError, OSError) as exc:
         # pyarrow's errors for a file that is not Parquet derive from ValueError/OSError; a Parquet
         # file without GeoParquet metadata gives ValueError("Missing geo metadata ...").
         message = " ".join(str(exc).split()) or exc.__class__.__name__
         raise SourceError(f"{path}: not a readable vector layer ({message})") from None
+
+
+def _sound_geometries(geoms: np.ndarray, names: np.ndarray, crs: CRS, counts: Counter[str]
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Drop features with a bad coordinate; repair polygons that are not valid (or drop them if nothing is left)."""
+    coords, owner = shapely.get_coordinates(geoms, return_index=True)
+    bad = np.zeros(geoms.size, bool)
+    bad[owner[~_valid_coordinates(crs, coords[:, 0], coords[:, 1])]] = True
+    counts["invalid_coordinates"] += int(bad.sum())
+    geoms, names = geoms[~bad], names[~bad]
+    polygonal = np.isin(shapely.get_type_id(geoms), [shapely.GeometryType.POLYGON, shapely.GeometryType.MULTIPOLYGON])
+    invalid = polygonal & ~shapely.is_valid(geoms)
+    if not invalid.any():
+        return geoms, names
+    geoms = geoms.copy()
+    geoms[invalid] = shapely.make_valid(geoms[invalid], method="structure", keep_collapsed=False)
+    lost = invalid & (shapely.is_empty(geoms) | (shapely.area(geoms) <= 0))
+    counts["repaired_geometries"] += int((invalid & ~lost).sum())
+    counts["invalid_geometries"] += int(lost.sum())
+    return geoms[~lost], names[~lost]
 
 
 def _centroids_and_areas(geoms: np.ndarray, crs: CRS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

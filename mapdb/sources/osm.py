@@ -16,13 +16,28 @@ some rule of the label table may match ever reach Python:
 Per object, Python does only the tag test and asks osmium for WKB; geometry
 (areas, centroids) is computed afterwards in batches with shapely and numpy.
 Coordinates stay in lon/lat (``EPSG:4326``); areas are in square metres.
+
+Broken data is skipped or repaired and counted (``read_osm(counts=...)``), never
+silently moved and never a traceback: nodes whose coordinates are out of range
+or not numbers, ways tagged as areas that do not close, rings that cross
+themselves (rebuilt with shapely's ``make_valid``).  Compressed XML is inflated
+under a bound (:func:`inflation_limit`), so a decompression bomb costs at most
+that much time, memory and temporary disk before a one-line error.
 """
 
 from __future__ import annotations
 
+import bz2
+import gzip
+import os
+import re
+import tempfile
 import time
+import zlib
 from array import array
-from collections.abc import Callable, Sequence
+from collections import Counter
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -34,13 +49,24 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from ..errors import SourceError, reading
+from ..errors import MapdbIOError, SourceError, reading
+from ..geo import check_bbox, in_bbox
 from ..labels import IntersectionRule, LabelTable, TagRule
 from ..objects import Objects, concat
 
-__all__ = ["OSM_SUFFIXES", "is_osm_path", "read_osm"]
+__all__ = ["MAX_INFLATION", "MIN_INFLATED_BYTES", "OSM_SUFFIXES", "inflation_limit", "is_osm_path", "read_osm"]
 
 OSM_SUFFIXES = (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz")
+_XML_SUFFIXES = (".osm", ".osm.bz2", ".osm.gz")
+
+# A compressed XML file may inflate to MAX_INFLATION times its size, and in any case to
+# MIN_INFLATED_BYTES: real OSM XML compresses 10-30 times, so only a decompression bomb goes past.
+MAX_INFLATION = 100
+MIN_INFLATED_BYTES = 256 << 20
+_CHUNK = 1 << 20
+
+# libosmium's coordinate for a node it has no location for (a node missing from an extract).
+_UNDEFINED = 2**31 - 1
 
 # WGS84 ellipsoid.
 _A = 6378137.0
@@ -65,11 +91,23 @@ def is_osm_path(path: str | Path) -> bool:
     return str(path).lower().endswith(OSM_SUFFIXES)
 
 
+def inflation_limit(compressed_bytes: int) -> int:
+    """Most bytes a compressed OSM XML file of this size may inflate to (see :data:`MAX_INFLATION`).
+
+    Examples
+    --------
+    >>> inflation_limit(10 << 20) == 1000 << 20, inflation_limit(1000) == MIN_INFLATED_BYTES
+    (True, True)
+    """
+    return max(MIN_INFLATED_BYTES, MAX_INFLATION * int(compressed_bytes))
+
+
 def read_osm(
     path: str | Path,
     table: LabelTable,
     bbox: tuple[float, float, float, float] | None = None,
     progress: Progress | None = None,
+    counts: Counter[str] | None = None,
 ) -> Objects:
     """Read the labelled objects of an OpenStreetMap extract.
 
@@ -82,9 +120,16 @@ def read_osm(
         rules whose ``geometry`` includes the object's kind (area, node, way) are
         tried, in table order; the first that matches gives the label.
     bbox : (minlon, minlat, maxlon, maxlat), optional
-        Keep only objects whose centroid lies inside (edges included).
+        Keep only objects whose centroid lies inside (edges included); ``minlon > maxlon``
+        crosses the antimeridian.
     progress : callable, optional
         Called with a one-line message now and then during long reads.
+    counts : Counter, optional
+        Incremented with what was skipped or repaired instead of failing the read:
+        ``"invalid_coordinates"`` (objects with a coordinate that is not a number or lies outside
+        lon [-180, 180], lat [-90, 90]), ``"unclosed_rings"`` (ways tagged as areas that do not
+        close), ``"repaired_geometries"`` (areas whose rings cross themselves, rebuilt with
+        shapely's ``make_valid``) and ``"invalid_geometries"`` (areas that could not be repaired).
 
     Returns
     -------
@@ -97,7 +142,17 @@ def read_osm(
     MapdbIOError
         The file is missing or cannot be opened.
     SourceError
-        The file is empty, truncated or not OSM data.
+        The file is empty, truncated, not OSM data, or a compressed file that inflates past
+        :func:`inflation_limit`.
+
+    Notes
+    -----
+    Compressed XML is inflated here, chunk by chunk, into a temporary file that libosmium reads
+    (it reads the file twice, relations first): memory holds one chunk, and a decompression bomb
+    is refused once it passes :func:`inflation_limit`.  On the way, coordinates libosmium cannot
+    parse (``nan``, ``inf``, ``1e400``, text) are made out of range, so that such a node is skipped
+    and counted like a node at latitude 95 instead of failing the whole file (and libosmium would
+    read ``1e400`` as 0).  A plain XML file is copied so only when it holds such a coordinate.
 
     Examples
     --------
@@ -109,14 +164,16 @@ def read_osm(
     path = Path(path)
     _check_readable(path)
     if bbox is not None:
-        bbox = tuple(float(v) for v in bbox)
-        if len(bbox) != 4 or not (bbox[0] <= bbox[2] and bbox[1] <= bbox[3]):
-            raise ValueError(f"bbox must be (minlon, minlat, maxlon, maxlat) with min <= max, got {bbox}")
+        bbox = check_bbox(bbox)
+    counts = counts if counts is not None else Counter()
     report = progress or (lambda message: None)
     started = time.monotonic()
     report(f"{path}: reading OpenStreetMap data")
     try:
-        collected = _scan(path, table, report)
+        with _xml_input(path) if path.name.lower().endswith(_XML_SUFFIXES) else nullcontext(str(path)) as source:
+            collected = _scan(path, source, table, report, counts)
+            if collected.failed_area_ways:
+                _repair_ways(source, collected, counts)
     except (RuntimeError, UnicodeDecodeError, osmium.InvalidLocationError) as exc:
         # libosmium reports bad input (XML syntax, PBF framing, unknown format) as RuntimeError.
         detail = " ".join(str(exc).split()) or exc.__class__.__name__
@@ -124,17 +181,19 @@ def read_osm(
 
     parts = [
         _point_objects(collected.node_lon, collected.node_lat, collected.node_code, table.labels),
-        _area_objects(collected.area_wkb, collected.area_code, table.labels),
+        _area_objects(collected.area_wkb, collected.area_code, table.labels, counts),
         _way_objects(collected, table.labels),
     ]
     if table.intersections is not None:
-        parts.append(_intersection_objects(collected, table.intersections, table.labels))
+        parts.append(_intersection_objects(collected, table.intersections, table.labels, counts))
     objects = concat(parts, labels=table.labels)
     if bbox is not None:
-        lon, lat = objects.x, objects.y
-        objects = objects.take((lon >= bbox[0]) & (lon <= bbox[2]) & (lat >= bbox[1]) & (lat <= bbox[3]))
-    counts = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
-    report(f"{path}: {len(objects):,} objects in {time.monotonic() - started:.1f} s ({counts})")
+        objects = objects.take(in_bbox(bbox, objects.x, objects.y))
+    summary = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
+    report(f"{path}: {len(objects):,} objects in {time.monotonic() - started:.1f} s ({summary})")
+    skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
+    if skipped:
+        report(f"{path}: skipped or repaired: {skipped}")
     return objects
 
 
@@ -150,6 +209,86 @@ def _check_readable(path: Path) -> None:
         raise SourceError(f"{path}: not a readable OSM file (empty file)")
     if not is_osm_path(path):
         raise SourceError(f"{path}: not a readable OSM file (name must end in {', '.join(OSM_SUFFIXES)})")
+
+
+# Coordinates written plainly enough for libosmium, up to 180 degrees (it rejects signs, spaces, hex and
+# some big numbers, and reads "1e400" as 0).  Any other value goes through _fix_coordinate.
+_PLAIN = rb"-?(?:[0-9]{1,2}|1[0-7][0-9]|180)(?:\.[0-9]*)?"
+# (A pattern that starts with a literal runs several times faster in ``re`` than one that starts with \s.)
+_ODD_COORDINATE = re.compile(rb"(?:lat|lon)\s*=\s*([\"'])(?!" + _PLAIN + rb"\1)([^\"'<&]*)\1")
+# Out of range but within what libosmium parses: the node gets a defined, invalid location.
+_OUT_OF_RANGE = b"200"
+
+
+def _fix_coordinate(match: re.Match[bytes]) -> bytes:
+    start = match.start()
+    if start == 0 or match.string[start - 1:start] not in b" \t\r\n":  # "minlat=", not an attribute "lat"
+        return match.group(0)
+    try:
+        value = float(match.group(2))
+    except ValueError:
+        value = float("nan")
+    text = f"{value:.7f}".encode() if abs(value) <= 180.0 else _OUT_OF_RANGE  # NaN compares False
+    quote = match.group(1)
+    return match.group(0)[:match.start(1) - start] + quote + text + quote
+
+
+@contextmanager
+def _xml_input(path: Path) -> Iterator[str]:
+    """The name of an XML file libosmium can read in full: ``path`` itself, or a bounded, fixed copy.
+
+    A compressed file is inflated into a temporary file, chunk by chunk, and refused (one-line
+    :class:`SourceError`) once it passes :func:`inflation_limit`: memory holds one chunk and disk
+    at most the limit.  Coordinates libosmium would reject or misread are fixed on the way (see
+    :func:`read_osm`); a plain file is copied only when it has such a coordinate.
+    """
+    name = path.name.lower()
+    opener: Callable[..., Any] = gzip.open if name.endswith(".gz") else bz2.open if name.endswith(".bz2") else open
+    if opener is open and not _has_odd_coordinate(path):
+        yield str(path)
+        return
+    limit = inflation_limit(path.stat().st_size) if opener is not open else None
+    with tempfile.TemporaryDirectory(prefix="mapdb-osm-") as tmp:
+        copy = os.path.join(tmp, "input.osm")
+        total = 0
+        carry = b""
+        try:
+            with opener(path, "rb") as f, open(copy, "wb") as out:
+                while chunk := f.read(_CHUNK):
+                    total += len(chunk)
+                    if limit is not None and total > limit:
+                        raise SourceError(
+                            f"{path}: inflates to more than {limit:,} bytes ({MAX_INFLATION} times its size, "
+                            f"at least {MIN_INFLATED_BYTES >> 20} MiB): refused as a decompression bomb")
+                    data = carry + chunk
+                    # An attribute value never holds "<": cut there, so no coordinate is split in two.
+                    cut = data.rfind(b"<")
+                    if cut <= 0 or len(data) - cut > _CHUNK:
+                        cut = len(data)
+                    carry = data[cut:]
+                    out.write(_ODD_COORDINATE.sub(_fix_coordinate, data[:cut]))
+                out.write(_ODD_COORDINATE.sub(_fix_coordinate, carry))
+        except (EOFError, zlib.error, gzip.BadGzipFile) as exc:  # a corrupt .gz / .bz2 file
+            detail = " ".join(str(exc).split()) or exc.__class__.__name__
+            raise SourceError(f"{path}: not a readable OSM file ({detail})") from None
+        except OSError as exc:
+            if exc.filename == copy:
+                raise MapdbIOError(f"{path}: cannot write its inflated copy in {tmp} ({exc.strerror or exc})") from None
+            detail = " ".join(str(exc).split()) or exc.__class__.__name__  # bz2 reports bad data as OSError
+            raise SourceError(f"{path}: not a readable OSM file ({detail})") from None
+        yield copy
+
+
+def _has_odd_coordinate(path: Path) -> bool:
+    """Whether a plain XML file holds a coordinate :func:`_fix_coordinate` would change."""
+    carry = b""
+    with open(path, "rb") as f:
+        while chunk := f.read(_CHUNK):
+            data = carry + chunk
+            if _ODD_COORDINATE.search(data):
+                return True
+            carry = data[-256:]  # an attribute split between two chunks is seen whole in the next
+    return False
 
 
 class _Collected:
@@ -171,6 +310,9 @@ class _Collected:
         self.road_refs = array("q")
         self.road_lengths = array("q")
         self.locations: Any = None  # osmium's node location table, for looking up junction nodes
+        # Closed ways whose area osmium could not assemble (rings crossing themselves), with their
+        # label code: rebuilt by _repair_ways.
+        self.failed_area_ways: dict[int, int] = {}
 
 
 def _rules_for(table: LabelTable, geometry: str) -> list[tuple[int, TagRule]]:
@@ -197,7 +339,7 @@ def _tag_prefilter(rules: Sequence[TagRule], extra: Sequence[tuple[str, str]] = 
     return osmium.filter.TagFilter(*pairs) if pairs else None
 
 
-def _scan(path: Path, table: LabelTable, report: Progress) -> _Collected:
+def _scan(path: Path, source: str, table: LabelTable, report: Progress, counts: Counter[str]) -> _Collected:
     area_rules = _rules_for(table, "area")
     node_rules = _rules_for(table, "node")
     way_rules = _rules_for(table, "way")
@@ -205,11 +347,13 @@ def _scan(path: Path, table: LabelTable, report: Progress) -> _Collected:
 
     area_filter = _tag_prefilter([r for _, r in area_rules])
     node_filter = _tag_prefilter([r for _, r in node_rules])
-    way_filter = _tag_prefilter([r for _, r in way_rules], [("highway", h) for h in sorted(roads)])
+    # Ways tagged as areas come through too: osmium silently drops those that do not close or have a
+    # node out of range, and they must be counted.
+    way_filter = _tag_prefilter([r for _, r in way_rules + area_rules], [("highway", h) for h in sorted(roads)])
 
     # flex_mem starts as a sparse index and turns dense only for big inputs: right for city and
     # country extracts alike, and it is pyosmium's default.
-    processor = osmium.FileProcessor(str(path)).with_locations("flex_mem")
+    processor = osmium.FileProcessor(source).with_locations("flex_mem")
     kinds = osmium.osm.NOTHING
     if area_filter is not None:
         # The same filter picks the multipolygon relations worth assembling in the first pass.
@@ -240,7 +384,14 @@ def _scan(path: Path, table: LabelTable, report: Progress) -> _Collected:
             if code >= 0:
                 try:
                     geometry = wkb.create_multipolygon(obj)
-                except (RuntimeError, osmium.InvalidLocationError):  # no geometry: not an object
+                except osmium.InvalidLocationError:
+                    counts["invalid_coordinates"] += 1
+                    continue
+                except RuntimeError:  # osmium found the rings invalid (crossing themselves)
+                    if obj.from_way():
+                        out.failed_area_ways[obj.orig_id()] = code
+                    else:
+                        counts["invalid_geometries"] += 1
                     continue
                 out.area_wkb.append(geometry)
                 out.area_code.append(code)
@@ -252,16 +403,15 @@ def _scan(path: Path, table: LabelTable, report: Progress) -> _Collected:
                     out.node_lon.append(location.lon)
                     out.node_lat.append(location.lat)
                     out.node_code.append(code)
+                elif _defined(location):
+                    counts["invalid_coordinates"] += 1
         elif kind == "w":
             tags = obj.tags
             code = _first_match(way_rules, tags)
             if code >= 0:
-                nodes = [n for n in obj.nodes if n.location.valid()]
-                if nodes:
-                    out.way_refs.append([n.ref for n in nodes])
-                    out.way_lon.append([n.lon for n in nodes])
-                    out.way_lat.append([n.lat for n in nodes])
-                    out.way_code.append(code)
+                _collect_way(obj, code, out, counts)
+            elif area_rules:
+                _check_area_way(obj, tags, area_rules, wkb, counts)
             if roads and tags.get("highway") in roads:
                 refs = [n.ref for n in obj.nodes]
                 if len(refs) >= 2:
@@ -269,6 +419,77 @@ def _scan(path: Path, table: LabelTable, report: Progress) -> _Collected:
                     out.road_lengths.append(len(refs))
     out.locations = processor.node_location_storage
     return out
+
+
+def _defined(location: Any) -> bool:
+    """Whether a node has coordinates at all (a node missing from an extract has none)."""
+    return location.x != _UNDEFINED or location.y != _UNDEFINED
+
+
+def _has_bad_node(way: Any) -> bool:
+    """Whether some node of a way has coordinates out of range (not merely missing from the extract)."""
+    return any(not n.location.valid() and _defined(n.location) for n in way.nodes)
+
+
+def _collect_way(way: Any, code: int, out: _Collected, counts: Counter[str]) -> None:
+    """Keep a way matched by a "way" rule, unless a node of it lies out of range."""
+    if _has_bad_node(way):
+        counts["invalid_coordinates"] += 1
+        return
+    nodes = [n for n in way.nodes if n.location.valid()]  # nodes missing from an extract are left out
+    if nodes:
+        out.way_refs.append([n.ref for n in nodes])
+        out.way_lon.append([n.lon for n in nodes])
+        out.way_lat.append([n.lat for n in nodes])
+        out.way_code.append(code)
+
+
+def _check_area_way(way: Any, tags: Any, area_rules: list[tuple[int, TagRule]], wkb: Any,
+                    counts: Counter[str]) -> None:
+    """Count a way tagged as an area that osmium will not make one of: unclosed, or a node out of range.
+
+    The cheap tests come first: most ways here are closed and sound, and the tag rules are tried
+    only for the few that are not.
+    """
+    if way.is_closed():
+        try:
+            wkb.create_linestring(way)  # one C++ pass over the node locations; the result is not needed
+            return
+        except osmium.InvalidLocationError:
+            kind = "invalid_coordinates" if _has_bad_node(way) else None  # else: nodes missing from an extract
+        except RuntimeError:  # fewer than two distinct nodes: osmium will not assemble it either
+            kind = "invalid_geometries"
+    else:
+        kind = "unclosed_rings"
+    if kind is not None and _first_match(area_rules, tags) >= 0:
+        counts[kind] += 1
+
+
+def _repair_ways(source: str, c: _Collected, counts: Counter[str]) -> None:
+    """Rebuild the areas of closed ways whose rings cross themselves, with shapely's ``make_valid``.
+
+    A second pass over the file, reading ways only, finds their node ids; the locations come from
+    the first pass's table.
+    """
+    wanted = c.failed_area_ways
+    processor = osmium.FileProcessor(source, osmium.osm.WAY).with_filter(osmium.filter.IdFilter(list(wanted)))
+    for way in processor:
+        code = wanted.get(way.id)
+        if code is None:
+            continue
+        try:
+            points = [c.locations.get(n.ref) for n in way.nodes]
+            ring = [(p.lon, p.lat) for p in points]
+        except (KeyError, osmium.InvalidLocationError):
+            counts["invalid_coordinates"] += 1
+            continue
+        fixed = shapely.make_valid(shapely.Polygon(ring), method="structure", keep_collapsed=False)
+        if fixed.is_empty or shapely.area(fixed) <= 0:
+            counts["invalid_geometries"] += 1
+            continue
+        counts["repaired_geometries"] += 1
+        c.area_wkb.append(shapely.to_wkb(fixed, hex=True))
+        c.area_code.append(code)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -309,21 +530,32 @@ def _point_objects(lon: list[float], lat: list[float], code: list[int], labels: 
                    np.zeros(len(code)), labels, "EPSG:4326")
 
 
-def _area_objects(wkbs: list[str], codes: list[int], labels: tuple[str, ...]) -> Objects:
-    """Centroid and m^2 area of osmium's multipolygons, all in a few vectorised shapely calls."""
+def _area_objects(wkbs: list[str], codes: list[int], labels: tuple[str, ...], counts: Counter[str]) -> Objects:
+    """Centroid and m^2 area of osmium's multipolygons, all in a few vectorised shapely calls.
+
+    A multipolygon that is not valid in the local equal-area coordinates (osmium checks the rings
+    it assembles, so this is rare) is repaired with ``make_valid`` and counted, or dropped and counted
+    when nothing of it has an area.
+    """
     if not wkbs:
         return Objects.empty(labels, "EPSG:4326")
+    codes_ = np.asarray(codes, np.int32)
     geoms = shapely.from_wkb(np.asarray(wkbs, dtype=object))
     bounds = shapely.bounds(geoms)
     lon0 = (bounds[:, 0] + bounds[:, 2]) / 2
     lat0 = (bounds[:, 1] + bounds[:, 3]) / 2
     coords, owner = shapely.get_coordinates(geoms, return_index=True)
     local = shapely.set_coordinates(geoms, _to_local(coords[:, 0], coords[:, 1], lon0[owner], lat0[owner]))
+    invalid = ~shapely.is_valid(local)
+    if invalid.any():
+        local[invalid] = shapely.make_valid(local[invalid], method="structure", keep_collapsed=False)
     area = shapely.area(local)
     centroid = shapely.get_coordinates(shapely.centroid(local))
     lon, lat = _from_local(centroid[:, 0], centroid[:, 1], lon0, lat0)
-    keep = np.isfinite(lon) & np.isfinite(lat)
-    return Objects(lon[keep], lat[keep], np.asarray(codes, np.int32)[keep], area[keep], labels, "EPSG:4326")
+    keep = np.isfinite(lon) & np.isfinite(lat) & (~invalid | (area > 0))
+    counts["repaired_geometries"] += int((invalid & keep).sum())
+    counts["invalid_geometries"] += int((invalid & ~keep).sum())
+    return Objects(lon[keep], lat[keep], codes_[keep], area[keep], labels, "EPSG:4326")
 
 
 def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -446,7 +678,8 @@ def _junction_node_ids(refs: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     return ids[arms >= 3]
 
 
-def _intersection_objects(c: _Collected, rule: IntersectionRule, labels: tuple[str, ...]) -> Objects:
+def _intersection_objects(c: _Collected, rule: IntersectionRule, labels: tuple[str, ...],
+                          counts: Counter[str]) -> Objects:
     """Junction nodes of the road network, those of one crossing within ``merge_distance_m`` merged."""
     junctions = _junction_node_ids(np.frombuffer(c.road_refs, np.int64), np.frombuffer(c.road_lengths, np.int64))
     if c.way_refs:
@@ -458,6 +691,9 @@ def _intersection_objects(c: _Collected, rule: IntersectionRule, labels: tuple[s
         try:
             location = c.locations.get(node_id)
         except KeyError:  # a node outside the extract: no location, no object
+            continue
+        if not location.valid():
+            counts["invalid_coordinates"] += int(_defined(location))
             continue
         lon.append(location.lon)
         lat.append(location.lat)
