@@ -14,7 +14,7 @@ this script reports, side by side:
 
 A first row runs a child that only imports the module: the floor that Python, numpy, scipy,
 rasterio and pyproj cost before any pixel is read.  Below each raster, for comparison, two
-children that only read pixels, no labelling: one in the same block-aligned strips with the same
+children that only read pixels, no labelling: one in the same block-aligned tiles with the same
 small GDAL cache (the I/O and decompression floor of ``read_landcover``), one reading the whole
 array in a single ``rasterio`` call (``--no-compare`` skips both).  CPU seconds (user + system) of
 each child are given too: on a machine shared with other jobs they vary less than wall time.
@@ -55,11 +55,13 @@ start = time.perf_counter()
 if mode == "strips":
     import rasterio
     from rasterio.windows import Window
-    from mapdb.sources.landcover import _GDAL_CACHE_MB, _choose_strip_rows
+    from pathlib import Path
+    from mapdb.sources.landcover import _GDAL_CACHE_MB, _Tiling
     with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB), rasterio.open(path) as src:
-        rows = _choose_strip_rows(src, src.width)
-        for r in range(0, src.height, rows):
-            src.read(1, window=Window(0, r, src.width, min(rows, src.height - r)))
+        tiling = _Tiling(Path(path), src, Window(0, 0, src.width, src.height), skip_absent=False)
+        for r0, r1, tiles in tiling.rows():
+            for _, c0, c1 in tiles:
+                src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0))
     print(json.dumps({"seconds": time.perf_counter() - start, "counts": {}, "crs": str(src.crs)}))
     raise SystemExit
 if mode == "whole":
@@ -120,7 +122,7 @@ def main() -> None:
         size = array_bytes(path)
         add(path.name, str(path), "read_landcover", size)
         if args.compare:
-            add("  same file, block-aligned strips read, nothing done", str(path), "strips", size)
+            add("  same file, block-aligned tiles read, nothing done", str(path), "strips", size)
             add("  same file, whole array in one rasterio read", str(path), "whole", size)
 
     header = (f"{'raster':52s} {'crs':10s} {'peak RSS':>9s} {'array':>9s} {'RSS/array':>9s} {'read s':>7s} "

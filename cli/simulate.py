@@ -105,7 +105,7 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
     check_outputs([output], [map_file])
     say = progress_printer(quiet)
     with open_map(map_file) as m:
-        area = map_bbox_from_lonlat(m.crs, bbox) if bbox else None
+        area = map_bbox_from_lonlat(m.crs, bbox, within=m.bounds) if bbox else None
         images = simulate_images(
             m, n_images, altitude=altitude, fov_deg=fov, size=size, yaw=yaw, attitude_std=attitude_std,
             pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
