@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import ImageInputError, MapdbError, MapdbIOError
+from .errors import ImageInputError, MapdbError, MapdbIOError, MapFormatError
 from .images import read_image_documents
 from .objects import Objects
 
@@ -178,7 +178,12 @@ def _open_for_worker(spec: tuple[str, Any]) -> Any:
 
 
 def _init_worker(spec: tuple[str, Any], method: str) -> None:
-    _WORKER["map"] = _open_for_worker(spec)
+    # An error here must not escape: a pool restarts a worker whose initializer fails, forever.  It is kept
+    # and raised by the worker's first image instead, which ends the run with it.
+    try:
+        _WORKER["map"] = _open_for_worker(spec)
+    except MapdbError as exc:
+        _WORKER["map_error"] = exc
     _WORKER["method"] = method
 
 
@@ -188,12 +193,18 @@ def _localize_timed(map_: Any, image: dict[str, Any], method: str) -> tuple[dict
     start = time.perf_counter()
     try:
         result = localize(image, map_, method=method)
-    except MapdbError as exc:  # a localizer bug must not lose the other images' figures
+    except (MapFormatError, MapdbIOError):
+        # The map is damaged or unreadable: every other image would fail the same way, and figures over the
+        # images that happened to avoid the bad page would mislead.  The run ends with this one-line error.
+        raise
+    except MapdbError as exc:  # a problem with this image must not lose the other images' figures
         result = {"status": "error", "reason": str(exc)}
     return result, (time.perf_counter() - start) * 1000.0
 
 
 def _worker_run(image: dict[str, Any]) -> tuple[dict[str, Any], float]:
+    if "map_error" in _WORKER:
+        raise _WORKER["map_error"]
     return _localize_timed(_WORKER["map"], image, _WORKER["method"])
 
 

@@ -18,29 +18,39 @@ read and checked only when a query needs them.
 
 Reading a file never executes anything from it (JSON and fixed binary records
 only), and every length and count read from it is checked against the file
-size and the format's bounds before memory is allocated for it.
+size and the format's bounds before memory is allocated for it.  The header's
+meaning is checked too, not only its checksum (types, ranges, nesting, the CRS,
+counts against the bytes that must hold them), and the format's layout rules
+(one object per label and position, pages that share no position and are not
+denser than one object a square metre beyond a pile of 255) bound what a file
+of a given size can make a reader do: see "Guarantees against a hostile file"
+in ``docs/format.md``.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import os
+import re
+import stat
 import struct
-import tempfile
 import zlib
 from collections import OrderedDict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
+import shapely
 from pyproj import CRS, Transformer
-from rtree import index as rtree_index
+from pyproj.exceptions import CRSError
 
 from . import __version__
-from .errors import EmptyMapError, MapFormatError, MapVersionError, reading
+from .errors import EmptyMapError, MapdbIOError, MapFormatError, MapVersionError, reading
 from .objects import Objects
+from .outputs import atomic_open
 
 __all__ = [
     "FORMAT_VERSION",
@@ -54,13 +64,38 @@ __all__ = [
 
 MAGIC = b"\x89MAPDB\r\n"
 FORMAT_VERSION = 1
+# A version number above this is not a newer format but a damaged or foreign file.
+_MAX_VERSION = 255
 _PREFIX = struct.Struct("<8sHHI")
-_DIR_RECORD = struct.Struct("<qqIIIII")  # origin x, y (quanta), extent x, y, count, byte length, crc32
-_MAX_HEADER = 64 << 20
+# origin x, y (quanta), extent x, y, count, byte length, crc32: the 36-byte directory record, as numpy reads it
+_DIR_DTYPE = np.dtype([("ox", "<i8"), ("oy", "<i8"), ("ex", "<u4"), ("ey", "<u4"), ("count", "<u4"),
+                       ("length", "<u4"), ("crc", "<u4")])
+_MAX_HEADER = 16 << 20  # deflated header bytes
+# The inflated header may be at most this long, and at most _HEADER_FREE + _HEADER_RATIO times its deflated
+# length: a genuine header (a few kilobytes, with checksums that do not compress) is far inside both, and a
+# small deflate bomb cannot make a reader allocate much more than the file's own size.
+_MAX_HEADER_JSON = 16 << 20
+_HEADER_FREE = 256 << 10
+_HEADER_RATIO = 16
+_MAX_DEPTH = 32  # nesting of the header JSON (a genuine one nests 3 deep)
+_MAX_LABELS = 255
 _MAX_PAGE_OBJECTS = 65535
+_MAX_PAGE_BYTES = 1 << 20  # a page of 65535 objects needs at most ~570 KB however its values are spread
 _MAX_EXTENT = (1 << 24) - 1  # keeps the row-major key under 2**48
+_MAX_QUANTA = 1 << 52  # positions in quanta stay exact in float64 (page boxes, bounds)
+_RICE_VALUE_BITS = 48  # every Rice-coded value (a key gap, an area residual) is below 2**48
+# Density: a page may hold _PILE objects whatever its area (one object of each label at one position is the
+# densest thing a genuine map holds); beyond that, at most one object per _M2_PER_OBJECT of its box.
+_PILE = 255
+_M2_PER_OBJECT = 1.0
+# The fewest bits a page of c objects can take: the run count byte, one run head (8 + 16 + 1 + 16 bits), a
+# Rice parameter (6 bits), and per object at least 3 bits (a key gap >= 1 costs 2 bits, an area residual 1).
+_MIN_PAGE_BITS = 53
+_MIN_OBJECT_BITS = 3
+_PAIR_BUDGET = 1 << 20  # candidate page pairs examined at once when checking that pages do not overlap
 _AREA_STEPS = 8  # codes per doubling of area: +-4.4 % relative precision
 _AREA_FLOOR_LOG2 = -16  # smallest non-zero area stored: 2**-16 m^2
+_MAX_AREA_CODE = (1024 - _AREA_FLOOR_LOG2) * _AREA_STEPS  # the largest code whose area is a finite float64
 DEFAULT_PAGE_CAPACITY = 1024
 _CACHE_OBJECTS = 4_000_000
 
@@ -74,7 +109,7 @@ def _area_encode(area: np.ndarray) -> np.ndarray:
     code = np.zeros(area.shape, np.uint16)
     pos = area > 0
     log = (np.log2(area[pos]) - _AREA_FLOOR_LOG2) * _AREA_STEPS
-    code[pos] = np.clip(np.rint(log) + 1, 1, 65535).astype(np.uint16)
+    code[pos] = np.clip(np.rint(log) + 1, 1, _MAX_AREA_CODE).astype(np.uint16)
     return code
 
 
@@ -100,32 +135,55 @@ def _bits_of(values: np.ndarray, widths: np.ndarray) -> np.ndarray:
     return bits[j < widths[:, None]]
 
 
-class _BitReader:
-    """Fields of a packed bit stream (most significant bit first), read many at a time."""
+class _BadPageError(Exception):
+    """A page of a batch breaks a rule of the format: its position in the batch, and the problem."""
 
-    def __init__(self, packed: bytes, where: str) -> None:
-        self.nbits = len(packed) * 8
-        # eight zero bytes of padding so that every field can be read through a 64-bit window
-        self.words = np.lib.stride_tricks.sliding_window_view(np.frombuffer(packed + bytes(8), np.uint8), 8)
-        self.packed = packed
-        self.where = where
+    def __init__(self, index: int, problem: str) -> None:
+        super().__init__(problem)
+        self.index = index
+        self.problem = problem
 
-    def read(self, pos: int, widths: np.ndarray) -> tuple[np.ndarray, int]:
-        """Consecutive fields of the given widths (each at most 57 bits) from bit ``pos``; values and the end."""
-        widths = widths.astype(np.int64)
-        total = int(widths.sum())
-        if pos + total > self.nbits:
-            raise MapFormatError(f"{self.where}: page data is shorter than its counts")
-        start = pos + np.cumsum(widths) - widths
-        word = self.words[start >> 3].copy().view(">u8").reshape(-1).astype(np.uint64)
-        head = (word << (start & 7).astype(np.uint64)) >> np.uint64(1)  # 63 bits, so a shift of 63 is legal
-        values = head >> (63 - widths).astype(np.uint64)
-        return np.where(widths > 0, values, np.uint64(0)), pos + total
 
-    def zeros_from(self, pos: int) -> np.ndarray:
-        """Positions (relative to ``pos``) of the zero bits from bit ``pos`` on."""
-        bits = np.unpackbits(np.frombuffer(self.packed, np.uint8))
-        return np.flatnonzero(bits[pos:] == 0)
+_WINDOW = np.arange(8, dtype=np.uint64)
+_BYTE_BITS = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).astype(np.int64)  # MSB first
+_ZEROS_IN_BYTE = (8 - _BYTE_BITS.sum(axis=1)).astype(np.int64)
+# zeros among the first j bits of a byte (j = 0..8), and the position of its t-th zero (t = 0..7; 0 if none)
+_ZEROS_BEFORE = np.concatenate([np.zeros((256, 1), np.int64), np.cumsum(1 - _BYTE_BITS, axis=1)], axis=1)
+_NTH_ZERO = np.array([np.r_[np.flatnonzero(row == 0), np.zeros(8, np.int64)][:8] for row in _BYTE_BITS], np.int64)
+# Pages decoded in one pass, by their bytes: enough to spread the fixed cost of a pass over hundreds of small
+# pages, few enough that the pass's arrays stay in the processor's cache (a 1 MiB page is a batch of its own).
+_BATCH_BYTES = 1 << 18
+_BATCH_OBJECTS = 1 << 16  # and by objects: a pass allocates a few hundred bytes an object for a moment
+
+
+def _read_fields(buf: np.ndarray, start: np.ndarray, widths: np.ndarray) -> np.ndarray:
+    """Fields of the given widths (each at most 57 bits) at the given bit positions of ``buf``.
+
+    ``buf`` must end in 8 zero bytes, so that every field is read through the 64-bit window at its first byte.
+    """
+    start, widths = np.asarray(start, np.uint64), np.asarray(widths, np.uint64)
+    word = buf[(start >> np.uint64(3))[:, None] + _WINDOW].view(">u8")[:, 0].astype(np.uint64)
+    # 63 bits of the window from the field's first bit, so that a width of 0 shifts by a legal 63 and gives 0
+    head = (word << (start & np.uint64(7))) >> np.uint64(1)
+    return head >> (np.uint64(63) - widths)
+
+
+def _ranks(lengths: np.ndarray) -> np.ndarray:
+    """0, 1, ... within each of consecutive segments of the given lengths."""
+    return np.arange(int(lengths.sum())) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+
+
+def _offsets(values: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Running sums of ``values`` before each element, restarting at each segment."""
+    edges = np.concatenate([[0], np.cumsum(values)])
+    return edges[:-1] - np.repeat(edges[np.cumsum(lengths) - lengths], lengths)
+
+
+def _sums(values: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """The sum of each of consecutive segments (empty ones included) of ``values``."""
+    edges = np.concatenate([[0], np.cumsum(values)])
+    ends = np.cumsum(lengths)
+    return edges[ends] - edges[ends - lengths]
 
 
 def _rice_streams(sequences: list[np.ndarray], blocks: list[int]) -> list[np.ndarray]:
@@ -164,27 +222,6 @@ def _rice_streams(sequences: list[np.ndarray], blocks: list[int]) -> list[np.nda
             _bits_of(values & ((np.uint64(1) << k) - np.uint64(1)), k.astype(np.int64))]
 
 
-def _read_rice_streams(reader: _BitReader, pos: int, lengths: list[int], blocks: list[int]) -> tuple[np.ndarray, int]:
-    """Inverse of :func:`_rice_streams`: all values of all sequences, concatenated."""
-    total = sum(lengths)
-    if total == 0:
-        return np.zeros(0, np.uint64), pos
-    sizes = [np.minimum(b, n - b * np.arange(-(-n // b))) for n, b in zip(lengths, blocks, strict=True) if n]
-    sizes = np.concatenate(sizes)
-    k_block, pos = reader.read(pos, np.full(sizes.size, _K_BITS))
-    if k_block.max() > 48:
-        raise MapFormatError(f"{reader.where}: Rice parameter out of range")
-    zeros = reader.zeros_from(pos)
-    if zeros.size < total:
-        raise MapFormatError(f"{reader.where}: page data is shorter than its counts")
-    stops = zeros[:total]
-    quotient = np.diff(stops, prepend=-1) - 1
-    pos += int(stops[-1]) + 1
-    k = np.repeat(k_block.astype(np.int64), sizes)
-    remainder, pos = reader.read(pos, k)
-    return (quotient.astype(np.uint64) << k.astype(np.uint64)) | remainder, pos
-
-
 def _zigzag(v: np.ndarray) -> np.ndarray:
     return np.where(v >= 0, 2 * v, -2 * v - 1).astype(np.uint64)
 
@@ -194,8 +231,10 @@ def _unzigzag(z: np.ndarray) -> np.ndarray:
     return np.where(z % 2 == 0, z // 2, -(z + 1) // 2)
 
 
-def _key_bits(ex: int, ey: int) -> int:
-    return max(1, ((ex + 1) * (ey + 1) - 1).bit_length())
+def _key_bits(ex: Any, ey: Any) -> Any:
+    """Bits of the row-major keys of pages of these extents (scalars or arrays): of the largest, at least 1."""
+    largest = (np.asarray(ex, np.int64) + 1) * (np.asarray(ey, np.int64) + 1) - 1
+    return np.maximum(1, np.frexp(largest.astype(np.float64))[1])  # exact: the largest key is below 2**48
 
 
 def _encode_page(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, area: np.ndarray) -> tuple[bytes, tuple]:
@@ -218,63 +257,161 @@ def _encode_page(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, area: np.nda
     return payload, (ox, oy, ex, ey, int(qx.size), len(payload), zlib.crc32(payload))
 
 
-def _decode_page(payload: bytes, record: tuple, where: str) -> tuple[np.ndarray, ...]:
-    ox, oy, ex, ey, count = record[:5]
-    if not payload:
-        raise MapFormatError(f"{where}: empty page")
-    n_runs = payload[0]
-    reader = _BitReader(payload[1:], where)
-    heads, pos = reader.read(0, np.tile([8, 16, _key_bits(ex, ey), 16], n_runs))
-    code, n, first, median = heads.reshape(n_runs, 4).T.astype(np.int64)
-    if n_runs == 0 or n.min() < 1 or n.sum() != count:
-        raise MapFormatError(f"{where}: page runs do not add up to its directory count {count}")
-    lengths = [int(v) - 1 for v in n] + [int(v) for v in n]
-    values, pos = _read_rice_streams(reader, pos, lengths, [_GAP_BLOCK] * n_runs + [_AREA_BLOCK] * n_runs)
-    if reader.nbits - pos >= 8:
-        raise MapFormatError(f"{where}: page contents do not match its directory record")
-    gaps, residual = values[: count - n_runs], values[count - n_runs :]
-    # Keys: each run starts at its first key and adds its gaps; one cumulative sum over the page with the
-    # running total reset at each run start.
-    starts = np.concatenate([[0], np.cumsum(n)[:-1]])
-    steps = np.empty(count, np.uint64)
-    run_of = np.repeat(np.arange(n_runs), n)
-    is_start = np.zeros(count, bool)
-    is_start[starts] = True
+def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int) -> tuple[np.ndarray, ...]:
+    """Decode a batch of pages in one vectorised pass: (qx, qy, label code, area) of their objects, page by page.
+
+    ``table`` holds the pages' directory records (checked when the map was opened).  Every rule of the page
+    layout is checked on the way, stage by stage, before anything the stage's values promise is allocated:
+    the first page found breaking one raises :class:`_BadPageError`.  Time and memory are linear in the batch's
+    bytes and objects (about 20 bytes a payload byte and 100 an object), with a fixed cost per batch, not
+    per page, so that a map of many tiny pages costs about what a genuine map of its size does.
+    """
+    pages = len(payloads)
+    length = np.array([len(p) for p in payloads], np.int64)
+    first_byte = np.cumsum(length) - length
+    end = 8 * (first_byte + length)  # each page's end, in bits
+    buf = np.frombuffer(b"".join(payloads) + bytes(8), np.uint8)
+    count = table["count"].astype(np.int64)
+    ex, ey = table["ex"].astype(np.int64), table["ey"].astype(np.int64)
+    every_page = np.arange(pages)
+
+    def refuse(bad: np.ndarray, page_of: np.ndarray, problem: str | Callable[[int], str]) -> None:
+        if bad.any():
+            i = int(page_of[bad].min())
+            raise _BadPageError(i, problem(i) if callable(problem) else problem)
+
+    short = "page data is shorter than its counts"
+    runs = buf[first_byte].astype(np.int64)
+    refuse((runs < 1) | (runs > np.minimum(count, n_labels)), every_page,
+           lambda i: f"{runs[i]} label runs for {count[i]} objects of {n_labels} labels")
+    # Run heads: label code, objects, first key (in the page's key bits), median area code.
+    run_page = np.repeat(every_page, runs)
+    keyspace = (ex + 1) * (ey + 1)
+    widths = np.column_stack([np.full(run_page.size, 8), np.full(run_page.size, 16), _key_bits(ex, ey)[run_page],
+                              np.full(run_page.size, 16)]).ravel()
+    head_start = 8 * (first_byte + 1)
+    head_end = head_start + _sums(widths, 4 * runs)
+    refuse(head_end > end, every_page, short)
+    heads = _read_fields(buf, np.repeat(head_start, 4 * runs) + _offsets(widths, 4 * runs), widths)
+    code, n, first, median = heads.reshape(-1, 4).T.astype(np.int64)
+    bad = code >= n_labels
+    bad[1:] |= (run_page[1:] == run_page[:-1]) & (np.diff(code) <= 0)
+    refuse(bad, run_page, "label runs out of order or outside the label table")
+    refuse((n < 1) | (_sums(n, runs)[run_page] != count[run_page]), run_page,
+           lambda i: f"page runs do not add up to its directory count {count[i]}")
+    # Rice sequences of each page: the key gaps of each run, then the area residuals of each run; then
+    # their blocks, and a 6-bit parameter per block.
+    order = np.argsort(np.concatenate([run_page, run_page]), kind="stable")
+    seq_len = np.concatenate([n - 1, n])[order]
+    seq_block = np.concatenate([np.full(n.size, _GAP_BLOCK), np.full(n.size, _AREA_BLOCK)])[order]
+    n_blocks = -(-seq_len // seq_block)
+    of_block = np.repeat(np.arange(seq_len.size), n_blocks)
+    size = np.minimum(seq_block[of_block], seq_len[of_block] - seq_block[of_block] * _ranks(n_blocks))
+    page_blocks = _sums(n_blocks, 2 * runs)
+    k_end = head_end + _K_BITS * page_blocks
+    refuse(k_end > end, every_page, short)
+    block_page = np.repeat(every_page, page_blocks)
+    k_block = _read_fields(buf, np.repeat(head_end, page_blocks) + _K_BITS * _ranks(page_blocks), np.full(
+        block_page.size, _K_BITS)).astype(np.int64)
+    refuse(k_block > _RICE_VALUE_BITS, block_page, "Rice parameter out of range")
+    # Unary quotients: the first `values` zero bits after the parameters, found by rank (zeros before a bit).
+    values = 2 * count - runs
+    value_page = np.repeat(every_page, values)
+    k = np.repeat(k_block, size)
+    zeros = np.concatenate([[0], np.cumsum(_ZEROS_IN_BYTE[buf[:-8]])])
+
+    def zeros_before(bit: np.ndarray) -> np.ndarray:
+        return zeros[bit >> 3] + _ZEROS_BEFORE[buf[bit >> 3], bit & 7]
+
+    rank0 = zeros_before(k_end)
+    refuse(rank0 + values > zeros_before(end), every_page, short)
+    rank = np.repeat(rank0, values) + _ranks(values)  # zeros before each stop bit
+    byte = np.searchsorted(zeros, rank, side="right") - 1
+    stop = 8 * byte + _NTH_ZERO[buf[byte], rank - zeros[byte]]
+    previous = np.empty_like(stop)
+    previous[1:] = stop[:-1]
+    page_first_value = np.cumsum(values) - values
+    previous[page_first_value] = k_end - 1
+    quotient = stop - previous - 1
+    # A value is below 2**48 (a key gap in a key space of 2**48, an area residual far less): a longer quotient
+    # would overflow the 64-bit arithmetic below and wrap round to a plausible small value.
+    refuse((quotient >> (_RICE_VALUE_BITS - k)) != 0, value_page, "Rice-coded value out of range")
+    rem_start = stop[page_first_value + values - 1] + 1
+    rem_end = rem_start + _sums(k, values)
+    refuse(rem_end > end, every_page, short)
+    remainder = _read_fields(buf, np.repeat(rem_start, values) + _offsets(k, values), k)
+    rest = end - rem_end
+    padding = _read_fields(buf, rem_end, np.minimum(rest, 7))
+    refuse((rest >= 8) | (padding != 0), every_page, "page contents do not match its directory record")
+    coded = (quotient.astype(np.uint64) << k.astype(np.uint64)) | remainder
+    is_gap = _ranks(values) < np.repeat(count - runs, values)
+    gaps, residual = coded[is_gap], coded[~is_gap]
+    refuse(gaps < 1, value_page[is_gap], "two objects of one label at one position")
+    # Keys: each run starts at its first key and adds its gaps.  One cumulative sum over the batch: it may
+    # wrap round 2**64, but differences within a run are exact (a run's keys are below 2**48).
+    run_of = np.repeat(np.arange(n.size), n)
+    object_page = run_page[run_of]
+    run_start = np.cumsum(n) - n
+    steps = np.empty(run_of.size, np.uint64)
+    is_start = np.zeros(run_of.size, bool)
+    is_start[run_start] = True
     steps[is_start] = first.astype(np.uint64)
     steps[~is_start] = gaps
     total = np.cumsum(steps, dtype=np.uint64)
-    before = (total[starts] - first.astype(np.uint64))[run_of]
-    key = total - before
-    width = np.uint64(ex + 1)
-    if key.max() >= width * np.uint64(ey + 1):
-        raise MapFormatError(f"{where}: page position outside its extent")
+    key = total - (total[run_start] - first.astype(np.uint64))[run_of]
+    refuse(key >= keyspace[object_page].astype(np.uint64), object_page, "page position outside its extent")
+    width = (ex + 1).astype(np.uint64)[object_page]
+    qx, qy = (key % width).astype(np.int64), (key // width).astype(np.int64)
+    # The directory box is the objects' own box: what the R-tree and the header bounds promise is true.
+    starts = np.cumsum(count) - count
+    refuse((np.minimum.reduceat(qx, starts) != 0) | (np.minimum.reduceat(qy, starts) != 0)
+           | (np.maximum.reduceat(qx, starts) != ex) | (np.maximum.reduceat(qy, starts) != ey), every_page,
+           "objects do not fill the page's box")
     area_code = median[run_of] + _unzigzag(residual)
-    if area_code.min() < 0 or area_code.max() > 65535:
-        raise MapFormatError(f"{where}: page area code out of range")
-    qx = (key % width).astype(np.int64) + ox
-    qy = (key // width).astype(np.int64) + oy
-    return qx, qy, code[run_of].astype(np.int32), _area_decode(area_code)
+    refuse((area_code < 0) | (area_code > _MAX_AREA_CODE), object_page, "page area code out of range")
+    return (qx + table["ox"][object_page], qy + table["oy"][object_page], code[run_of].astype(np.int32),
+            _area_decode(area_code))
 
 
-def _split_pages(qx: np.ndarray, qy: np.ndarray, capacity: int) -> list[np.ndarray]:
-    """Recursive median cuts on the longer side until each page fits its capacity and extent bounds."""
+def _too_dense(count: Any, ex: Any, ey: Any, quantum: float) -> Any:
+    """Whether pages of these counts and extents (scalars or arrays) break the density rule."""
+    area_m2 = (np.asarray(ex, np.float64) + 1.0) * (np.asarray(ey, np.float64) + 1.0) * quantum * quantum
+    return (np.asarray(count) > _PILE) & (np.asarray(count) > area_m2 / _M2_PER_OBJECT)
+
+
+def _split_pages(qx: np.ndarray, qy: np.ndarray, capacity: int, quantum: float) -> list[np.ndarray]:
+    """Recursive cuts on the longer side until each page fits its capacity, extent and density bounds.
+
+    A cut falls between two distinct coordinates (the one nearest the median), so that no two pages share
+    a position: the reader checks that page boxes do not overlap.  Objects at one position (at most one
+    per label, after :func:`_unique_positions`) are never cut, even beyond the capacity.
+    """
     pages = []
     stack = [np.arange(qx.size)]
     while stack:
         idx = stack.pop()
         x, y = qx[idx], qy[idx]
         dx, dy = int(x.max() - x.min()), int(y.max() - y.min())
-        if idx.size <= capacity and dx <= _MAX_EXTENT and dy <= _MAX_EXTENT:
+        if (dx == 0 and dy == 0) or (idx.size <= capacity and dx <= _MAX_EXTENT and dy <= _MAX_EXTENT
+                                     and not _too_dense(idx.size, dx, dy, quantum)):
             pages.append(idx)
-            continue
-        if dx == 0 and dy == 0:  # more than a page of objects on one spot: chop in order
-            stack += [idx[:capacity], idx[capacity:]]
             continue
         axis = x if dx >= dy else y
         order = np.argsort(axis, kind="stable")
-        half = idx.size // 2
-        stack += [idx[order[:half]], idx[order[half:]]]
+        ranked = axis[order]
+        breaks = np.flatnonzero(ranked[1:] != ranked[:-1]) + 1
+        cut = int(breaks[np.argmin(np.abs(breaks - idx.size // 2))])
+        stack += [idx[order[:cut]], idx[order[cut:]]]
     return pages
+
+
+def _unique_positions(label: np.ndarray, qx: np.ndarray, qy: np.ndarray, area: np.ndarray) -> np.ndarray:
+    """Indices (ascending) keeping one object per label and quantized position: the one of largest area."""
+    order = np.lexsort((-area, qy, qx, label))
+    lab, x, y = label[order], qx[order], qy[order]
+    first = np.ones(order.size, bool)
+    first[1:] = (lab[1:] != lab[:-1]) | (x[1:] != x[:-1]) | (y[1:] != y[:-1])
+    return np.sort(order[first])
 
 
 # --------------------------------------------------------------------------------------------- writing
@@ -283,9 +420,10 @@ def _split_pages(qx: np.ndarray, qy: np.ndarray, capacity: int) -> list[np.ndarr
 def _lonlat_bounds(crs: CRS, bounds: tuple[float, float, float, float]) -> list[float] | None:
     try:
         to_lonlat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
-        return [float(v) for v in to_lonlat.transform_bounds(*bounds, densify_pts=21)]
+        lonlat = [float(v) for v in to_lonlat.transform_bounds(*bounds, densify_pts=21)]
     except Exception:  # a CRS without a lon/lat relation (engineering CRS): no geographic bounds
         return None
+    return lonlat if all(map(math.isfinite, lonlat)) else None  # positions outside the projection's domain
 
 
 def write_map(
@@ -295,11 +433,15 @@ def write_map(
     quantum: float = 0.1,
     metadata: dict[str, Any] | None = None,
     page_capacity: int = DEFAULT_PAGE_CAPACITY,
-) -> None:
+) -> int:
     """Write objects (in a projected CRS) to a map file, atomically.
 
     The file is written beside ``path`` under a temporary name and renamed into
     place, so a failed write leaves any earlier map of that name intact.
+
+    Objects of one label at the same quantized position are merged into one (the
+    one of largest area is kept; the header's ``merged_duplicates`` counts the
+    others): the format allows one object per label and position.
 
     Parameters
     ----------
@@ -312,12 +454,21 @@ def write_map(
     metadata : dict, optional
         JSON-able entries kept in the header (``sources``, ``build`` options, ...).
     page_capacity : int
-        Most objects in one page.
+        Most objects in one page (objects at one position are never split, so such a pile of up to one
+        object per label may exceed it).
+
+    Returns
+    -------
+    int
+        The number of objects written (``len(objects)`` less the merged duplicates).
 
     Raises
     ------
     EmptyMapError
         If ``objects`` is empty.
+    ValueError
+        If the CRS is not a projected one, a coordinate is not finite or too far out for the quantum, the
+        labels are too many or unprintable, or ``metadata`` would break a header rule.
 
     Examples
     --------
@@ -325,6 +476,7 @@ def write_map(
     >>> o = Objects.from_names([500000.0, 500010.0], [6e6, 6e6], ["park", "water"], crs="EPSG:32635")
     >>> p = os.path.join(tempfile.mkdtemp(), "two.mapdb")
     >>> write_map(p, o)
+    2
     >>> with open_map(p) as m:
     ...     m.label_counts
     {'park': 1, 'water': 1}
@@ -336,27 +488,32 @@ def write_map(
         raise ValueError("objects need a CRS to be written to a map")
     if not (0 < quantum <= 1000) or not (1 <= page_capacity <= _MAX_PAGE_OBJECTS):
         raise ValueError(f"quantum must be in (0, 1000] m and page capacity in [1, {_MAX_PAGE_OBJECTS}]")
-    if len(objects.labels) > 255:
-        raise ValueError("a map holds at most 255 labels")
+    if len(objects.labels) > _MAX_LABELS:
+        raise ValueError(f"a map holds at most {_MAX_LABELS} labels")
     finite = np.isfinite(objects.x) & np.isfinite(objects.y)
     if not finite.all():
         raise ValueError(f"{int((~finite).sum())} objects have non-finite coordinates")
     crs = CRS.from_user_input(objects.crs)
-    qx = np.rint(objects.x / quantum).astype(np.int64)
-    qy = np.rint(objects.y / quantum).astype(np.int64)
+    fx, fy = np.rint(objects.x / quantum), np.rint(objects.y / quantum)
+    if max(np.abs(fx).max(), np.abs(fy).max()) > _MAX_QUANTA - _MAX_EXTENT:
+        raise ValueError(f"coordinates beyond {_MAX_QUANTA - _MAX_EXTENT:.3g} quanta of {quantum} m")
+    qx, qy = fx.astype(np.int64), fy.astype(np.int64)
     area = np.where(np.isfinite(objects.area) & (objects.area > 0), objects.area, 0.0)
+    keep = _unique_positions(objects.label, qx, qy, area)
+    merged = len(objects) - keep.size
+    qx, qy, label, area = qx[keep], qy[keep], objects.label[keep], area[keep]
 
-    pages = _split_pages(qx, qy, page_capacity)
+    pages = _split_pages(qx, qy, page_capacity, quantum)
     payloads, records = [], []
     for idx in pages:
-        payload, record = _encode_page(qx[idx], qy[idx], objects.label[idx], area[idx])
+        payload, record = _encode_page(qx[idx], qy[idx], label[idx], area[idx])
         payloads.append(payload)
         records.append(record)
-    directory = b"".join(_DIR_RECORD.pack(*r) for r in records)
+    table = np.array(records, dtype=_DIR_DTYPE)
+    directory = table.tobytes()
 
-    counts = np.bincount(objects.label, minlength=len(objects.labels))
-    bounds = (float(qx.min() * quantum), float(qy.min() * quantum),
-              float(qx.max() * quantum), float(qy.max() * quantum))
+    counts = np.bincount(label, minlength=len(objects.labels))
+    bounds = _page_span(table, quantum)
     header = {
         "format": "mapdb",
         "format_version": FORMAT_VERSION,
@@ -366,7 +523,8 @@ def write_map(
         "quantum": quantum,
         "area_log2_steps": _AREA_STEPS,
         "area_floor_log2": _AREA_FLOOR_LOG2,
-        "count": len(objects),
+        "count": int(keep.size),
+        "merged_duplicates": int(merged),
         "labels": [{"name": name, "code": i, "count": int(counts[i])} for i, name in enumerate(objects.labels)],
         "bounds": list(bounds),
         "bounds_lonlat": _lonlat_bounds(crs, bounds),
@@ -381,23 +539,251 @@ def write_map(
     header_json = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
     packer = zlib.compressobj(9, zlib.DEFLATED, -15)
     header_bytes = packer.compress(header_json) + packer.flush()
+    # The reader's own checks, so that a map this writes is never one the reader refuses.
+    try:
+        if len(header_json) > _header_json_limit(len(header_bytes)):
+            raise MapFormatError(f"{path}: header of {len(header_json)} bytes is too long")
+        _check_header(_parse_header_json(header_json, str(path)), str(path), FORMAT_VERSION)
+        _check_directory(table, quantum, bounds, int(keep.size), str(path))
+    except MapFormatError as exc:
+        raise ValueError(f"cannot write a valid map: {exc}") from None
     prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, 0, len(header_bytes)) + header_bytes
     prefix += struct.pack("<I", zlib.crc32(prefix))
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    with atomic_open(path, "wb") as f:
+        f.write(prefix)
+        f.write(directory)
+        for payload in payloads:
+            f.write(payload)
+    return int(keep.size)
+
+
+# --------------------------------------------------------------------------------------------- checking
+# One set of rules for the reader (a file from a stranger) and the writer (which checks what it is about to
+# write, so that a genuine map always passes).  Each names the file and the broken rule in one line.
+
+
+def _header_json_limit(deflated: int) -> int:
+    """The longest inflated header a deflated header of ``deflated`` bytes may have."""
+    return min(_MAX_HEADER_JSON, _HEADER_FREE + _HEADER_RATIO * deflated)
+
+
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a finite number")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"{text[:20]} is not a finite number")
+    return value
+
+
+def _short_int(text: str) -> int:
+    # Python converts long digit strings in quadratic time; no header integer needs more than 20 digits.
+    if len(text.lstrip("-")) > 20:
+        raise ValueError(f"an integer of {len(text)} digits")
+    return int(text)
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    doc = dict(pairs)
+    if len(doc) != len(pairs):
+        raise ValueError("an object repeats a key")
+    return doc
+
+
+def _one_line(text: str, limit: int = 160) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _parse_header_json(text: bytes, where: str) -> Any:
+    """Decode the header JSON: strict numbers, unique keys, bounded nesting, every string valid Unicode."""
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(prefix)
-            f.write(directory)
-            for payload in payloads:
-                f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        doc = json.loads(text.decode("utf-8"), parse_constant=_refuse_constant, parse_float=_finite_float,
+                         parse_int=_short_int, object_pairs_hook=_unique_keys)
+    except RecursionError:
+        # json's C scanner counts its recursion against the interpreter's limit (about 1000 levels), so a
+        # deeply nested header ends here long before the C stack is at risk.
+        raise MapFormatError(f"{where}: header nests deeper than {_MAX_DEPTH} levels") from None
+    except ValueError as exc:  # includes JSONDecodeError and UnicodeDecodeError
+        raise MapFormatError(f"{where}: header is not valid JSON ({_one_line(exc, 80)})") from None
+    # Walk it without recursion: nesting depth, and strings that can be printed (no lone surrogates).
+    stack = [(doc, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if isinstance(value, dict | list):
+            if depth > _MAX_DEPTH:
+                raise MapFormatError(f"{where}: header nests deeper than {_MAX_DEPTH} levels")
+            items = value.items() if isinstance(value, dict) else ((None, v) for v in value)
+            for key, item in items:
+                if key is not None:
+                    stack.append((key, depth))
+                stack.append((item, depth + 1))
+        elif isinstance(value, str):
+            try:
+                value.encode("utf-8")
+            except UnicodeEncodeError:
+                raise MapFormatError(f"{where}: header holds a string that is not valid Unicode") from None
+    return doc
+
+
+def _shown(value: Any) -> str:
+    if isinstance(value, dict):
+        return "an object"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    return _one_line(repr(value[:40] if isinstance(value, str) else value), 48)
+
+
+def _is_int(value: Any) -> bool:
+    return type(value) is int  # not bool
+
+
+def _is_number(value: Any) -> bool:
+    return type(value) in (int, float) and math.isfinite(value)
+
+
+_MISSING = object()
+_AUTHORITY_CODE = re.compile(r"[A-Za-z][A-Za-z0-9_.-]{0,31}:[A-Za-z0-9_.-]{1,32}")
+_WKT_START = re.compile(r"\s*[A-Za-z][A-Za-z0-9_]*\s*\[")
+# WKT constructs that name files (grids) or embed a PROJ string (which can name files): a map's CRS is
+# resolved from PROJ's own database only.
+_WKT_FILE_WORDS = re.compile(r"PARAMETERFILE|EXTENSION", re.IGNORECASE)
+
+
+def _field(header: dict[str, Any], key: str, where: str, ok: Callable[[Any], bool], rule: str,
+           required: bool = True) -> Any:
+    """``header[key]`` if ``ok`` says it is well formed (None if optional and missing or null)."""
+    value = header.get(key, _MISSING)
+    if value is _MISSING or (value is None and not required):
+        if required:
+            raise MapFormatError(f"{where}: header lacks the field {key!r}")
+        return None
+    if not ok(value):
+        raise MapFormatError(f"{where}: header field {key!r} must be {rule} (got {_shown(value)})")
+    return value
+
+
+def _check_crs(crs: str, crs_wkt: str | None, where: str) -> str:
+    """The CRS text readers will use (WKT if given, else the authority code), checked to be projected."""
+    if crs_wkt is None:
+        if not _AUTHORITY_CODE.fullmatch(crs):
+            raise MapFormatError(f"{where}: header field 'crs' must be AUTHORITY:CODE when there is no crs_wkt "
+                                 f"(got {_shown(crs)})")
+        text = crs
+    else:
+        if not _WKT_START.match(crs_wkt) or _WKT_FILE_WORDS.search(crs_wkt):
+            raise MapFormatError(f"{where}: header field 'crs_wkt' is not a self-contained WKT CRS")
+        text = crs_wkt
+    try:
+        parsed = CRS.from_user_input(text)
+    except CRSError as exc:
+        raise MapFormatError(f"{where}: the map's CRS is not one pyproj knows ({_one_line(exc, 100)})") from None
+    if not parsed.is_projected:
+        raise MapFormatError(f"{where}: the map's CRS {_shown(parsed.name)} is not a projected CRS")
+    return text
+
+
+def _is_source(entry: Any) -> bool:
+    return (isinstance(entry, dict) and all(isinstance(entry.get(k), str) for k in ("name", "kind", "sha256"))
+            and all(_is_int(entry.get(k)) and entry[k] >= 0 for k in ("size", "objects")))
+
+
+def _check_header(header: Any, where: str, version: int) -> dict[str, Any]:
+    """Check a decoded header's meaning; returns the fields a reader uses (``crs`` is the text to parse)."""
+    if not isinstance(header, dict):
+        raise MapFormatError(f"{where}: header is not a JSON object")
+    _field(header, "format", where, lambda v: v == "mapdb", '"mapdb"')
+    _field(header, "format_version", where, lambda v: _is_int(v) and v == version,
+           f"{version}, the version in the file's first bytes")
+    _field(header, "area_log2_steps", where, lambda v: _is_int(v) and v == _AREA_STEPS, str(_AREA_STEPS))
+    _field(header, "area_floor_log2", where, lambda v: _is_int(v) and v == _AREA_FLOOR_LOG2, str(_AREA_FLOOR_LOG2))
+    quantum = float(_field(header, "quantum", where, lambda v: _is_number(v) and 0 < v <= 1000,
+                           "a number in (0, 1000]"))
+    count = _field(header, "count", where, lambda v: _is_int(v) and v >= 1, "a positive integer")
+    pages = _field(header, "pages", where, lambda v: _is_int(v) and v >= 1, "a positive integer")
+    crc = _field(header, "directory_crc32", where, lambda v: _is_int(v) and 0 <= v < 1 << 32, "a CRC-32")
+    bounds = _field(header, "bounds", where, lambda v: isinstance(v, list) and len(v) == 4 and all(map(
+        _is_number, v)) and v[0] <= v[2] and v[1] <= v[3], "[minx, miny, maxx, maxy], finite, min <= max")
+    _field(header, "bounds_lonlat", where, lambda v: isinstance(v, list) and len(v) == 4 and all(map(
+        _is_number, v)), "null or four numbers", required=False)
+    _field(header, "page_capacity", where, lambda v: _is_int(v) and 1 <= v <= _MAX_PAGE_OBJECTS,
+           f"an integer in [1, {_MAX_PAGE_OBJECTS}]", required=False)
+    _field(header, "merged_duplicates", where, lambda v: _is_int(v) and v >= 0, "a count", required=False)
+    for key in ("software", "created"):
+        _field(header, key, where, lambda v: isinstance(v, str), "null or a string", required=False)
+    _field(header, "sources", where, lambda v: isinstance(v, list) and all(map(_is_source, v)),
+           "a list of {name, kind, size, sha256, objects}", required=False)
+    _field(header, "build", where, lambda v: isinstance(v, dict), "an object", required=False)
+    labels = _field(header, "labels", where, lambda v: isinstance(v, list) and 1 <= len(v) <= _MAX_LABELS,
+                    f"a list of 1 to {_MAX_LABELS} labels")
+    names = []
+    for i, entry in enumerate(labels):
+        if not (isinstance(entry, dict) and isinstance(entry.get("name"), str) and 0 < len(entry["name"]) <= 100
+                and entry["name"].isprintable() and entry.get("code") == i and _is_int(entry.get("code"))
+                and _is_int(entry.get("count")) and entry["count"] >= 0):
+            raise MapFormatError(f"{where}: header label {i} must be {{name: printable text, code: {i}, "
+                                 f"count: integer >= 0}} (got {_shown(entry)})")
+        names.append(entry["name"])
+    if len(set(names)) != len(names):
+        raise MapFormatError(f"{where}: header names a label twice")
+    if sum(entry["count"] for entry in labels) != count:
+        raise MapFormatError(f"{where}: header label counts do not add up to its count {count}")
+    crs = _field(header, "crs", where, lambda v: isinstance(v, str) and 0 < len(v) <= 4096, "a CRS name")
+    crs_wkt = _field(header, "crs_wkt", where, lambda v: isinstance(v, str) and len(v) <= 1 << 20,
+                     "null or WKT text", required=False)
+    return {"quantum": quantum, "count": count, "pages": pages, "directory_crc32": crc,
+            "bounds": tuple(float(v) for v in bounds), "labels": tuple(names), "crs": _check_crs(crs, crs_wkt, where)}
+
+
+def _page_span(table: np.ndarray, quantum: float) -> tuple[float, float, float, float]:
+    """The box of all page boxes in metres: the header bounds of a map with this directory."""
+    ex, ey = table["ex"].astype(np.int64), table["ey"].astype(np.int64)
+    return (float(table["ox"].min() * quantum), float(table["oy"].min() * quantum),
+            float((table["ox"] + ex).max() * quantum), float((table["oy"] + ey).max() * quantum))
+
+
+def _check_directory(table: np.ndarray, quantum: float, bounds: tuple[float, ...], count: int,
+                     where: str) -> shapely.STRtree:
+    """Check the page records against the format's limits and each other; returns their R-tree (in quanta).
+
+    Vectorised, so that a directory of many tiny pages costs little more than a genuine one.
+    """
+    ox, oy = table["ox"], table["oy"]
+    ex, ey = table["ex"].astype(np.int64), table["ey"].astype(np.int64)
+    n, length = table["count"].astype(np.int64), table["length"].astype(np.int64)
+
+    def refuse(bad: np.ndarray, problem: str) -> None:
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise MapFormatError(f"{where}: page {i} {problem.format(n=int(n[i]), length=int(length[i]))}")
+
+    refuse((n < 1) | (n > _MAX_PAGE_OBJECTS), f"holds {{n}} objects (1 to {_MAX_PAGE_OBJECTS} allowed)")
+    refuse((ex > _MAX_EXTENT) | (ey > _MAX_EXTENT), f"extends {1 << 24} quanta or more")
+    far = _MAX_QUANTA - _MAX_EXTENT
+    refuse((ox > far) | (ox < -far) | (oy > far) | (oy < -far), f"lies beyond {far} quanta from the origin")
+    refuse(8 * length < _MIN_PAGE_BITS + _MIN_OBJECT_BITS * n, "has {length} bytes, too few for {n} objects")
+    refuse(length > _MAX_PAGE_BYTES, f"has {{length}} bytes (at most {_MAX_PAGE_BYTES})")
+    refuse(_too_dense(n, ex, ey, quantum), f"is too dense: {{n}} objects, more than {_PILE} and more than one "
+           f"per {_M2_PER_OBJECT:g} m2 of its box")
+    if int(n.sum()) != count:
+        raise MapFormatError(f"{where}: pages hold {int(n.sum())} objects, the header counts {count}")
+    span = _page_span(table, quantum)
+    if span != tuple(bounds):
+        raise MapFormatError(f"{where}: header bounds {list(bounds)} are not the pages' box {list(span)}")
+    # Page boxes as closed boxes of whole quanta: two pages overlap exactly when they share a position.
+    boxes = shapely.box(ox, oy, ox + ex, oy + ey)
+    tree = shapely.STRtree(boxes)
+    step = max(1, _PAIR_BUDGET // len(boxes))  # a directory of pages piled on one spot cannot blow up the pairs
+    for start in range(0, len(boxes), step):
+        pairs = tree.query(boxes[start : start + step])
+        other = pairs[1] != pairs[0] + start
+        if other.any():
+            j = int(np.flatnonzero(other)[0])
+            raise MapFormatError(f"{where}: pages {int(pairs[0][j]) + start} and {int(pairs[1][j])} overlap")
+    return tree
 
 
 # --------------------------------------------------------------------------------------------- reading
@@ -466,8 +852,7 @@ class MetaMap(MapBase):
         super().__init__()
         self.path = Path(path)
         where = str(self.path)
-        with reading(where, "map file"):
-            self._file = open(self.path, "rb")  # noqa: SIM115 - kept open for page reads until close()
+        self._file = _open_regular(self.path, where)
         try:
             self._read_header(where)
         except BaseException:
@@ -484,109 +869,177 @@ class MetaMap(MapBase):
         head = self._file.read(_PREFIX.size)
         if len(head) < _PREFIX.size or not head.startswith(MAGIC):
             raise MapFormatError(f"{where}: not a mapdb map (bad magic number)")
-        _, version, _flags, header_len = _PREFIX.unpack(head)
-        if version > FORMAT_VERSION:
-            raise MapVersionError(
-                f"{where}: written by a newer map format (version {version}); "
-                f"this mapdb {__version__} reads up to version {FORMAT_VERSION}"
-            )
+        _, version, flags, header_len = _PREFIX.unpack(head)
+        if not 1 <= version <= _MAX_VERSION:
+            raise MapFormatError(f"{where}: not a valid map (format version {version})")
         if header_len > _MAX_HEADER or _PREFIX.size + header_len + 4 > size:
             raise MapFormatError(f"{where}: truncated map file (header runs past the end)")
         header_bytes = self._file.read(header_len)
         (crc,) = struct.unpack("<I", self._file.read(4))
         if zlib.crc32(head + header_bytes) != crc:
             raise MapFormatError(f"{where}: header checksum mismatch (file is corrupt)")
-        try:
-            unpacker = zlib.decompressobj(-15)
-            header_json = unpacker.decompress(header_bytes, _MAX_HEADER)
-            if unpacker.unconsumed_tail:
-                raise MapFormatError(f"{where}: header inflates past {_MAX_HEADER} bytes")
-            header = json.loads(header_json.decode("utf-8"))
-            n_pages = int(header["pages"])
-            self.quantum = float(header["quantum"])
-            self.crs = str(header.get("crs_wkt") or header["crs"])
-            self.labels = tuple(str(d["name"]) for d in header["labels"])
-            self.bounds = tuple(float(v) for v in header["bounds"])
-        except (ValueError, KeyError, TypeError, zlib.error):
-            raise MapFormatError(f"{where}: header is not valid map metadata") from None
+        # Every version keeps this frame (prefix, header, CRC), so only a version number that passed the CRC
+        # is taken for a newer format rather than for damage.
+        if version > FORMAT_VERSION:
+            raise MapVersionError(
+                f"{where}: written by a newer map format (version {version}); "
+                f"this mapdb {__version__} reads up to version {FORMAT_VERSION}"
+            )
+        if flags != 0:
+            raise MapFormatError(f"{where}: not a valid map (flags {flags:#06x}; version 1 defines none)")
+        header = _parse_header_json(self._inflate_header(header_bytes, where), where)
+        fields = _check_header(header, where, version)
+        n_pages, self.quantum, self.crs = fields["pages"], fields["quantum"], fields["crs"]
+        self.labels, self.bounds = fields["labels"], fields["bounds"]
         dir_start = _PREFIX.size + header_len + 4
-        dir_len = n_pages * _DIR_RECORD.size
-        if n_pages < 0 or dir_start + dir_len > size:
+        dir_len = n_pages * _DIR_DTYPE.itemsize
+        if dir_start + dir_len > size:
             raise MapFormatError(f"{where}: truncated map file (page directory runs past the end)")
         directory = self._file.read(dir_len)
-        if zlib.crc32(directory) != header.get("directory_crc32"):
+        if zlib.crc32(directory) != fields["directory_crc32"]:
             raise MapFormatError(f"{where}: page directory checksum mismatch (file is corrupt)")
-        records = [_DIR_RECORD.unpack_from(directory, i * _DIR_RECORD.size) for i in range(n_pages)]
-        lengths = np.array([r[5] for r in records], np.int64)
-        self._offsets = dir_start + dir_len + np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        table = np.frombuffer(directory, _DIR_DTYPE)
+        lengths = table["length"].astype(np.int64)
         end = dir_start + dir_len + int(lengths.sum())
         if end > size:
             raise MapFormatError(f"{where}: truncated map file ({size} bytes, pages need {end})")
         if end < size:
             raise MapFormatError(f"{where}: {size - end} unexpected bytes after the last page")
-        if any(r[4] > _MAX_PAGE_OBJECTS or r[2] > _MAX_EXTENT or r[3] > _MAX_EXTENT for r in records):
-            raise MapFormatError(f"{where}: page directory holds out-of-range values")
-        self._records = records
+        self._tree = _check_directory(table, self.quantum, self.bounds, fields["count"], where)
+        self._table = table
+        self._offsets = dir_start + dir_len + np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
         self.metadata = header
-        q = self.quantum
-        boxes = [(r[0] * q, r[1] * q, (r[0] + r[2]) * q, (r[1] + r[3]) * q) for r in records]
-        self._tree = rtree_index.Index((i, box, None) for i, box in enumerate(boxes)) if boxes else None
+
+    @staticmethod
+    def _inflate_header(header_bytes: bytes, where: str) -> bytes:
+        limit = _header_json_limit(len(header_bytes))
+        unpacker = zlib.decompressobj(-15)
+        try:
+            text = unpacker.decompress(header_bytes, limit)
+        except zlib.error:
+            raise MapFormatError(f"{where}: header is not valid DEFLATE data") from None
+        if unpacker.unconsumed_tail or (not unpacker.eof and len(text) >= limit):
+            raise MapFormatError(f"{where}: header inflates past {limit} bytes")
+        if not unpacker.eof or unpacker.unused_data:
+            raise MapFormatError(f"{where}: header's DEFLATE stream does not fill its length exactly")
+        return text
 
     @property
     def page_count(self) -> int:
-        return len(self._records)
+        return len(self._table)
 
     def close(self) -> None:
         super().close()
         self._cache.clear()
         self._file.close()
 
-    def _page(self, i: int) -> tuple[np.ndarray, ...]:
-        hit = self._cache.get(i)
-        if hit is not None:
-            self._cache.move_to_end(i)
-            return hit
-        record = self._records[i]
-        where = f"{self.path} page {i}"
-        payload = os.pread(self._file.fileno(), record[5], int(self._offsets[i]))
-        if len(payload) != record[5]:
-            raise MapFormatError(f"{where}: truncated")
-        if zlib.crc32(payload) != record[6]:
-            raise MapFormatError(f"{where}: checksum mismatch (file is corrupt)")
-        qx, qy, label, area = _decode_page(payload, record, where)
-        if label.size and label.max() >= len(self.labels):
-            raise MapFormatError(f"{where}: label code outside the label table")
-        page = (qx * self.quantum, qy * self.quantum, label, area)
-        self._cache[i] = page
-        self._cached_objects += label.size
+    def _pages(self, indices: Iterable[int]) -> Iterator[tuple[int, tuple[np.ndarray, ...]]]:
+        """(index, (x, y, label code, area)) of each page asked for, in order, each checked and decoded once.
+
+        Pages not in the cache are read and decoded in batches of up to ``_BATCH_BYTES`` and
+        ``_BATCH_OBJECTS`` (or one page, if larger), one vectorised pass a batch, so that a thousand tiny
+        pages cost about what one big one does.
+        """
+        pending: list[int] = []
+        size = objects = 0
+        for i in [*indices, None]:
+            if i is not None and i in self._cache:
+                if not pending:
+                    self._cache.move_to_end(i)
+                    yield i, self._cache[i]
+                    continue
+            elif i is not None:
+                length, count = int(self._table["length"][i]), int(self._table["count"][i])
+                if not pending or (size + length <= _BATCH_BYTES and objects + count <= _BATCH_OBJECTS):
+                    pending.append(i)
+                    size, objects = size + length, objects + count
+                    continue
+            # a cached page after pending ones, a page that does not fit the batch, or the end
+            if pending:
+                yield from self._decode_batch(pending)
+            pending, size, objects = [], 0, 0
+            if i is not None:
+                if i in self._cache:
+                    yield i, self._cache[i]
+                else:
+                    pending = [i]
+                    size, objects = int(self._table["length"][i]), int(self._table["count"][i])
+
+    def _decode_batch(self, indices: list[int]) -> list[tuple[int, tuple[np.ndarray, ...]]]:
+        records = self._table[indices]
+        payloads = []
+        for i, record in zip(indices, records, strict=True):
+            length = int(record["length"])
+            with reading(self.path, "map file"):
+                payload = os.pread(self._file.fileno(), length, int(self._offsets[i]))
+            if len(payload) != length:
+                raise MapFormatError(f"{self.path} page {i}: truncated")
+            if zlib.crc32(payload) != record["crc"]:
+                raise MapFormatError(f"{self.path} page {i}: checksum mismatch (file is corrupt)")
+            payloads.append(payload)
+        try:
+            qx, qy, label, area = _decode_pages(payloads, records, len(self.labels))
+        except _BadPageError as bad:
+            raise MapFormatError(f"{self.path} page {indices[bad.index]}: {bad.problem}") from None
+        except (ValueError, IndexError, OverflowError, TypeError) as exc:
+            # The checks are meant to leave nothing for numpy to trip on; should one be missing, the pages
+            # are still reported as what they are, bad pages, and not as a crash.
+            raise MapFormatError(f"{self.path} pages {indices[0]} to {indices[-1]}: malformed page data "
+                                 f"({_one_line(exc, 80)})") from None
+        x, y = qx * self.quantum, qy * self.quantum
+        done = []
+        cuts = np.cumsum(records["count"].astype(np.int64))[:-1]
+        for i, page in zip(indices, zip(*(np.split(a, cuts) for a in (x, y, label, area)), strict=True),
+                           strict=True):
+            self._cache[i] = page
+            self._cached_objects += page[2].size
+            done.append((i, page))
         while self._cached_objects > _CACHE_OBJECTS and len(self._cache) > 1:
             _, old = self._cache.popitem(last=False)
             self._cached_objects -= old[2].size
-        return page
+        return done
+
+    def _page(self, i: int) -> tuple[np.ndarray, ...]:
+        return next(self._pages([i]))[1]
 
     def _objects(self, pages: Iterable[int]) -> Objects:
-        parts = [self._page(i) for i in pages]
+        parts = [page for _, page in self._pages(pages)]
         if not parts:
             return Objects.empty(self.labels, self.crs)
         return Objects(*(np.concatenate(p) for p in zip(*parts, strict=True)), self.labels, self.crs)
 
     def verify(self) -> None:
-        """Read and check every page; raises :class:`MapFormatError` at the first bad one."""
-        for i in range(self.page_count):
-            self._page(i)
+        """Read and check every page; raises :class:`MapFormatError` at the first bad one.
+
+        Also checks the header's objects per label against the pages'.
+        """
+        per_label = np.zeros(len(self.labels), np.int64)
+        for _, page in self._pages(range(self.page_count)):
+            per_label += np.bincount(page[2], minlength=len(self.labels))
+        self._check_label_counts(per_label)
+
+    def _check_label_counts(self, per_label: np.ndarray) -> None:
+        if per_label.tolist() != [d["count"] for d in self.metadata["labels"]]:
+            raise MapFormatError(f"{self.path}: header counts per label disagree with the pages")
 
     def query_bbox(self, minx: float, miny: float, maxx: float, maxy: float,
                    labels: Iterable[str] | None = None) -> Objects:
         """Objects inside the box (projected metres, edges included)."""
-        if self._tree is None:
+        # The R-tree is in whole quanta; widen the box to whole quanta, then select objects exactly.
+        lo = np.floor(np.array([minx, miny], np.float64) / self.quantum)
+        hi = np.ceil(np.array([maxx, maxy], np.float64) / self.quantum)
+        if np.isnan(lo).any() or np.isnan(hi).any():
             return Objects.empty(self.labels, self.crs)
-        hits = sorted(self._tree.intersection((minx, miny, maxx, maxy)))
-        found = self._objects(hits)
+        lo, hi = np.clip(lo, -2.0 * _MAX_QUANTA, 2.0 * _MAX_QUANTA), np.clip(hi, -2.0 * _MAX_QUANTA, 2.0 * _MAX_QUANTA)
+        hits = np.sort(self._tree.query(shapely.box(lo[0], lo[1], hi[0], hi[1])))
+        found = self._objects(hits.tolist())
         inside = (found.x >= minx) & (found.x <= maxx) & (found.y >= miny) & (found.y <= maxy)
         return self._label_filter(found.take(inside), labels)
 
     def all(self) -> Objects:
-        return self._objects(range(self.page_count))
+        objects = self._objects(range(self.page_count))
+        self._check_label_counts(np.bincount(objects.label, minlength=len(self.labels)))
+        return objects
 
 
 class MemoryMap(MapBase):
@@ -629,15 +1082,39 @@ class MemoryMap(MapBase):
         return self._objects
 
 
+def _open_regular(path: Path, where: str) -> Any:
+    """The file opened for reading, if it is a regular file.
+
+    Opened without blocking and checked with fstat (not stat then open, which a swap could defeat): a FIFO
+    or a device given as a map would otherwise hang the command or feed it endless bytes.
+    """
+    with reading(where, "map file"):
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file")
+            raise MapdbIOError(f"{where}: is {kind}, not a map file" if kind.startswith("a ")
+                               else f"{where}: not a regular file, not a map file")
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def open_map(path: str | Path) -> MetaMap:
     """Open a map file for queries (also a context manager).
+
+    The header and the page directory are read and checked at once (see ``docs/format.md``, "Limits a
+    reader enforces"); each page when a query first needs it.
 
     Raises
     ------
     MapdbIOError
-        If the file is missing or unreadable.
+        If the file is missing, unreadable or not a regular file (a directory, a FIFO, a device).
     MapFormatError
-        If it is not a map, is truncated or fails a checksum.
+        If it is not a map, is truncated, fails a checksum or breaks a rule of the format.
     MapVersionError
         If a newer format version wrote it.
     """

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+import os
 import struct
 import zlib
 
@@ -11,9 +11,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from mapdb import EmptyMapError, MapdbIOError, MapFormatError, MapVersionError, Objects
-from mapdb.store import MAGIC, MemoryMap, open_map, write_map
+from mapdb.store import MemoryMap, open_map, write_map
 
 LABELS = ("building", "road_intersection", "park", "water")
+SOURCE = {"name": "x.osm.pbf", "kind": "osm", "size": 10, "sha256": "0" * 64, "objects": 5000}
 
 
 def random_objects(n: int, seed: int = 0, span: float = 4000.0) -> Objects:
@@ -35,7 +36,7 @@ def matched(stored: Objects, original: Objects) -> np.ndarray:
 def written(tmp_path):
     objects = random_objects(5000)
     path = tmp_path / "m.mapdb"
-    write_map(path, objects, page_capacity=256, metadata={"sources": [{"name": "x"}]})
+    write_map(path, objects, page_capacity=256, metadata={"sources": [SOURCE]})
     return path, objects
 
 
@@ -54,7 +55,7 @@ def test_round_trip_positions_labels_areas(written):
         # positions lie on the quantum grid
         assert np.allclose(np.round(stored.x / 0.1) * 0.1, stored.x)
         assert m.label_counts == objects.counts()
-        assert m.metadata["sources"] == [{"name": "x"}]
+        assert m.metadata["sources"] == [SOURCE]
         assert m.crs == "EPSG:32635"
 
 
@@ -67,12 +68,61 @@ def test_other_quantum_and_single_object(tmp_path):
         assert o.names().tolist() == ["water"]
 
 
-def test_many_objects_on_one_spot(tmp_path):
+def test_duplicates_on_one_spot_are_merged(tmp_path):
+    """One object per label and quantized position: the largest area is kept and the others counted."""
     n = 3000
-    o = Objects(np.full(n, 500000.0), np.full(n, 4e6), np.zeros(n, int), np.zeros(n), ("building",), "EPSG:32632")
-    write_map(tmp_path / "spot.mapdb", o, page_capacity=1000)
+    label = np.r_[np.zeros(n, int), [1, 2]]  # a pile of buildings, and a park and a water at the same spot
+    area = np.r_[np.arange(n, dtype=float), [5.0, 0.0]]
+    x = np.r_[np.full(n, 500000.0), 500000.04, 499999.96]  # same quantum of 0.1 m
+    o = Objects(x, np.full(n + 2, 4e6), label, area, ("building", "park", "water"), "EPSG:32632")
+    assert write_map(tmp_path / "spot.mapdb", o, page_capacity=1) == 3
     with open_map(tmp_path / "spot.mapdb") as m:
-        assert len(m.query_radius(500000.0, 4e6, 1.0)) == n
+        found = m.query_radius(500000.0, 4e6, 1.0)
+        assert sorted(found.names().tolist()) == ["building", "park", "water"]
+        assert abs(found.area[found.label == 0][0] / (n - 1) - 1) < 0.045  # the largest building
+        assert m.metadata["merged_duplicates"] == n - 1 and len(m) == 3
+        assert m.page_count == 1  # a pile at one position is never split, whatever the page capacity
+
+
+def test_pages_share_no_position_and_respect_density(tmp_path):
+    """Ties at the median and a dense cluster: cuts fall between distinct coordinates, dense pages are cut."""
+    rng = np.random.default_rng(3)
+    gx, gy = np.meshgrid(np.arange(40), np.arange(40))  # a 40 x 40 grid of 1 m: many objects share x and y
+    cluster = rng.uniform(-0.5, 0.5, (2000, 2))  # 2000 objects within one square metre (1 cm quantum)
+    x = np.r_[600000.0 + gx.ravel() * 1.0, 600100.0 + cluster[:, 0]]
+    y = np.r_[5e6 + gy.ravel() * 1.0, 5e6 + cluster[:, 1]]
+    o = Objects(x, y, np.zeros(x.size, int), np.zeros(x.size), ("building",), "EPSG:32632")
+    written = write_map(tmp_path / "dense.mapdb", o, quantum=0.01, page_capacity=300)
+    with open_map(tmp_path / "dense.mapdb") as m:
+        assert len(m.all()) == written == len(m)
+        t = m._table  # the directory the reader checked: boxes disjoint, dense pages small
+        area = (t["ex"] + 1.0) * (t["ey"] + 1.0) * 0.01**2
+        assert np.all((t["count"] <= 255) | (t["count"] <= area))
+        assert t["count"].max() <= 300
+        m.verify()
+
+
+def test_fifo_and_directory_are_not_maps(tmp_path):
+    """A FIFO would block open() forever; a directory is not a file: both are refused at once."""
+    fifo = tmp_path / "pipe.mapdb"
+    os.mkfifo(fifo)
+    with pytest.raises(MapdbIOError, match="pipe.mapdb: is a FIFO, not a map file"):
+        open_map(fifo)
+    with pytest.raises(MapdbIOError, match="is a directory"):
+        open_map(tmp_path)
+
+
+def test_writer_refuses_what_the_reader_would(tmp_path):
+    o = random_objects(50)
+    with pytest.raises(ValueError, match="sources"):
+        write_map(tmp_path / "a.mapdb", o, metadata={"sources": [{"name": "x"}]})
+    with pytest.raises(ValueError, match="not a projected CRS"):
+        write_map(tmp_path / "a.mapdb", Objects(o.x / 1e5, o.y / 1e6, o.label, o.area, o.labels, "EPSG:4326"))
+    with pytest.raises(ValueError, match="label 1"):
+        write_map(tmp_path / "a.mapdb", Objects(o.x, o.y, o.label, o.area, ("a", "b\nc", "d", "e"), o.crs))
+    with pytest.raises(ValueError, match="quanta"):
+        write_map(tmp_path / "a.mapdb", Objects(o.x * 1e12, o.y, o.label, o.area, o.labels, o.crs), quantum=0.001)
+    assert not any(tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("labels", [None, ["park"], ["park", "water"]])
@@ -160,41 +210,28 @@ def test_flipped_bits_are_caught(written):
                 m.all()  # a page is only checked when read
 
 
-def test_newer_version_refused(written):
+def with_version(data: bytes, version: int, fix_crc: bool = True) -> bytes:
+    out = bytearray(data)
+    struct.pack_into("<H", out, 8, version)
+    if fix_crc:
+        end = 16 + struct.unpack_from("<I", out, 12)[0]
+        struct.pack_into("<I", out, end, zlib.crc32(bytes(out[:end])))
+    return bytes(out)
+
+
+def test_versions(written):
+    """Newer only when plausible: a version 2..255 whose header checksum holds; else damage or not a map."""
     path, _ = written
-    data = bytearray(path.read_bytes())
-    struct.pack_into("<H", data, 8, 99)
-    path.write_bytes(bytes(data))
-    with pytest.raises(MapVersionError, match="newer map format"):
+    data = path.read_bytes()
+    for version in (2, 99, 255):
+        path.write_bytes(with_version(data, version))
+        with pytest.raises(MapVersionError, match=f"newer map format \\(version {version}\\)"):
+            open_map(path)
+    path.write_bytes(with_version(data, 3, fix_crc=False))  # a flipped bit in the version field
+    with pytest.raises(MapFormatError, match="checksum mismatch") as caught:
         open_map(path)
-
-
-def forge(path, header: dict, directory: bytes = b"", pages: bytes = b"") -> None:
-    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
-    body = packer.compress(json.dumps(header).encode()) + packer.flush()
-    prefix = struct.pack("<8sHHI", MAGIC, 1, 0, len(body)) + body
-    path.write_bytes(prefix + struct.pack("<I", zlib.crc32(prefix)) + directory + pages)
-
-
-def test_hostile_counts_do_not_allocate(tmp_path):
-    """A stranger's file with consistent checksums but absurd counts is refused before any allocation."""
-    base = {"pages": 0, "quantum": 0.1, "crs": "EPSG:32632", "labels": [{"name": "a", "code": 0, "count": 0}],
-            "bounds": [0, 0, 1, 1], "count": 0, "format_version": 1}
-    path = tmp_path / "evil.mapdb"
-    forge(path, {**base, "pages": 10**12})
-    with pytest.raises(MapFormatError, match="truncated"):
-        open_map(path)
-    # a page claiming 2**32-1 objects in a few bytes
-    record = struct.pack("<qqIIIII", 0, 0, 10, 10, 2**32 - 1, 4, zlib.crc32(b"\0\0\0\0"))
-    forge(path, {**base, "pages": 1, "directory_crc32": zlib.crc32(record)}, record, b"\0\0\0\0")
-    with pytest.raises(MapFormatError, match="out-of-range"):
-        open_map(path)
-    # a plausible count whose runs do not add up
-    record = struct.pack("<qqIIIII", 0, 0, 10, 10, 5, 4, zlib.crc32(b"\0\0\0\0"))
-    forge(path, {**base, "pages": 1, "directory_crc32": zlib.crc32(record)}, record, b"\0\0\0\0")
-    with open_map(path) as m, pytest.raises(MapFormatError):
-        m.all()
-    # a header that is JSON but not map metadata
-    forge(path, {"hello": 1})
-    with pytest.raises(MapFormatError, match="not valid map metadata"):
-        open_map(path)
+    assert not isinstance(caught.value, MapVersionError)
+    for version in (0, 256, 65535):
+        path.write_bytes(with_version(data, version))
+        with pytest.raises(MapFormatError, match=f"not a valid map \\(format version {version}\\)"):
+            open_map(path)
