@@ -19,7 +19,7 @@ from .geo import bbox_text, central_longitude, check_bbox, in_bbox
 from .labels import load_label_table
 from .objects import Objects, concat
 from .sources import SKIPPED_KINDS, read_source, source_kind
-from .store import write_map
+from .store import open_map, write_map
 
 __all__ = ["build_map", "utm_crs_for"]
 
@@ -210,6 +210,10 @@ def build_map(
             "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs,
         },
     }
-    write_map(output, merged, quantum=quantum, metadata=metadata)
-    return {"output": str(output), "crs": target, "count": len(merged), "labels": merged.counts(),
+    written = write_map(output, merged, quantum=quantum, metadata=metadata)
+    if written < len(merged):
+        totals["merged_duplicates"] += len(merged) - written
+    with open_map(output) as m:
+        labels = m.label_counts  # after the writer merged same-label duplicates
+    return {"output": str(output), "crs": target, "count": written, "labels": labels,
             "skipped": {kind: n for kind, n in sorted(totals.items()) if n}}

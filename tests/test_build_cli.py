@@ -7,6 +7,7 @@ import json
 import struct
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import geopandas as gpd
@@ -186,6 +187,15 @@ def test_empty_bbox_keeps_the_earlier_map(town: Path, tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.mapdb", "town.osm"]
 
 
+def _with_version(data: bytes, version: int) -> bytes:
+    """The map with another format version and its header checksum recomputed (a genuinely newer file)."""
+    d = bytearray(data)
+    struct.pack_into("<H", d, 8, version)
+    end = 16 + struct.unpack_from("<I", d, 12)[0]
+    struct.pack_into("<I", d, end, zlib.crc32(bytes(d[:end])))
+    return bytes(d)
+
+
 def test_damaged_maps(town: Path, tmp_path: Path) -> None:
     out = tmp_path / "m.mapdb"
     run("build", town, "-o", out)
@@ -193,7 +203,8 @@ def test_damaged_maps(town: Path, tmp_path: Path) -> None:
     cases = {
         "truncated.mapdb": (data[: len(data) // 2], "truncated"),
         "flipped.mapdb": (data[:-3] + bytes([data[-3] ^ 1]) + data[-2:], "checksum"),
-        "newer.mapdb": (data[:8] + struct.pack("<H", 7) + data[10:], "newer map format"),
+        "newer.mapdb": (_with_version(data, 7), "newer map format"),
+        "version-flipped.mapdb": (data[:8] + struct.pack("<H", 7) + data[10:], "checksum"),
         "text.mapdb": (b"hello", "not a mapdb map"),
     }
     for name, (content, message) in cases.items():
