@@ -171,8 +171,10 @@ def test_geojson_with_bad_coordinates_and_broken_polygons(tmp_path: Path) -> Non
         {"type": "Point", "coordinates": [lon, 95.0]},                      # out of range
         {"type": "Point", "coordinates": [200.0, lat]},                     # out of range
         poly([(lon, lat), (lon + d, lat), (lon + d, lat + d), (lon, lat + d), (lon, lat)]),  # good
-        poly([(lon, lat), (lon + d, lat), (lon + d, lat + d), (lon, lat + d)]),              # unclosed: repaired
-        poly([(lon, lat), (lon + d, lat + d), (lon + d, lat), (lon, lat + d), (lon, lat)]),  # bow tie: repaired
+        # (each polygon apart from the others: the writer merges objects of one label at one position)
+        poly([(lon + 3 * d, lat), (lon + 4 * d, lat), (lon + 4 * d, lat + d), (lon + 3 * d, lat + d)]),  # unclosed
+        poly([(lon + 6 * d, lat), (lon + 7 * d, lat + d), (lon + 7 * d, lat), (lon + 6 * d, lat + d),
+              (lon + 6 * d, lat)]),                                                                     # bow tie
         poly([(lon, lat), (lon + d, 91.0), (lon + d, lat), (lon, lat)]),                      # vertex out of range
         poly([(lon, lat), (lon + d, lat), (lon, lat)]),                                       # no area: dropped
     ]
