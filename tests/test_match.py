@@ -337,3 +337,29 @@ def test_paper_pruning_gives_the_same_results_as_the_full_test() -> None:
             assert (pruned.best.matched, pruned.best.error_std) == (full.best.matched, full.best.error_std)
         outcomes.add(full.best is not None)
     assert outcomes == {True, False}  # both accepted and rejected images were compared
+
+
+def test_an_image_with_thousands_of_objects_is_matched_on_its_central_ones() -> None:
+    """Work per image is bounded: a 20,000-object image (the input limit) is answered, and a true image
+    buried among distant clutter is still localized from the objects nearest its centre."""
+    m = MemoryMap(paper_map(seed=0))
+    image = simulate_images(m, 1, pixel_std=0.5, seed=4)[0]
+    truth = image["truth"]
+    rng = np.random.default_rng(1)
+    # The same image inside a 4000x3000 frame (same centre offsets, so the same truth), with clutter
+    # beyond the true objects: the 256 objects nearest the centre are the true ones and a little clutter.
+    w, h = 4000, 3000
+    dx, dy = (w - image["width"]) / 2, (h - image["height"]) / 2
+    true_objects = [{**o, "x": o["x"] + dx, "y": o["y"] + dy} for o in image["objects"]]
+    angle = rng.uniform(0, 2 * math.pi, 20_000 - len(true_objects))
+    radius = rng.uniform(420.0, 1400.0, angle.size)
+    clutter = [{"label": "building", "x": float(w / 2 + r * math.cos(t)), "y": float(h / 2 + r * math.sin(t))}
+               for r, t in zip(radius, angle)]
+    crowded = {**image, "width": w, "height": h, "objects": true_objects + clutter}
+    answer = localize(crowded, m)
+    assert answer["status"] == "ok", answer.get("reason")
+    assert math.hypot(answer["x"] - truth["x"], answer["y"] - truth["y"]) < 1.0
+    noise = {"width": 4000, "height": 3000, "objects": [
+        {"label": "building", "x": float(x), "y": float(y)}
+        for x, y in zip(rng.uniform(0, 4000, 20_000), rng.uniform(0, 3000, 20_000))]}
+    assert localize(noise, m)["status"] == "rejected"
