@@ -24,6 +24,7 @@ COMMANDS = {
     "simulate": "Simulate downward-looking camera images of a map, one JSON object per line.",
     "query": "Localize every image of a JSON Lines file (or stdin, streamed) in a map.",
     "evaluate": "Localize simulated images and measure the answers against their truth.",
+    "show": "Draw one image's match over the map: inliers, outliers, footprint, truth, candidates.",
     "bench": "Reproducible benchmarks (the paper's Table 1).",
 }
 

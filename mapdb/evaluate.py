@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import ImageInputError, MapdbError, MapdbIOError, MapFormatError
 from .images import read_image_documents
-from .objects import Objects
+from .plot import plot_evaluation  # noqa: F401  (drawn in mapdb.plot; importable here, where callers found it)
 
 __all__ = [
     "evaluate_images",
@@ -354,69 +354,3 @@ def format_summary(summary: dict[str, Any], title: str | None = None) -> str:
         f"time per image:    median {_fmt(s['time_median_ms'], ' ms', 2)}, 95% {_fmt(s['time_p95_ms'], ' ms', 2)}",
     ]
     return "\n".join(lines)
-
-
-def plot_evaluation(
-    outcomes: Sequence[dict[str, Any]],
-    path: str | Path,
-    *,
-    fp_threshold: float = 2.0,
-    map_objects: Objects | None = None,
-    title: str | None = None,
-) -> None:
-    """Save a figure: the error distribution of accepted answers, and where images were, coloured by outcome."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    status = np.array([o["status"] for o in outcomes], dtype=object)
-    error = np.array([o["error_m"] if o["status"] == "ok" else np.nan for o in outcomes], dtype=np.float64)
-    tx = np.array([o["truth_x"] for o in outcomes])
-    ty = np.array([o["truth_y"] for o in outcomes])
-    bound = np.array([np.nan if o["bound_error_m"] is None else o["bound_error_m"] for o in outcomes])
-    ok = status == "ok"
-    fp = ok & (error > fp_threshold)
-    correct = ok & ~fp
-
-    fig, (ax_err, ax_map) = plt.subplots(1, 2, figsize=(13, 5.5))
-    floor = 1e-4
-    for values, name, colour in (
-        (error[ok], "localizer (accepted)", "tab:blue"),
-        (bound[np.isfinite(bound)], "bound (true correspondences)", "tab:gray"),
-    ):
-        if values.size:
-            v = np.sort(np.maximum(values, floor))
-            ax_err.step(v, np.arange(1, v.size + 1) / len(outcomes), where="post", label=name, color=colour)
-    ax_err.axvline(fp_threshold, color="tab:red", linestyle="--", label=f"false-positive threshold {fp_threshold:g} m")
-    ax_err.set_xscale("log")
-    ax_err.set_xlabel("horizontal error (m)")
-    ax_err.set_ylabel("fraction of all images")
-    ax_err.set_title("error distribution (cumulative)")
-    ax_err.grid(True, which="both", alpha=0.3)
-    ax_err.legend(loc="upper left", fontsize=8)
-
-    if map_objects is not None and len(map_objects):
-        ax_map.scatter(map_objects.x, map_objects.y, s=2, color="0.8", label="map objects", zorder=1)
-    for mask, name, colour in (
-        (correct, "correct", "tab:green"),
-        (~ok, "rejected", "0.4"),
-        (fp, "false positive", "tab:red"),
-    ):
-        if mask.any():
-            ax_map.scatter(tx[mask], ty[mask], s=10, color=colour, label=f"{name} ({int(mask.sum())})", zorder=2)
-    ax_map.set_aspect("equal")
-    ax_map.ticklabel_format(useOffset=False, style="plain")
-    ax_map.set_xlabel("x (m)")
-    ax_map.set_ylabel("y (m)")
-    ax_map.set_title("image positions by outcome")
-    ax_map.legend(loc="upper right", fontsize=8)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise MapdbIOError(f"{path}: cannot write plot ({exc.strerror or exc})") from None
-    finally:
-        plt.close(fig)
