@@ -15,6 +15,7 @@ from .options import (
     handle_errors,
     json_option,
     overwrite_option,
+    parents_option,
     progress_printer,
     quiet_option,
 )
@@ -47,12 +48,13 @@ def bench() -> None:
 @click.option("--save-map", type=click.Path(), default=None, metavar="FILE.mapdb",
               help="Also write the paper's map, for `mapdb simulate` / `mapdb evaluate`.")
 @overwrite_option
+@parents_option
 @json_option
 @quiet_option
 @debug_option
 @handle_errors
 def paper(n_images, paper_images, budget, cases, yaw, miss_rate, spurious_rate, label_noise, with_prior, seed, map_seed,
-          jobs, save_map, overwrite, as_json, quiet, debug):
+          jobs, save_map, overwrite, parents, as_json, quiet, debug):
     """Reproduce the paper's Table 1: published figures, --method paper, --method fast and the bound."""
     try:
         chosen = sorted({int(c) for c in cases.split(",")})
@@ -60,7 +62,7 @@ def paper(n_images, paper_images, budget, cases, yaw, miss_rate, spurious_rate, 
         raise click.BadParameter(f"{cases!r} is not a list of case numbers", param_hint="--cases") from None
     if not chosen or not set(chosen) <= {1, 2, 3, 4, 5}:
         raise click.BadParameter(f"{cases!r}: cases are numbered 1 to 5", param_hint="--cases")
-    check_outputs([save_map], [])
+    check_outputs([save_map], [], parents=parents)
     refuse_existing(save_map, overwrite)
     if save_map:
         write_map(save_map, paper_map(seed=map_seed), metadata={"description": "paper Table 1 map"})

@@ -13,6 +13,7 @@ from .options import (
     finite_float,
     handle_errors,
     overwrite_option,
+    parents_option,
     progress_printer,
     quiet_option,
 )
@@ -32,19 +33,28 @@ from .options import (
 @click.option("--label-column", default="label", show_default=True, help="Label column of point/polygon layers.")
 @click.option("--layer-crs", help="CRS of CSV layers with x,y columns.")
 @overwrite_option
+@parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_area, label_column, layer_crs,
-          overwrite, quiet, debug):
+          overwrite, parents, quiet, debug):
     """Build a map from OSM extracts, land-cover rasters and point/polygon layers.
 
-    Prints a JSON summary (object counts per label) on stdout.  An existing OUTPUT is replaced only
-    with --overwrite, and never when it is one of the sources or the labels file.
+    Prints a JSON summary (object counts per label, and "warnings") on stdout.  An existing OUTPUT is
+    replaced only with --overwrite, and never when it is one of the sources or the labels file; its
+    directory must exist unless --parents is given.
+
+    Warnings (also on stderr, even with -q) do not stop the build: a source given twice (the same
+    file, or the same SHA-256) is read once; with --crs auto, sources spanning more than 12 degrees of
+    longitude (two UTM zones) are too far apart for one UTM zone: give a --crs that holds them all or
+    build one map per area.
     """
-    check_outputs([output], [*sources, labels_file])
+    check_outputs([output], [*sources, labels_file], parents=parents)
     refuse_existing(output, overwrite)
     summary = build_map(sources, output, labels=labels_file, crs=crs, bbox=bbox, quantum=quantum,
                         raster_classes=raster_classes, min_area_m2=min_area, label_column=label_column,
                         layer_crs=layer_crs, progress=progress_printer(quiet))
+    for warning in summary["warnings"]:
+        click.echo(f"mapdb: warning: {warning}", err=True)
     click.echo(dumps_strict(summary))

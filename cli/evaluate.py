@@ -10,7 +10,15 @@ from mapdb.evaluate import evaluate_images, format_summary, load_images, plot_ev
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
 from mapdb.store import open_map
 
-from .options import debug_option, finite_float, handle_errors, json_option, progress_printer, quiet_option
+from .options import (
+    debug_option,
+    finite_float,
+    handle_errors,
+    json_option,
+    parents_option,
+    progress_printer,
+    quiet_option,
+)
 
 
 def parse_plot(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
@@ -37,18 +45,20 @@ def parse_plot(ctx: click.Context | None, param: click.Parameter | None, value: 
               help="Save the error distribution and a map of image positions coloured by outcome.")
 @click.option("--outcomes", "outcomes_file", type=click.Path(), default=None, metavar="FILE.jsonl",
               help="Also write one line per image: status, position, error, time.")
+@parents_option
 @json_option
 @quiet_option
 @debug_option
 @handle_errors
-def evaluate(map_file, images_file, method, jobs, fp_threshold, plot_file, outcomes_file, as_json, quiet, debug):
+def evaluate(map_file, images_file, method, jobs, fp_threshold, plot_file, outcomes_file, parents, as_json, quiet,
+             debug):
     """Localize every image of IMAGES.jsonl (from `mapdb simulate`) in MAP and measure the answers.
 
     Reports the RMS, median and 95th-percentile error of correct answers, the fraction rejected, false
     positives (accepted with error above --fp-threshold) as a fraction of accepted, the error of the fit
     with the true correspondences (the bound), and time per image.
     """
-    check_outputs([outcomes_file, plot_file], [map_file, images_file])
+    check_outputs([outcomes_file, plot_file], [map_file, images_file], parents=parents)
     images = load_images(images_file)
     with open_map(map_file) as m:
         outcomes, summary = evaluate_images(m, images, method=method, jobs=jobs, fp_threshold=fp_threshold,

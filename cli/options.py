@@ -3,6 +3,10 @@
 The library raises :class:`mapdb.errors.MapdbError` subclasses with one-line
 messages; here they become ``mapdb: error: ...`` on stderr and exit status 1,
 with the traceback only under ``--debug``.
+
+Progress goes to stderr (stdout is for results): a ``click.progressbar`` when stderr is a terminal,
+plain lines when it is not (a log, a pipe), nothing with ``-q``.  The library reports through its
+:class:`mapdb.outputs.Progress` protocol and never imports click.
 """
 
 from __future__ import annotations
@@ -11,12 +15,14 @@ import functools
 import math
 import os
 import sys
+import time
 from collections.abc import Callable
 from typing import Any
 
 import click
 
 from mapdb.errors import MapdbError
+from mapdb.outputs import LineProgress, Progress
 
 
 class FiniteFloat(click.FloatRange):
@@ -50,6 +56,9 @@ debug_option = click.option("--debug", is_flag=True, help="Show tracebacks for e
 overwrite_option = click.option("--overwrite", is_flag=True, help="Replace the output file if it exists.")
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress messages on stderr.")
+parents_option = click.option("--parents", is_flag=True,
+                               help="Create the output's missing directories (as mkdir -p); without it a "
+                                    "missing directory is an error.")
 
 
 def parse_bbox(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
@@ -74,6 +83,7 @@ bbox_option = click.option(
 
 
 def fail(message: str) -> None:
+    _abandon_bars()
     click.echo(f"mapdb: error: {message}", err=True)
     sys.exit(1)
 
@@ -90,6 +100,7 @@ def handle_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         try:
             return func(*args, **kwargs)
         except BrokenPipeError:
+            _abandon_bars()
             # The reader stopped (``mapdb query MAP - | head -1``): stop quietly, as ``yes | head`` does.
             # Standard output is pointed at /dev/null so that the interpreter's last flush cannot complain.
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
@@ -102,16 +113,109 @@ def handle_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             if debug:
                 raise
             fail("interrupted")
+        finally:
+            _abandon_bars()  # a traceback under --debug must not leave the terminal's cursor hidden
 
     return wrapper
 
 
-def progress_printer(quiet: bool) -> Callable[[str], None] | None:
-    """A progress callback that writes to stderr (stdout is for results only)."""
+# Bars drawn and not yet done: an error erases them before its message.
+_LIVE_BARS: list[TerminalProgress] = []
+# Erase the current terminal line, and show the cursor again (click hides it while a bar is drawn).
+_ERASE_LINE = "\r\033[K"
+_SHOW_CURSOR = "\033[?25h"
+# A bar is redrawn at most this often: a fast count (a million images) would otherwise spend its time on
+# the terminal.
+_REDRAW_S = 0.1
+
+
+class TerminalProgress:
+    """:class:`mapdb.outputs.Progress` drawn with ``click.progressbar`` on a terminal.
+
+    A count is a bar (position, percentage and time left; a moving mark and the position when the
+    total is not known); messages are printed on lines of their own above it.
+    """
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+        self.bar: Any = None
+        self._pending = 0  # steps counted and not yet drawn
+        self._drawn_at = 0.0
+
+    def __call__(self, message: str) -> None:
+        self.clear()
+        click.echo(message, file=self.stream)
+        self._redraw()
+
+    def start(self, total: int | None, label: str) -> None:
+        self.done()
+        # click takes the length from an iterable; one without a length makes a bar of unknown total.
+        nothing: tuple[int, ...] = ()
+        unsized = None if total is not None else (item for item in nothing)
+        self.bar = click.progressbar(unsized, length=total, label=label, file=self.stream, show_pos=True,
+                                     show_percent=total is not None)
+        self.bar.__enter__()
+        self._pending, self._drawn_at = 0, time.monotonic()
+        _LIVE_BARS.append(self)
+
+    def advance(self, n: int = 1) -> None:
+        if self.bar is None:
+            return
+        self._pending += n
+        if time.monotonic() - self._drawn_at >= _REDRAW_S:
+            self._flush()
+
+    def _flush(self) -> None:
+        self.bar.update(self._pending)
+        self._pending, self._drawn_at = 0, time.monotonic()
+
+    def done(self) -> None:
+        if self.bar is None:
+            return
+        self._flush()
+        self.bar.finished = True  # a bar of unknown total is drawn full at its end
+        self._redraw()
+        self.bar.render_finish()
+        self._forget()
+
+    def clear(self) -> None:
+        """Erase the bar's line (before writing a line of text on the same terminal)."""
+        if self.bar is not None:
+            self.stream.write(_ERASE_LINE)
+            self.stream.flush()
+
+    def abandon(self) -> None:
+        """Erase the bar and give the cursor back (an error follows)."""
+        if self.bar is not None:
+            self.stream.write(_ERASE_LINE + _SHOW_CURSOR)
+            self.stream.flush()
+            self._forget()
+
+    def _redraw(self) -> None:
+        if self.bar is not None:
+            self.bar._last_line = None  # click redraws only a changed line, and ours was just erased
+            self.bar.render_progress()
+
+    def _forget(self) -> None:
+        self.bar = None
+        if self in _LIVE_BARS:
+            _LIVE_BARS.remove(self)
+
+
+def _abandon_bars() -> None:
+    while _LIVE_BARS:
+        _LIVE_BARS[-1].abandon()
+
+
+def progress_printer(quiet: bool) -> Progress | None:
+    """Where a command's progress goes: stderr (stdout is for results only), or nowhere with ``quiet``.
+
+    A bar on a terminal (:class:`TerminalProgress`), plain lines otherwise (:class:`mapdb.outputs.LineProgress`).
+    Either is also a plain message callback.
+    """
     if quiet:
         return None
-
-    def report(message: str) -> None:
-        click.echo(message, err=True)
-
-    return report
+    stream = sys.stderr
+    if stream.isatty():
+        return TerminalProgress(stream)
+    return LineProgress(lambda message: click.echo(message, err=True))

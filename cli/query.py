@@ -5,32 +5,98 @@ from __future__ import annotations
 import json
 import os
 import stat
+import sys
 
 import click
 
 from mapdb.errors import ImageInputError
-from mapdb.images import check_prior, read_image_documents
+from mapdb.images import Prior, parse_image, read_image_documents
 from mapdb.localize import METHODS, localize_documents
 from mapdb.match.fast import FastOptions
 from mapdb.outputs import atomic_open, check_outputs
 from mapdb.store import open_map
 
-from .options import debug_option, finite_float, handle_errors
+from .options import (
+    TerminalProgress,
+    debug_option,
+    finite_float,
+    handle_errors,
+    parents_option,
+    progress_printer,
+    quiet_option,
+)
+
+# What --prior-crs gives for a geographic WGS 84 CRS (EPSG:4326, OGC:CRS84, ...): X,Y are lon,lat.
+LONLAT = "lonlat"
 
 
 def parse_prior(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
-    """``X,Y,R`` (map CRS metres) -> (x, y, r), or None; the ranges of an image's prior apply."""
+    """``X,Y,R`` -> (x, y, r), or None; checked with the image prior's ranges once --prior-crs is known."""
     if value is None:
         return None
     try:
         x, y, r = (float(v) for v in value.split(","))
     except ValueError:
         raise click.BadParameter(f"{value!r} is not three comma-separated numbers X,Y,R") from None
+    return (x, y, r)
+
+
+def parse_prior_crs(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
+    """:data:`LONLAT` for a geographic WGS 84 CRS, else the pyproj CRS (which must be the map's), or None."""
+    if value is None:
+        return None
+    from pyproj import CRS
+
     try:
-        p = check_prior(x, y, r, repr(value))
+        crs = CRS.from_user_input(value)
+    except Exception:  # pyproj raises several kinds for text it cannot read
+        raise click.BadParameter(f"{value!r} is not a CRS that pyproj knows") from None
+    return LONLAT if crs.equals(CRS.from_epsg(4326), ignore_axis_order=True) else crs
+
+
+def checked_prior(values: tuple[float, float, float], lonlat: bool) -> Prior:
+    """The --prior values checked exactly as an image's ``prior`` is (the image schema's ranges)."""
+    x, y, r = values
+    position = {"lon": x, "lat": y} if lonlat else {"x": x, "y": y}
+    try:
+        prior = parse_image({"width": 1, "height": 1, "objects": [], "prior": {**position, "radius": r}},
+                            f"'{x:g},{y:g},{r:g}'").prior
     except ImageInputError as exc:
-        raise click.BadParameter(str(exc)) from None
-    return (p.x, p.y, p.radius)
+        raise click.BadParameter(str(exc), param_hint="'--prior'") from None
+    assert prior is not None
+    return prior
+
+
+def _prior_argument(prior: Prior, prior_crs, map_crs: str):
+    """What the localizer takes: (x, y, r) in the map's CRS, or a lon/lat :class:`Prior` it converts."""
+    if prior.lonlat:
+        return prior
+    if prior_crs is not None and not (map_crs and prior_crs.equals(map_crs)):
+        raise click.BadParameter(f"{_crs_name(prior_crs)}: give the prior in lon/lat (EPSG:4326) or in the "
+                                 f"map's CRS ({_crs_name(map_crs) if map_crs else 'none'})",
+                                 param_hint="'--prior-crs'")
+    return (prior.x, prior.y, prior.radius)
+
+
+def _crs_name(crs) -> str:
+    """``EPSG:n`` when the CRS has an authority code, else its name (a map's CRS may be a kilobyte of WKT)."""
+    from pyproj import CRS
+
+    crs = CRS.from_user_input(crs)
+    authority = crs.to_authority()
+    return ":".join(authority) if authority else crs.name
+
+
+def _count_documents(images_file: str) -> int | None:
+    """How many answers a regular file will give (for a progress bar's total); None for a stream."""
+    if images_file == "-":
+        return None
+    try:
+        if not stat.S_ISREG(os.stat(images_file).st_mode):
+            return None
+    except OSError:
+        return None  # the reading proper reports it
+    return sum(1 for _ in read_image_documents(images_file))
 
 
 def _stdin_file() -> str | None:
@@ -49,17 +115,25 @@ def _stdin_file() -> str | None:
 @click.option("--method", type=click.Choice(METHODS), default="fast", show_default=True,
               help="The fast matcher, or the paper's Algorithm 1 (seconds to minutes per image).")
 @click.option("--prior", callback=parse_prior, metavar="X,Y,R",
-              help="Search within R metres of X,Y (map CRS) for images that carry no prior of their own.")
+              help="Search within R metres of X,Y for images that carry no prior of their own; X,Y in the map's "
+                   "CRS, or see --prior-crs.")
+@click.option("--prior-crs", callback=parse_prior_crs, metavar="CRS",
+              help="CRS of --prior's X,Y: EPSG:4326 for lon,lat (degrees), or the map's own [default: the map's].")
 @click.option("--min-score", type=finite_float(0.0, 300.0), default=-FastOptions().log10_epsilon, show_default=True,
               help="Accept an answer only above this score (-log10 of its expected false alarms; the default "
                    "was calibrated on real places not in the map, see the README).")
+@parents_option
+@quiet_option
 @debug_option
 @handle_errors
-def query(map_file, images_file, output, method, prior, min_score, debug):
+def query(map_file, images_file, output, method, prior, prior_crs, min_score, parents, quiet, debug):
     """Localize every image of IMAGES (JSON Lines; '-' for stdin) in MAP.
 
     Writes one JSON answer per image, in input order: status "ok" with the position (map CRS and
-    lon/lat), heading, scale, 1-sigma error and score, or status "rejected" with the reason.
+    lon/lat), heading, scale, 1-sigma error and score, or status "rejected" with the reason.  Objects
+    whose label the map does not know are left out and counted in "skipped_labels"; an image is
+    rejected only when fewer than 3 known objects remain.  A prior whose disc (widened by the image's
+    footprint) lies outside the map's bounds is rejected saying how far outside it is.
 
     Every line on its own: lines are split on "\\n" only, blank lines are skipped, and each other
     line gets exactly one answer, in order.  A line that is not UTF-8, not JSON, not a JSON object,
@@ -70,14 +144,40 @@ def query(map_file, images_file, output, method, prior, min_score, debug):
     Streaming: input is read line by line and each answer is written (to stdout, flushed) before the
     next line is read, so a process can feed frames through a pipe one at a time.  With -o the
     answers go to a temporary file renamed to OUT.jsonl at the end: an error (a damaged map) leaves
-    any earlier OUT.jsonl as it was.  OUT.jsonl may not be MAP or IMAGES.
+    any earlier OUT.jsonl as it was.  OUT.jsonl may not be MAP or IMAGES, and its directory must
+    exist unless --parents is given.
+
+    Progress (--method paper only, on stderr): a bar on a terminal; plain lines when IMAGES is a
+    file and stderr is not a terminal; nothing with -q.
     """
-    check_outputs([output], [map_file, _stdin_file() if images_file == "-" else images_file])
-    documents = read_image_documents(images_file)
-    with open_map(map_file) as m, atomic_open(output) as out:
-        streaming = output == "-"
-        options = FastOptions(log10_epsilon=-min_score) if method == "fast" else None
-        for record in localize_documents(documents, m, method, prior, options=options):
-            out.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
-            if streaming:
-                out.flush()  # the answer reaches a reader on a pipe before the next line is read
+    checked = None if prior is None else checked_prior(prior, prior_crs == LONLAT)
+    check_outputs([output], [map_file, _stdin_file() if images_file == "-" else images_file], parents=parents)
+    say = _progress(method, images_file, quiet)
+    with open_map(map_file) as m:
+        prior_arg = None if checked is None else _prior_argument(checked, prior_crs, m.crs)
+        documents = read_image_documents(images_file)
+        with atomic_open(output) as out:
+            streaming = output == "-"
+            # The answers and the bar share a terminal: the bar's line is erased before each answer.
+            erase = say.clear if isinstance(say, TerminalProgress) and streaming and sys.stdout.isatty() else None
+            options = FastOptions(log10_epsilon=-min_score) if method == "fast" else None
+            for record in localize_documents(documents, m, method, prior_arg, options=options):
+                if erase:
+                    erase()
+                out.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
+                if streaming:
+                    out.flush()  # the answer reaches a reader on a pipe before the next line is read
+                if say:
+                    say.advance()
+    if say:
+        say.done()
+
+
+def _progress(method: str, images_file: str, quiet: bool):
+    """The paper method's progress (minutes per image), started; None when there is none to show."""
+    say = progress_printer(quiet or method != "paper")
+    if say is None or (images_file == "-" and not isinstance(say, TerminalProgress)):
+        # A program streaming frames through a pipe wants answers, not chatter on its stderr.
+        return None
+    say.start(_count_documents(images_file), f"localizing ({method} method)")
+    return say

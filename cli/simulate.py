@@ -8,7 +8,16 @@ from mapdb.outputs import check_outputs
 from mapdb.simulate import map_bbox_from_lonlat, simulate_images, write_images
 from mapdb.store import open_map
 
-from .options import bbox_option, debug_option, finite, finite_float, handle_errors, progress_printer, quiet_option
+from .options import (
+    bbox_option,
+    debug_option,
+    finite,
+    finite_float,
+    handle_errors,
+    parents_option,
+    progress_printer,
+    quiet_option,
+)
 
 
 def parse_range(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
@@ -90,19 +99,20 @@ MAX_PIXEL_STD = 1.0e6
               help="Redraw camera positions until at least this many map objects are in view (sparse maps).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same images.")
 @bbox_option
+@parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std, pixel_std, miss_rate,
-             spurious_rate, label_noise, with_prior, with_attitude, with_altitude, min_objects, seed, bbox, quiet,
-             debug):
+             spurious_rate, label_noise, with_prior, with_attitude, with_altitude, min_objects, seed, bbox, parents,
+             quiet, debug):
     """Simulate downward-looking camera images of MAP, one JSON object per line.
 
     Camera positions are uniform over the map (or --bbox), keeping the image footprint inside it. Each
     image carries its "truth": camera nadir x, y (map CRS), heading, altitude, roll, pitch, the map
     objects it shows, and the "bound" (the fit with the true correspondences).
     """
-    check_outputs([output], [map_file])
+    check_outputs([output], [map_file], parents=parents)
     say = progress_printer(quiet)
     with open_map(map_file) as m:
         area = map_bbox_from_lonlat(m.crs, bbox, within=m.bounds) if bbox else None
@@ -110,7 +120,7 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
             m, n_images, altitude=altitude, fov_deg=fov, size=size, yaw=yaw, attitude_std=attitude_std,
             pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
             with_prior=with_prior, with_attitude=with_attitude, with_altitude=with_altitude, bbox=area,
-            min_objects=min_objects, seed=seed,
+            min_objects=min_objects, seed=seed, progress=say,
         )
     write_images(images, output)
     if say:

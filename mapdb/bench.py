@@ -16,10 +16,11 @@ by their error levels and field of view.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from .evaluate import evaluate_images, summarize
+from .outputs import ProgressLike, as_progress
 from .simulate import paper_map, simulate_images
 
 __all__ = ["PAPER_CASES", "bench_paper", "format_bench", "paper_cost"]
@@ -87,7 +88,7 @@ def bench_paper(
     seed: int = 0,
     jobs: int = 1,
     fp_threshold: float = 2.0,
-    progress: Callable[[str], None] | None = None,
+    progress: ProgressLike = None,
 ) -> dict[str, Any]:
     """Run the paper's five cases and return the published figures next to the measured ones.
 
@@ -123,7 +124,7 @@ def bench_paper(
     from .store import MemoryMap
 
     start = time.perf_counter()
-    say = progress or (lambda message: None)
+    say = as_progress(progress)
     objects = paper_map(seed=map_seed)
     m = MemoryMap(objects)
     chosen = [c for c in PAPER_CASES if cases is None or c["case"] in set(cases)]
@@ -168,7 +169,7 @@ def bench_paper(
         for row in rows:
             say(f"case {row['case']}: fast on {n} images")
             _, row["fast"] = evaluate_images(
-                m, images_of[row["case"]], method="fast", jobs=jobs, fp_threshold=fp_threshold
+                m, images_of[row["case"]], method="fast", jobs=jobs, fp_threshold=fp_threshold, progress=say
             )
     if "paper" in methods and paper_images > 0:
         queue = [images_of[row["case"]][j] for j in range(min(paper_images, n)) for row in rows]

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
+import stat
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -15,13 +17,21 @@ from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
 from .errors import EmptyMapError, SourceError
-from .geo import bbox_text, central_longitude, check_bbox, in_bbox
-from .labels import load_label_table
+from .geo import _lon_arc, bbox_text, central_longitude, check_bbox, in_bbox
+from .labels import LabelTable, load_label_table
 from .objects import Objects, concat
+from .outputs import Progress, ProgressLike, as_progress
 from .sources import SKIPPED_KINDS, read_source, source_kind
 from .store import open_map, write_map
 
-__all__ = ["build_map", "utm_crs_for"]
+__all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "utm_crs_for"]
+
+# With ``crs="auto"`` the map is projected in one UTM zone (6 degrees of longitude wide).  Sources whose
+# objects span more longitude than two zones put some of them about 6 degrees or more from the zone's
+# central meridian, where the projection stretches distances by up to half a percent (at the equator) and
+# its grid north turns from true north by up to 6 degrees (towards the poles): the build warns and suggests
+# an explicit CRS or one map per area.
+MAX_AUTO_CRS_SPAN_DEG = 12.0
 
 
 def utm_crs_for(lon: float, lat: float) -> str:
@@ -52,6 +62,49 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def _fingerprint(path: Path) -> tuple[tuple[int, int], str] | None:
+    """(device and inode, SHA-256) of a regular file; None for anything else (its reader says what is wrong)."""
+    try:
+        st = os.stat(path)
+        if not stat.S_ISREG(st.st_mode):
+            return None
+        return (st.st_dev, st.st_ino), _sha256(path)
+    except OSError:
+        return None
+
+
+def _duplicate(path: Path, fingerprint: tuple[tuple[int, int], str] | None, seen: dict[Any, Path]) -> str | None:
+    """The warning for a source already given (the same file, or the same bytes), else None; ``seen`` learns it."""
+    if fingerprint is None:
+        return None
+    identity, sha = fingerprint
+    if identity in seen:
+        first = seen[identity]
+        return f"{path}: given twice; read once" if first == path else \
+            f"{path}: the same file as source {first}; read once"
+    if sha in seen:
+        return f"{path}: the same content as source {seen[sha]} (SHA-256 {sha[:16]}...); read once"
+    seen[identity] = seen[sha] = path
+    return None
+
+
+def _spread_warning(names: list[str], lonlat: list[tuple[np.ndarray, np.ndarray]], target: str) -> str | None:
+    """The warning for sources too wide in longitude for one auto-chosen UTM zone, else None."""
+    all_lon = np.concatenate([lon for lon, _ in lonlat])
+    start, width = _lon_arc(all_lon)
+    if width <= MAX_AUTO_CRS_SPAN_DEG:
+        return None
+    # Name the sources at the two ends of the arc, by their own central longitude counted from its start.
+    middles = [(float(np.mod(central_longitude(lon) - start, 360.0)), name, central_longitude(lon))
+               for name, (lon, _) in zip(names, lonlat, strict=True) if lon.size]
+    (_, west, west_lon), (_, east, east_lon) = min(middles), max(middles)
+    where = (f"{west} (lon {west_lon:.1f}) and {east} (lon {east_lon:.1f})" if west != east
+             else f"{west}")
+    return (f"sources span {width:.1f} degrees of longitude ({where}), more than the "
+            f"{MAX_AUTO_CRS_SPAN_DEG:g} (two UTM zones) that the automatic {target} holds without distortion; "
+            "give a CRS that fits them all (--crs) or build one map per area")
 
 
 def _to_lonlat(objects: Objects) -> tuple[np.ndarray, np.ndarray]:
@@ -96,20 +149,22 @@ def build_map(
     min_area_m2: float = 10_000.0,
     label_column: str = "label",
     layer_crs: str | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: ProgressLike = None,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
     Parameters
     ----------
     sources : sequence of paths
-        OSM extracts, land-cover GeoTIFFs and point/polygon layers, in any mix.
+        OSM extracts, land-cover GeoTIFFs and point/polygon layers, in any mix.  A source given twice
+        (the same file, or a file with the same SHA-256) is read once, with a warning.
     output : path
-        The ``.mapdb`` file; replaced atomically, left untouched on failure.
+        The ``.mapdb`` file; replaced atomically, left untouched on failure.  Its directory must exist.
     labels : path, optional
         A TOML label table read over the defaults (see ``mapdb/data/labels.toml``).
     crs : str
-        ``"auto"`` for the UTM zone of the data, or any CRS pyproj accepts.
+        ``"auto"`` for the UTM zone of the data, or any CRS pyproj accepts.  With ``"auto"``, sources
+        spanning more than :data:`MAX_AUTO_CRS_SPAN_DEG` degrees of longitude give a warning.
     bbox : (minlon, minlat, maxlon, maxlat), optional
         Keep only objects whose centroid falls inside.  The box may span the world, touch the poles
         or cross the antimeridian (``minlon > maxlon``, as in GeoJSON).
@@ -117,13 +172,18 @@ def build_map(
         Stored resolution in metres, in (0, 1000].
     min_area_m2 : float
         Smallest land-cover patch kept, finite and >= 0.
+    progress : Progress or callable, optional
+        Receives the stages as messages, and a count over the sources read, the projection and the
+        writing (see :class:`mapdb.outputs.Progress`).
 
     Returns
     -------
     dict
-        ``{"count": n, "labels": {name: count}, "crs": ..., "output": ..., "skipped": {kind: n}}``;
-        ``skipped`` counts what the readers skipped or repaired instead of failing (kinds in
-        :data:`mapdb.sources.SKIPPED_KINDS`), also recorded per source in the map's metadata.
+        ``{"count": n, "labels": {name: count}, "crs": ..., "output": ..., "skipped": {kind: n},
+        "warnings": [...]}``; ``skipped`` counts what the readers skipped or repaired instead of failing
+        (kinds in :data:`mapdb.sources.SKIPPED_KINDS`), also recorded per source in the map's metadata;
+        ``warnings`` are one-line messages about the sources (duplicates, too far apart for the
+        automatic CRS) that did not stop the build.
 
     Raises
     ------
@@ -145,26 +205,12 @@ def build_map(
         source_kind(path)
     target = None if crs == "auto" else _projected_crs(crs)
     table = load_label_table(labels)
-    say = progress or (lambda message: None)
-    parts, described, skipped = [], [], []
-    for path in sources:
-        path = Path(path)
-        say(f"reading {path} ...")
-        counts: Counter[str] = Counter()
-        objects = read_source(path, table, bbox=bbox, raster_classes=raster_classes, min_area_m2=min_area_m2,
-                              label_column=label_column, layer_crs=layer_crs, progress=progress, counts=counts)
-        if len(objects):
-            # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not
-            # finite or out of range (a projected layer outside its projection) is dropped and counted.
-            lon, lat = _to_lonlat(objects)
-            valid = np.isfinite(lon) & np.isfinite(lat) & (np.abs(lon) <= 180) & (np.abs(lat) <= 90)
-            counts["invalid_coordinates"] += int((~valid).sum())
-            objects = objects.take(valid)
-        say(f"  {len(objects)} objects from {path.name}")
-        parts.append(objects)
-        skipped.append(counts)
-        described.append({"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
-                          "sha256": _sha256(path), "objects": len(objects)})
+    say = as_progress(progress)
+    # One count over the whole build: each source read, then the projection, then the writing.
+    say.start(len(sources) + 2, "build")
+    read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
+                    "label_column": label_column, "layer_crs": layer_crs}
+    parts, described, skipped, warnings = _read_sources(sources, table, say, read_options)
 
     lonlat = [_to_lonlat(p) if len(p) else (np.zeros(0), np.zeros(0)) for p in parts]
     if bbox is not None:
@@ -183,6 +229,9 @@ def build_map(
         # The median longitude taken around the globe's widest empty gap: data on both sides of the
         # antimeridian (Fiji) get the zone at 180, not the one at 0.
         target = utm_crs_for(central_longitude(all_lon), float(np.median(all_lat)))
+        spread = _spread_warning([d["name"] for d in described], lonlat, target)
+        warnings += [spread] if spread else []
+    say(f"projecting {total} objects to {target} ...")
     projected = []
     to_target = Transformer.from_crs("EPSG:4326", target, always_xy=True)
     for p, (lon, lat), counts in zip(parts, lonlat, skipped, strict=True):
@@ -191,6 +240,7 @@ def build_map(
         counts["outside_crs"] += int((~finite).sum())
         projected.append(Objects(x, y, p.label, p.area, p.labels, target).take(finite))
     merged = concat(projected, labels=table.labels)
+    say.advance()
     if len(merged) == 0:
         raise EmptyMapError(f"{names}: no object projects into {target}")
     for entry, counts in zip(described, skipped, strict=True):
@@ -211,9 +261,42 @@ def build_map(
         },
     }
     written = write_map(output, merged, quantum=quantum, metadata=metadata)
+    say.advance()
+    say.done()
     if written < len(merged):
         totals["merged_duplicates"] += len(merged) - written
     with open_map(output) as m:
-        labels = m.label_counts  # after the writer merged same-label duplicates
-    return {"output": str(output), "crs": target, "count": written, "labels": labels,
-            "skipped": {kind: n for kind, n in sorted(totals.items()) if n}}
+        label_counts = m.label_counts  # after the writer merged same-label duplicates
+    return {"output": str(output), "crs": target, "count": written, "labels": label_counts,
+            "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": warnings}
+
+
+def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: dict[str, Any]
+                  ) -> tuple[list[Objects], list[dict[str, Any]], list[Counter[str]], list[str]]:
+    """Read each source once: its objects, its metadata entry, what its reader skipped; and the warnings."""
+    parts, described, skipped, warnings = [], [], [], []
+    seen: dict[Any, Path] = {}
+    for path in map(Path, sources):
+        fingerprint = _fingerprint(path)
+        duplicate = _duplicate(path, fingerprint, seen)
+        if duplicate:
+            warnings.append(duplicate)
+            say.advance()
+            continue
+        say(f"reading {path} ...")
+        counts: Counter[str] = Counter()
+        objects = read_source(path, table, progress=say, counts=counts, **options)
+        if len(objects):
+            # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not
+            # finite or out of range (a projected layer outside its projection) is dropped and counted.
+            lon, lat = _to_lonlat(objects)
+            valid = np.isfinite(lon) & np.isfinite(lat) & (np.abs(lon) <= 180) & (np.abs(lat) <= 90)
+            counts["invalid_coordinates"] += int((~valid).sum())
+            objects = objects.take(valid)
+        say(f"  {len(objects)} objects from {path.name}")
+        say.advance()
+        parts.append(objects)
+        skipped.append(counts)
+        described.append({"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
+                          "sha256": fingerprint[1] if fingerprint else _sha256(path), "objects": len(objects)})
+    return parts, described, skipped, warnings

@@ -34,6 +34,7 @@ import numpy as np
 
 from .errors import ImageInputError, MapdbError, MapdbIOError, MapFormatError
 from .images import read_image_documents
+from .outputs import Progress, ProgressLike, as_progress
 from .plot import plot_evaluation  # noqa: F401  (drawn in mapdb.plot; importable here, where callers found it)
 
 __all__ = [
@@ -222,7 +223,7 @@ def _run_budgeted(
     jobs: int,
     budget_s: float,
     cost: Callable[[dict[str, Any]], float],
-    say: Callable[[str], None],
+    say: Progress,
 ) -> dict[int, tuple[dict[str, Any], float]]:
     """Localize images in order, in worker processes, until ``budget_s`` runs out: a hard limit.
 
@@ -258,7 +259,7 @@ def _run_budgeted(
                 done[i] = running.pop(i).get()
                 spent_ms += done[i][1]
                 spent_cost += cost(images[i])
-                say(f"{method}: {len(done)} images done, {budget_s - (deadline - time.perf_counter()):.0f} s")
+                say.advance()
             time.sleep(0.02)
     return done
 
@@ -272,7 +273,7 @@ def evaluate_images(
     fp_threshold: float = 2.0,
     budget_s: float | None = None,
     cost: Callable[[dict[str, Any]], float] | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: ProgressLike = None,
 ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Localize every image against ``map`` and compare with its truth.
 
@@ -301,26 +302,26 @@ def evaluate_images(
     outcomes, summary
         One :func:`outcome` per image localized (input order) and :func:`summarize` of them.
     """
-    say = progress or (lambda message: None)
+    say = as_progress(progress)
     jobs = max(1, min(jobs, len(images), os.cpu_count() or 1))
+    say.start(len(images), method)
     if budget_s is not None:
         done = _run_budgeted(map, images, method, jobs, budget_s, cost or (lambda image: 1.0), say)
+        say.done()
         outcomes = [outcome(images[i], *done[i]) for i in sorted(done)]
         return outcomes, summarize(outcomes, fp_threshold)
     results: list[tuple[dict[str, Any], float]] = []
-    step = max(1, len(images) // 10)
     if jobs <= 1:
-        for i, image in enumerate(images, 1):
+        for image in images:
             results.append(_localize_timed(map, image, method))
-            if i % step == 0:
-                say(f"{method}: {i}/{len(images)} images")
+            say.advance()
     else:
         with multiprocessing.Pool(jobs, initializer=_init_worker, initargs=(_worker_spec(map), method)) as pool:
             chunk = max(1, len(images) // (8 * jobs))
-            for i, result in enumerate(pool.imap(_worker_run, images, chunksize=chunk), 1):
+            for result in pool.imap(_worker_run, images, chunksize=chunk):
                 results.append(result)
-                if i % step == 0:
-                    say(f"{method}: {i}/{len(images)} images")
+                say.advance()
+    say.done()
     outcomes = [outcome(image, result, ms) for image, (result, ms) in zip(images, results, strict=True)]
     return outcomes, summarize(outcomes, fp_threshold)
 

@@ -29,10 +29,11 @@ The answer (one JSON-able dict)::
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 import weakref
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from functools import lru_cache
 from typing import Any
@@ -40,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ImageInputError
-from .images import ImageObjects, check_prior, parse_image
+from .images import ImageObjects, Prior, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from .match.paper import PaperOptions, match_paper
 
@@ -282,14 +283,21 @@ def _rejected(image_id: Any, reason: str, start: float, candidates: list | None 
     return record
 
 
-def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float] | None):
-    if im.prior is None:
-        if prior is not None:
+def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float] | Prior | None):
+    """The prior that applies, as (x, y, radius) in the map's CRS: the image's own, else the caller's.
+
+    The caller's is (x, y, radius) in the map's CRS or a :class:`mapdb.images.Prior` (``lonlat=True``:
+    x, y are lon, lat degrees), as ``mapdb query --prior-crs EPSG:4326`` gives it.
+    """
+    p = im.prior
+    if p is None:
+        if prior is None:
+            return None
+        if not isinstance(prior, Prior):
             # A caller's prior meets the same ranges as an image's (a radius of 1e308 would overflow the tiles).
             checked = check_prior(*prior, source="prior argument")
             return (checked.x, checked.y, checked.radius)
-        return prior
-    p = im.prior
+        p = prior
     if not p.lonlat:
         return (p.x, p.y, p.radius)
     if not crs:
@@ -301,6 +309,25 @@ def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float]
     if not (math.isfinite(x) and math.isfinite(y)):
         raise ImageInputError(f"prior: lon {p.x}, lat {p.y} is outside the map's CRS ({crs})")
     return (float(x), float(y), p.radius)
+
+
+def _outside_bounds(prior: tuple[float, float, float], margin: float, bounds: tuple[float, ...]) -> str | None:
+    """Why a prior cannot meet the map, or None: its disc, widened by ``margin``, misses the map's bounds.
+
+    The margin is how far beyond the disc the image's objects may lie (:func:`prior_margin`): a prior
+    just off the map's edge can still see the map.  A prior given in metres whose numbers look like
+    lon/lat gets a hint, the usual mistake.
+    """
+    x, y, r = prior
+    x0, y0, x1, y1 = bounds
+    if not all(math.isfinite(v) for v in bounds):
+        return None  # nothing known about where the map is
+    gap = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
+    if gap <= r + margin:
+        return None
+    far = f"{gap / 1000.0:,.1f} km" if gap >= 1000.0 else f"{gap:.0f} m"
+    hint = " (lon, lat? give the prior in lon/lat)" if abs(x) <= 180.0 and abs(y) <= 90.0 else ""
+    return f"prior ({x:.0f}, {y:.0f}) is {far} outside the map's bounds{hint}: no objects here"
 
 
 def localize(
@@ -367,13 +394,23 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         return _rejected(image_id, f"{n} objects: at least 3 are needed", start)
     map_labels = tuple(map.labels)
     known = {name: code for code, name in enumerate(map_labels)}
-    unknown = sorted({str(name) for name in im.names if name not in known})
+    # Objects of labels the map does not know (a detector's class the map lacks) are left out and counted:
+    # the others may still place the image.
+    is_known = np.fromiter((name in known for name in im.names), dtype=bool, count=n)
+    unknown = sorted({str(name) for name in im.names[~is_known]})
+    skipped: dict[str, Any] = {}
     if unknown:
-        listed = ", ".join(repr(u) for u in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
-        return _rejected(
-            image_id, f"unknown label{'s' if len(unknown) > 1 else ''} {listed}: the map has {', '.join(map_labels)}",
-            start,
-        )
+        counts = Counter(str(name) for name in im.names[~is_known])
+        skipped = {"skipped_labels": {name: counts[name] for name in unknown}}
+        n = int(is_known.sum())
+        if n < 3:
+            listed = ", ".join(repr(u) for u in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
+            return _rejected(
+                image_id, f"unknown label{'s' if len(unknown) > 1 else ''} {listed}: the map has "
+                f"{', '.join(map_labels)}; {n} object{'' if n == 1 else 's'} left: at least 3 are needed", start,
+                **skipped,
+            )
+        im = dataclasses.replace(im, x=im.x[is_known], y=im.y[is_known], names=im.names[is_known])
     codes = np.fromiter((known[name] for name in im.names), dtype=np.int64, count=n)
 
     u, v = im.x, im.y
@@ -388,7 +425,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
             u, v = level_pixels(u, v, Camera(im.width, im.height, im.fov_deg), im.roll_deg or 0.0,
                                 im.pitch_deg or 0.0)
             if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
-                return _rejected(image_id, "attitude puts objects at or above the horizon", start)
+                return _rejected(image_id, "attitude puts objects at or above the horizon", start, **skipped)
             levelled = True
     z = (u - im.width / 2.0) + 1j * (im.height / 2.0 - v)
     diag_px = math.hypot(im.width, im.height)
@@ -401,6 +438,9 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         half_diag_m = scale_range[1] * diag_px / 2.0
 
     margin = prior_margin(prior[2], half_diag_m) if prior is not None else 0.0
+    outside = None if prior is None else _outside_bounds(prior, margin, map.bounds)
+    if outside:
+        return _rejected(image_id, outside, start, **skipped)
     opts = localizer.options
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
@@ -410,7 +450,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
              "score": _finite(c.score, 2), "sigma_m": _finite(c.sigma_m, 3)}
             for c in result.candidates
         ]
-        extra = {"hypotheses": result.n_hypotheses}
+        extra = {"hypotheses": result.n_hypotheses, **skipped}
         if notes:
             extra["notes"] = notes
         if result.best is None:
@@ -425,7 +465,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         else:
             objects = map.all()
         result = match_paper(z, codes, objects, options=opts)
-        extra = {"notes": notes} if notes else {}
+        extra = {"notes": notes, **skipped} if notes else {**skipped}
         if result.best is None:
             return _rejected(image_id, result.reason, start, [], **extra)
         best = result.best

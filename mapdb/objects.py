@@ -11,8 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # geopandas is imported when a GeoDataFrame is asked for: it takes half a second to load
+    import geopandas
 
 __all__ = ["Objects", "concat"]
 
@@ -118,6 +122,37 @@ class Objects:
             raise ValueError(f"labels {missing} are not in the target table")
         lut = np.array([index.get(name, -1) for name in self.labels] or [0], dtype=np.int32)
         return Objects(self.x, self.y, lut[self.label], self.area, labels, self.crs)
+
+    def to_geodataframe(self) -> geopandas.GeoDataFrame:
+        """The objects as a GeoDataFrame of points in their CRS, one row an object.
+
+        Returns
+        -------
+        geopandas.GeoDataFrame
+            Columns ``label`` (the name), ``area_m2`` (square metres, 0 for point objects) and
+            ``geometry`` (points at ``x``, ``y``), with ``crs`` set to the objects' CRS (none when
+            ``crs`` is None).  The area column is not called ``area``: ``frame.area`` is geopandas'
+            own geometry area (0 for points), which such a column could not override.
+
+        Examples
+        --------
+        >>> o = Objects.from_names([385440.0], [6671470.0], ["park"], area=[1200.0], crs="EPSG:32635")
+        >>> frame = o.to_geodataframe()
+        >>> frame[["label", "area_m2"]].values.tolist(), frame.crs.to_epsg(), frame.geometry.x.tolist()
+        ([['park', 1200.0]], 32635, [385440.0])
+
+        No objects give an empty frame that still names the CRS; no CRS gives a frame without one:
+
+        >>> empty = Objects.empty(["park"], crs="EPSG:32635").to_geodataframe()
+        >>> len(empty), list(empty.columns), empty.crs.to_epsg()
+        (0, ['label', 'area_m2', 'geometry'], 32635)
+        >>> Objects.from_names([0.0], [0.0], ["park"]).to_geodataframe().crs is None
+        True
+        """
+        import geopandas
+
+        return geopandas.GeoDataFrame({"label": self.names(), "area_m2": self.area},
+                                      geometry=geopandas.points_from_xy(self.x, self.y), crs=self.crs)
 
     def counts(self) -> dict[str, int]:
         """Number of objects per label name (labels with no object left out)."""

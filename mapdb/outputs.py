@@ -10,6 +10,11 @@ Every command that writes a file goes through this module:
   rename it into place at the end, so a failure or a kill leaves the previous file intact.  Errors
   name the path the user gave, never the temporary name.
 * :func:`refuse_existing` is the ``--overwrite`` rule for outputs whose loss is costly (maps).
+* An output in a directory that does not exist is refused, as GDAL does (``OUT: directory DIR does
+  not exist``), unless the caller asks for missing directories to be made (``parents``, the CLI's
+  ``--parents``, like ``mkdir -p``).
+* :class:`Progress` is how long library functions report to the user (the CLI draws a bar on a
+  terminal, plain lines otherwise); :func:`as_progress` turns a plain message callback into one.
 
 Symlinked outputs are written through: the link stays and its target is replaced, as GDAL and
 rasterio do when they open an output path.
@@ -24,14 +29,19 @@ import re
 import secrets
 import stat
 import sys
-from collections.abc import Iterable, Iterator
+import time
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Protocol, runtime_checkable
 
 from .errors import MapdbError, MapdbIOError, OutputClashError, OutputExistsError
 
 __all__ = [
+    "LineProgress",
+    "Progress",
+    "ProgressLike",
+    "as_progress",
     "atomic_open",
     "atomic_path",
     "check_outputs",
@@ -74,8 +84,11 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
-def _check_writable_place(out: str) -> None:
-    """Refuse an output whose existing kind, or whose nearest existing ancestor, makes writing impossible."""
+def _check_writable_place(out: str, parents: bool = False) -> None:
+    """Refuse an output whose existing kind, or whose directory, makes writing impossible.
+
+    ``parents``: a missing directory is fine (it will be made) if its nearest existing ancestor is one.
+    """
     try:
         st = os.stat(out)
     except FileNotFoundError:
@@ -86,21 +99,36 @@ def _check_writable_place(out: str) -> None:
         if not (stat.S_ISREG(st.st_mode) or stat.S_ISCHR(st.st_mode)):
             raise MapdbIOError(f"{out}: is {_kind(st.st_mode)}; an output must be a regular file")
         return
-    # Not there yet: the nearest existing ancestor must be a directory (missing ones are created later).
     parent = Path(os.path.realpath(out)).parent
+    if not parents and not parent.exists():
+        # As GDAL: a typo in a directory name is an error, not a new directory somewhere unexpected.
+        shown = str(parent) if os.path.islink(out) else (os.path.dirname(out) or ".")
+        raise MapdbIOError(f"{out}: directory {shown} does not exist")
     while not parent.exists() and parent != parent.parent:
         parent = parent.parent
     if not parent.is_dir():
         raise MapdbIOError(f"{out}: cannot write ({parent} is not a directory)")
 
 
-def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike | None]) -> None:
+def _make_parent(out: str) -> None:
+    """Create the missing directories above ``out`` (``mkdir -p``)."""
+    try:
+        Path(os.path.realpath(out)).parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise MapdbIOError(f"{out}: cannot create its directory ({exc.strerror or exc})") from None
+
+
+def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike | None], *,
+                  parents: bool = False) -> None:
     """Refuse outputs that would destroy an input or cannot be written, before any work is done.
 
     Parameters
     ----------
     outputs, inputs : iterables of str, Path or None
         ``None`` and ``"-"`` (stdin/stdout) are ignored.
+    parents : bool
+        Create the outputs' missing directories (as ``mkdir -p``), once every check has passed.  Without
+        it an output in a directory that does not exist is refused.
 
     Raises
     ------
@@ -109,7 +137,8 @@ def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike 
         by resolved path otherwise), or the same output is given twice.
     MapdbIOError
         If an output exists and is not a regular file or a character device (a FIFO, a directory, a
-        socket), or lies under a path that is not a directory.
+        socket), lies under a path that is not a directory, or (without ``parents``) in a directory
+        that does not exist: ``"OUT: directory DIR does not exist"``.
 
     Examples
     --------
@@ -120,6 +149,12 @@ def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike 
     >>> check_outputs([os.path.join(d, "link")], [src])  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     mapdb.errors.OutputClashError: .../link: is the same file as input .../a.osm; choose another output path
+    >>> check_outputs([os.path.join(d, "new", "b.mapdb")], [src])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    mapdb.errors.MapdbIOError: .../new/b.mapdb: directory .../new does not exist
+    >>> check_outputs([os.path.join(d, "new", "b.mapdb")], [src], parents=True)
+    >>> os.path.isdir(os.path.join(d, "new"))
+    True
     """
     outs = _given(outputs)
     ins = [(p, _identity(p), os.path.realpath(p)) for p in _given(inputs)]
@@ -129,13 +164,16 @@ def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike 
         for name, in_ident, in_real in ins:
             if (ident is not None and ident == in_ident) or real == in_real:
                 raise OutputClashError(f"{out}: is the same file as input {name}; choose another output path")
-        _check_writable_place(out)
+        _check_writable_place(out, parents)
         if _is_char_device(Path(real)):  # /dev/null may take any number of outputs
             continue
         for key in (ident, real):
             if key is not None and key in seen:
                 raise OutputClashError(f"{out}: is the same file as output {seen[key]}; choose another output path")
         seen.update({k: out for k in (ident, real) if k is not None})
+    if parents:
+        for out in outs:
+            _make_parent(out)
 
 
 def refuse_existing(path: PathLike | None, overwrite: bool, what: str = "map") -> None:
@@ -228,15 +266,15 @@ def _is_char_device(path: Path) -> bool:
 
 
 @contextmanager
-def atomic_path(path: PathLike, *, keep_suffix: bool = False) -> Iterator[Path]:
+def atomic_path(path: PathLike, *, keep_suffix: bool = False, parents: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is renamed onto ``path``.
 
     The temporary file, ``.{name}.{pid}.{random}.tmp`` in the target's directory, is created empty
     (so its name is reserved) with the mode the umask gives a new file; the caller writes it, by
     name, however it likes (it may also delete and recreate it).  On a clean exit it is synced and
     renamed over ``path`` (symlinks are followed: the link's target is replaced); on an exception it
-    is deleted and the exception propagates.  Missing parent directories are created.  Temporary
-    files of this target left by killed runs are removed first.  An existing character device
+    is deleted and the exception propagates.  Temporary files of this target left by killed runs
+    are removed first.  An existing character device
     (``/dev/null``) is yielded as is and written in place: a caller that deletes the yielded path
     before writing must check that it is a regular file.
 
@@ -247,10 +285,13 @@ def atomic_path(path: PathLike, *, keep_suffix: bool = False) -> Iterator[Path]:
     keep_suffix : bool
         End the temporary name with ``path``'s suffix too (``...tmp.png``), for writers that choose
         a format from the file name (matplotlib).
+    parents : bool
+        Create missing parent directories (``mkdir -p``); without it a missing directory is an error.
 
     Raises
     ------
     MapdbIOError
+        ``"PATH: directory DIR does not exist"`` (without ``parents``).
         ``"PATH: cannot write (reason)"`` when the temporary file cannot be created, written (an
         ``OSError`` without another file name raised in the block) or renamed; it names ``path``.
         A :class:`MapdbError` raised in the block that names the temporary file is raised again
@@ -263,8 +304,9 @@ def atomic_path(path: PathLike, *, keep_suffix: bool = False) -> Iterator[Path]:
             yield target
         return
     with _naming_errors(given, None, every=True):
-        _check_writable_place(given)
-        target.parent.mkdir(parents=True, exist_ok=True)
+        _check_writable_place(given, parents)
+        if parents:
+            target.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(target)
         suffix = target.suffix if keep_suffix else ""
         tmp = target.parent / f".{target.name[:_NAME_KEEP]}.{os.getpid()}.{secrets.token_hex(4)}.tmp{suffix}"
@@ -381,3 +423,113 @@ def atomic_open(path: PathLike, mode: str = "w", encoding: str | None = "utf-8",
             f = open(tmp, mode, encoding=encoding, **kwargs)  # noqa: SIM115
         with f:  # atomic_path syncs the file once it is closed
             yield f
+
+
+# --------------------------------------------------------------------------------------------------
+# Progress reports: what a long run tells the user while it works (on stderr, never with the results).
+
+
+@runtime_checkable
+class Progress(Protocol):
+    """What a long library function reports its progress to.
+
+    Calling it with a message reports a stage or an event (``"reading monaco.osm.pbf ..."``); ``start``
+    begins a count of ``total`` steps (None when not known in advance) named ``label``, ``advance`` counts
+    steps done and ``done`` ends the count (a new ``start`` ends the previous count too).  The library
+    never imports click: the CLI implements this with ``click.progressbar`` on a terminal and with
+    :class:`LineProgress` elsewhere.  Functions take any :data:`ProgressLike` and call
+    :func:`as_progress` on it.
+    """
+
+    def __call__(self, message: str) -> None: ...
+
+    def start(self, total: int | None, label: str) -> None: ...
+
+    def advance(self, n: int = 1) -> None: ...
+
+    def done(self) -> None: ...
+
+
+#: What a ``progress`` argument may be: a :class:`Progress`, a plain message callback, or None (silence).
+ProgressLike = Progress | Callable[[str], None] | None
+
+# A count without a known total prints at most one line per this many seconds.
+_LINE_INTERVAL_S = 1.0
+# A count with a total prints a line at each of this many equal parts of it.
+_LINE_PARTS = 10
+
+
+class LineProgress:
+    """A :class:`Progress` written as plain lines through a message callback: for logs, pipes, files.
+
+    A count prints ``"LABEL: I/TOTAL"`` at each tenth of its total (at every step of a count of ten or
+    fewer), and with no total known ``"LABEL: I"`` at most once a second; ``done`` prints the final count
+    unless it was the last line.  Nothing is printed when a count starts: a run that fails at once says
+    only what went wrong.
+
+    Parameters
+    ----------
+    say : callable or None
+        Receives each line; None discards them.
+
+    Examples
+    --------
+    >>> lines = []
+    >>> p = LineProgress(lines.append)
+    >>> p("reading a.osm ...")
+    >>> p.start(20, "fast"); p.advance(9); p.advance(); p.advance(10); p.done()
+    >>> lines
+    ['reading a.osm ...', 'fast: 9/20', 'fast: 10/20', 'fast: 20/20']
+    """
+
+    def __init__(self, say: Callable[[str], None] | None) -> None:
+        self.say = say
+        self.label = ""
+        self.total: int | None = None
+        self.pos = 0
+        self._shown = -1  # the count last printed
+        self._shown_at = 0.0
+        self._active = False
+
+    def __call__(self, message: str) -> None:
+        if self.say is not None:
+            self.say(message)
+
+    def _show(self) -> None:
+        self._shown, self._shown_at = self.pos, time.monotonic()
+        self(f"{self.label}: {self.pos}" + ("" if self.total is None else f"/{self.total}"))
+
+    def start(self, total: int | None, label: str) -> None:
+        self.label, self.total, self.pos, self._active = label, total, 0, True
+        self._shown, self._shown_at = 0, time.monotonic()
+
+    def advance(self, n: int = 1) -> None:
+        before, self.pos = self.pos, self.pos + n
+        if self.total is None:
+            due = time.monotonic() - self._shown_at >= _LINE_INTERVAL_S
+        else:
+            part = max(1, math.ceil(self.total / _LINE_PARTS))
+            due = self.pos // part > before // part or self.pos >= self.total > before
+        if due:
+            self._show()
+
+    def done(self) -> None:
+        if self._active and self._shown != self.pos:
+            self._show()
+        self._active = False
+
+
+def as_progress(progress: ProgressLike) -> Progress:
+    """``progress`` as a :class:`Progress`: a plain callback becomes a :class:`LineProgress`, None a silent one.
+
+    Examples
+    --------
+    >>> p = as_progress(print)
+    >>> p.start(2, "images"); p.advance(); p.advance(); p.done()
+    images: 1/2
+    images: 2/2
+    >>> as_progress(None).start(5, "nothing printed")
+    """
+    if isinstance(progress, Progress):
+        return progress
+    return LineProgress(progress)

@@ -75,7 +75,7 @@ from scipy.spatial import cKDTree
 from .errors import EmptyMapError
 from .match.geometry import apply_similarity, fit_similarity
 from .objects import Objects
-from .outputs import atomic_open
+from .outputs import ProgressLike, as_progress, atomic_open
 
 __all__ = [
     "PAPER_CRS",
@@ -353,6 +353,7 @@ def simulate_images(
     max_tries: int = 10_000,
     seed: int = 0,
     id_prefix: str = "sim-",
+    progress: ProgressLike = None,
 ) -> list[dict[str, Any]]:
     """Simulated image-objects documents over a map, each with its truth.
 
@@ -401,6 +402,8 @@ def simulate_images(
         images of a longer run are those of a shorter one.
     id_prefix : str
         Images are named ``f"{id_prefix}{i:06d}"``.
+    progress : Progress or callable, optional
+        Counts the images made (:class:`mapdb.outputs.Progress`).
 
     Returns
     -------
@@ -451,6 +454,8 @@ def simulate_images(
         keep_inside = False
     width, height = int(size[0]), int(size[1])
 
+    say = as_progress(progress)
+    say.start(n, "simulate")
     images = []
     for i in range(n):
         rng = np.random.default_rng([seed, i])
@@ -579,6 +584,8 @@ def simulate_images(
             "bound": bound,
         }
         images.append(image)
+        say.advance()
+    say.done()
     return images
 
 
