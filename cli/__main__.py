@@ -1,5 +1,5 @@
 """``python -m mapdb_cli``: the same as the ``mapdb`` command."""
 
-from mapdb_cli.main import cli
+from .main import cli
 
 cli()

@@ -6,6 +6,8 @@ import click
 
 from mapdb.build import build_map
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
+from mapdb.sources import DEFAULT_MIN_AREA_M2
+from mapdb.store import DEFAULT_QUANTUM
 
 from .options import (
     bbox_option,
@@ -25,10 +27,10 @@ from .options import (
 @click.option("--labels", "labels_file", type=click.Path(), help="TOML label table read over the defaults.")
 @click.option("--crs", default="auto", show_default=True, help="'auto' (UTM zone of the data) or e.g. EPSG:32631.")
 @bbox_option
-@click.option("--quantum", default=0.1, show_default=True, type=finite_float(0.001, 1000),
+@click.option("--quantum", default=DEFAULT_QUANTUM, show_default=True, type=finite_float(0.001, 1000),
               help="Stored resolution in metres.")
 @click.option("--raster-classes", help="Class table for rasters: worldcover, corine or one from --labels.")
-@click.option("--min-area", default=10_000.0, show_default=True, type=finite_float(0),
+@click.option("--min-area", default=DEFAULT_MIN_AREA_M2, show_default=True, type=finite_float(0),
               help="Smallest land-cover patch kept, m^2.")
 @click.option("--label-column", default="label", show_default=True, help="Label column of point/polygon layers.")
 @click.option("--layer-crs", help="CRS of CSV layers with x,y columns.")

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import click
 
-from mapdb.evaluate import evaluate_images, format_summary, load_images, plot_evaluation
+from mapdb.evaluate import DEFAULT_FP_THRESHOLD_M, evaluate_images, format_summary, load_images
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
+from mapdb.plot import plot_evaluation
 from mapdb.store import open_map
 
 from .options import (
@@ -39,7 +40,8 @@ def parse_plot(ctx: click.Context | None, param: click.Parameter | None, value: 
 @click.option("--method", type=click.Choice(["fast", "paper"]), default="fast", show_default=True,
               help="Localizer: the fast matcher or the paper's Algorithm 1 (seconds per image).")
 @click.option("--jobs", "-j", type=click.IntRange(1, None), default=1, show_default=True, help="Worker processes.")
-@click.option("--fp-threshold", type=finite_float(0.0, None, min_open=True), default=2.0, show_default=True,
+@click.option("--fp-threshold", type=finite_float(0.0, None, min_open=True), default=DEFAULT_FP_THRESHOLD_M,
+              show_default=True,
               help="Accepted answers farther than this many metres from the truth are false positives.")
 @click.option("--plot", "plot_file", callback=parse_plot, default=None, metavar="FILE.png",
               help="Save the error distribution and a map of image positions coloured by outcome.")

@@ -35,16 +35,29 @@ import numpy as np
 from .errors import ImageInputError, MapdbError, MapdbIOError, MapFormatError
 from .images import read_image_documents
 from .outputs import Progress, ProgressLike, as_progress
-from .plot import plot_evaluation  # noqa: F401  (drawn in mapdb.plot; importable here, where callers found it)
+from .store import DEFAULT_QUANTUM
 
 __all__ = [
+    "DEFAULT_FP_THRESHOLD_M",
     "evaluate_images",
     "format_summary",
     "load_images",
     "outcome",
-    "plot_evaluation",
     "summarize",
 ]
+
+# An accepted answer farther than this from the truth (metres) is a false positive.
+DEFAULT_FP_THRESHOLD_M = 2.0
+
+
+def __getattr__(name: str) -> Any:
+    # plot_evaluation is drawn in mapdb.plot and importable here, where callers found it (not in __all__:
+    # it is mapdb.plot's); imported on demand because mapdb.plot takes its defaults from this module.
+    if name == "plot_evaluation":
+        from .plot import plot_evaluation
+
+        return plot_evaluation
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def load_images(path: str | Path) -> list[dict[str, Any]]:
@@ -109,7 +122,9 @@ def _pct(values: np.ndarray, q: float) -> float | None:
     return float(np.percentile(values, q)) if values.size else None
 
 
-def summarize(outcomes: Sequence[dict[str, Any]], fp_threshold: float = 2.0, min_objects: int = 6) -> dict[str, Any]:
+def summarize(
+    outcomes: Sequence[dict[str, Any]], fp_threshold: float = DEFAULT_FP_THRESHOLD_M, min_objects: int = 6
+) -> dict[str, Any]:
     """Statistics over outcomes (see :func:`outcome`).
 
     Returns
@@ -213,7 +228,7 @@ def _worker_spec(map_: Any) -> tuple[str, Any]:
     path = getattr(map_, "path", None)
     if path is not None:
         return ("path", str(path))
-    return ("memory", (map_.all(), getattr(map_, "quantum", 0.1)))
+    return ("memory", (map_.all(), getattr(map_, "quantum", DEFAULT_QUANTUM)))
 
 
 def _run_budgeted(
@@ -270,7 +285,7 @@ def evaluate_images(
     *,
     method: str = "fast",
     jobs: int = 1,
-    fp_threshold: float = 2.0,
+    fp_threshold: float = DEFAULT_FP_THRESHOLD_M,
     budget_s: float | None = None,
     cost: Callable[[dict[str, Any]], float] | None = None,
     progress: ProgressLike = None,

@@ -35,7 +35,6 @@ __all__ = [
     "bbox_text",
     "central_longitude",
     "check_bbox",
-    "crosses_antimeridian",
     "in_bbox",
     "intersect_bboxes",
     "lonlat_extent",
@@ -86,7 +85,7 @@ def check_bbox(bbox: Sequence[Any]) -> BBox:
         raise ValueError("minlat must be below maxlat")
     if minlon == maxlon:
         raise ValueError("minlon and maxlon must differ (minlon > maxlon crosses the antimeridian)")
-    return values  # type: ignore[return-value]
+    return values
 
 
 def bbox_text(bbox: Sequence[float]) -> str:
@@ -98,11 +97,6 @@ def bbox_text(bbox: Sequence[float]) -> str:
     '170,50,-170,70.5'
     """
     return ",".join(f"{float(v):g}" if float(v).is_integer() else repr(float(v)) for v in bbox)
-
-
-def crosses_antimeridian(bbox: Sequence[float]) -> bool:
-    """Whether a box runs east across the 180th meridian (``minlon > maxlon``)."""
-    return float(bbox[0]) > float(bbox[2])
 
 
 def split_bbox(bbox: Sequence[float]) -> list[BBox]:

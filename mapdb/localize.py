@@ -14,7 +14,7 @@ The answer (one JSON-able dict)::
 
 * ``x``, ``y``: the map point under the image centre; when roll, pitch and the
   field of view are given, the image is first levelled
-  (:func:`mapdb.simulate.level_pixels`) and the point is the camera nadir.
+  (:func:`mapdb.camera.level_pixels`) and the point is the camera nadir.
 * ``heading_deg``: the direction the image's *up* points to, clockwise from map
   north (the simulator's yaw).
 * ``scale_m_per_px``: ground size of a pixel at the image centre.
@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from .camera import Camera, level_pixels
 from .errors import ImageInputError
 from .images import ImageObjects, Prior, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
@@ -195,14 +196,24 @@ class Localizer:
         """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own."""
         return _answer(self, image, self.prior if prior is None else prior, source)
 
+    @property
+    def fast_options(self) -> FastOptions:
+        """The fast method's options (its defaults for a paper-method localizer, whose indexes are never built)."""
+        return self.options if isinstance(self.options, FastOptions) else FastOptions()
+
+    @property
+    def paper_options(self) -> PaperOptions:
+        """The paper method's options (its defaults for a fast-method localizer)."""
+        return self.options if isinstance(self.options, PaperOptions) else PaperOptions()
+
     # ------------------------------------------------------------------------------------ indexes
 
     def whole_map_indexes(self) -> tuple[ObjectIndex, QuadIndex]:
         """The whole map's object and quad indexes, built on first use."""
-        if self._whole_objects is None:
+        if self._whole_objects is None or self._whole_quads is None:
             objects = self.map.all()
             self._whole_objects = ObjectIndex(objects, bounds=self.map.bounds)
-            self._whole_quads = QuadIndex(objects, self.options.map_neighbours)
+            self._whole_quads = QuadIndex(objects, self.fast_options.map_neighbours)
         return self._whole_objects, self._whole_quads
 
     def fast_indexes(self, prior: tuple[float, float, float] | None, margin: float):
@@ -257,7 +268,7 @@ class Localizer:
             objects = self.map.query_bbox(x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad)
             # Half-open tiles: an object on a shared edge anchors its quads in one tile only.
             anchors = (objects.x >= x0) & (objects.x < x0 + t) & (objects.y >= y0) & (objects.y < y0 + t)
-            return QuadIndex(objects, self.options.map_neighbours, anchors=anchors)
+            return QuadIndex(objects, self.fast_options.map_neighbours, anchors=anchors)
 
         return self._tiles.get((ix, iy), build)
 
@@ -420,8 +431,6 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         if im.fov_deg is None:
             notes.append("attitude ignored: levelling the image needs camera.fov_deg")
         else:
-            from .simulate import Camera, level_pixels
-
             u, v = level_pixels(u, v, Camera(im.width, im.height, im.fov_deg), im.roll_deg or 0.0,
                                 im.pitch_deg or 0.0)
             if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
@@ -429,7 +438,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
             levelled = True
     z = (u - im.width / 2.0) + 1j * (im.height / 2.0 - v)
     diag_px = math.hypot(im.width, im.height)
-    focal_px = None if im.fov_deg is None else (im.width / 2.0) / math.tan(math.radians(im.fov_deg) / 2.0)
+    focal_px = None if im.fov_deg is None else Camera(im.width, im.height, im.fov_deg).focal_px
     scale_range = None
     half_diag_m = None
     if focal_px is not None and im.altitude_m is not None:
@@ -441,37 +450,37 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
     outside = None if prior is None else _outside_bounds(prior, margin, map.bounds)
     if outside:
         return _rejected(image_id, outside, start, **skipped)
-    opts = localizer.options
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
-        result = match_fast(z, codes, objects, quads, diag_px, options=opts, prior=prior, scale_range=scale_range)
+        found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
+                           scale_range=scale_range)
         candidates = [
             {"x": _rounded(c.b.real, 3), "y": _rounded(c.b.imag, 3), "inliers": c.inliers,
              "score": _finite(c.score, 2), "sigma_m": _finite(c.sigma_m, 3)}
-            for c in result.candidates
+            for c in found.candidates
         ]
-        extra = {"hypotheses": result.n_hypotheses, **skipped}
+        extra: dict[str, Any] = {"hypotheses": found.n_hypotheses, **skipped}
         if notes:
             extra["notes"] = notes
-        if result.best is None:
-            return _rejected(image_id, result.reason or "no match", start, candidates, **extra)
-        best = result.best
+        if found.best is None:
+            return _rejected(image_id, found.reason or "no match", start, candidates, **extra)
+        best = found.best
         a, b = best.a, best.b
-        sigma = best.sigma_m
-        inliers, score = best.inliers, _rounded(best.score, 2)
+        sigma: float | None = best.sigma_m
+        inliers = best.inliers
+        score: float | None = _rounded(best.score, 2)
     else:
         if prior is not None:
             objects = map.query_radius(prior[0], prior[1], prior[2] + margin)
         else:
             objects = map.all()
-        result = match_paper(z, codes, objects, options=opts)
+        answer = match_paper(z, codes, objects, options=localizer.paper_options)
         extra = {"notes": notes, **skipped} if notes else {**skipped}
-        if result.best is None:
-            return _rejected(image_id, result.reason, start, [], **extra)
-        best = result.best
-        a, b = best.a, best.b
-        sigma, inliers, score = None, best.matched, None
-        extra["error_std"] = _rounded(best.error_std, 6)
+        if answer.best is None:
+            return _rejected(image_id, answer.reason or "no match", start, [], **extra)
+        a, b = answer.best.a, answer.best.b
+        sigma, inliers, score = None, answer.best.matched, None
+        extra["error_std"] = _rounded(answer.best.error_std, 6)
         candidates = []
 
     lon, lat = _to_lonlat(map.crs, b.real, b.imag)

@@ -94,10 +94,9 @@ class Objects:
             codes = np.fromiter((index[n] for n in names), dtype=np.int32, count=names.size)
         except KeyError as exc:
             raise ValueError(f"label {exc.args[0]!r} is not among {list(labels)}") from None
-        x = np.asarray(x, dtype=np.float64)
-        if area is None:
-            area = np.zeros(x.size)
-        return cls(x, y, codes, area, tuple(labels), crs)
+        xs = np.asarray(x, dtype=np.float64)
+        areas = np.zeros(xs.size) if area is None else np.asarray(area, dtype=np.float64)
+        return cls(xs, np.asarray(y, dtype=np.float64), codes, areas, tuple(labels), crs)
 
     def __len__(self) -> int:
         return int(self.x.size)

@@ -25,7 +25,9 @@ from typing import Any
 
 import numpy as np
 
+from .camera import Camera, Pose, image_to_ground, level_pixels
 from .errors import MapdbIOError
+from .evaluate import DEFAULT_FP_THRESHOLD_M
 from .images import ImageObjects, parse_image
 from .objects import Objects
 
@@ -126,8 +128,6 @@ def _answer_placer(im: ImageObjects, answer: dict[str, Any]):
     def place(u: np.ndarray, v: np.ndarray) -> np.ndarray:
         u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
         if fov is not None:
-            from .simulate import level_pixels
-
             u, v = level_pixels(u, v, _camera(im, fov), im.roll_deg or 0.0, im.pitch_deg or 0.0)
         # The localizer's image plane: centred, y up.
         return a * ((u - im.width / 2.0) + 1j * (im.height / 2.0 - v)) + b
@@ -135,18 +135,13 @@ def _answer_placer(im: ImageObjects, answer: dict[str, Any]):
     return place
 
 
-def _camera(im: ImageObjects, fov_deg: float) -> Any:
+def _camera(im: ImageObjects, fov_deg: float) -> Camera:
     """The image's camera, sized as the localizer sizes it (an image's width may be fractional)."""
-    from .simulate import Camera
-
-    # Camera's hints say int, but any positive size works, and the localizer passes the image's own.
-    return Camera(im.width, im.height, fov_deg)  # type: ignore[arg-type]
+    return Camera(im.width, im.height, fov_deg)
 
 
 def _truth_placer(im: ImageObjects, truth: dict[str, Any]):
     """Pixels -> map (complex) by the simulator's true pose (the full camera model, tilt included)."""
-    from .simulate import Pose, image_to_ground
-
     pose = Pose(float(truth["x"]), float(truth["y"]), float(truth["altitude_m"]), float(truth["heading_deg"]),
                 float(truth.get("roll_deg") or 0.0), float(truth.get("pitch_deg") or 0.0))
     camera = _camera(im, float(truth.get("fov_deg") or im.fov_deg or 0.0))
@@ -632,7 +627,7 @@ def plot_evaluation(
     outcomes: Sequence[dict[str, Any]],
     path: str | Path,
     *,
-    fp_threshold: float = 2.0,
+    fp_threshold: float = DEFAULT_FP_THRESHOLD_M,
     map_objects: Objects | None = None,
     title: str | None = None,
     crs: str | None = None,

@@ -53,6 +53,7 @@ from .objects import Objects
 from .outputs import atomic_open
 
 __all__ = [
+    "DEFAULT_QUANTUM",
     "FORMAT_VERSION",
     "MAGIC",
     "MapBase",
@@ -64,6 +65,8 @@ __all__ = [
 
 MAGIC = b"\x89MAPDB\r\n"
 FORMAT_VERSION = 1
+# Stored resolution of coordinates (metres) unless a map is built with another.
+DEFAULT_QUANTUM = 0.1
 # A version number above this is not a newer format but a damaged or foreign file.
 _MAX_VERSION = 255
 _PREFIX = struct.Struct("<8sHHI")
@@ -430,7 +433,7 @@ def write_map(
     path: str | Path,
     objects: Objects,
     *,
-    quantum: float = 0.1,
+    quantum: float = DEFAULT_QUANTUM,
     metadata: dict[str, Any] | None = None,
     page_capacity: int = DEFAULT_PAGE_CAPACITY,
 ) -> int:
@@ -593,7 +596,7 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return doc
 
 
-def _one_line(text: str, limit: int = 160) -> str:
+def _one_line(text: object, limit: int = 160) -> str:
     text = " ".join(str(text).split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
@@ -1206,7 +1209,8 @@ class MetaMap(MapBase):
         parts = [page for _, page in self._pages(pages)]
         if not parts:
             return Objects.empty(self.labels, self.crs)
-        return Objects(*(np.concatenate(p) for p in zip(*parts, strict=True)), self.labels, self.crs)
+        x, y, label, area = (np.concatenate(p) for p in zip(*parts, strict=True))
+        return Objects(x, y, label, area, self.labels, self.crs)
 
     def verify(self) -> None:
         """Read and check every page; raises :class:`MapFormatError` at the first bad one.
@@ -1256,7 +1260,9 @@ class MemoryMap(MapBase):
     0
     """
 
-    def __init__(self, objects: Objects, quantum: float = 0.1, metadata: dict[str, Any] | None = None) -> None:
+    def __init__(
+        self, objects: Objects, quantum: float = DEFAULT_QUANTUM, metadata: dict[str, Any] | None = None
+    ) -> None:
         super().__init__()
         self.path = None
         self.quantum = quantum

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
+from mapdb.camera import Camera, Pose, project_to_image
 from mapdb.localize import localize
 from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
@@ -15,7 +16,7 @@ from mapdb.match.geometry import fit_similarity_complex, prediction_variance_fac
 from mapdb.match.paper import match_paper
 from mapdb.match.quads import canonical_quads, neighbour_quads
 from mapdb.objects import Objects
-from mapdb.simulate import Camera, Pose, paper_map, project_to_image, simulate_images
+from mapdb.simulate import paper_map, simulate_images
 from mapdb.store import MemoryMap
 
 CRS = "EPSG:32631"

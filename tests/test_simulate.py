@@ -11,19 +11,11 @@ import pytest
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
+from mapdb.camera import Camera, Pose, image_to_ground, level_pixels, nadir_pixel, project_to_image
 from mapdb.errors import EmptyMapError
 from mapdb.match.geometry import apply_similarity, fit_similarity
 from mapdb.objects import Objects
-from mapdb.simulate import (
-    Camera,
-    Pose,
-    image_to_ground,
-    level_pixels,
-    nadir_pixel,
-    paper_map,
-    project_to_image,
-    simulate_images,
-)
+from mapdb.simulate import paper_map, simulate_images
 from mapdb.store import MemoryMap, open_map, write_map
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

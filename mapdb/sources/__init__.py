@@ -17,7 +17,10 @@ from .landcover import RASTER_SUFFIXES, read_landcover
 from .layers import LAYER_SUFFIXES, read_layer
 from .osm import OSM_SUFFIXES, read_osm
 
-__all__ = ["SKIPPED_KINDS", "SOURCE_KINDS", "read_source", "source_kind"]
+__all__ = ["DEFAULT_MIN_AREA_M2", "SKIPPED_KINDS", "SOURCE_KINDS", "read_source", "source_kind"]
+
+# Land-cover patches smaller than this (m^2) are dropped by the raster reader (read_landcover's min_area_m2).
+DEFAULT_MIN_AREA_M2 = 10_000.0
 
 SOURCE_KINDS = {"osm": OSM_SUFFIXES, "landcover": RASTER_SUFFIXES, "layer": LAYER_SUFFIXES}
 
@@ -54,7 +57,7 @@ def read_source(
     *,
     bbox: tuple[float, float, float, float] | None = None,
     raster_classes: str | None = None,
-    min_area_m2: float = 10_000.0,
+    min_area_m2: float = DEFAULT_MIN_AREA_M2,
     label_column: str = "label",
     layer_crs: str | None = None,
     progress: Callable[[str], None] | None = None,

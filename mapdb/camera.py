@@ -1,0 +1,222 @@
+"""The pinhole camera model shared by the simulator, the localizer and the pictures.
+
+A camera fixed to an aircraft looks down at flat ground: :func:`project_to_image`
+maps ground points to pixels, :func:`image_to_ground` is its inverse,
+:func:`level_pixels` removes a known roll and pitch.  Only numpy is needed, so
+that the localizer can import it without the simulator's dependencies.
+
+Frames and sign conventions
+---------------------------
+* **Map**: ``x`` east, ``y`` north (projected metres), ground at ``z = 0``, ``z`` up.
+* **Aircraft body**: forward-right-down (FRD).  Its attitude against local
+  north-east-down (NED) is the aerospace Z-Y-X Euler sequence
+  ``R_body_to_ned = Rz(yaw) @ Ry(pitch) @ Rx(roll)``:
+
+  - ``yaw`` (= heading) is measured clockwise from north: 0 flies north, 90 flies east;
+  - ``pitch`` is positive nose up;
+  - ``roll`` is positive right wing down.
+* **Camera**: fixed to the body, optical axis along body *down*; image *right*
+  is body right and image *up* is body forward.  Pixels: ``u`` (x) to the
+  right, ``v`` (y) down, (0, 0) the top-left corner of the top-left pixel, the
+  principal point at ``(width / 2, height / 2)``, square pixels, focal length
+  ``f = (width / 2) / tan(fov_deg / 2)`` with ``fov_deg`` the *horizontal* field of view.
+
+Projection of a map point ``(X, Y, 0)`` seen from a camera at ``(x, y, altitude)``::
+
+    n = (Y - y, X - x, altitude)                  # NED vector camera -> point
+    (f_b, r_b, d_b) = R_body_to_ned.T @ n         # the same vector in the body frame
+    u = width / 2 + f * r_b / d_b
+    v = height / 2 - f * f_b / d_b
+
+What each angle does to the view:
+
+* ``yaw = 0``: image up is map north and image right is map east (a map seen
+  from above, not mirrored).  ``yaw = psi``: image up points along the heading
+  ``psi``, so map north appears rotated *counter-clockwise* by ``psi`` on the
+  displayed image (at ``yaw = 90`` north points to the image's left edge).
+* ``pitch > 0`` (nose up): the optical axis tilts forward; the ground point
+  under the image centre lies ``altitude * tan(pitch)`` ahead of the aircraft and
+  the nadir (the point straight below the camera) appears *below* the image
+  centre (``v > height / 2``).
+* ``roll > 0`` (right wing down): the optical axis tilts to the left; the ground
+  point under the image centre lies ``altitude * tan(roll)`` to the left and the
+  nadir appears *right* of the image centre (``u > width / 2``).
+
+:func:`level_pixels` removes a known roll and pitch (it re-projects pixels to
+those of a level camera at the same place and heading, in which the nadir is
+the image centre); :func:`image_to_ground` is the full inverse projection.
+
+Examples
+--------
+>>> cam = Camera(640, 480, 35.0)
+>>> u, v = project_to_image([500.0], [1000.0], Pose(500.0, 1000.0, 100.0), cam)
+>>> float(u[0]), float(v[0])
+(320.0, 240.0)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "Camera",
+    "Pose",
+    "footprint",
+    "image_to_ground",
+    "level_pixels",
+    "nadir_pixel",
+    "project_to_image",
+    "rotation_body_to_ned",
+]
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera: image size in pixels and horizontal field of view in degrees.
+
+    The size may be fractional: the localizer sizes the camera as an image document gives it.
+    """
+
+    width: float = 640
+    height: float = 480
+    fov_deg: float = 35.0
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
+        if not 0.0 < self.fov_deg < 180.0:
+            raise ValueError(f"field of view must be in (0, 180) degrees, got {self.fov_deg}")
+
+    @property
+    def focal_px(self) -> float:
+        """Focal length in pixels."""
+        return (self.width / 2.0) / math.tan(math.radians(self.fov_deg) / 2.0)
+
+    def gsd(self, altitude: float) -> float:
+        """Ground size of a pixel at the image centre of a level camera (metres per pixel)."""
+        return altitude / self.focal_px
+
+    def footprint_m(self, altitude: float) -> tuple[float, float]:
+        """Ground width and height (metres) seen by a level camera at ``altitude``."""
+        g = self.gsd(altitude)
+        return self.width * g, self.height * g
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Camera position (map metres, altitude above ground) and attitude in degrees (see module docs)."""
+
+    x: float
+    y: float
+    altitude: float
+    yaw_deg: float = 0.0
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+
+
+def rotation_body_to_ned(yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg: float = 0.0) -> np.ndarray:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``: body (forward, right, down) vectors to (north, east, down)."""
+    cy, sy = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    cp, sp = math.cos(math.radians(pitch_deg)), math.sin(math.radians(pitch_deg))
+    cr, sr = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+    rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def _body_to_pixels(frd: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame vectors (3, n) -> pixels; NaN for points not in front of the camera."""
+    f = camera.focal_px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(frd[2] > 0.0, frd[2], np.nan)
+        u = camera.width / 2.0 + f * frd[1] / d
+        v = camera.height / 2.0 - f * frd[0] / d
+    return u, v
+
+
+def _pixels_to_body(u: npt.ArrayLike, v: npt.ArrayLike, camera: Camera) -> np.ndarray:
+    """Pixels -> body-frame ray directions (3, n) with unit down component."""
+    f = camera.focal_px
+    uu = np.asarray(u, dtype=np.float64).reshape(-1)
+    vv = np.asarray(v, dtype=np.float64).reshape(-1)
+    return np.stack([-(vv - camera.height / 2.0) / f, (uu - camera.width / 2.0) / f, np.ones_like(uu)])
+
+
+def project_to_image(
+    x: npt.ArrayLike, y: npt.ArrayLike, pose: Pose, camera: Camera
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel positions of ground points ``(x, y, 0)`` seen from ``pose``.
+
+    Points behind the camera (or on its horizon) get NaN; points outside the
+    image are returned as they are (callers decide what is visible).
+
+    Examples
+    --------
+    A point 10 m north of a level camera at 100 m, heading north, is ``10 * f / 100`` pixels above the centre:
+
+    >>> cam = Camera(640, 480, 35.0)
+    >>> u, v = project_to_image([0.0], [10.0], Pose(0.0, 0.0, 100.0), cam)
+    >>> round(float(u[0]), 6), round(float(240.0 - v[0]), 6) == round(cam.focal_px / 10.0, 6)
+    (320.0, True)
+    """
+    xs = np.asarray(x, dtype=np.float64).reshape(-1)
+    ys = np.asarray(y, dtype=np.float64).reshape(-1)
+    ned = np.stack([ys - pose.y, xs - pose.x, np.full_like(xs, pose.altitude)])
+    frd = rotation_body_to_ned(pose.yaw_deg, pose.pitch_deg, pose.roll_deg).T @ ned
+    return _body_to_pixels(frd, camera)
+
+
+def image_to_ground(
+    u: npt.ArrayLike, v: npt.ArrayLike, pose: Pose, camera: Camera
+) -> tuple[np.ndarray, np.ndarray]:
+    """Map ``(x, y)`` of the ground points seen at pixels ``(u, v)``: the inverse of :func:`project_to_image`.
+
+    NaN where the pixel's ray does not reach the ground (at or above the horizon).
+    """
+    ned = rotation_body_to_ned(pose.yaw_deg, pose.pitch_deg, pose.roll_deg) @ _pixels_to_body(u, v, camera)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(ned[2] > 0.0, pose.altitude / ned[2], np.nan)
+    return pose.x + t * ned[1], pose.y + t * ned[0]
+
+
+def level_pixels(
+    u: npt.ArrayLike,
+    v: npt.ArrayLike,
+    camera: Camera,
+    roll_deg: float = 0.0,
+    pitch_deg: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where pixels seen with ``roll_deg``/``pitch_deg`` would be in a level camera (same place and heading).
+
+    A homography that needs neither altitude nor heading, only the field of
+    view: after it, the camera nadir is the image centre and the image is a
+    similarity of the map (for flat ground).  NaN for pixels at or above the horizon.
+
+    Examples
+    --------
+    >>> cam = Camera(640, 480, 35.0)
+    >>> u, v = nadir_pixel(cam, roll_deg=2.0, pitch_deg=-1.0)
+    >>> [round(float(c), 9) for c in np.concatenate(level_pixels(u, v, cam, 2.0, -1.0))]
+    [320.0, 240.0]
+    """
+    level = rotation_body_to_ned(0.0, pitch_deg, roll_deg) @ _pixels_to_body(u, v, camera)
+    return _body_to_pixels(level, camera)
+
+
+def nadir_pixel(camera: Camera, roll_deg: float = 0.0, pitch_deg: float = 0.0) -> tuple[float, float]:
+    """The pixel at which the point straight below the camera appears, given roll and pitch."""
+    frd = rotation_body_to_ned(0.0, pitch_deg, roll_deg).T @ np.array([[0.0], [0.0], [1.0]])
+    u, v = _body_to_pixels(frd, camera)
+    return float(u[0]), float(v[0])
+
+
+def footprint(pose: Pose, camera: Camera) -> np.ndarray:
+    """Ground ``(x, y)`` of the image corners (top-left, top-right, bottom-right, bottom-left), (4, 2)."""
+    w, h = camera.width, camera.height
+    gx, gy = image_to_ground([0.0, w, w, 0.0], [0.0, 0.0, h, h], pose, camera)
+    return np.column_stack([gx, gy])
