@@ -27,23 +27,13 @@ from mapdb_cli.main import cli
 
 from mapdb.images import MAX_OBJECTS, split_image_documents
 from mapdb.localize import localize_documents
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import MemoryMap, open_map, write_map
+from mapdb.store import open_map
 
 # A generous bound for one answer (the first one builds the map's index); a reader that waited for the
 # end of its input would never answer at all, so this only has to be finite.
 ANSWER_TIMEOUT_S = 60.0
 
 
-@pytest.fixture(scope="module")
-def setup(tmp_path_factory):
-    """A paper-style map file and three simulated images of it (with their truth)."""
-    root = tmp_path_factory.mktemp("streaming")
-    objects = paper_map(seed=2)
-    map_path = root / "paper.mapdb"
-    write_map(map_path, objects)
-    images = simulate_images(MemoryMap(objects), 3, pixel_std=1.0, yaw="random", seed=3)
-    return map_path, images
 
 
 def _line(doc, **changes) -> bytes:
@@ -99,8 +89,8 @@ def _batch(images) -> tuple[list[bytes], list[tuple]]:
     return [line for line, _ in rows], [expect for _, expect in rows if expect is not None]
 
 
-def test_a_batch_of_bad_lines_of_every_kind_keeps_count_order_and_ids(setup, tmp_path) -> None:
-    map_path, images = setup
+def test_a_batch_of_bad_lines_of_every_kind_keeps_count_order_and_ids(paper_setup, tmp_path) -> None:
+    map_path, images = paper_setup
     lines, expected = _batch(images)
     data = b"\n".join(lines)
     assert b"\xe2\x80\xa8" in data and b"\xc2\x85" in data and b"\x0c" in data and b"\xff" in data
@@ -150,8 +140,8 @@ def _start_query(map_path) -> tuple[subprocess.Popen, queue.Queue]:
     return proc, answers
 
 
-def test_query_on_a_pipe_answers_each_line_before_the_next_is_sent(setup) -> None:
-    map_path, images = setup
+def test_query_on_a_pipe_answers_each_line_before_the_next_is_sent(paper_setup) -> None:
+    map_path, images = paper_setup
     proc, answers = _start_query(map_path)
     try:
         sent = [_line(images[0]), b"[1, 2]", _line(images[1]), b"{oops", _line(images[2])]
@@ -178,8 +168,8 @@ def test_query_on_a_pipe_answers_each_line_before_the_next_is_sent(setup) -> Non
         proc.stderr.close()
 
 
-def test_the_answers_file_may_not_be_an_input(setup, tmp_path) -> None:
-    map_path, images = setup
+def test_the_answers_file_may_not_be_an_input(paper_setup, tmp_path) -> None:
+    map_path, images = paper_setup
     map_copy = tmp_path / "map.mapdb"
     map_copy.write_bytes(map_path.read_bytes())
     images_path = tmp_path / "in.jsonl"
@@ -202,8 +192,8 @@ def test_the_answers_file_may_not_be_an_input(setup, tmp_path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in-hardlink.jsonl", "in.jsonl", "map-link", "map.mapdb"]
 
 
-def test_a_damaged_map_leaves_the_previous_answers_file_untouched(setup, tmp_path) -> None:
-    map_path, images = setup
+def test_a_damaged_map_leaves_the_previous_answers_file_untouched(paper_setup, tmp_path) -> None:
+    map_path, images = paper_setup
     damaged = tmp_path / "damaged.mapdb"
     data = bytearray(map_path.read_bytes())
     data[-1] ^= 0xFF  # the last page: the header opens, the page fails its checksum when read
@@ -236,14 +226,14 @@ def test_a_damaged_map_leaves_the_previous_answers_file_untouched(setup, tmp_pat
         ("1,2", "is not three comma-separated numbers X,Y,R"),
     ],
 )
-def test_prior_option_has_the_image_prior_ranges(setup, tmp_path, value, message) -> None:
-    map_path, images = setup
+def test_prior_option_has_the_image_prior_ranges(paper_setup, tmp_path, value, message) -> None:
+    map_path, images = paper_setup
     result = _run(str(map_path), "-", "--prior", value, input=_line(images[0]) + b"\n")
     assert result.exit_code == 2 and message in result.output and "Traceback" not in result.output
 
 
-def test_numbers_at_the_corners_of_their_ranges_give_strict_json_answers(setup) -> None:
-    map_path, images = setup
+def test_numbers_at_the_corners_of_their_ranges_give_strict_json_answers(paper_setup) -> None:
+    map_path, images = paper_setup
     base = images[0]
     lines = []
     for side, fov, altitude, radius, attitude in itertools.product(

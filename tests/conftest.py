@@ -1,0 +1,20 @@
+"""Fixtures shared by several test modules."""
+
+from __future__ import annotations
+
+import pytest
+
+from mapdb.simulate import paper_map, simulate_images
+from mapdb.store import MemoryMap, write_map
+
+
+@pytest.fixture(scope="module")
+def paper_setup(tmp_path_factory):
+    """A paper-style map file and three simulated images of it (with their truth)."""
+    root = tmp_path_factory.mktemp("paper")
+    objects = paper_map(seed=2)
+    map_path = root / "paper.mapdb"
+    write_map(map_path, objects)
+    # Simulate from the stored (quantised) positions, as a user's images would see the map.
+    images = simulate_images(MemoryMap(objects), 3, pixel_std=1.0, yaw="random", seed=3)
+    return map_path, images
