@@ -138,17 +138,9 @@ def _projected_crs(crs: str) -> str:
 
 
 def build_map(
-    sources: Sequence[str | Path],
-    output: str | Path,
-    *,
-    labels: str | Path | None = None,
-    crs: str = "auto",
-    bbox: tuple[float, float, float, float] | None = None,
-    quantum: float = 0.1,
-    raster_classes: str | None = None,
-    min_area_m2: float = 10_000.0,
-    label_column: str = "label",
-    layer_crs: str | None = None,
+    sources: Sequence[str | Path], output: str | Path, *, labels: str | Path | None = None, crs: str = "auto",
+    bbox: tuple[float, float, float, float] | None = None, quantum: float = 0.1, raster_classes: str | None = None,
+    min_area_m2: float = 10_000.0, label_column: str = "label", layer_crs: str | None = None,
     progress: ProgressLike = None,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
@@ -192,6 +184,64 @@ def build_map(
     EmptyMapError
         If no object survives (for example a bbox over empty ground).
     """
+    quantum, min_area_m2, bbox, target, table = _checked_arguments(sources, quantum, min_area_m2, bbox, crs, labels)
+    say = as_progress(progress)
+    say.start(len(sources) + 2, "build")  # one count: each source read, then the projection, then the writing
+    read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
+                    "label_column": label_column, "layer_crs": layer_crs}
+    merged, target, described, totals, warnings = _gather(sources, table, read_options, target, say)
+    build = {"crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
+             "labels_file": Path(labels).name if labels else None,
+             "labels_sha256": _sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
+             "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs}
+    written, label_counts = _write(output, merged, target, quantum, {"sources": described, "build": build}, totals, say)
+    return {"output": str(output), "crs": target, "count": written, "labels": label_counts,
+            "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": warnings}
+
+
+def _gather(sources: Sequence[str | Path], table: LabelTable, read_options: dict[str, Any], target: str | None,
+            say: Progress) -> tuple[Objects, str, list[dict[str, Any]], Counter[str], list[str]]:
+    """Read, clip and project every source: the merged objects, the CRS (chosen when ``target`` is None), the
+    sources' metadata entries, what the readers skipped in all, and the warnings."""
+    parts, described, skipped, warnings = _read_sources(sources, table, say, read_options)
+    bbox = read_options["bbox"]
+    parts, lonlat = _clip(parts, bbox)
+    total = sum(len(p) for p in parts)
+    names = ", ".join(str(s) for s in sources)
+    if total == 0:
+        where = f" inside bbox {bbox_text(bbox)}" if bbox else ""
+        raise EmptyMapError(f"{names}: no labelled objects{where}")
+    if target is None:
+        target = _auto_crs(lonlat)
+        spread = _spread_warning([d["name"] for d in described], lonlat, target)
+        warnings += [spread] if spread else []
+    say(f"projecting {total} objects to {target} ...")
+    merged = _project(parts, lonlat, skipped, target, table)
+    say.advance()
+    if len(merged) == 0:
+        raise EmptyMapError(f"{names}: no object projects into {target}")
+    return merged, target, described, _tally_skipped(described, skipped, say), warnings
+
+
+def _write(output: str | Path, merged: Objects, target: str, quantum: float, metadata: dict[str, Any],
+           totals: Counter[str], say: Progress) -> tuple[int, dict[str, int]]:
+    """Write the map: the objects written and the count per label (``totals`` learns the merged duplicates)."""
+    say(f"writing {len(merged)} objects to {output} ({target}, quantum {quantum} m) ...")
+    written = write_map(output, merged, quantum=quantum, metadata=metadata)
+    say.advance()
+    say.done()
+    if written < len(merged):
+        totals["merged_duplicates"] += len(merged) - written
+    with open_map(output) as m:
+        label_counts = m.label_counts  # after the writer merged same-label duplicates
+    return written, label_counts
+
+
+def _checked_arguments(sources: Sequence[str | Path], quantum: float, min_area_m2: float,
+                       bbox: tuple[float, float, float, float] | None, crs: str, labels: str | Path | None
+                       ) -> tuple[float, float, tuple[float, float, float, float] | None, str | None, LabelTable]:
+    """The arguments checked before any reading: quantum, min_area_m2, bbox, the target CRS (None: auto) and
+    the label table."""
     if not sources:
         raise SourceError("no sources given")
     quantum = _check_number("quantum", quantum, 0.0, 1000.0, low_open=True)
@@ -204,34 +254,32 @@ def build_map(
     for path in sources:  # fail on a bad name before spending time on the others
         source_kind(path)
     target = None if crs == "auto" else _projected_crs(crs)
-    table = load_label_table(labels)
-    say = as_progress(progress)
-    # One count over the whole build: each source read, then the projection, then the writing.
-    say.start(len(sources) + 2, "build")
-    read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
-                    "label_column": label_column, "layer_crs": layer_crs}
-    parts, described, skipped, warnings = _read_sources(sources, table, say, read_options)
+    return quantum, min_area_m2, bbox, target, load_label_table(labels)
 
+
+def _clip(parts: list[Objects], bbox: tuple[float, float, float, float] | None
+          ) -> tuple[list[Objects], list[tuple[np.ndarray, np.ndarray]]]:
+    """Each source's objects inside ``bbox`` (all without one), and their lon/lat."""
     lonlat = [_to_lonlat(p) if len(p) else (np.zeros(0), np.zeros(0)) for p in parts]
     if bbox is not None:
         keep = [in_bbox(bbox, lon, lat) for lon, lat in lonlat]
         parts = [p.take(k) for p, k in zip(parts, keep, strict=True)]
         lonlat = [(lon[k], lat[k]) for (lon, lat), k in zip(lonlat, keep, strict=True)]
-    total = sum(len(p) for p in parts)
-    names = ", ".join(str(s) for s in sources)
-    if total == 0:
-        where = f" inside bbox {bbox_text(bbox)}" if bbox else ""
-        raise EmptyMapError(f"{names}: no labelled objects{where}")
+    return parts, lonlat
 
-    if crs == "auto":
-        all_lon = np.concatenate([lon for lon, _ in lonlat])
-        all_lat = np.concatenate([lat for _, lat in lonlat])
-        # The median longitude taken around the globe's widest empty gap: data on both sides of the
-        # antimeridian (Fiji) get the zone at 180, not the one at 0.
-        target = utm_crs_for(central_longitude(all_lon), float(np.median(all_lat)))
-        spread = _spread_warning([d["name"] for d in described], lonlat, target)
-        warnings += [spread] if spread else []
-    say(f"projecting {total} objects to {target} ...")
+
+def _auto_crs(lonlat: list[tuple[np.ndarray, np.ndarray]]) -> str:
+    """The UTM zone of the objects' median place."""
+    all_lon = np.concatenate([lon for lon, _ in lonlat])
+    all_lat = np.concatenate([lat for _, lat in lonlat])
+    # The median longitude taken around the globe's widest empty gap: data on both sides of the
+    # antimeridian (Fiji) get the zone at 180, not the one at 0.
+    return utm_crs_for(central_longitude(all_lon), float(np.median(all_lat)))
+
+
+def _project(parts: list[Objects], lonlat: list[tuple[np.ndarray, np.ndarray]], skipped: list[Counter[str]],
+             target: str, table: LabelTable) -> Objects:
+    """All sources' objects in ``target``, in one label table; those it cannot hold are dropped and counted."""
     projected = []
     to_target = Transformer.from_crs("EPSG:4326", target, always_xy=True)
     for p, (lon, lat), counts in zip(parts, lonlat, skipped, strict=True):
@@ -239,36 +287,18 @@ def build_map(
         finite = np.isfinite(x) & np.isfinite(y)
         counts["outside_crs"] += int((~finite).sum())
         projected.append(Objects(x, y, p.label, p.area, p.labels, target).take(finite))
-    merged = concat(projected, labels=table.labels)
-    say.advance()
-    if len(merged) == 0:
-        raise EmptyMapError(f"{names}: no object projects into {target}")
+    return concat(projected, labels=table.labels)
+
+
+def _tally_skipped(described: list[dict[str, Any]], skipped: list[Counter[str]], say: Progress) -> Counter[str]:
+    """Record what each source's reader skipped in its metadata entry, say the totals, and return them."""
     for entry, counts in zip(described, skipped, strict=True):
         entry["skipped"] = {kind: n for kind, n in sorted(counts.items()) if n}
     totals = sum(skipped, Counter())
     for kind, n in sorted(totals.items()):
         if n:
             say(f"  {n:,} {SKIPPED_KINDS.get(kind, kind)}")
-
-    say(f"writing {len(merged)} objects to {output} ({target}, quantum {quantum} m) ...")
-    metadata = {
-        "sources": described,
-        "build": {
-            "crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
-            "labels_file": Path(labels).name if labels else None,
-            "labels_sha256": _sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
-            "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs,
-        },
-    }
-    written = write_map(output, merged, quantum=quantum, metadata=metadata)
-    say.advance()
-    say.done()
-    if written < len(merged):
-        totals["merged_duplicates"] += len(merged) - written
-    with open_map(output) as m:
-        label_counts = m.label_counts  # after the writer merged same-label duplicates
-    return {"output": str(output), "crs": target, "count": written, "labels": label_counts,
-            "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": warnings}
+    return totals
 
 
 def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: dict[str, Any]

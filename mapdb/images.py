@@ -259,38 +259,12 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
         With a one-line message: the first schema violation, a non-finite number, or an object outside
         the image.
     """
-    if not isinstance(doc, dict):
-        raise ImageInputError(_not_an_object(doc, source))
-    objects = doc.get("objects")
-    if isinstance(objects, list) and len(objects) > MAX_OBJECTS:
-        raise ImageInputError(f"{source}: {len(objects)} objects; at most {MAX_OBJECTS} are accepted")
-    # The schema is checked on the document with its object list emptied (a constant cost), and the
-    # objects by the same rules in one plain loop - jsonschema costs ~20 us per object, more than matching.
-    # Any object failing that loop sends the whole document through the schema, which words the error.
-    whole = not (isinstance(objects, list) and all(map(_plain_object_ok, objects)))
-    checked = doc if whole else {**doc, "objects": []}
-    error = _first_error(_validator(), checked)
-    if error is not None:
-        raise ImageInputError(f"{source}: {_schema_message(error)}")
-
+    _check_schema(doc, source)
     width = _finite(doc["width"], "width", source)
     height = _finite(doc["height"], "height", source)
-    n = len(objects)
-    x = np.fromiter((o["x"] for o in objects), dtype=np.float64, count=n)
-    y = np.fromiter((o["y"] for o in objects), dtype=np.float64, count=n)
-    bad = ~(np.isfinite(x) & np.isfinite(y))
-    if bad.any():
-        i = int(np.argmax(bad))
-        axis = "x" if not math.isfinite(x[i]) else "y"
-        raise ImageInputError(f"{source}: objects[{i}].{axis} is {objects[i][axis]!r}, not a finite number")
-    outside = (x > width) | (y > height)
-    if outside.any():
-        i = int(np.argmax(outside))
-        raise ImageInputError(
-            f"{source}: objects[{i}] at ({x[i]:g}, {y[i]:g}) is outside the {width:g}x{height:g} image"
-        )
+    objects = doc["objects"]
+    x, y = _positions(objects, width, height, source)
     names = np.array([o["label"] for o in objects], dtype=object)
-
     prior = _make_prior(doc["prior"], source) if "prior" in doc else None
     attitude = doc.get("attitude") or {}
     roll = attitude.get("roll_deg")
@@ -310,6 +284,43 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
         fov_deg=None if fov is None else _finite(fov, "camera.fov_deg", source),
         altitude_m=None if altitude is None else _finite(altitude, "altitude_m", source),
     )
+
+
+def _check_schema(doc: Any, source: str) -> None:
+    """Raise the first schema violation of an image document, in one line."""
+    if not isinstance(doc, dict):
+        raise ImageInputError(_not_an_object(doc, source))
+    objects = doc.get("objects")
+    if isinstance(objects, list) and len(objects) > MAX_OBJECTS:
+        raise ImageInputError(f"{source}: {len(objects)} objects; at most {MAX_OBJECTS} are accepted")
+    # The schema is checked on the document with its object list emptied (a constant cost), and the
+    # objects by the same rules in one plain loop - jsonschema costs ~20 us per object, more than matching.
+    # Any object failing that loop sends the whole document through the schema, which words the error.
+    whole = not (isinstance(objects, list) and all(map(_plain_object_ok, objects)))
+    checked = doc if whole else {**doc, "objects": []}
+    error = _first_error(_validator(), checked)
+    if error is not None:
+        raise ImageInputError(f"{source}: {_schema_message(error)}")
+
+
+def _positions(objects: list[dict[str, Any]], width: float, height: float, source: str
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The objects' pixel positions, each finite and inside the image."""
+    n = len(objects)
+    x = np.fromiter((o["x"] for o in objects), dtype=np.float64, count=n)
+    y = np.fromiter((o["y"] for o in objects), dtype=np.float64, count=n)
+    bad = ~(np.isfinite(x) & np.isfinite(y))
+    if bad.any():
+        i = int(np.argmax(bad))
+        axis = "x" if not math.isfinite(x[i]) else "y"
+        raise ImageInputError(f"{source}: objects[{i}].{axis} is {objects[i][axis]!r}, not a finite number")
+    outside = (x > width) | (y > height)
+    if outside.any():
+        i = int(np.argmax(outside))
+        raise ImageInputError(
+            f"{source}: objects[{i}] at ({x[i]:g}, {y[i]:g}) is outside the {width:g}x{height:g} image"
+        )
+    return x, y
 
 
 def _short(exc: json.JSONDecodeError) -> str:

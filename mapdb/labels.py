@@ -9,6 +9,7 @@ and keeps the defaults for the others.
 from __future__ import annotations
 
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -153,18 +154,10 @@ def _kind(value: Any) -> str:
 
 
 def _parse(doc: dict[str, Any], where: str, base: LabelTable | None) -> LabelTable:
+    """A label table from a TOML document read over ``base``: labels, then OSM rules, then raster classes."""
     schema = _Schema(where)
     schema.table("", doc, _TOP_KEYS)
-    if "labels" in doc:
-        labels = schema.strings("labels", doc["labels"], empty=False)
-        if len(set(labels)) != len(labels):
-            raise schema.fail("labels", "must not repeat a name")
-        if len(labels) > _MAX_LABELS:
-            raise schema.fail("labels", f"at most {_MAX_LABELS} labels, got {len(labels)}")
-    elif base is not None:
-        labels = base.labels
-    else:
-        raise schema.fail("labels", "missing")
+    labels = _parse_labels(schema, doc, base)
 
     def check(label: Any, key: str) -> str:
         name = schema.string(key, label)
@@ -172,44 +165,75 @@ def _parse(doc: dict[str, Any], where: str, base: LabelTable | None) -> LabelTab
             raise schema.fail(key, f"unknown label {name!r} (not in labels)")
         return name
 
-    if "osm" in doc:
-        osm = schema.table("osm", doc["osm"], _OSM_KEYS)
-        rule_list = osm.get("rules", [])
-        if not isinstance(rule_list, list):
-            raise schema.fail("osm.rules", f"must be a list of tables ([[osm.rules]]), not {_kind(rule_list)}")
-        rules = []
-        for i, r in enumerate(rule_list):
-            ctx = f"osm.rules[{i + 1}]"
-            schema.table(ctx, r, _RULE_KEYS)
-            geometry = frozenset(schema.strings(f"{ctx}.geometry", r.get("geometry", ["area"]), empty=False))
-            if geometry - _GEOMETRIES:
-                raise schema.fail(f"{ctx}.geometry", f"must be among {', '.join(sorted(_GEOMETRIES))}")
-            values = r.get("values")
-            rules.append(TagRule(
-                label=check(r.get("label"), f"{ctx}.label"),
-                key=schema.string(f"{ctx}.key", r.get("key")),
-                values=None if values is None else schema.strings(f"{ctx}.values", values),
-                exclude=schema.strings(f"{ctx}.exclude", r.get("exclude", [])),
-                geometry=geometry,
-            ))
-        intersections = None
-        if "intersections" in osm:
-            inter = schema.table("osm.intersections", osm["intersections"], _INTERSECTION_KEYS)
-            intersections = IntersectionRule(
-                label=check(inter.get("label", "road_intersection"), "osm.intersections.label"),
-                highways=schema.strings("osm.intersections.highways", inter.get("highways", [])),
-                merge_distance_m=schema.number("osm.intersections.merge_distance_m",
-                                               inter.get("merge_distance_m", 5.0), 0.0, MAX_MERGE_DISTANCE_M),
-            )
-        osm_rules: tuple[TagRule, ...] = tuple(rules)
-    else:
+    osm_rules, intersections = _parse_osm(schema, doc, base, check)
+    rasters = _parse_rasters(schema, doc, base, check)
+    return LabelTable(labels, osm_rules, intersections, rasters, where)
+
+
+_Check = Callable[[Any, str], str]
+
+
+def _parse_labels(schema: _Schema, doc: dict[str, Any], base: LabelTable | None) -> tuple[str, ...]:
+    """The document's label names, else the base table's."""
+    if "labels" in doc:
+        labels = schema.strings("labels", doc["labels"], empty=False)
+        if len(set(labels)) != len(labels):
+            raise schema.fail("labels", "must not repeat a name")
+        if len(labels) > _MAX_LABELS:
+            raise schema.fail("labels", f"at most {_MAX_LABELS} labels, got {len(labels)}")
+        return labels
+    if base is not None:
+        return base.labels
+    raise schema.fail("labels", "missing")
+
+
+def _parse_osm(schema: _Schema, doc: dict[str, Any], base: LabelTable | None, check: _Check
+               ) -> tuple[tuple[TagRule, ...], IntersectionRule | None]:
+    """The ``[osm]`` rules and intersection rule, else the base table's (their labels checked)."""
+    if "osm" not in doc:
         osm_rules = base.osm_rules if base else ()
         intersections = base.intersections if base else None
         for r in osm_rules:
             check(r.label, f"osm rule for {r.key} (default)")
         if intersections:
             check(intersections.label, "osm.intersections.label (default)")
+        return osm_rules, intersections
+    osm = schema.table("osm", doc["osm"], _OSM_KEYS)
+    rule_list = osm.get("rules", [])
+    if not isinstance(rule_list, list):
+        raise schema.fail("osm.rules", f"must be a list of tables ([[osm.rules]]), not {_kind(rule_list)}")
+    rules = [_parse_rule(schema, f"osm.rules[{i + 1}]", r, check) for i, r in enumerate(rule_list)]
+    intersections = None
+    if "intersections" in osm:
+        inter = schema.table("osm.intersections", osm["intersections"], _INTERSECTION_KEYS)
+        intersections = IntersectionRule(
+            label=check(inter.get("label", "road_intersection"), "osm.intersections.label"),
+            highways=schema.strings("osm.intersections.highways", inter.get("highways", [])),
+            merge_distance_m=schema.number("osm.intersections.merge_distance_m",
+                                           inter.get("merge_distance_m", 5.0), 0.0, MAX_MERGE_DISTANCE_M),
+        )
+    return tuple(rules), intersections
 
+
+def _parse_rule(schema: _Schema, ctx: str, r: Any, check: _Check) -> TagRule:
+    """One ``[[osm.rules]]`` table."""
+    schema.table(ctx, r, _RULE_KEYS)
+    geometry = frozenset(schema.strings(f"{ctx}.geometry", r.get("geometry", ["area"]), empty=False))
+    if geometry - _GEOMETRIES:
+        raise schema.fail(f"{ctx}.geometry", f"must be among {', '.join(sorted(_GEOMETRIES))}")
+    values = r.get("values")
+    return TagRule(
+        label=check(r.get("label"), f"{ctx}.label"),
+        key=schema.string(f"{ctx}.key", r.get("key")),
+        values=None if values is None else schema.strings(f"{ctx}.values", values),
+        exclude=schema.strings(f"{ctx}.exclude", r.get("exclude", [])),
+        geometry=geometry,
+    )
+
+
+def _parse_rasters(schema: _Schema, doc: dict[str, Any], base: LabelTable | None, check: _Check
+                   ) -> dict[str, dict[int, str]]:
+    """The base table's raster class tables with the document's ``[raster.NAME]`` tables over them."""
     rasters = {name: dict(t) for name, t in (base.rasters.items() if base else ())}
     raster_doc = doc.get("raster", {})
     if not isinstance(raster_doc, dict):
@@ -231,7 +255,7 @@ def _parse(doc: dict[str, Any], where: str, base: LabelTable | None) -> LabelTab
         for name, table in rasters.items():
             for code, label in table.items():
                 check(label, f"raster.{name}.{code} (default)")
-    return LabelTable(labels, osm_rules, intersections, rasters, where)
+    return rasters
 
 
 _DEFAULT: LabelTable | None = None

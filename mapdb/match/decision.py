@@ -112,22 +112,27 @@ def log10_nfa_curve(
     successes = np.arange(1, trials + 1, dtype=np.float64)
     if sample is not None:
         u = np.where(sample, -1.0, u)  # sorts the hypothesis's own objects first, where they are skipped
+    p = _trial_chances(u, n_sample, shape)
+    curve = log10_tests + np.log10(trials) + log10_binomial_tail(float(trials), successes[None, :], p)
+    best = np.argmin(curve, axis=1)
+    return curve[np.arange(h), best], best + 1 + n_sample
+
+
+def _trial_chances(u: np.ndarray, n_sample: int, shape: np.ndarray | None) -> np.ndarray:
+    """``p[h, j]``: the chance under the null that an object lands within the ``j``-th threshold of hypothesis
+    ``h`` (thresholds the trial objects' sorted ``u / shape``, the ``n_sample`` smallest skipped)."""
     if shape is None:
         u_sorted = np.sort(u, axis=1)[:, n_sample:]  # the k-th smallest for k = s+1 .. n
         with np.errstate(over="ignore", invalid="ignore"):
             p = -np.expm1(-u_sorted)  # 1 - exp(-u), accurate for small u; inf -> 1
-        p = np.where(np.isfinite(u_sorted), p, 1.0)
-    else:
-        shape = np.broadcast_to(np.asarray(shape, dtype=np.float64), u.shape)
-        v = u / shape
-        order = np.argsort(v, axis=1)
-        v_sorted = np.take_along_axis(v, order, axis=1)[:, n_sample:]
-        rest = np.take_along_axis(shape, order, axis=1)[:, n_sample:]  # (H, trials): the trial objects
-        # p[h, j] = mean over trial objects i of 1 - exp(-tau_j * shape_i), tau_j the j-th threshold.
-        with np.errstate(over="ignore", invalid="ignore"):
-            chance = -np.expm1(-v_sorted[:, :, None] * rest[:, None, :])
-        chance = np.where(np.isfinite(v_sorted)[:, :, None], chance, 1.0)
-        p = np.nan_to_num(chance, nan=1.0).mean(axis=2)
-    curve = log10_tests + np.log10(trials) + log10_binomial_tail(float(trials), successes[None, :], p)
-    best = np.argmin(curve, axis=1)
-    return curve[np.arange(h), best], best + 1 + n_sample
+        return np.where(np.isfinite(u_sorted), p, 1.0)
+    shape = np.broadcast_to(np.asarray(shape, dtype=np.float64), u.shape)
+    v = u / shape
+    order = np.argsort(v, axis=1)
+    v_sorted = np.take_along_axis(v, order, axis=1)[:, n_sample:]
+    rest = np.take_along_axis(shape, order, axis=1)[:, n_sample:]  # (H, trials): the trial objects
+    # p[h, j] = mean over trial objects i of 1 - exp(-tau_j * shape_i), tau_j the j-th threshold.
+    with np.errstate(over="ignore", invalid="ignore"):
+        chance = -np.expm1(-v_sorted[:, :, None] * rest[:, None, :])
+    chance = np.where(np.isfinite(v_sorted)[:, :, None], chance, 1.0)
+    return np.nan_to_num(chance, nan=1.0).mean(axis=2)

@@ -190,19 +190,38 @@ def match_fast(
     MatchResult
     """
     opts = options or FastOptions()
+    z, img_label = _central_objects(z, img_label, opts.max_objects)
+    reason = _unmatchable(z.size, objects, quads)
+    if reason is not None:
+        return MatchResult(None, [], reason, 0, 0)
+    pool, n_tests, done_rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range)
+    return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds)
+
+
+def _central_objects(z, img_label, max_objects: int) -> tuple[np.ndarray, np.ndarray]:
+    """The image objects as arrays, at most ``max_objects`` of them nearest the centre (input order kept)."""
     z = np.asarray(z, dtype=np.complex128)
     img_label = np.asarray(img_label, dtype=np.int64)
-    if z.size > opts.max_objects:
-        central = np.sort(np.argsort(np.abs(z), kind="stable")[: opts.max_objects])
+    if z.size > max_objects:
+        central = np.sort(np.argsort(np.abs(z), kind="stable")[:max_objects])
         z, img_label = z[central], img_label[central]
-    n = z.size
-    if n < 4:
-        return MatchResult(None, [], f"{n} objects: the fast matcher needs at least 4", 0, 0)
-    if len(objects) < 4:
-        return MatchResult(None, [], f"the map has only {len(objects)} objects here: at least 4 are needed", 0, 0)
-    if not any(q.n_quads for q in quads):
-        return MatchResult(None, [], f"the map's {len(objects)} objects here form no pattern to match", 0, 0)
+    return z, img_label
 
+
+def _unmatchable(n: int, objects: ObjectIndex, quads: Sequence[QuadIndex]) -> str | None:
+    """Why ``n`` image objects cannot be matched against these indexes at all, or None."""
+    if n < 4:
+        return f"{n} objects: the fast matcher needs at least 4"
+    if len(objects) < 4:
+        return f"the map has only {len(objects)} objects here: at least 4 are needed"
+    if not any(q.n_quads for q in quads):
+        return f"the map's {len(objects)} objects here form no pattern to match"
+    return None
+
+
+def _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range) -> tuple[list[Candidate], int, int]:
+    """The lookup rounds (pixel sigma x anchor batch) until one accepts: candidates best first, tests, rounds."""
+    n = z.size
     screen_of = cKDTree(np.column_stack([z.real, z.imag])).query(
         np.column_stack([z.real, z.imag]), k=min(opts.screen_objects, n)
     )[1].reshape(n, -1)
@@ -221,7 +240,7 @@ def match_fast(
                                                      math.log10(n_tests), opts), diag_px)
         if pool and pool[0].log10_nfa < opts.log10_epsilon:
             break
-    return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds)
+    return pool, n_tests, done_rounds
 
 
 def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px, log10_tests, opts) -> list[Candidate]:

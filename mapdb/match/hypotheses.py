@@ -70,8 +70,13 @@ def round_hypotheses(
 # Hypotheses may put the image centre this many prior radii from the prior's centre.
 PRIOR_SLACK = 1.1
 # Poses are binned, to count the hypotheses that share one, in cells of this fraction of the footprint's
-# diagonal (with 10 degrees of rotation and 10 % of scale).
+# diagonal, of this step in log scale (about 10 %) and of this many degrees of rotation.
 POSE_BIN_FRACTION = 1.0 / 20.0
+POSE_BIN_LOG_SCALE = 0.1
+POSE_BIN_DEGREES = 10.0
+# A quad's second longest pair may decide its frame too when it is within this many standard errors of the
+# longest (the difference of two lengths, each with the pixel error of two points: sqrt(2) sigma).
+FRAME_TIE_SIGMAS = 3.0
 
 
 def lookup_hypotheses(
@@ -83,11 +88,26 @@ def lookup_hypotheses(
     sigma_px: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex)."""
-    empty = np.zeros((0, 4), np.int64)
+    empty = np.zeros((0, 4), np.int64), np.zeros((0, 4), np.complex128)
     indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:
-        return empty, np.zeros((0, 4), np.complex128)
-    zq = z[quads]
+        return empty
+    keys = _quad_keys(z[quads], opts, sigma_px)
+    if keys is None:
+        return empty
+    row, order, inv, radius = keys
+    img_ids = np.take_along_axis(quads[row], order, axis=1)
+    found_img, found_map = [], []
+    for index in indexes:
+        q_row, map_z = index.lookup(inv, img_label[img_ids], radius, opts.max_hits_per_quad)
+        found_img.append(img_ids[q_row])
+        found_map.append(map_z)
+    return np.concatenate(found_img), np.concatenate(found_map)
+
+
+def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float) -> tuple[np.ndarray, ...] | None:
+    """Every frame and ordering of the quads ``zq`` (m, 4) worth looking up: quad rows, orderings (k, 4),
+    invariants (k, 4) and lookup radii (k,); None when there is none."""
     d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
     by_length = np.argsort(-d, axis=1)
     longest = d[np.arange(len(d)), by_length[:, 0]]
@@ -97,7 +117,8 @@ def lookup_hypotheses(
     for rank in (0, 1):
         pair = by_length[:, rank]
         length = d[np.arange(len(d)), pair]
-        use = np.ones(len(d), bool) if rank == 0 else longest - length < 3.0 * math.sqrt(2.0) * sigma_px
+        tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * sigma_px
+        use = np.ones(len(d), bool) if rank == 0 else longest - length < tie
         use &= length > 0.0  # four objects on one spot have no frame
         if not use.any():
             continue
@@ -107,39 +128,35 @@ def lookup_hypotheses(
         # sigma^2 (1 + |1 - t|^2 + |t|^2) / |AB|^2 per axis.
         spread = (1.0 + np.abs(1.0 - t0) ** 2 + np.abs(t0) ** 2).sum(axis=1)
         radius = opts.tolerance_factor * sigma_px * np.sqrt(spread) / length[sel]
-        for swap_ab in (False, True):
-            for swap_cd in (False, True):
-                order = order0.copy()
-                t = t0.copy()
-                if swap_ab:
-                    order[:, :2] = order[:, 1::-1]
-                    t = 1.0 - t
-                if swap_cd:
-                    order[:, 2:] = order[:, :1:-1]
-                    t = t[:, ::-1]
-                # Only orderings that could be the canonical one within the lookup radius.
-                slack = radius * math.sqrt(2.0)
-                ok = (t.real.sum(axis=1) - 1.0 <= slack) & (t[:, 0].real - t[:, 1].real <= slack)
-                ok &= radius <= opts.max_invariant_radius
-                if not ok.any():
-                    continue
-                rows.append(sel[ok])
-                orders.append(order[ok])
-                invs.append(np.column_stack([t[ok, 0].real, t[ok, 0].imag, t[ok, 1].real, t[ok, 1].imag]))
-                radii.append(radius[ok])
+        for ok, order, t in _near_canonical_orderings(order0, t0, radius, opts.max_invariant_radius):
+            rows.append(sel[ok])
+            orders.append(order[ok])
+            invs.append(np.column_stack([t[ok, 0].real, t[ok, 0].imag, t[ok, 1].real, t[ok, 1].imag]))
+            radii.append(radius[ok])
     if not rows:
-        return empty, np.zeros((0, 4), np.complex128)
-    row = np.concatenate(rows)
-    order = np.concatenate(orders)
-    img_ids = np.take_along_axis(quads[row], order, axis=1)
-    inv = np.concatenate(invs)
-    radius = np.concatenate(radii)
-    found_img, found_map = [], []
-    for index in indexes:
-        q_row, map_z = index.lookup(inv, img_label[img_ids], radius, opts.max_hits_per_quad)
-        found_img.append(img_ids[q_row])
-        found_map.append(map_z)
-    return np.concatenate(found_img), np.concatenate(found_map)
+        return None
+    return np.concatenate(rows), np.concatenate(orders), np.concatenate(invs), np.concatenate(radii)
+
+
+def _near_canonical_orderings(order0: np.ndarray, t0: np.ndarray, radius: np.ndarray, max_radius: float):
+    """The quads' four orderings (A, B swapped or not, C, D swapped or not) as ``(ok, order, t)``, ``ok``
+    marking the quads for which that ordering could be the canonical one within the lookup radius (and whose
+    radius is at most ``max_radius``); orderings no quad can take are left out."""
+    for swap_ab in (False, True):
+        for swap_cd in (False, True):
+            order = order0.copy()
+            t = t0.copy()
+            if swap_ab:
+                order[:, :2] = order[:, 1::-1]
+                t = 1.0 - t
+            if swap_cd:
+                order[:, 2:] = order[:, :1:-1]
+                t = t[:, ::-1]
+            slack = radius * math.sqrt(2.0)
+            ok = (t.real.sum(axis=1) - 1.0 <= slack) & (t[:, 0].real - t[:, 1].real <= slack)
+            ok &= radius <= max_radius
+            if ok.any():
+                yield ok, order, t
 
 
 def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int) -> np.ndarray:
@@ -154,8 +171,8 @@ def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int) -> np.n
     cell = scale * diag_px * POSE_BIN_FRACTION
     key = np.column_stack(
         [
-            np.floor(np.log(scale) / 0.1),
-            np.floor(np.angle(a) / math.radians(10.0)),
+            np.floor(np.log(scale) / POSE_BIN_LOG_SCALE),
+            np.floor(np.angle(a) / math.radians(POSE_BIN_DEGREES)),
             np.floor(b.real / cell),
             np.floor(b.imag / cell),
         ]

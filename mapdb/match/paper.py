@@ -275,28 +275,56 @@ def match_paper(
     opts = options or PaperOptions()
     z = np.asarray(z, dtype=np.complex128)
     img_label = np.asarray(img_label, dtype=np.int64)
-    n_img = z.size
-    n_map = len(objects)
+    reason = _refusal(z.size, len(objects), opts)
+    if reason is not None:
+        return PaperResult(None, reason, 0)
+    scene = _scene(z, img_label, objects, opts)
+    best = _Best()
+    tested = 0
+    for i, j in combinations(range(z.size), 2):
+        tested += _search_pair(scene, i, j, best)
+    if best.match is None:
+        return PaperResult(None, f"no candidate matched at least N_min = {opts.n_min} objects", tested)
+    return PaperResult(best.match, None, tested)
+
+
+# Slack of the float32 pre-tests (ratios and cosines): every pair they pass is re-tested exactly in float64.
+_FLOAT32_SLACK = 1e-4
+
+
+def _refusal(n_img: int, n_map: int, opts: PaperOptions) -> str | None:
+    """Why the paper's method will not run on these counts (too few for pairs, too much work), or None."""
     if n_img < 2:
-        return PaperResult(None, f"{n_img} objects: the paper's method needs pairs", 0)
+        return f"{n_img} objects: the paper's method needs pairs"
     if n_map < 2:
-        return PaperResult(None, f"the map has {n_map} objects here: the paper's method needs pairs", 0)
+        return f"the map has {n_map} objects here: the paper's method needs pairs"
     work = n_img * (n_img - 1) / 2 * n_map * (n_map - 1) * n_img * n_map
     if work > opts.max_work:
-        return PaperResult(
-            None,
-            f"too large for the paper's method ({n_img} image objects x {n_map} map objects, about "
-            f"{work:.0e} comparisons): give a prior or use the fast method",
-            0,
-        )
+        return (f"too large for the paper's method ({n_img} image objects x {n_map} map objects, about "
+                f"{work:.0e} comparisons): give a prior or use the fast method")
+    return None
+
+
+@dataclass(frozen=True)
+class _Scene:
+    """What every pair's search reads: the image in polar form, the map, the bound and the options."""
+
+    z: np.ndarray
+    img_label: np.ndarray
+    r: np.ndarray
+    theta: np.ndarray
+    map_z: np.ndarray
+    map_label: np.ndarray
+    single_label: bool
+    bound: _NearestBound | None
+    opts: PaperOptions
+    cos_dt32: np.float32  # cos(delta_theta), less the pre-test's slack
+
+
+def _scene(z: np.ndarray, img_label: np.ndarray, objects: Objects, opts: PaperOptions) -> _Scene:
+    """The search's inputs, with the bound when pruning is asked for and it can be exact."""
     map_z = objects.x + 1j * objects.y
     map_label = objects.label.astype(np.int64)
-    r = np.abs(z)
-    theta = np.angle(z)
-
-    n_best, e_best = 0, math.inf
-    best: PaperMatch | None = None
-    tested = 0
     single_label = np.unique(map_label).size <= 1 and np.unique(img_label).size <= 1
     bound = None
     if (
@@ -309,90 +337,158 @@ def match_paper(
     ):
         keys = [None] if single_label else [int(k) for k in np.unique(img_label)]
         bound = _NearestBound(map_z, map_label, keys)
-    cos_dt32 = np.float32(math.cos(opts.delta_theta) - 1e-4)
-    for i, j in combinations(range(n_img), 2):
-        if r[i] == 0.0 or z[j] == z[i]:
-            continue
-        others = np.array([k for k in range(n_img) if k != i and k != j], dtype=np.int64)
-        ratio_k = r[others] / r[i]
-        dtheta_k = _wrap(theta[i] - theta[others])
-        slack = 1e-4  # float32 pre-test only; see below
-        lo_k = (ratio_k - opts.delta_r - slack).astype(np.float32)
-        hi_k = (ratio_k + opts.delta_r + slack).astype(np.float32)
-        cos_k32, sin_k32 = np.cos(dtheta_k).astype(np.float32), np.sin(dtheta_k).astype(np.float32)
-        # Which map objects may stand for each other image object: same label.
-        same_label = None if single_label else img_label[others][:, None] == map_label[None, :]
-        big_i = np.flatnonzero(map_label == img_label[i])
-        big_j = np.flatnonzero(map_label == img_label[j])
-        if not big_i.size or not big_j.size:
-            continue
-        pi_, pj_ = np.meshgrid(big_i, big_j, indexing="ij")
-        keep = pi_ != pj_
-        perm_i, perm_j = pi_[keep], pj_[keep]  # 2-permutations, lexicographic in (I, J)
-        a_all = (map_z[perm_j] - map_z[perm_i]) / (z[j] - z[i])
-        centre_all = map_z[perm_i] - a_all * z[i]
-        tested += perm_i.size
-        if bound is None:
-            order, n_bound = np.arange(perm_i.size), None
-        else:
-            keys = [None] * others.size if single_label else [int(k) for k in img_label[others]]
-            order, n_bound = bound.survivors(
-                centre_all, map_z[perm_i] - centre_all, ratio_k, dtheta_k, keys, max(opts.n_min, n_best), opts
-            )
-        for lo in range(0, order.size, opts.chunk):
-            batch = order[lo : lo + opts.chunk]
-            if n_bound is not None:
-                # N_best may have grown since the bound was applied.
-                batch = batch[n_bound[lo : lo + opts.chunk] >= max(opts.n_min, n_best)]
-                if not batch.size:
-                    continue
-            pi_c, pj_c = perm_i[batch], perm_j[batch]
-            centre = centre_all[batch]
-            rows = np.arange(pi_c.size)
-            rel = map_z[None, :] - centre[:, None]  # (C, n_map)
-            radius = np.abs(rel)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                ratio_map = radius / radius[rows, pi_c][:, None]
-                # exp(i (Theta_I - Theta_K)) without trigonometry: unit vector of O_I times the conjugate of O_K's.
-                unit = rel / radius
-                turn = unit[rows, pi_c][:, None] * np.conj(unit)
-            # O_I and O_J are not candidates for the other image objects.
-            ratio_map[rows, pi_c] = np.inf
-            ratio_map[rows, pj_c] = np.inf
-            # Every other image object against every other map object, one image object at a time (a
-            # (C, n_map) slab stays in cache).  The tests run in float32 with a hair of slack and the angle
-            # test as cos(a - b) > cos(delta) (the same set for delta < pi, without trigonometry); every
-            # pair they pass is then re-tested exactly in float64, so the outcome is the exact one.
-            ratio32 = ratio_map.astype(np.float32)
-            cos32, sin32 = turn.real.astype(np.float32), turn.imag.astype(np.float32)
-            # (Seeded with empties: a 2-object image has no other objects, and concatenate needs an array.)
-            found_c, found_k, found_m = [np.empty(0, np.intp)], [np.empty(0, np.intp)], [np.empty(0, np.intp)]
-            for col in range(others.size):
-                ok = (ratio32 > lo_k[col]) & (ratio32 < hi_k[col])
-                ok &= cos32 * cos_k32[col] + sin32 * sin_k32[col] > cos_dt32
-                if same_label is not None:
-                    ok &= same_label[col][None, :]
-                c_idx, m_idx = np.nonzero(ok)
-                found_c.append(c_idx)
-                found_m.append(m_idx)
-                found_k.append(np.full(c_idx.size, col))
-            c_idx, k_idx, m_idx = np.concatenate(found_c), np.concatenate(found_k), np.concatenate(found_m)
-            ratio_err = np.abs(ratio_k[k_idx] - ratio_map[c_idx, m_idx])
-            angle_err = np.abs(_wrap(dtheta_k[k_idx] - np.angle(turn[c_idx, m_idx])))
-            exact = (ratio_err < opts.delta_r) & (angle_err < opts.delta_theta)
-            c_idx, k_idx = c_idx[exact], k_idx[exact]
-            err = ratio_err[exact] + angle_err[exact]
-            e_k = np.full((pi_c.size, others.size), np.inf)
-            np.minimum.at(e_k, (c_idx, k_idx), err)  # best map match of each image object
-            matched_k = np.isfinite(e_k)
-            n_matched = 2 + matched_k.sum(axis=1)
-            for c in np.flatnonzero(n_matched >= opts.n_min):  # few; the update rule is sequential
-                if opts.prune and n_matched[c] < n_best:
-                    continue  # cannot replace the best: its std is not needed
-                e_ij = float(np.std(e_k[c, matched_k[c]]))
-                if n_matched[c] >= n_best and e_ij < e_best:
-                    n_best, e_best = int(n_matched[c]), e_ij
-                    best = PaperMatch(complex(a_all[batch[c]]), complex(centre[c]), n_best, e_ij)
-    if best is None:
-        return PaperResult(None, f"no candidate matched at least N_min = {opts.n_min} objects", tested)
-    return PaperResult(best, None, tested)
+    cos_dt32 = np.float32(math.cos(opts.delta_theta) - _FLOAT32_SLACK)
+    return _Scene(z, img_label, np.abs(z), np.angle(z), map_z, map_label, single_label, bound, opts, cos_dt32)
+
+
+@dataclass(frozen=True)
+class _Others:
+    """The image objects other than a pair ``(o_i, o_j)``, seen from ``o_i``: what map objects are tested on."""
+
+    ratio: np.ndarray  # r_k / r_i
+    dtheta: np.ndarray  # theta_i - theta_k, wrapped
+    lo32: np.ndarray  # float32 pre-test bounds on the map's radius ratio
+    hi32: np.ndarray
+    cos32: np.ndarray  # float32 cos and sin of dtheta
+    sin32: np.ndarray
+    same_label: np.ndarray | None  # (k, n_map): which map objects may stand for each; None: all (one label)
+    keys: list[int | None]  # their labels as the bound knows them
+
+
+def _others_of(scene: _Scene, i: int, j: int) -> _Others:
+    """The other image objects of the pair ``(o_i, o_j)``."""
+    n_img, opts = scene.z.size, scene.opts
+    others = np.array([k for k in range(n_img) if k != i and k != j], dtype=np.int64)
+    ratio_k = scene.r[others] / scene.r[i]
+    dtheta_k = _wrap(scene.theta[i] - scene.theta[others])
+    return _Others(
+        ratio=ratio_k,
+        dtheta=dtheta_k,
+        lo32=(ratio_k - opts.delta_r - _FLOAT32_SLACK).astype(np.float32),
+        hi32=(ratio_k + opts.delta_r + _FLOAT32_SLACK).astype(np.float32),
+        cos32=np.cos(dtheta_k).astype(np.float32),
+        sin32=np.sin(dtheta_k).astype(np.float32),
+        same_label=None if scene.single_label else scene.img_label[others][:, None] == scene.map_label[None, :],
+        keys=[None] * others.size if scene.single_label else [int(k) for k in scene.img_label[others]],
+    )
+
+
+def _map_pairs(scene: _Scene, i: int, j: int) -> tuple[np.ndarray, ...] | None:
+    """The map 2-permutations ``(O_I, O_J)`` with the pair's labels, lexicographic in ``(I, J)``, and each one's
+    similarity ``a`` and centre ``c`` (``perm_i, perm_j, a, c``); None when a label has no map object."""
+    big_i = np.flatnonzero(scene.map_label == scene.img_label[i])
+    big_j = np.flatnonzero(scene.map_label == scene.img_label[j])
+    if not big_i.size or not big_j.size:
+        return None
+    pi_, pj_ = np.meshgrid(big_i, big_j, indexing="ij")
+    keep = pi_ != pj_
+    perm_i, perm_j = pi_[keep], pj_[keep]
+    map_z, z = scene.map_z, scene.z
+    a_all = (map_z[perm_j] - map_z[perm_i]) / (z[j] - z[i])
+    centre_all = map_z[perm_i] - a_all * z[i]
+    return perm_i, perm_j, a_all, centre_all
+
+
+def _search_pair(scene: _Scene, i: int, j: int, best: _Best) -> int:
+    """Test the image pair ``(o_i, o_j)`` against every map 2-permutation, offering each candidate to ``best``;
+    the number of candidates (tested or ruled out by the bound)."""
+    opts = scene.opts
+    if scene.r[i] == 0.0 or scene.z[j] == scene.z[i]:
+        return 0
+    others = _others_of(scene, i, j)
+    pairs = _map_pairs(scene, i, j)
+    if pairs is None:
+        return 0
+    perm_i, perm_j, a_all, centre_all = pairs
+    if scene.bound is None:
+        order, n_bound = np.arange(perm_i.size), None
+    else:
+        order, n_bound = scene.bound.survivors(centre_all, scene.map_z[perm_i] - centre_all, others.ratio,
+                                               others.dtheta, others.keys, max(opts.n_min, best.n), opts)
+    for lo in range(0, order.size, opts.chunk):
+        batch = order[lo : lo + opts.chunk]
+        if n_bound is not None:
+            # N_best may have grown since the bound was applied.
+            batch = batch[n_bound[lo : lo + opts.chunk] >= max(opts.n_min, best.n)]
+            if not batch.size:
+                continue
+        e_k = _errors(scene, others, centre_all[batch], perm_i[batch], perm_j[batch])
+        best.offer(e_k, a_all[batch], centre_all[batch], opts)
+    return perm_i.size
+
+
+def _seen_from(map_z: np.ndarray, centre: np.ndarray, pi_c: np.ndarray, pj_c: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each map object seen from each candidate centre: radius ratio to ``O_I`` (inf for ``O_I`` and ``O_J``,
+    which stand for no other object) and ``exp(i (Theta_I - Theta_K))``, both ``(C, n_map)``."""
+    rows = np.arange(pi_c.size)
+    rel = map_z[None, :] - centre[:, None]  # (C, n_map)
+    radius = np.abs(rel)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio_map = radius / radius[rows, pi_c][:, None]
+        # exp(i (Theta_I - Theta_K)) without trigonometry: unit vector of O_I times the conjugate of O_K's.
+        unit = rel / radius
+        turn = unit[rows, pi_c][:, None] * np.conj(unit)
+    ratio_map[rows, pi_c] = np.inf
+    ratio_map[rows, pj_c] = np.inf
+    return ratio_map, turn
+
+
+def _pretest(ratio_map: np.ndarray, turn: np.ndarray, others: _Others, cos_dt32: np.float32) -> tuple[np.ndarray, ...]:
+    """(candidate, other image object, map object) triples that may pass both tolerances, from float32 tests.
+
+    Every other image object against every other map object, one image object at a time (a (C, n_map) slab
+    stays in cache).  The tests run in float32 with a hair of slack and the angle test as
+    cos(a - b) > cos(delta) (the same set for delta < pi, without trigonometry); the caller re-tests every
+    triple exactly in float64, so the outcome is the exact one.
+    """
+    ratio32 = ratio_map.astype(np.float32)
+    cos32, sin32 = turn.real.astype(np.float32), turn.imag.astype(np.float32)
+    # (Seeded with empties: a 2-object image has no other objects, and concatenate needs an array.)
+    found_c, found_k, found_m = [np.empty(0, np.intp)], [np.empty(0, np.intp)], [np.empty(0, np.intp)]
+    for col in range(others.ratio.size):
+        ok = (ratio32 > others.lo32[col]) & (ratio32 < others.hi32[col])
+        ok &= cos32 * others.cos32[col] + sin32 * others.sin32[col] > cos_dt32
+        if others.same_label is not None:
+            ok &= others.same_label[col][None, :]
+        c_idx, m_idx = np.nonzero(ok)
+        found_c.append(c_idx)
+        found_m.append(m_idx)
+        found_k.append(np.full(c_idx.size, col))
+    return np.concatenate(found_c), np.concatenate(found_k), np.concatenate(found_m)
+
+
+def _errors(scene: _Scene, others: _Others, centre: np.ndarray, pi_c: np.ndarray, pj_c: np.ndarray) -> np.ndarray:
+    """``e_k`` of each candidate ``(C, n_others)``: each other image object's smallest error over the map objects
+    within both tolerances (inf where none is)."""
+    opts = scene.opts
+    ratio_map, turn = _seen_from(scene.map_z, centre, pi_c, pj_c)
+    c_idx, k_idx, m_idx = _pretest(ratio_map, turn, others, scene.cos_dt32)
+    ratio_err = np.abs(others.ratio[k_idx] - ratio_map[c_idx, m_idx])
+    angle_err = np.abs(_wrap(others.dtheta[k_idx] - np.angle(turn[c_idx, m_idx])))
+    exact = (ratio_err < opts.delta_r) & (angle_err < opts.delta_theta)
+    c_idx, k_idx = c_idx[exact], k_idx[exact]
+    err = ratio_err[exact] + angle_err[exact]
+    e_k = np.full((pi_c.size, others.ratio.size), np.inf)
+    np.minimum.at(e_k, (c_idx, k_idx), err)  # best map match of each image object
+    return e_k
+
+
+@dataclass
+class _Best:
+    """Algorithm 1's running best: ``N_best``, ``E_best`` and its candidate."""
+
+    n: int = 0
+    e: float = math.inf
+    match: PaperMatch | None = None
+
+    def offer(self, e_k: np.ndarray, a: np.ndarray, centre: np.ndarray, opts: PaperOptions) -> None:
+        """The update rule, candidate by candidate in order (it is sequential): ``e_k`` as from :func:`_errors`."""
+        matched_k = np.isfinite(e_k)
+        n_matched = 2 + matched_k.sum(axis=1)
+        for c in np.flatnonzero(n_matched >= opts.n_min):  # few
+            if opts.prune and n_matched[c] < self.n:
+                continue  # cannot replace the best: its std is not needed
+            e_ij = float(np.std(e_k[c, matched_k[c]]))
+            if n_matched[c] >= self.n and e_ij < self.e:
+                self.n, self.e = int(n_matched[c]), e_ij
+                self.match = PaperMatch(complex(a[c]), complex(centre[c]), self.n, e_ij)

@@ -113,17 +113,10 @@ def raster_class_table_name(path: str | os.PathLike[str]) -> str:
     )
 
 
-def read_landcover(
-    path: str | os.PathLike[str],
-    table: LabelTable,
-    classes: str | None = None,
-    min_area_m2: float = 10_000.0,
-    bbox: tuple[float, float, float, float] | None = None,
-    progress: ProgressCallback | None = None,
-    *,
-    connectivity: int = 8,
-    _tile: tuple[int, int] | None = None,
-) -> Objects:
+def read_landcover(path: str | os.PathLike[str], table: LabelTable, classes: str | None = None,
+                   min_area_m2: float = 10_000.0, bbox: tuple[float, float, float, float] | None = None,
+                   progress: ProgressCallback | None = None, *, connectivity: int = 8,
+                   _tile: tuple[int, int] | None = None) -> Objects:
     """One object per land-cover patch of at least ``min_area_m2``.
 
     Parameters
@@ -174,8 +167,13 @@ def read_landcover(
     12
     """
     path = Path(path)
-    if bbox is not None:
-        bbox = check_bbox(bbox)
+    bbox = None if bbox is None else check_bbox(bbox)
+    code_labels = _class_table(path, table, classes, connectivity)
+    return _read_patches(path, code_labels, tuple(table.labels), min_area_m2, bbox, progress, connectivity, _tile)
+
+
+def _class_table(path: Path, table: LabelTable, classes: str | None, connectivity: int) -> dict[int, str]:
+    """The raster's class table (pixel code to label), once the arguments and the path are checked."""
     if connectivity not in (4, 8):
         raise ValueError(f"connectivity must be 4 or 8, not {connectivity!r}")
     if not path.exists():
@@ -185,9 +183,13 @@ def read_landcover(
     name = classes if classes is not None else raster_class_table_name(path)
     if name not in table.rasters:
         raise SourceError(f"{path}: no raster class table named {name!r} (have: {', '.join(sorted(table.rasters))})")
-    code_labels = table.raster_classes(name)
-    labels = tuple(table.labels)
+    return table.raster_classes(name)
 
+
+def _read_patches(path: Path, code_labels: dict[int, str], labels: tuple[str, ...], min_area_m2: float,
+                  bbox: tuple[float, float, float, float] | None, progress: ProgressCallback | None,
+                  connectivity: int, tile: tuple[int, int] | None) -> Objects:
+    """The patches of the raster (of its part under ``bbox``), as objects in its CRS."""
     with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB), _open_raster(path) as src:
         _check_raster(path, src)
         crs = CRS.from_user_input(src.crs.to_wkt())
@@ -200,7 +202,7 @@ def read_landcover(
         # GDAL gives an absent block of a sparse file the nodata value, else 0: when that is a class,
         # absent blocks are patches and must be read like the others.
         fill = src.nodata if src.nodata is not None else 0
-        tiling = _Tiling(path, src, window, skip_absent=not class_masks.is_class(fill), shape=_tile)
+        tiling = _Tiling(path, src, window, skip_absent=not class_masks.is_class(fill), shape=tile)
         patches = _Patches(min_area_m2, connectivity)
         _scan(path, src, tiling, class_masks, _pixel_area_fn(path, crs, t), patches, progress)
         col, row, label_code, area = patches.result()

@@ -61,14 +61,9 @@ def is_layer_path(path: str | os.PathLike[str]) -> bool:
     return Path(path).suffix.lower() in LAYER_SUFFIXES
 
 
-def read_layer(
-    path: str | os.PathLike[str],
-    labels: Sequence[str],
-    label_column: str = "label",
-    crs: str | None = None,
-    bbox: tuple[float, float, float, float] | None = None,
-    counts: Counter[str] | None = None,
-) -> Objects:
+def read_layer(path: str | os.PathLike[str], labels: Sequence[str], label_column: str = "label",
+               crs: str | None = None, bbox: tuple[float, float, float, float] | None = None,
+               counts: Counter[str] | None = None) -> Objects:
     """Read a labelled point or polygon layer as objects.
 
     Parameters
@@ -115,17 +110,28 @@ def read_layer(
     path = Path(path)
     labels = tuple(labels)
     counts = counts if counts is not None else Counter()
-    if bbox is not None:
-        bbox = check_bbox(bbox)
+    bbox = None if bbox is None else check_bbox(bbox)
+    _check_path(path)
+    read = _read_csv if path.suffix.lower() == ".csv" else _read_vector
+    x, y, names, area, layer_crs = read(path, label_column, crs, counts)
+    _check_labels(path, names, labels, label_column)
+    objects = Objects.from_names(x, y, names, area=area, crs=layer_crs.to_string(), labels=labels)
+    if bbox is not None and len(objects):
+        lon, lat = _to_lonlat(layer_crs, objects.x, objects.y)
+        objects = objects.take(np.flatnonzero(in_bbox(bbox, lon, lat)))
+    return objects
+
+
+def _check_path(path: Path) -> None:
+    """A one-line error for a missing file or a directory (a file geodatabase ``.gdb`` is one)."""
     if not path.exists():
         raise MapdbIOError(f"{path}: no such file")
     if path.is_dir() and path.suffix.lower() != ".gdb":
         raise MapdbIOError(f"{path}: is a directory, not a layer file")
-    if path.suffix.lower() == ".csv":
-        x, y, names, area, layer_crs = _read_csv(path, label_column, crs, counts)
-    else:
-        x, y, names, area, layer_crs = _read_vector(path, label_column, crs, counts)
 
+
+def _check_labels(path: Path, names: np.ndarray, labels: tuple[str, ...], label_column: str) -> None:
+    """Refuse a layer with label names not in ``labels`` (the first ten named)."""
     unknown = sorted(set(np.unique(names).tolist()) - set(labels)) if names.size else []
     if unknown:
         shown = ", ".join(repr(u) for u in unknown[:10])
@@ -134,11 +140,6 @@ def read_layer(
         raise SourceError(
             f"{path}: unknown label(s) {shown} in column {label_column!r}; declare them in a --labels file"
         )
-    objects = Objects.from_names(x, y, names, area=area, crs=layer_crs.to_string(), labels=labels)
-    if bbox is not None and len(objects):
-        lon, lat = _to_lonlat(layer_crs, objects.x, objects.y)
-        objects = objects.take(np.flatnonzero(in_bbox(bbox, lon, lat)))
-    return objects
 
 
 def _valid_coordinates(crs: CRS, x: np.ndarray, y: np.ndarray) -> np.ndarray:

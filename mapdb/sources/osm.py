@@ -102,13 +102,8 @@ def inflation_limit(compressed_bytes: int) -> int:
     return max(MIN_INFLATED_BYTES, MAX_INFLATION * int(compressed_bytes))
 
 
-def read_osm(
-    path: str | Path,
-    table: LabelTable,
-    bbox: tuple[float, float, float, float] | None = None,
-    progress: Progress | None = None,
-    counts: Counter[str] | None = None,
-) -> Objects:
+def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, float, float] | None = None,
+             progress: Progress | None = None, counts: Counter[str] | None = None) -> Objects:
     """Read the labelled objects of an OpenStreetMap extract.
 
     Parameters
@@ -147,12 +142,8 @@ def read_osm(
 
     Notes
     -----
-    Compressed XML is inflated here, chunk by chunk, into a temporary file that libosmium reads
-    (it reads the file twice, relations first): memory holds one chunk, and a decompression bomb
-    is refused once it passes :func:`inflation_limit`.  On the way, coordinates libosmium cannot
-    parse (``nan``, ``inf``, ``1e400``, text) are made out of range, so that such a node is skipped
-    and counted like a node at latitude 95 instead of failing the whole file (and libosmium would
-    read ``1e400`` as 0).  A plain XML file is copied so only when it holds such a coordinate.
+    Compressed XML is inflated chunk by chunk, refused past :func:`inflation_limit`; a node whose coordinate
+    libosmium cannot parse (``nan``, ``1e400``, text) is skipped and counted, not fatal (see ``_xml_input``).
 
     Examples
     --------
@@ -163,12 +154,29 @@ def read_osm(
     """
     path = Path(path)
     _check_readable(path)
-    if bbox is not None:
-        bbox = check_bbox(bbox)
+    bbox = None if bbox is None else check_bbox(bbox)
     counts = counts if counts is not None else Counter()
-    report = progress or (lambda message: None)
+    return _read(path, table, bbox, progress or (lambda message: None), counts)
+
+
+def _read(path: Path, table: LabelTable, bbox: tuple[float, float, float, float] | None, report: Progress,
+          counts: Counter[str]) -> Objects:
+    """:func:`read_osm` on checked arguments: collect, assemble, clip, and say what came of it."""
     started = time.monotonic()
     report(f"{path}: reading OpenStreetMap data")
+    objects = _assemble(_collect(path, table, report, counts), table, counts)
+    if bbox is not None:
+        objects = objects.take(in_bbox(bbox, objects.x, objects.y))
+    summary = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
+    report(f"{path}: {len(objects):,} objects in {time.monotonic() - started:.1f} s ({summary})")
+    skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
+    if skipped:
+        report(f"{path}: skipped or repaired: {skipped}")
+    return objects
+
+
+def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[str]) -> _Collected:
+    """The single pass over the file (and the repair of areas osmium could not assemble)."""
     try:
         with _xml_input(path) if path.name.lower().endswith(_XML_SUFFIXES) else nullcontext(str(path)) as source:
             collected = _scan(path, source, table, report, counts)
@@ -178,7 +186,11 @@ def read_osm(
         # libosmium reports bad input (XML syntax, PBF framing, unknown format) as RuntimeError.
         detail = " ".join(str(exc).split()) or exc.__class__.__name__
         raise SourceError(f"{path}: not a readable OSM file ({detail})") from None
+    return collected
 
+
+def _assemble(collected: _Collected, table: LabelTable, counts: Counter[str]) -> Objects:
+    """The objects of what the pass collected: points, areas, ways and (when the table asks) intersections."""
     parts = [
         _point_objects(collected.node_lon, collected.node_lat, collected.node_code, table.labels),
         _area_objects(collected.area_wkb, collected.area_code, table.labels, counts),
@@ -186,15 +198,7 @@ def read_osm(
     ]
     if table.intersections is not None:
         parts.append(_intersection_objects(collected, table.intersections, table.labels, counts))
-    objects = concat(parts, labels=table.labels)
-    if bbox is not None:
-        objects = objects.take(in_bbox(bbox, objects.x, objects.y))
-    summary = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
-    report(f"{path}: {len(objects):,} objects in {time.monotonic() - started:.1f} s ({summary})")
-    skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
-    if skipped:
-        report(f"{path}: skipped or repaired: {skipped}")
-    return objects
+    return concat(parts, labels=table.labels)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -239,8 +243,10 @@ def _xml_input(path: Path) -> Iterator[str]:
 
     A compressed file is inflated into a temporary file, chunk by chunk, and refused (one-line
     :class:`SourceError`) once it passes :func:`inflation_limit`: memory holds one chunk and disk
-    at most the limit.  Coordinates libosmium would reject or misread are fixed on the way (see
-    :func:`read_osm`); a plain file is copied only when it has such a coordinate.
+    at most the limit.  libosmium reads the copy twice (relations first).  Coordinates libosmium cannot
+    parse (``nan``, ``inf``, ``1e400``, text) are made out of range on the way, so that such a node is skipped
+    and counted like a node at latitude 95 instead of failing the whole file (and libosmium would read
+    ``1e400`` as 0); a plain file is copied only when it has such a coordinate.
     """
     name = path.name.lower()
     opener: Callable[..., Any] = gzip.open if name.endswith(".gz") else bz2.open if name.endswith(".bz2") else open
@@ -340,11 +346,35 @@ def _tag_prefilter(rules: Sequence[TagRule], extra: Sequence[tuple[str, str]] = 
 
 
 def _scan(path: Path, source: str, table: LabelTable, report: Progress, counts: Counter[str]) -> _Collected:
+    """One pass over ``source``: the labelled nodes, areas and ways, and the road ways' nodes."""
     area_rules = _rules_for(table, "area")
     node_rules = _rules_for(table, "node")
     way_rules = _rules_for(table, "way")
     roads = frozenset(table.intersections.highways) if table.intersections is not None else frozenset()
+    processor = _processor(source, area_rules, node_rules, way_rules, roads)
+    out = _Collected()
+    wkb = osmium.geom.WKBFactory()
+    seen = 0
+    last_report = time.monotonic()
+    for obj in processor:
+        seen += 1
+        if seen % _PROGRESS_STRIDE == 0 and time.monotonic() - last_report >= _PROGRESS_SECONDS:
+            last_report = time.monotonic()
+            report(f"{path}: {seen:,} tagged objects read")
+        kind = obj.type_str()
+        if kind == "a":
+            _take_area(obj, area_rules, wkb, out, counts)
+        elif kind == "n":
+            _take_node(obj, node_rules, out, counts)
+        elif kind == "w":
+            _take_way(obj, way_rules, area_rules, roads, wkb, out, counts)
+    out.locations = processor.node_location_storage
+    return out
 
+
+def _processor(source: str, area_rules: list[tuple[int, TagRule]], node_rules: list[tuple[int, TagRule]],
+               way_rules: list[tuple[int, TagRule]], roads: frozenset[str]) -> Any:
+    """osmium's reader of ``source``, letting through (a superset of) the objects the rules may use."""
     area_filter = _tag_prefilter([r for _, r in area_rules])
     node_filter = _tag_prefilter([r for _, r in node_rules])
     # Ways tagged as areas come through too: osmium silently drops those that do not close or have a
@@ -368,57 +398,58 @@ def _scan(path: Path, source: str, table: LabelTable, report: Progress, counts: 
         kinds |= osmium.osm.WAY
     # Relations themselves (and changesets) are never objects: their areas come as Area objects.
     processor.with_filter(osmium.filter.EntityFilter(kinds))
+    return processor
 
-    out = _Collected()
-    wkb = osmium.geom.WKBFactory()
-    seen = 0
-    last_report = time.monotonic()
-    for obj in processor:
-        seen += 1
-        if seen % _PROGRESS_STRIDE == 0 and time.monotonic() - last_report >= _PROGRESS_SECONDS:
-            last_report = time.monotonic()
-            report(f"{path}: {seen:,} tagged objects read")
-        kind = obj.type_str()
-        if kind == "a":
-            code = _first_match(area_rules, obj.tags)
-            if code >= 0:
-                try:
-                    geometry = wkb.create_multipolygon(obj)
-                except osmium.InvalidLocationError:
-                    counts["invalid_coordinates"] += 1
-                    continue
-                except RuntimeError:  # osmium found the rings invalid (crossing themselves)
-                    if obj.from_way():
-                        out.failed_area_ways[obj.orig_id()] = code
-                    else:
-                        counts["invalid_geometries"] += 1
-                    continue
-                out.area_wkb.append(geometry)
-                out.area_code.append(code)
-        elif kind == "n":
-            code = _first_match(node_rules, obj.tags)
-            if code >= 0:
-                location = obj.location
-                if location.valid():
-                    out.node_lon.append(location.lon)
-                    out.node_lat.append(location.lat)
-                    out.node_code.append(code)
-                elif _defined(location):
-                    counts["invalid_coordinates"] += 1
-        elif kind == "w":
-            tags = obj.tags
-            code = _first_match(way_rules, tags)
-            if code >= 0:
-                _collect_way(obj, code, out, counts)
-            elif area_rules:
-                _check_area_way(obj, tags, area_rules, wkb, counts)
-            if roads and tags.get("highway") in roads:
-                refs = [n.ref for n in obj.nodes]
-                if len(refs) >= 2:
-                    out.road_refs.extend(refs)
-                    out.road_lengths.append(len(refs))
-    out.locations = processor.node_location_storage
-    return out
+
+def _take_area(obj: Any, area_rules: list[tuple[int, TagRule]], wkb: Any, out: _Collected,
+               counts: Counter[str]) -> None:
+    """Keep an assembled area that an area rule labels (or note why it cannot be kept)."""
+    code = _first_match(area_rules, obj.tags)
+    if code < 0:
+        return
+    try:
+        geometry = wkb.create_multipolygon(obj)
+    except osmium.InvalidLocationError:
+        counts["invalid_coordinates"] += 1
+        return
+    except RuntimeError:  # osmium found the rings invalid (crossing themselves)
+        if obj.from_way():
+            out.failed_area_ways[obj.orig_id()] = code
+        else:
+            counts["invalid_geometries"] += 1
+        return
+    out.area_wkb.append(geometry)
+    out.area_code.append(code)
+
+
+def _take_node(obj: Any, node_rules: list[tuple[int, TagRule]], out: _Collected, counts: Counter[str]) -> None:
+    """Keep a node that a node rule labels, when its location is valid (counted when out of range)."""
+    code = _first_match(node_rules, obj.tags)
+    if code < 0:
+        return
+    location = obj.location
+    if location.valid():
+        out.node_lon.append(location.lon)
+        out.node_lat.append(location.lat)
+        out.node_code.append(code)
+    elif _defined(location):
+        counts["invalid_coordinates"] += 1
+
+
+def _take_way(obj: Any, way_rules: list[tuple[int, TagRule]], area_rules: list[tuple[int, TagRule]],
+              roads: frozenset[str], wkb: Any, out: _Collected, counts: Counter[str]) -> None:
+    """Keep a way that a way rule labels, check one tagged as an area, and keep a road's nodes."""
+    tags = obj.tags
+    code = _first_match(way_rules, tags)
+    if code >= 0:
+        _collect_way(obj, code, out, counts)
+    elif area_rules:
+        _check_area_way(obj, tags, area_rules, wkb, counts)
+    if roads and tags.get("highway") in roads:
+        refs = [n.ref for n in obj.nodes]
+        if len(refs) >= 2:
+            out.road_refs.extend(refs)
+            out.road_lengths.append(len(refs))
 
 
 def _defined(location: Any) -> bool:
