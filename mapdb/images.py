@@ -186,7 +186,10 @@ def _plain_object_ok(obj: Any) -> bool:
     """The schema's rules for one entry of ``objects`` (label: non-empty string; x, y: numbers in range)."""
     if type(obj) is not dict:
         return False
-    label, x, y = obj.get("label"), obj.get("x"), obj.get("y")
+    # Any, not Any | None: the type() tests below rule out None before the comparisons.
+    label: Any = obj.get("label")
+    x: Any = obj.get("x")
+    y: Any = obj.get("y")
     return (
         type(label) is str
         and label != ""
@@ -412,7 +415,7 @@ def _documents(stream: BinaryIO, name: str, max_bytes: int) -> Iterator[tuple[st
             break
     overflow = False
     if head and head[-1][1] is not None and _opens_a_document(head[-1][1]):
-        size = sum(len(line) + 1 for _, line in head)
+        size = sum(len(line or b"") + 1 for _, line in head)  # all bytes here: blanks, then an opening line
         for number, line in lines:
             head.append((number, line))
             size += max_bytes + 1 if line is None else len(line) + 1
@@ -421,7 +424,8 @@ def _documents(stream: BinaryIO, name: str, max_bytes: int) -> Iterator[tuple[st
                 break
         if not overflow:
             try:
-                whole = json.loads(b"\n".join(line for _, line in head).decode("utf-8"))
+                # No None here: an over-long line would have counted max_bytes + 1 and overflowed.
+                whole = json.loads(b"\n".join(line or b"" for _, line in head).decode("utf-8"))
             except (ValueError, RecursionError):
                 whole = None  # JSON Lines after all (or broken): line by line below
             if isinstance(whole, dict):

@@ -150,7 +150,8 @@ def _kind(value: Any) -> str:
         return f"the number {value!r}"
     if isinstance(value, str):
         return f"the string {value[:40]!r}"
-    return {dict: "a table", list: "a list"}.get(type(value), type(value).__name__)
+    kinds: dict[type, str] = {dict: "a table", list: "a list"}
+    return kinds.get(type(value), type(value).__name__)
 
 
 def _parse(doc: dict[str, Any], where: str, base: LabelTable | None) -> LabelTable:

@@ -16,15 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # Modules whose mypy errors are being fixed elsewhere: while any error is reported in one of them, the
 # test skips naming them instead of failing.  Empty when the whole tree is clean.
-PENDING: dict[str, str] = {
-    "mapdb/images.py": "values of Any | None from dict.get, the object-array dtype, lines that may be None",
-    "mapdb/labels.py": "dict.get keyed by a type",
-    "mapdb/match/decision.py": "log10_binomial_tail's n is a float or an array",
-    "mapdb/match/paper.py": "a grid reshaped in place, a key list's item type",
-    "mapdb/match/quads.py": "QuadIndex.merged reads an Optional tree",
-    "mapdb/sources/landcover.py": "arrays first set to None, a slice-or-array variable, TIFF fields of Any | None",
-    "mapdb/sources/osm.py": "the ways-only pass reads way.nodes off the processor's union type",
-}
+PENDING: dict[str, str] = {}
 
 
 def test_package_ships_py_typed() -> None:

@@ -31,7 +31,9 @@ __all__ = ["log10_binomial_tail", "log10_nfa_curve"]
 _LOG10_FLOOR = -300.0
 
 
-def log10_binomial_tail(n: np.ndarray, k: np.ndarray, p: np.ndarray) -> np.ndarray:
+def log10_binomial_tail(
+    n: float | np.ndarray, k: float | np.ndarray, p: float | np.ndarray
+) -> np.ndarray:
     """``log10 P(Binomial(n, p) >= k)``, elementwise with broadcasting.
 
     Uses the regularised incomplete beta function ``I_p(k, n - k + 1)``: exact, and

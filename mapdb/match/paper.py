@@ -154,13 +154,13 @@ class _NearestBound:
         half_diagonal = self.cell * math.sqrt(0.5) * (1.0 + 1e-4)
         self.key_row = {key: row for row, key in enumerate(label_keys)}
         # One row of cells per label, flattened: a look-up is one gather whatever the labels.
-        self.grids = np.full((len(label_keys), self.nx * self.ny), np.inf)
+        grids = np.full((len(label_keys), self.nx * self.ny), np.inf)
         for key, row in self.key_row.items():
             mine = map_z if key is None else map_z[map_label == key]
             if mine.size:
                 nearest, _ = cKDTree(np.column_stack([mine.real, mine.imag])).query(centres)
-                self.grids[row] = np.maximum(nearest - half_diagonal, 0.0)
-        self.grids = self.grids.ravel()
+                grids[row] = np.maximum(nearest - half_diagonal, 0.0)
+        self.grids: np.ndarray = grids.ravel()
         # Far above the float64 rounding of the map's coordinates (in the matcher's tests and in this bound).
         self.slack = 1e-9 * (1.0 + float(max(np.abs(x).max(), np.abs(y).max())))
 
@@ -335,7 +335,7 @@ def _scene(z: np.ndarray, img_label: np.ndarray, objects: Objects, opts: PaperOp
         and np.all(np.isfinite(z))
         and np.all(np.isfinite(map_z))
     ):
-        keys = [None] if single_label else [int(k) for k in np.unique(img_label)]
+        keys: list[int | None] = [None] if single_label else [int(k) for k in np.unique(img_label)]
         bound = _NearestBound(map_z, map_label, keys)
     cos_dt32 = np.float32(math.cos(opts.delta_theta) - _FLOAT32_SLACK)
     return _Scene(z, img_label, np.abs(z), np.angle(z), map_z, map_label, single_label, bound, opts, cos_dt32)

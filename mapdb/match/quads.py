@@ -220,7 +220,7 @@ class QuadIndex:
             merged.quad_label = np.zeros((0, 4), np.int64)
             return merged
         merged.tree = cKDTree(
-            np.concatenate([q.tree.data for q in parts]), balanced_tree=False, compact_nodes=False
+            np.concatenate([q.tree.data for q in parts if q.tree is not None]), balanced_tree=False, compact_nodes=False
         )
         merged.quad_z = np.concatenate([q.quad_z for q in parts])
         merged.quad_label = np.concatenate([q.quad_label for q in parts])

@@ -297,7 +297,7 @@ class _Tiling:
         c1 = np.minimum((tc + 1) * tw, self.col_end)
         for tr in range(self.row0 // th, -(-self.row_end // th)):
             r0, r1 = max(tr * th, self.row0), min((tr + 1) * th, self.row_end)
-            keep = slice(None)
+            keep: slice | np.ndarray = slice(None)
             if self.present is not None:
                 # Blocks of these rows holding data, summed per tile over the block columns it covers.
                 row_has = self.present[r0 // self.block_rows:(r1 - 1) // self.block_rows + 1].any(axis=0)
@@ -335,7 +335,9 @@ def _block_presence(path: Path, src: Any, block_rows: int, block_cols: int) -> n
             fields = _first_ifd(f)
             if fields is None:
                 return None
-            width, height = fields.get("width"), fields.get("height")
+            # Any, not Any | None: unless both equal the raster's (int) sizes, the next line returns.
+            width: Any = fields.get("width")
+            height: Any = fields.get("height")
             if (width, height) != (src.width, src.height) or fields.get("samples", 1) != 1:
                 return None
             if "tile_counts" in fields:
@@ -592,7 +594,7 @@ class _Patches:
         self.diagonal = connectivity == 8
         # Open components (touching the last pixel row of the row of tiles above): sums and class,
         # and for each tile column of that row, which open component each pixel of its last row holds.
-        self.open_sums = np.zeros((3, 0))
+        self.open_sums: np.ndarray = np.zeros((3, 0))
         self.open_cls = np.zeros(0, np.uint8)
         self.seam: dict[int, np.ndarray] = {}
         self.out: list[tuple[np.ndarray, ...]] = []
@@ -619,7 +621,8 @@ class _Patches:
         """
         h = row_area.size
         w = None
-        first = last = left = right = None
+        # Placeholders, replaced by full-width arrays at the first class (or never read: see "w is None").
+        first = last = left = right = np.empty(0, np.int64)
         for c, mask_row0, mask in class_masks:
             if w is None:
                 w = mask.shape[1]

@@ -505,6 +505,8 @@ def _repair_ways(source: str, c: _Collected, counts: Counter[str]) -> None:
     wanted = c.failed_area_ways
     processor = osmium.FileProcessor(source, osmium.osm.WAY).with_filter(osmium.filter.IdFilter(list(wanted)))
     for way in processor:
+        if not isinstance(way, osmium.osm.Way):  # never taken (ways only are read); narrows the type for mypy
+            continue
         code = wanted.get(way.id)
         if code is None:
             continue
