@@ -45,6 +45,8 @@ from .errors import ImageInputError
 from .images import ImageObjects, Prior, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from .match.paper import PaperOptions, match_paper
+from .match.stored_index import StoredQuadIndex
+from .store import MetaMap
 
 __all__ = [
     "METHODS",
@@ -147,6 +149,20 @@ class _Recent:
         return value
 
 
+class StoredQuads:
+    """A stored lost-in-space index (:class:`~mapdb.match.stored_index.StoredQuadIndex`) in the matcher's
+    lookup interface: the query row of each hit and the hit's four map points."""
+
+    def __init__(self, stored: StoredQuadIndex) -> None:
+        self.stored = stored
+        self.n_quads = stored.n_quads
+
+    def lookup(self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray,
+               k: int) -> tuple[np.ndarray, np.ndarray]:
+        rows, ids = self.stored.lookup(invariants, labels, radius, k)
+        return rows, self.stored.coordinates(ids)
+
+
 class Localizer:
     """A map with the matcher's indexes and options: answers images one after another.
 
@@ -186,7 +202,7 @@ class Localizer:
         self.options = options if isinstance(options, wanted) else wanted()
         self.prior = prior
         self._whole_objects: ObjectIndex | None = None
-        self._whole_quads: QuadIndex | None = None
+        self._whole_quads: QuadIndex | StoredQuads | None = None
         self._tiles = _Recent(MAX_CACHED_QUADS, size=lambda quads: max(quads.n_quads, 1))
         self._block_quads = _Recent(MAX_CACHED_BLOCKS)
         self._previous_block: tuple | None = None
@@ -208,13 +224,27 @@ class Localizer:
 
     # ------------------------------------------------------------------------------------ indexes
 
-    def whole_map_indexes(self) -> tuple[ObjectIndex, QuadIndex]:
-        """The whole map's object and quad indexes, built on first use."""
+    def whole_map_indexes(self) -> tuple[ObjectIndex, QuadIndex | StoredQuads]:
+        """The whole map's object and quad indexes: the stored lost-in-space index beside the map file
+        when there is one (``mapdb index MAP``; opened in milliseconds, read as needed), else a quad
+        index built in memory on first use."""
         if self._whole_objects is None or self._whole_quads is None:
             objects = self.map.all()
             self._whole_objects = ObjectIndex(objects, bounds=self.map.bounds)
-            self._whole_quads = QuadIndex(objects, self.fast_options.map_neighbours)
+            stored = self._stored_index()
+            self._whole_quads = (StoredQuads(stored) if stored is not None
+                                 else QuadIndex(objects, self.fast_options.map_neighbours))
         return self._whole_objects, self._whole_quads
+
+    def _stored_index(self) -> StoredQuadIndex | None:
+        """The map's stored quad index, if it has one built with the matcher's number of neighbours."""
+        if not isinstance(self.map, MetaMap):
+            return None
+        stored = StoredQuadIndex.for_map(self.map)
+        if stored is not None and stored.neighbours != self.fast_options.map_neighbours:
+            stored.close()
+            return None
+        return stored
 
     def fast_indexes(self, prior: tuple[float, float, float] | None, margin: float):
         """Objects to verify against and quad indexes to look hypotheses up in.

@@ -364,3 +364,25 @@ def test_an_image_with_thousands_of_objects_is_matched_on_its_central_ones() -> 
         {"label": "building", "x": float(x), "y": float(y)}
         for x, y in zip(rng.uniform(0, 4000, 20_000), rng.uniform(0, 3000, 20_000))]}
     assert localize(noise, m)["status"] == "rejected"
+
+
+def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path) -> None:
+    """With ``MAP.qidx`` beside the map, lost-in-space lookups go to it (no quad index built in memory) and
+    images are localized as with the in-memory index."""
+    from mapdb.localize import Localizer, StoredQuads
+    from mapdb.match.stored_index import build_index
+    from mapdb.store import open_map, write_map
+
+    path = tmp_path / "paper.mapdb"
+    write_map(path, paper_map(seed=0))
+    build_index(path, workers=1)
+    with open_map(path) as m:
+        images = simulate_images(m, 5, pixel_std=0.5, yaw="random", seed=6)
+        stored, memory = Localizer(m), Localizer(m)
+        memory._stored_index = lambda: None  # the same map, as if it had no index file
+        for im in images:
+            a, b = stored.localize(im), memory.localize(im)
+            assert a["status"] == b["status"] == "ok"
+            assert math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"]) < 1.0
+        assert isinstance(stored.whole_map_indexes()[1], StoredQuads)
+        assert isinstance(memory.whole_map_indexes()[1], QuadIndex)

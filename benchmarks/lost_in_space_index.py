@@ -1,0 +1,408 @@
+"""The stored lost-in-space quad index at country scale: build, open, lookups, against Andorra and QuadIndex.
+
+For Andorra (built from ``../shared/data/osm``) and synthetic worlds of 1M and 5M objects assembled
+from copies of the three extracts (``benchmarks/synthetic_world.py``):
+
+* **build**: ``mapdb.match.stored_index.build_index`` in a child process: wall time, peak memory (the sum of
+  the resident sets of the process and its workers, sampled every 0.1 s, and the largest single
+  resident set from ``getrusage``), file size;
+* **open**: a fresh process opens the map and its index and answers the lookups of one image, with
+  the two files dropped from the page cache first (``posix_fadvise DONTNEED``): the time from
+  ``open_map`` to the answer, and from process start;
+* **lookups**: the quads of ``--images`` images simulated over the map (random heading, 60-400 m,
+  35-60 degrees, 1 px error, at least 6 objects) are looked up as the fast matcher forms them
+  (``image_queries`` below: each image quad in the frames and orderings that noise could make
+  canonical, radius from a 1.5 px error, at most 16 hits): median time per image, and how often the
+  true map quad is among the hits;
+* **QuadIndex** (the in-memory cKDTree index) on Andorra and, with ``--quadindex-world``, on the 1M
+  world (about 250 s and 14 GB: run once): build time and memory, and the same lookups.
+
+Run from the repository root (about 15 minutes with the 1M QuadIndex)::
+
+    nice python benchmarks/lost_in_space_index.py
+    nice python benchmarks/lost_in_space_index.py --worlds 1000000 --images 50   # quicker
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
+
+from mapdb.match.fast import _LABEL_GAP, _label_keys, neighbour_quads  # noqa: E402
+from mapdb.store import open_map, write_map  # noqa: E402
+
+PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
+SIGMA_PX = 1.5
+TOLERANCE = 2.0
+MAX_RADIUS = 0.3
+HITS = 16
+REPEATS = 3
+IMAGE_NEIGHBOURS = 5
+
+
+def image_queries(z: np.ndarray, label: np.ndarray, neighbours: int = IMAGE_NEIGHBOURS,
+                  sigma_px: float = SIGMA_PX) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Lookups of an image's quads as ``mapdb.match.fast._image_hypotheses`` forms them.
+
+    Each image quad (every object with triples of its ``neighbours`` nearest) is looked up in its
+    longest pair's frame and, when the second longest is within noise of it, in that one too; in each
+    frame, in the orderings of ``A, B`` and ``C, D`` that noise could make canonical.  The radius is
+    ``TOLERANCE`` times the invariants' predicted standard error for a ``sigma_px`` pixel error.
+
+    Returns
+    -------
+    inv : (m, 4) invariants, labels : (m, 4) label codes, radius : (m,), ids : (m, 4) image object ids
+        (``A, B, C, D`` of each lookup).
+    """
+    quads = neighbour_quads(np.column_stack([z.real, z.imag]), neighbours)
+    if not len(quads):
+        return np.zeros((0, 4)), np.zeros((0, 4), np.int64), np.zeros(0), np.zeros((0, 4), np.int64)
+    zq = z[quads]
+    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
+    by_length = np.argsort(-d, axis=1)
+    longest = d[np.arange(len(d)), by_length[:, 0]]
+    invs, ids, radii = [], [], []
+    for rank in (0, 1):
+        pair = by_length[:, rank]
+        length = d[np.arange(len(d)), pair]
+        use = np.ones(len(d), bool) if rank == 0 else longest - length < 3.0 * math.sqrt(2.0) * sigma_px
+        use &= length > 0.0
+        sel = np.flatnonzero(use)
+        if not sel.size:
+            continue
+        rows = np.arange(sel.size)
+        order0 = np.concatenate([PAIRS[pair[sel]], OTHERS[pair[sel]]], axis=1)
+        a, b = zq[sel][rows, order0[:, 0]], zq[sel][rows, order0[:, 1]]
+        t0 = (zq[sel][rows[:, None], order0[:, 2:]] - a[:, None]) / (b - a)[:, None]
+        spread = (1.0 + np.abs(1.0 - t0) ** 2 + np.abs(t0) ** 2).sum(axis=1)
+        radius = TOLERANCE * sigma_px * np.sqrt(spread) / length[sel]
+        for swap_ab in (False, True):
+            for swap_cd in (False, True):
+                order, t = order0.copy(), t0.copy()
+                if swap_ab:
+                    order[:, :2] = order[:, 1::-1]
+                    t = 1.0 - t
+                if swap_cd:
+                    order[:, 2:] = order[:, :1:-1]
+                    t = t[:, ::-1]
+                slack = radius * math.sqrt(2.0)
+                ok = (t.real.sum(axis=1) - 1.0 <= slack) & (t[:, 0].real - t[:, 1].real <= slack)
+                ok &= radius <= MAX_RADIUS
+                invs.append(np.column_stack([t[ok, 0].real, t[ok, 0].imag, t[ok, 1].real, t[ok, 1].imag]))
+                ids.append(np.take_along_axis(quads[sel[ok]], order[ok], axis=1))
+                radii.append(radius[ok])
+    ids = np.concatenate(ids)
+    return np.concatenate(invs), label[ids], np.concatenate(radii), ids
+
+
+def _images(map_path: Path, n: int, seed: int) -> list[dict]:
+    from mapdb.simulate import simulate_images
+
+    with open_map(map_path) as m:
+        return simulate_images(m, n, altitude=(60.0, 400.0), fov_deg=(35.0, 60.0), yaw="random",
+                               attitude_std=0.05, pixel_std=1.0, min_objects=6, seed=seed)
+
+
+def _image_arrays(image: dict, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    code = {name: i for i, name in enumerate(labels)}
+    objs = image["objects"]
+    z = np.array([(o["x"] - image["width"] / 2) + 1j * (image["height"] / 2 - o["y"]) for o in objs])
+    label = np.array([code[o["label"]] for o in objs], np.int64)
+    return z, label, np.array(image["truth"]["map_index"], np.int64)
+
+
+def _stored_lookups(map_path: Path, images: list[dict]) -> dict:
+    """Time the stored index's lookups of every image, twice; how often the true quad is among the hits.
+
+    The first pass reads and checksums the index blocks the images need (the files were just written,
+    so they are in the page cache); then ``REPEATS`` passes, the steady state of a long-running matcher,
+    of which each image keeps its fastest (the machine is shared: the least disturbed measurement).
+    """
+    from mapdb.match.stored_index import StoredQuadIndex
+
+    with open_map(map_path) as m, StoredQuadIndex.for_map(m) as ix:
+        labels = tuple(m.labels)
+        queries = [image_queries(*_image_arrays(image, labels)[:2]) for image in images]
+        result = {"found": 0, "true": 0, "queries": 0, "hits": 0}
+        passes, cpu = [], []
+        for run in range(1 + REPEATS):
+            times, cpu_times = [], []
+            for image, (inv, lab, radius, ids) in zip(images, queries):
+                start, start_cpu = time.perf_counter(), time.process_time()
+                row, hit = ix.lookup(inv, lab, radius, HITS)
+                times.append((time.perf_counter() - start) * 1000.0)
+                cpu_times.append((time.process_time() - start_cpu) * 1000.0)
+                if run == 0:
+                    f, t = _true_found(ids, _image_arrays(image, labels)[2], row, hit)
+                    result["found"] += f
+                    result["true"] += t
+                    result["queries"] += len(inv)
+                    result["hits"] += len(row)
+            passes.append(times)
+            cpu.append(cpu_times)
+        result["first_ms"] = passes[0]
+        result["ms"] = np.min(passes[1:], axis=0).tolist()
+        result["cpu_ms"] = np.min(cpu[1:], axis=0).tolist()
+    return result
+
+
+def _true_found(ids: np.ndarray, truth: np.ndarray, row: np.ndarray, hit_ids: np.ndarray) -> tuple[int, int]:
+    """Image quads (all four objects real) whose true map quad is among their lookups' hits; and their number."""
+    true_map = truth[ids]
+    real = (true_map >= 0).all(axis=1)
+    quad_of = {}
+    for r in np.flatnonzero(real):
+        quad_of.setdefault(tuple(sorted(ids[r].tolist())), []).append(r)
+    hits_by_row: dict[int, set] = {}
+    for r, h in zip(row.tolist(), np.sort(hit_ids, axis=1).tolist()):
+        hits_by_row.setdefault(r, set()).add(tuple(h))
+    found = 0
+    for rows in quad_of.values():
+        target = tuple(sorted(true_map[rows[0]].tolist()))
+        found += any(target in hits_by_row.get(r, ()) for r in rows)
+    return found, len(quad_of)
+
+
+def _quadindex_lookups(map_path: Path, images: list[dict]) -> dict:
+    """QuadIndex (in memory, cKDTree) on the same map and lookups: build time and memory, lookup times."""
+    from mapdb.match.fast import QuadIndex
+
+    with open_map(map_path) as m:
+        objects = m.all()
+    labels = tuple(objects.labels)
+    start = time.perf_counter()
+    qi = QuadIndex(objects, 8)
+    build_s = time.perf_counter() - start
+    z_map = objects.x + 1j * objects.y
+    position = {complex(v): i for i, v in enumerate(z_map.tolist())} if len(z_map) < 2_000_000 else None
+    times, cpu_times, found, n_true, n_queries, n_hits = [], [], 0, 0, 0, 0
+    for image in images:
+        z, label, truth = _image_arrays(image, labels)
+        inv, lab, radius, ids = image_queries(z, label)
+        best = best_cpu = math.inf
+        for _ in range(REPEATS):
+            start, start_cpu = time.perf_counter(), time.process_time()
+            query = np.column_stack([inv, _label_keys(lab, len(labels)) * _LABEL_GAP])
+            k = min(HITS, qi.n_quads)
+            dist, hit = qi.tree.query(query, k=k, distance_upper_bound=float(radius.max(initial=0.0)))
+            q_row, q_col = np.nonzero(dist.reshape(len(inv), k) <= radius[:, None])
+            map_z = qi.quad_z[hit.reshape(len(inv), k)[q_row, q_col]]
+            best = min(best, (time.perf_counter() - start) * 1000.0)
+            best_cpu = min(best_cpu, (time.process_time() - start_cpu) * 1000.0)
+        times.append(best)
+        cpu_times.append(best_cpu)
+        hit_ids = np.vectorize(lambda v: position.get(complex(v), -1))(map_z) if len(map_z) and position else \
+            np.zeros((0, 4), np.int64)
+        f, t = _true_found(ids, truth, q_row, hit_ids)
+        found, n_true = found + f, n_true + t
+        n_queries, n_hits = n_queries + len(inv), n_hits + len(q_row)
+    return {"ms": times, "cpu_ms": cpu_times, "found": found, "true": n_true, "queries": n_queries, "hits": n_hits,
+            "build_s": build_s, "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+# --------------------------------------------------------------------------------------------- children
+
+
+def _tree_memory(pid: int) -> tuple[int, int]:
+    """Resident and proportional (PSS) bytes of a process and all its descendants.
+
+    The resident sets count pages the worker processes share with their parent (forked, copy-on-write)
+    once per process: an upper bound.  PSS divides each shared page among its sharers: the real use.
+    """
+    import psutil
+
+    try:
+        p = psutil.Process(pid)
+        procs = [p, *p.children(recursive=True)]
+    except psutil.Error:
+        return 0, 0
+    rss = pss = 0
+    for q in procs:
+        try:
+            info = q.memory_full_info()
+            rss, pss = rss + info.rss, pss + info.pss
+        except psutil.Error:
+            pass
+    return rss, pss
+
+
+def _child(code: str, *args: str) -> dict:
+    """Run ``code`` in a fresh Python (it prints one JSON line last); its result, wall time and peak memory."""
+    peak = [0, 0]
+    start = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, text=True,
+                            cwd=Path(__file__).resolve().parents[1])
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.is_set():
+            rss, pss = _tree_memory(proc.pid)
+            peak[0], peak[1] = max(peak[0], rss), max(peak[1], pss)
+            time.sleep(0.2)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    out, _ = proc.communicate()
+    done.set()
+    watcher.join()
+    wall = time.perf_counter() - start
+    if proc.returncode:
+        raise RuntimeError(f"child failed ({proc.returncode}): {code[:80]}...")
+    result = json.loads(out.strip().splitlines()[-1])
+    result.update(wall_s=wall, peak_rss_mb=peak[0] / 2**20, peak_pss_mb=peak[1] / 2**20,
+                  maxrss_children_mb=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
+    return result
+
+
+BUILD = """
+import json, sys
+from mapdb.match.stored_index import build_index
+print(json.dumps(build_index(sys.argv[1], workers=int(sys.argv[2]))))
+"""
+
+OPEN = """
+import time
+t0 = time.perf_counter()
+import json, os, sys
+sys.path.insert(0, "benchmarks")
+import numpy as np
+from lost_in_space_index import _image_arrays, image_queries
+from mapdb.match.stored_index import StoredQuadIndex, index_path
+from mapdb.store import open_map
+image = json.loads(sys.argv[2])
+for path in (sys.argv[1], index_path(sys.argv[1])):
+    fd = os.open(path, os.O_RDONLY)
+    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    os.close(fd)
+t1 = time.perf_counter()
+m = open_map(sys.argv[1])
+ix = StoredQuadIndex.for_map(m)
+t2 = time.perf_counter()
+z, label, truth = _image_arrays(image, tuple(m.labels))
+inv, lab, radius, ids = image_queries(z, label)
+row, hit = ix.lookup(inv, lab, radius, 16)
+map_z = ix.coordinates(hit)
+t3 = time.perf_counter()
+print(json.dumps({"imports_s": t1 - t0, "open_s": t2 - t1, "lookup_s": t3 - t2, "open_to_answer_s": t3 - t1,
+                  "start_to_answer_s": t3 - t0, "hits": int(len(row))}))
+"""
+
+QUADINDEX = """
+import json, sys
+sys.path.insert(0, "benchmarks")
+from pathlib import Path
+from lost_in_space_index import _quadindex_lookups
+images = json.loads(Path(sys.argv[2]).read_text())
+r = _quadindex_lookups(Path(sys.argv[1]), images)
+print(json.dumps(r))
+"""
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--worlds", type=int, nargs="*", default=[1_000_000, 5_000_000], help="world sizes")
+    parser.add_argument("--images", type=int, default=100, help="images per map")
+    parser.add_argument("--workers", type=int, default=2, help="processes building an index")
+    parser.add_argument("--quadindex-world", type=int, default=1_000_000,
+                        help="world size also indexed by the in-memory QuadIndex (0: none)")
+    parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "mapdb-lis-bench")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--lookups-only", action="store_true",
+                        help="reuse the indexes already built (no builds, no QuadIndex): re-measure lookups")
+    parser.add_argument("--jitter", type=float, default=0.0,
+                        help="worlds of copies with every object displaced by this (m, 1 sigma): distinct places")
+    args = parser.parse_args(argv)
+    if not DATA.is_dir():
+        print(f"no shared data at {DATA}: nothing to measure", file=sys.stderr)
+        return 1
+    args.workdir.mkdir(parents=True, exist_ok=True)
+    extracts = extract_maps()
+    maps = {"Andorra": extracts[0]}
+    world_path = {}
+    for n in args.worlds:
+        path = args.workdir / (f"world-{n}.mapdb" if not args.jitter else f"world-{n}-jitter{args.jitter:g}.mapdb")
+        if not path.exists():
+            start = time.perf_counter()
+            write_map(path, synthetic_world(extracts, n, seed=0, jitter_m=args.jitter))
+            print(f"{path.name}: assembled and written in {time.perf_counter() - start:.0f} s", flush=True)
+        maps[f"world {n / 1e6:g}M" + (f" jitter {args.jitter:g} m" if args.jitter else "")] = path
+        world_path[n] = path
+
+    rows = []
+    for name, path in maps.items():
+        with open_map(path) as m:
+            n_objects, map_bytes = len(m), path.stat().st_size
+        if args.lookups_only:
+            from mapdb.match.stored_index import index_path, open_index
+
+            with open_index(index_path(path)) as ix:
+                build = {"quads": ix.n_quads, "bytes": index_path(path).stat().st_size}
+        else:
+            build = _child(BUILD, str(path), str(args.workers))
+        images = _images(path, args.images, args.seed)
+        first = _child(OPEN, str(path), json.dumps(images[0]))
+        look = _stored_lookups(path, images)
+        rows.append((name, n_objects, map_bytes, build, first, look))
+        print(f"{name}: {n_objects} objects, index {build['bytes'] / 2**20:.0f} MiB ({build['quads']} quads) built "
+              f"in {build.get('wall_s', math.nan):.1f} s, peak {build.get('peak_pss_mb', math.nan):.0f} MB; open+first "
+              f"answer {first['open_to_answer_s'] * 1000:.0f} ms; lookups median "
+              f"{statistics.median(look['ms']):.2f} ms", flush=True)
+        if name == "Andorra" or (args.quadindex_world and not args.lookups_only
+                                 and path == world_path.get(args.quadindex_world)):
+            images_file = args.workdir / f"{path.stem}-images.json"
+            images_file.write_text(json.dumps(images))
+            qi = _child(QUADINDEX, str(path), str(images_file))
+            rows.append((f"{name} QuadIndex", n_objects, map_bytes, None, None, qi))
+            print(f"{name} QuadIndex: built in {qi['build_s']:.0f} s, peak {qi['peak_pss_mb']:.0f} MB; lookups "
+                  f"median {statistics.median(qi['ms']):.2f} ms", flush=True)
+
+    print()
+    print(f"{'map':<28} {'objects':>9} {'quads':>11} {'index MiB':>9} {'B/obj':>6} {'build s':>8} {'PSS MB':>7}"
+          f" {'RSS MB':>7} {'open+1st ms':>11} {'1st pass':>8} {'lookup ms':>9} {'p95 ms':>7} {'CPU ms':>7}"
+          f" {'queries':>7} {'hits':>5} {'true found':>10}")
+    for name, n_objects, _, build, first, look in rows:
+        mem = build if build is not None else look
+        if build is not None:
+            cols = (f"{build['quads']:>11} {build['bytes'] / 2**20:>9.0f} {build['bytes'] / n_objects:>6.0f}"
+                    f" {build.get('wall_s', math.nan):>8.1f}")
+        else:
+            cols = f"{'-':>11} {'-':>9} {'-':>6} {look['build_s']:>8.1f}"
+        cols += f" {mem.get('peak_pss_mb', math.nan):>7.0f} {mem.get('peak_rss_mb', math.nan):>7.0f}"
+        cols += f" {first['open_to_answer_s'] * 1000:>11.0f}" if first is not None else f" {'-':>11}"
+        cols += f" {statistics.median(look['first_ms']):>8.2f}" if "first_ms" in look else f" {'-':>8}"
+        print(f"{name:<28} {n_objects:>9} {cols} {statistics.median(look['ms']):>9.2f}"
+              f" {np.percentile(look['ms'], 95):>7.2f} {statistics.median(look['cpu_ms']):>7.2f}"
+              f" {look['queries'] / len(look['ms']):>7.0f} {look['hits'] / len(look['ms']):>5.0f}"
+              f" {look['found'] / max(look['true'], 1):>10.1%}")
+    print("\nmedian lookup CPU time per image relative to Andorra's with the same index: " + ", ".join(
+        f"{r[0]} {statistics.median(r[5]['cpu_ms']) / statistics.median(a[5]['cpu_ms']):.2f}x"
+        for r in rows for a in rows[:2] if r[0] != a[0] and (r[3] is None) == (a[3] is None)))
+    print("build: wall time in a child process; PSS MB: peak proportional set size of the child and its workers"
+          " (shared pages divided among them), RSS MB: peak sum of their resident sets (shared pages counted per"
+          " process); open+1st: fresh process, map and index dropped from the page cache, open_map to the first"
+          " image's lookups answered; 1st pass: median per image the first time the images are looked up"
+          " (index blocks read and checksummed), lookup ms and p95: the fastest of 3 more passes, CPU ms: the same"
+          " in CPU time (process_time: what other processes on the machine do not inflate);"
+          " queries: lookups per image, hits: per image; true"
+          " found: image quads of real objects whose true map quad is among the hits")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
