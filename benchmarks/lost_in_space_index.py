@@ -43,11 +43,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
 
-from mapdb.match.fast import _LABEL_GAP, _label_keys, neighbour_quads  # noqa: E402
+from mapdb.match.fast import _LABEL_GAP, FastOptions, _label_keys, neighbour_quads  # noqa: E402
+from mapdb.match.hypotheses import _quad_keys  # noqa: E402
 from mapdb.store import open_map, write_map  # noqa: E402
 
-PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
-OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
 SIGMA_PX = 1.5
 TOLERANCE = 2.0
 MAX_RADIUS = 0.3
@@ -71,44 +70,16 @@ def image_queries(z: np.ndarray, label: np.ndarray, neighbours: int = IMAGE_NEIG
         (``A, B, C, D`` of each lookup).
     """
     quads = neighbour_quads(np.column_stack([z.real, z.imag]), neighbours)
+    empty = np.zeros((0, 4)), np.zeros((0, 4), np.int64), np.zeros(0), np.zeros((0, 4), np.int64)
     if not len(quads):
-        return np.zeros((0, 4)), np.zeros((0, 4), np.int64), np.zeros(0), np.zeros((0, 4), np.int64)
-    zq = z[quads]
-    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
-    by_length = np.argsort(-d, axis=1)
-    longest = d[np.arange(len(d)), by_length[:, 0]]
-    invs, ids, radii = [], [], []
-    for rank in (0, 1):
-        pair = by_length[:, rank]
-        length = d[np.arange(len(d)), pair]
-        use = np.ones(len(d), bool) if rank == 0 else longest - length < 3.0 * math.sqrt(2.0) * sigma_px
-        use &= length > 0.0
-        sel = np.flatnonzero(use)
-        if not sel.size:
-            continue
-        rows = np.arange(sel.size)
-        order0 = np.concatenate([PAIRS[pair[sel]], OTHERS[pair[sel]]], axis=1)
-        a, b = zq[sel][rows, order0[:, 0]], zq[sel][rows, order0[:, 1]]
-        t0 = (zq[sel][rows[:, None], order0[:, 2:]] - a[:, None]) / (b - a)[:, None]
-        spread = (1.0 + np.abs(1.0 - t0) ** 2 + np.abs(t0) ** 2).sum(axis=1)
-        radius = TOLERANCE * sigma_px * np.sqrt(spread) / length[sel]
-        for swap_ab in (False, True):
-            for swap_cd in (False, True):
-                order, t = order0.copy(), t0.copy()
-                if swap_ab:
-                    order[:, :2] = order[:, 1::-1]
-                    t = 1.0 - t
-                if swap_cd:
-                    order[:, 2:] = order[:, :1:-1]
-                    t = t[:, ::-1]
-                slack = radius * math.sqrt(2.0)
-                ok = (t.real.sum(axis=1) - 1.0 <= slack) & (t[:, 0].real - t[:, 1].real <= slack)
-                ok &= radius <= MAX_RADIUS
-                invs.append(np.column_stack([t[ok, 0].real, t[ok, 0].imag, t[ok, 1].real, t[ok, 1].imag]))
-                ids.append(np.take_along_axis(quads[sel[ok]], order[ok], axis=1))
-                radii.append(radius[ok])
-    ids = np.concatenate(ids)
-    return np.concatenate(invs), label[ids], np.concatenate(radii), ids
+        return empty
+    # The matcher's own arithmetic (frames, orderings near the canonical one, radii), not a copy of it.
+    keys = _quad_keys(z[quads], FastOptions(tolerance_factor=TOLERANCE, max_invariant_radius=MAX_RADIUS), sigma_px)
+    if keys is None:
+        return empty
+    row, order, inv, radius = keys
+    ids = np.take_along_axis(quads[row], order, axis=1)
+    return inv, label[ids], radius, ids
 
 
 def _images(map_path: Path, n: int, seed: int) -> list[dict]:
