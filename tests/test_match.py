@@ -279,14 +279,15 @@ def test_paper_bound_never_undercounts_a_candidate() -> None:
     # matcher's) must be within the bound, for thresholds from 3 to "every object".
     from itertools import combinations
 
-    from mapdb.match.paper import PaperOptions, _NearestBound, _wrap
+    from mapdb.match.paper import PaperOptions
+    from mapdb.match.paper_bound import NearestBound, wrap_angle
 
     opts = PaperOptions()
     for seed, n_labels in ((11, 1), (12, 2)):
         z, codes, objects = _paper_case(seed, n_labels, n_image=7, spurious=1)
         map_z, map_label = objects.x + 1j * objects.y, objects.label.astype(np.int64)
         keys = [None] if n_labels == 1 else [0, 1]
-        bound = _NearestBound(map_z, map_label, keys)
+        bound = NearestBound(map_z, map_label, keys)
         r, theta = np.abs(z), np.angle(z)
         checked = pruned = 0
         for i, j in combinations(range(z.size), 2):
@@ -303,14 +304,14 @@ def test_paper_bound_never_undercounts_a_candidate() -> None:
             count = np.full(big_i.size, 2)
             for k in others:
                 ok = np.abs(r[k] / r[i] - ratio_map) < opts.delta_r
-                ok &= np.abs(_wrap(_wrap(theta[i] - theta[k]) - angle_map)) < opts.delta_theta
+                ok &= np.abs(wrap_angle(wrap_angle(theta[i] - theta[k]) - angle_map)) < opts.delta_theta
                 if n_labels > 1:
                     ok &= map_label[None, :] == codes[k]
                 count += ok.any(axis=1)
             key_k = [None] * others.size if n_labels == 1 else [int(c) for c in codes[others]]
             for need in (3, opts.n_min, others.size + 2):
                 kept, most = bound.survivors(centre, map_z[big_i] - centre, r[others] / r[i],
-                                             _wrap(theta[i] - theta[others]), key_k, need, opts)
+                                             wrap_angle(theta[i] - theta[others]), key_k, need, opts)
                 upper = np.zeros(big_i.size, dtype=int)
                 upper[kept] = most
                 reach = count >= need

@@ -5,7 +5,8 @@
   (image quads looked up, similarity hypotheses), :mod:`~mapdb.match.verify` (projected objects against
   the map's objects), :mod:`~mapdb.match.decision` (the number of false alarms) and
   :mod:`~mapdb.match.refine` (one candidate per place, the final least-squares fit).
-* :mod:`mapdb.match.paper` - the seed paper's Algorithm 1 as published, the reference.
+* :mod:`mapdb.match.paper` - the seed paper's Algorithm 1 as published, the reference (its exact pruning
+  bound in :mod:`~mapdb.match.paper_bound`).
 * :mod:`mapdb.match.geometry` - similarity fits.
 
 Most callers want :func:`mapdb.localize.localize` (or a :class:`mapdb.localize.Localizer`), which parses
