@@ -417,26 +417,71 @@ def localize(
     return localizer_for(map, method, options).localize(image, prior, source=source)
 
 
+class _RejectionError(Exception):
+    """A step's reason to reject the image (with what the answer should still carry)."""
+
+    def __init__(self, reason: str, candidates: list | None = None, **extra: Any) -> None:
+        super().__init__(reason)
+        self.reason, self.candidates, self.extra = reason, candidates, extra
+
+
+@dataclasses.dataclass
+class _Pose:
+    """What a matcher found: ``z -> a z + b``, its quality and what the answer carries besides."""
+
+    a: complex
+    b: complex
+    inliers: int
+    sigma_m: float | None
+    score: float | None
+    candidates: list
+    extra: dict[str, Any]
+
+
 def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
             prior: tuple[float, float, float] | None, source: str) -> dict[str, Any]:
     start = time.perf_counter()
     image_id = _image_id(image)
-    map = localizer.map
     try:
-        im = image if isinstance(image, ImageObjects) else parse_image(image, source)
-        prior = _resolve_prior(im, map.crs, prior)
+        im, prior = _checked(image, localizer.map.crs, prior, source)
     except ImageInputError as exc:
         message = str(exc)
-        reason = message[len(source) + 2 :] if message.startswith(f"{source}: ") else message
-        return _rejected(image_id, reason, start)
+        return _rejected(image_id, message[len(source) + 2 :] if message.startswith(f"{source}: ") else message,
+                         start)
     image_id = im.id if isinstance(im.id, str | int) else None
+    skipped: dict[str, Any] = {}
+    try:
+        im, codes, skipped = _known_objects(im, tuple(localizer.map.labels))
+        z, levelled, notes = _image_plane(im)
+        diag_px = math.hypot(im.width, im.height)
+        focal_px, scale_range, half_diag_m = _scale_hints(im, diag_px)
+        margin = prior_margin(prior[2], half_diag_m) if prior is not None else 0.0
+        outside = None if prior is None else _outside_bounds(prior, margin, localizer.map.bounds)
+        if outside:
+            raise _RejectionError(outside)
+        pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped)
+    except _RejectionError as rejection:
+        return _rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
+    return _ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start)
+
+
+def _checked(image: dict[str, Any] | ImageObjects, crs: str, prior: tuple[float, float, float] | None,
+             source: str) -> tuple[ImageObjects, tuple[float, float, float] | None]:
+    """The parsed image and the prior that applies to it (its own, else the caller's)."""
+    im = image if isinstance(image, ImageObjects) else parse_image(image, source)
+    return im, _resolve_prior(im, crs, prior)
+
+
+def _known_objects(im: ImageObjects, map_labels: tuple[str, ...]) -> tuple[ImageObjects, np.ndarray, dict]:
+    """The image's objects of labels the map knows, their label codes, and the others counted.
+
+    Objects of labels the map does not know (a detector's class the map lacks) are left out and counted:
+    the others may still place the image.
+    """
     n = len(im)
     if n < 3:
-        return _rejected(image_id, f"{n} objects: at least 3 are needed", start)
-    map_labels = tuple(map.labels)
+        raise _RejectionError(f"{n} objects: at least 3 are needed")
     known = {name: code for code, name in enumerate(map_labels)}
-    # Objects of labels the map does not know (a detector's class the map lacks) are left out and counted:
-    # the others may still place the image.
     is_known = np.fromiter((name in known for name in im.names), dtype=bool, count=n)
     unknown = sorted({str(name) for name in im.names[~is_known]})
     skipped: dict[str, Any] = {}
@@ -446,14 +491,16 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         n = int(is_known.sum())
         if n < 3:
             listed = ", ".join(repr(u) for u in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
-            return _rejected(
-                image_id, f"unknown label{'s' if len(unknown) > 1 else ''} {listed}: the map has "
-                f"{', '.join(map_labels)}; {n} object{'' if n == 1 else 's'} left: at least 3 are needed", start,
-                **skipped,
-            )
+            raise _RejectionError(
+                f"unknown label{'s' if len(unknown) > 1 else ''} {listed}: the map has {', '.join(map_labels)}; "
+                f"{n} object{'' if n == 1 else 's'} left: at least 3 are needed", **skipped)
         im = dataclasses.replace(im, x=im.x[is_known], y=im.y[is_known], names=im.names[is_known])
-    codes = np.fromiter((known[name] for name in im.names), dtype=np.int64, count=n)
+    return im, np.fromiter((known[name] for name in im.names), dtype=np.int64, count=n), skipped
 
+
+def _image_plane(im: ImageObjects) -> tuple[np.ndarray, bool, list[str]]:
+    """Objects as complex pixels from the image centre, y up; levelled first when roll, pitch and the field
+    of view are given.  Also whether it was levelled, and notes for the answer."""
     u, v = im.x, im.y
     notes = []
     levelled = False
@@ -464,22 +511,26 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
             u, v = level_pixels(u, v, Camera(im.width, im.height, im.fov_deg), im.roll_deg or 0.0,
                                 im.pitch_deg or 0.0)
             if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
-                return _rejected(image_id, "attitude puts objects at or above the horizon", start, **skipped)
+                raise _RejectionError("attitude puts objects at or above the horizon")
             levelled = True
-    z = (u - im.width / 2.0) + 1j * (im.height / 2.0 - v)
-    diag_px = math.hypot(im.width, im.height)
-    focal_px = None if im.fov_deg is None else Camera(im.width, im.height, im.fov_deg).focal_px
-    scale_range = None
-    half_diag_m = None
-    if focal_px is not None and im.altitude_m is not None:
-        s0 = im.altitude_m / focal_px
-        scale_range = (s0 / SCALE_TOLERANCE, s0 * SCALE_TOLERANCE)
-        half_diag_m = scale_range[1] * diag_px / 2.0
+    return (u - im.width / 2.0) + 1j * (im.height / 2.0 - v), levelled, notes
 
-    margin = prior_margin(prior[2], half_diag_m) if prior is not None else 0.0
-    outside = None if prior is None else _outside_bounds(prior, margin, map.bounds)
-    if outside:
-        return _rejected(image_id, outside, start, **skipped)
+
+def _scale_hints(im: ImageObjects, diag_px: float):
+    """Focal length (pixels), allowed metres per pixel and the footprint's largest half-diagonal (metres),
+    each None unless the field of view (and, for the last two, the altitude) is given."""
+    focal_px = None if im.fov_deg is None else Camera(im.width, im.height, im.fov_deg).focal_px
+    if focal_px is None or im.altitude_m is None:
+        return focal_px, None, None
+    s0 = im.altitude_m / focal_px
+    scale_range = (s0 / SCALE_TOLERANCE, s0 * SCALE_TOLERANCE)
+    return focal_px, scale_range, scale_range[1] * diag_px / 2.0
+
+
+def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: float,
+           prior: tuple[float, float, float] | None, margin: float, scale_range: tuple[float, float] | None,
+           notes: list[str], skipped: dict[str, Any]) -> _Pose:
+    """Run the localizer's method on the image plane; the pose, or a :class:`_RejectionError`."""
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
@@ -493,27 +544,24 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         if notes:
             extra["notes"] = notes
         if found.best is None:
-            return _rejected(image_id, found.reason or "no match", start, candidates, **extra)
+            raise _RejectionError(found.reason or "no match", candidates, **extra)
         best = found.best
-        a, b = best.a, best.b
-        sigma: float | None = best.sigma_m
-        inliers = best.inliers
-        score: float | None = _rounded(best.score, 2)
-    else:
-        if prior is not None:
-            objects = map.query_radius(prior[0], prior[1], prior[2] + margin)
-        else:
-            objects = map.all()
-        answer = match_paper(z, codes, objects, options=localizer.paper_options)
-        extra = {"notes": notes, **skipped} if notes else {**skipped}
-        if answer.best is None:
-            return _rejected(image_id, answer.reason or "no match", start, [], **extra)
-        a, b = answer.best.a, answer.best.b
-        sigma, inliers, score = None, answer.best.matched, None
-        extra["error_std"] = _rounded(answer.best.error_std, 6)
-        candidates = []
+        return _Pose(best.a, best.b, best.inliers, best.sigma_m, _rounded(best.score, 2), candidates, extra)
+    map_ = localizer.map
+    objects = map_.query_radius(prior[0], prior[1], prior[2] + margin) if prior is not None else map_.all()
+    answer = match_paper(z, codes, objects, options=localizer.paper_options)
+    extra = {"notes": notes, **skipped} if notes else {**skipped}
+    if answer.best is None:
+        raise _RejectionError(answer.reason or "no match", [], **extra)
+    extra["error_std"] = _rounded(answer.best.error_std, 6)
+    return _Pose(answer.best.a, answer.best.b, answer.best.matched, None, None, [], extra)
 
-    lon, lat = _to_lonlat(map.crs, b.real, b.imag)
+
+def _ok_record(image_id: Any, crs: str, pose: _Pose, focal_px: float | None, levelled: bool,
+               start: float) -> dict[str, Any]:
+    """The answer of a localized image (module docs)."""
+    a, b = pose.a, pose.b
+    lon, lat = _to_lonlat(crs, b.real, b.imag)
     record: dict[str, Any] = {
         "id": image_id,
         "status": "ok",
@@ -521,22 +569,22 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         "y": _rounded(b.imag, 3),
         "lon": lon,
         "lat": lat,
-        "crs": map.crs or None,
-        "inliers": int(inliers),
+        "crs": crs or None,
+        "inliers": int(pose.inliers),
         "heading_deg": _rounded((-math.degrees(np.angle(a))) % 360.0, 3),
         "scale_m_per_px": _rounded(abs(a), 6),
-        "sigma_m": None if sigma is None else _rounded(sigma, 3),
-        "score": score,
+        "sigma_m": None if pose.sigma_m is None else _rounded(pose.sigma_m, 3),
+        "score": pose.score,
         # The number of false alarms the score stands for: how many answers this good the search would be
         # expected to find by chance in a map that does not hold the place (benchmarks/false_alarms.py
         # measures how that holds on real places not in the map).
-        "expected_false_alarms": None if score is None else float(f"{10.0 ** -score:.3g}"),
+        "expected_false_alarms": None if pose.score is None else float(f"{10.0 ** -pose.score:.3g}"),
     }
     if focal_px is not None:
         record["altitude_m"] = _rounded(abs(a) * focal_px, 2)
     record["levelled"] = levelled
-    record["candidates"] = candidates
-    record.update(extra)
+    record["candidates"] = pose.candidates
+    record.update(pose.extra)
     record["time_ms"] = _rounded((time.perf_counter() - start) * 1000.0, 3)
     return record
 
