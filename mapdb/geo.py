@@ -299,10 +299,21 @@ def projected_window(
     parts = intersect_bboxes(bbox, domain)
     if not parts:
         return None
+    projected = _project_outlines(crs, parts)
+    if projected is None:
+        return everything
+    box = _padded_box(*projected)
+    if within is None:
+        return box
+    return _clip_box(box, everything)
+
+
+def _project_outlines(crs: Any, parts: list[BBox]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Points of the outlines of lon/lat boxes in ``crs``; None when the transform fails or does not come back."""
     try:
         to_crs, _ = _transformers(crs)
     except Exception:
-        return everything
+        return None
     xs, ys = [], []
     for part in parts:
         lon, lat = _outline(part)
@@ -310,20 +321,24 @@ def projected_window(
             x, y = (np.asarray(v) for v in to_crs.transform(lon, lat))
             back_lon, back_lat = to_crs.transform(x, y, direction="INVERSE")
         except Exception:
-            return everything
+            return None
         if not (np.isfinite(x).all() and np.isfinite(y).all()) or not _round_trip_ok(lon, lat, back_lon, back_lat):
-            return everything
+            return None
         xs.append(x)
         ys.append(y)
-    x = np.concatenate(xs)
-    y = np.concatenate(ys)
+    return np.concatenate(xs), np.concatenate(ys)
+
+
+def _padded_box(x: np.ndarray, y: np.ndarray) -> BBox:
+    """The box of the points, grown by a margin (relative, and for rounding at large coordinates)."""
     mx = _MARGIN * (float(x.max()) - float(x.min())) + 1e-9 * float(np.abs(x).max()) + 1e-6
     my = _MARGIN * (float(y.max()) - float(y.min())) + 1e-9 * float(np.abs(y).max()) + 1e-6
-    box = (float(x.min()) - mx, float(y.min()) - my, float(x.max()) + mx, float(y.max()) + my)
-    if within is None:
-        return box
-    clipped = (max(box[0], everything[0]), max(box[1], everything[1]),
-               min(box[2], everything[2]), min(box[3], everything[3]))
+    return (float(x.min()) - mx, float(y.min()) - my, float(x.max()) + mx, float(y.max()) + my)
+
+
+def _clip_box(box: BBox, limit: BBox) -> BBox | None:
+    """The part of ``box`` inside ``limit``; None if they do not meet."""
+    clipped = (max(box[0], limit[0]), max(box[1], limit[1]), min(box[2], limit[2]), min(box[3], limit[3]))
     if clipped[0] > clipped[2] or clipped[1] > clipped[3]:
         return None
     return clipped

@@ -40,7 +40,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import shapely
@@ -269,39 +269,72 @@ def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int) -> tu
     bytes and objects (about 20 bytes a payload byte and 100 an object), with a fixed cost per batch, not
     per page, so that a map of many tiny pages costs about what a genuine map of its size does.
     """
-    pages = len(payloads)
     length = np.array([len(p) for p in payloads], np.int64)
     first_byte = np.cumsum(length) - length
-    end = 8 * (first_byte + length)  # each page's end, in bits
-    buf = np.frombuffer(b"".join(payloads) + bytes(8), np.uint8)
-    count = table["count"].astype(np.int64)
-    ex, ey = table["ex"].astype(np.int64), table["ey"].astype(np.int64)
-    every_page = np.arange(pages)
+    b = _Batch(buf=np.frombuffer(b"".join(payloads) + bytes(8), np.uint8), first_byte=first_byte,
+               end=8 * (first_byte + length), objects=table["count"].astype(np.int64),
+               ex=table["ex"].astype(np.int64), ey=table["ey"].astype(np.int64), every_page=np.arange(len(payloads)))
+    runs, run_page, code, n, first, median, head_end = _read_run_heads(b, n_labels)
+    k_end, k = _read_rice_parameters(b, runs, run_page, n, head_end)
+    gaps, residual = _read_rice_values(b, runs, k_end, k)
+    qx, qy, run_of, object_page = _decode_positions(b, run_page, n, first, gaps)
+    area_code = median[run_of] + _unzigzag(residual)
+    _refuse((area_code < 0) | (area_code > _MAX_AREA_CODE), object_page, "page area code out of range")
+    return (qx + table["ox"][object_page], qy + table["oy"][object_page], code[run_of].astype(np.int32),
+            _area_decode(area_code))
 
-    def refuse(bad: np.ndarray, page_of: np.ndarray, problem: str | Callable[[int], str]) -> None:
-        if bad.any():
-            i = int(page_of[bad].min())
-            raise _BadPageError(i, problem(i) if callable(problem) else problem)
 
-    short = "page data is shorter than its counts"
-    runs = buf[first_byte].astype(np.int64)
-    refuse((runs < 1) | (runs > np.minimum(count, n_labels)), every_page,
-           lambda i: f"{runs[i]} label runs for {count[i]} objects of {n_labels} labels")
+class _Batch(NamedTuple):
+    """The pages of a batch being decoded: their bytes and their directory fields, page by page."""
+
+    buf: np.ndarray  # the payloads one after another, then 8 zero bytes (so a field read never runs off)
+    first_byte: np.ndarray  # where each page starts in buf
+    end: np.ndarray  # each page's end, in bits
+    objects: np.ndarray  # objects in each page (its directory count)
+    ex: np.ndarray
+    ey: np.ndarray
+    every_page: np.ndarray  # 0, 1, ... (the page of each page, for the page-wise checks)
+
+
+_SHORT = "page data is shorter than its counts"
+
+
+def _refuse(bad: np.ndarray, page_of: np.ndarray, problem: str | Callable[[int], str]) -> None:
+    """Raise :class:`_BadPageError` for the first page with a ``bad`` item (``page_of`` gives their pages)."""
+    if bad.any():
+        i = int(page_of[bad].min())
+        raise _BadPageError(i, problem(i) if callable(problem) else problem)
+
+
+def _read_run_heads(b: _Batch, n_labels: int) -> tuple[np.ndarray, ...]:
+    """Read and check each page's label run heads.
+
+    Returns the runs of each page; the page, label code, objects, first key and median area code of each run;
+    and the bit where each page's run heads end.
+    """
+    runs = b.buf[b.first_byte].astype(np.int64)
+    _refuse((runs < 1) | (runs > np.minimum(b.objects, n_labels)), b.every_page,
+            lambda i: f"{runs[i]} label runs for {b.objects[i]} objects of {n_labels} labels")
     # Run heads: label code, objects, first key (in the page's key bits), median area code.
-    run_page = np.repeat(every_page, runs)
-    keyspace = (ex + 1) * (ey + 1)
-    widths = np.column_stack([np.full(run_page.size, 8), np.full(run_page.size, 16), _key_bits(ex, ey)[run_page],
-                              np.full(run_page.size, 16)]).ravel()
-    head_start = 8 * (first_byte + 1)
+    run_page = np.repeat(b.every_page, runs)
+    widths = np.column_stack([np.full(run_page.size, 8), np.full(run_page.size, 16),
+                              _key_bits(b.ex, b.ey)[run_page], np.full(run_page.size, 16)]).ravel()
+    head_start = 8 * (b.first_byte + 1)
     head_end = head_start + _sums(widths, 4 * runs)
-    refuse(head_end > end, every_page, short)
-    heads = _read_fields(buf, np.repeat(head_start, 4 * runs) + _offsets(widths, 4 * runs), widths)
+    _refuse(head_end > b.end, b.every_page, _SHORT)
+    heads = _read_fields(b.buf, np.repeat(head_start, 4 * runs) + _offsets(widths, 4 * runs), widths)
     code, n, first, median = heads.reshape(-1, 4).T.astype(np.int64)
     bad = code >= n_labels
     bad[1:] |= (run_page[1:] == run_page[:-1]) & (np.diff(code) <= 0)
-    refuse(bad, run_page, "label runs out of order or outside the label table")
-    refuse((n < 1) | (_sums(n, runs)[run_page] != count[run_page]), run_page,
-           lambda i: f"page runs do not add up to its directory count {count[i]}")
+    _refuse(bad, run_page, "label runs out of order or outside the label table")
+    _refuse((n < 1) | (_sums(n, runs)[run_page] != b.objects[run_page]), run_page,
+            lambda i: f"page runs do not add up to its directory count {b.objects[i]}")
+    return runs, run_page, code, n, first, median, head_end
+
+
+def _read_rice_parameters(b: _Batch, runs: np.ndarray, run_page: np.ndarray, n: np.ndarray,
+                          head_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The bit where each page's Rice parameters end, and the Rice parameter of each value of the batch."""
     # Rice sequences of each page: the key gaps of each run, then the area residuals of each run; then
     # their blocks, and a 6-bit parameter per block.
     order = np.argsort(np.concatenate([run_page, run_page]), kind="stable")
@@ -312,25 +345,30 @@ def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int) -> tu
     size = np.minimum(seq_block[of_block], seq_len[of_block] - seq_block[of_block] * _ranks(n_blocks))
     page_blocks = _sums(n_blocks, 2 * runs)
     k_end = head_end + _K_BITS * page_blocks
-    refuse(k_end > end, every_page, short)
-    block_page = np.repeat(every_page, page_blocks)
-    k_block = _read_fields(buf, np.repeat(head_end, page_blocks) + _K_BITS * _ranks(page_blocks), np.full(
+    _refuse(k_end > b.end, b.every_page, _SHORT)
+    block_page = np.repeat(b.every_page, page_blocks)
+    k_block = _read_fields(b.buf, np.repeat(head_end, page_blocks) + _K_BITS * _ranks(page_blocks), np.full(
         block_page.size, _K_BITS)).astype(np.int64)
-    refuse(k_block > _RICE_VALUE_BITS, block_page, "Rice parameter out of range")
+    _refuse(k_block > _RICE_VALUE_BITS, block_page, "Rice parameter out of range")
+    return k_end, np.repeat(k_block, size)
+
+
+def _read_rice_values(b: _Batch, runs: np.ndarray, k_end: np.ndarray,
+                      k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Rice-coded values of each page, split into key gaps and area residuals (zigzagged)."""
     # Unary quotients: the first `values` zero bits after the parameters, found by rank (zeros before a bit).
-    values = 2 * count - runs
-    value_page = np.repeat(every_page, values)
-    k = np.repeat(k_block, size)
-    zeros = np.concatenate([[0], np.cumsum(_ZEROS_IN_BYTE[buf[:-8]])])
+    values = 2 * b.objects - runs
+    value_page = np.repeat(b.every_page, values)
+    zeros = np.concatenate([[0], np.cumsum(_ZEROS_IN_BYTE[b.buf[:-8]])])
 
     def zeros_before(bit: np.ndarray) -> np.ndarray:
-        return zeros[bit >> 3] + _ZEROS_BEFORE[buf[bit >> 3], bit & 7]
+        return zeros[bit >> 3] + _ZEROS_BEFORE[b.buf[bit >> 3], bit & 7]
 
     rank0 = zeros_before(k_end)
-    refuse(rank0 + values > zeros_before(end), every_page, short)
+    _refuse(rank0 + values > zeros_before(b.end), b.every_page, _SHORT)
     rank = np.repeat(rank0, values) + _ranks(values)  # zeros before each stop bit
     byte = np.searchsorted(zeros, rank, side="right") - 1
-    stop = 8 * byte + _NTH_ZERO[buf[byte], rank - zeros[byte]]
+    stop = 8 * byte + _NTH_ZERO[b.buf[byte], rank - zeros[byte]]
     previous = np.empty_like(stop)
     previous[1:] = stop[:-1]
     page_first_value = np.cumsum(values) - values
@@ -338,18 +376,24 @@ def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int) -> tu
     quotient = stop - previous - 1
     # A value is below 2**48 (a key gap in a key space of 2**48, an area residual far less): a longer quotient
     # would overflow the 64-bit arithmetic below and wrap round to a plausible small value.
-    refuse((quotient >> (_RICE_VALUE_BITS - k)) != 0, value_page, "Rice-coded value out of range")
+    _refuse((quotient >> (_RICE_VALUE_BITS - k)) != 0, value_page, "Rice-coded value out of range")
     rem_start = stop[page_first_value + values - 1] + 1
     rem_end = rem_start + _sums(k, values)
-    refuse(rem_end > end, every_page, short)
-    remainder = _read_fields(buf, np.repeat(rem_start, values) + _offsets(k, values), k)
-    rest = end - rem_end
-    padding = _read_fields(buf, rem_end, np.minimum(rest, 7))
-    refuse((rest >= 8) | (padding != 0), every_page, "page contents do not match its directory record")
+    _refuse(rem_end > b.end, b.every_page, _SHORT)
+    remainder = _read_fields(b.buf, np.repeat(rem_start, values) + _offsets(k, values), k)
+    rest = b.end - rem_end
+    padding = _read_fields(b.buf, rem_end, np.minimum(rest, 7))
+    _refuse((rest >= 8) | (padding != 0), b.every_page, "page contents do not match its directory record")
     coded = (quotient.astype(np.uint64) << k.astype(np.uint64)) | remainder
-    is_gap = _ranks(values) < np.repeat(count - runs, values)
+    is_gap = _ranks(values) < np.repeat(b.objects - runs, values)
     gaps, residual = coded[is_gap], coded[~is_gap]
-    refuse(gaps < 1, value_page[is_gap], "two objects of one label at one position")
+    _refuse(gaps < 1, value_page[is_gap], "two objects of one label at one position")
+    return gaps, residual
+
+
+def _decode_positions(b: _Batch, run_page: np.ndarray, n: np.ndarray, first: np.ndarray,
+                      gaps: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Each object's quantized position within its page's box, its run and its page."""
     # Keys: each run starts at its first key and adds its gaps.  One cumulative sum over the batch: it may
     # wrap round 2**64, but differences within a run are exact (a run's keys are below 2**48).
     run_of = np.repeat(np.arange(n.size), n)
@@ -362,18 +406,16 @@ def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int) -> tu
     steps[~is_start] = gaps
     total = np.cumsum(steps, dtype=np.uint64)
     key = total - (total[run_start] - first.astype(np.uint64))[run_of]
-    refuse(key >= keyspace[object_page].astype(np.uint64), object_page, "page position outside its extent")
-    width = (ex + 1).astype(np.uint64)[object_page]
+    keyspace = (b.ex + 1) * (b.ey + 1)
+    _refuse(key >= keyspace[object_page].astype(np.uint64), object_page, "page position outside its extent")
+    width = (b.ex + 1).astype(np.uint64)[object_page]
     qx, qy = (key % width).astype(np.int64), (key // width).astype(np.int64)
     # The directory box is the objects' own box: what the R-tree and the header bounds promise is true.
-    starts = np.cumsum(count) - count
-    refuse((np.minimum.reduceat(qx, starts) != 0) | (np.minimum.reduceat(qy, starts) != 0)
-           | (np.maximum.reduceat(qx, starts) != ex) | (np.maximum.reduceat(qy, starts) != ey), every_page,
-           "objects do not fill the page's box")
-    area_code = median[run_of] + _unzigzag(residual)
-    refuse((area_code < 0) | (area_code > _MAX_AREA_CODE), object_page, "page area code out of range")
-    return (qx + table["ox"][object_page], qy + table["oy"][object_page], code[run_of].astype(np.int32),
-            _area_decode(area_code))
+    starts = np.cumsum(b.objects) - b.objects
+    _refuse((np.minimum.reduceat(qx, starts) != 0) | (np.minimum.reduceat(qy, starts) != 0)
+            | (np.maximum.reduceat(qx, starts) != b.ex) | (np.maximum.reduceat(qy, starts) != b.ey), b.every_page,
+            "objects do not fill the page's box")
+    return qx, qy, run_of, object_page
 
 
 def _too_dense(count: Any, ex: Any, ey: Any, quantum: float) -> Any:
@@ -429,14 +471,8 @@ def _lonlat_bounds(crs: CRS, bounds: tuple[float, float, float, float]) -> list[
     return lonlat if all(map(math.isfinite, lonlat)) else None  # positions outside the projection's domain
 
 
-def write_map(
-    path: str | Path,
-    objects: Objects,
-    *,
-    quantum: float = DEFAULT_QUANTUM,
-    metadata: dict[str, Any] | None = None,
-    page_capacity: int = DEFAULT_PAGE_CAPACITY,
-) -> int:
+def write_map(path: str | Path, objects: Objects, *, quantum: float = DEFAULT_QUANTUM,
+              metadata: dict[str, Any] | None = None, page_capacity: int = DEFAULT_PAGE_CAPACITY) -> int:
     """Write objects (in a projected CRS) to a map file, atomically.
 
     The file is written beside ``path`` under a temporary name and renamed into
@@ -485,6 +521,17 @@ def write_map(
     {'park': 1, 'water': 1}
     """
     path = Path(path)
+    crs = _check_writable(path, objects, quantum, page_capacity)
+    qx, qy, label, area, merged = _quantize(objects, quantum)
+    payloads, table = _encode_pages(qx, qy, label, area, page_capacity, quantum)
+    header = _map_header(crs, objects.labels, label, table, quantum, page_capacity, merged, metadata)
+    prefix = _pack_prefix(path, header, table, quantum)
+    _write_atomically(path, [prefix, table.tobytes(), *payloads])
+    return int(label.size)
+
+
+def _check_writable(path: Path, objects: Objects, quantum: float, page_capacity: int) -> CRS:
+    """Refuse what cannot make a map (as :func:`write_map` documents); return the objects' CRS."""
     if len(objects) == 0:
         raise EmptyMapError(f"{path}: no objects to write")
     if objects.crs is None:
@@ -496,7 +543,11 @@ def write_map(
     finite = np.isfinite(objects.x) & np.isfinite(objects.y)
     if not finite.all():
         raise ValueError(f"{int((~finite).sum())} objects have non-finite coordinates")
-    crs = CRS.from_user_input(objects.crs)
+    return CRS.from_user_input(objects.crs)
+
+
+def _quantize(objects: Objects, quantum: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Quantized positions, label codes and areas of the objects kept, and how many duplicates were merged."""
     fx, fy = np.rint(objects.x / quantum), np.rint(objects.y / quantum)
     if max(np.abs(fx).max(), np.abs(fy).max()) > _MAX_QUANTA - _MAX_EXTENT:
         raise ValueError(f"coordinates beyond {_MAX_QUANTA - _MAX_EXTENT:.3g} quanta of {quantum} m")
@@ -504,18 +555,25 @@ def write_map(
     area = np.where(np.isfinite(objects.area) & (objects.area > 0), objects.area, 0.0)
     keep = _unique_positions(objects.label, qx, qy, area)
     merged = len(objects) - keep.size
-    qx, qy, label, area = qx[keep], qy[keep], objects.label[keep], area[keep]
+    return qx[keep], qy[keep], objects.label[keep], area[keep], int(merged)
 
+
+def _encode_pages(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, area: np.ndarray, page_capacity: int,
+                  quantum: float) -> tuple[list[bytes], np.ndarray]:
+    """Split the objects into pages and encode them: the payloads and their directory table."""
     pages = _split_pages(qx, qy, page_capacity, quantum)
     payloads, records = [], []
     for idx in pages:
         payload, record = _encode_page(qx[idx], qy[idx], label[idx], area[idx])
         payloads.append(payload)
         records.append(record)
-    table = np.array(records, dtype=_DIR_DTYPE)
-    directory = table.tobytes()
+    return payloads, np.array(records, dtype=_DIR_DTYPE)
 
-    counts = np.bincount(label, minlength=len(objects.labels))
+
+def _map_header(crs: CRS, labels: tuple[str, ...], label: np.ndarray, table: np.ndarray, quantum: float,
+                page_capacity: int, merged: int, metadata: dict[str, Any] | None) -> dict[str, Any]:
+    """The header of a map of these objects and pages; ``metadata`` adds entries but replaces none."""
+    counts = np.bincount(label, minlength=len(labels))
     bounds = _page_span(table, quantum)
     header = {
         "format": "mapdb",
@@ -526,19 +584,24 @@ def write_map(
         "quantum": quantum,
         "area_log2_steps": _AREA_STEPS,
         "area_floor_log2": _AREA_FLOOR_LOG2,
-        "count": int(keep.size),
+        "count": int(label.size),
         "merged_duplicates": int(merged),
-        "labels": [{"name": name, "code": i, "count": int(counts[i])} for i, name in enumerate(objects.labels)],
+        "labels": [{"name": name, "code": i, "count": int(counts[i])} for i, name in enumerate(labels)],
         "bounds": list(bounds),
         "bounds_lonlat": _lonlat_bounds(crs, bounds),
         "page_capacity": page_capacity,
-        "pages": len(records),
-        "directory_crc32": zlib.crc32(directory),
+        "pages": len(table),
+        "directory_crc32": zlib.crc32(table.tobytes()),
         "software": f"mapdb {__version__}",
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
     }
     for key, value in (metadata or {}).items():
         header.setdefault(key, value)
+    return header
+
+
+def _pack_prefix(path: Path, header: dict[str, Any], table: np.ndarray, quantum: float) -> bytes:
+    """The file's prefix (fixed fields, deflated header, CRC), once the reader's own checks pass on it."""
     header_json = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
     packer = zlib.compressobj(9, zlib.DEFLATED, -15)
     header_bytes = packer.compress(header_json) + packer.flush()
@@ -547,18 +610,18 @@ def write_map(
         if len(header_json) > _header_json_limit(len(header_bytes)):
             raise MapFormatError(f"{path}: header of {len(header_json)} bytes is too long")
         _check_header(_parse_header_json(header_json, str(path)), str(path), FORMAT_VERSION)
-        _check_directory(table, quantum, bounds, int(keep.size), str(path))
+        _check_directory(table, quantum, tuple(header["bounds"]), int(header["count"]), str(path))
     except MapFormatError as exc:
         raise ValueError(f"cannot write a valid map: {exc}") from None
     prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, 0, len(header_bytes)) + header_bytes
-    prefix += struct.pack("<I", zlib.crc32(prefix))
+    return prefix + struct.pack("<I", zlib.crc32(prefix))
 
+
+def _write_atomically(path: Path, parts: list[bytes]) -> None:
+    """Write ``parts`` one after another to ``path`` through a temporary file."""
     with atomic_open(path, "wb") as f:
-        f.write(prefix)
-        f.write(directory)
-        for payload in payloads:
-            f.write(payload)
-    return int(keep.size)
+        for part in parts:
+            f.write(part)
 
 
 # --------------------------------------------------------------------------------------------- checking
