@@ -43,8 +43,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
 
-from mapdb.match.fast import _LABEL_GAP, FastOptions, _label_keys, neighbour_quads  # noqa: E402
+from mapdb.match.fast import FastOptions  # noqa: E402
 from mapdb.match.hypotheses import _quad_keys  # noqa: E402
+from mapdb.match.quads import LABEL_GAP, label_keys, neighbour_quads  # noqa: E402
 from mapdb.store import open_map, write_map  # noqa: E402
 
 SIGMA_PX = 1.5
@@ -169,7 +170,7 @@ def _quadindex_lookups(map_path: Path, images: list[dict]) -> dict:
         best = best_cpu = math.inf
         for _ in range(REPEATS):
             start, start_cpu = time.perf_counter(), time.process_time()
-            query = np.column_stack([inv, _label_keys(lab, len(labels)) * _LABEL_GAP])
+            query = np.column_stack([inv, label_keys(lab, len(labels)) * LABEL_GAP])
             k = min(HITS, qi.n_quads)
             dist, hit = qi.tree.query(query, k=k, distance_upper_bound=float(radius.max(initial=0.0)))
             q_row, q_col = np.nonzero(dist.reshape(len(inv), k) <= radius[:, None])

@@ -32,7 +32,6 @@ from .images import ImageObjects, parse_image
 from .objects import Objects
 
 __all__ = [
-    "INLIER_GATE_SIGMAS",
     "MatchGeometry",
     "crs_name",
     "match_geometry",
@@ -40,9 +39,6 @@ __all__ = [
     "plot_match",
 ]
 
-# An image object counts as an inlier when the nearest map object of its label lies within this many
-# residual sigmas of it: the gate of the matcher's final association (mapdb.match.refine.polish).
-INLIER_GATE_SIGMAS = 3.5
 # The main view of a match shows this fraction of the footprint's size around it (map context).
 VIEW_MARGIN = 0.25
 # A truth farther than this many footprint diagonals from the answer is shown in the overview only:
@@ -99,7 +95,7 @@ class MatchGeometry:
     inlier : bool array (n,)
         Whether that distance is within ``gate_m``.
     gate_m : float
-        The inlier gate: ``INLIER_GATE_SIGMAS`` residual sigmas of the ``expected`` nearest objects,
+        The inlier gate: ``GATE_SIGMAS`` residual sigmas of the ``expected`` nearest objects,
         and at least the farthest of them (the matcher's own rule).
     """
 
@@ -190,13 +186,14 @@ def _nearest_of_label(world: np.ndarray, names: np.ndarray, objects: Objects) ->
 def _gate(distance: np.ndarray, expected: int) -> float:
     """The inlier gate from the ``expected`` smallest distances (the matcher's residual sigma and rule)."""
     from .match.refine import residual_sigma
+    from .match.verify import GATE_SIGMAS
 
     finite = np.sort(distance[np.isfinite(distance)])
     k = min(max(int(expected), 3), finite.size)
     if k == 0:
         return 0.0
     best = finite[:k]
-    return max(INLIER_GATE_SIGMAS * residual_sigma(best), float(best[-1]), 1e-9)
+    return max(GATE_SIGMAS * residual_sigma(best), float(best[-1]), 1e-9)
 
 
 def match_geometry(image: dict[str, Any] | ImageObjects, answer: dict[str, Any], map: Any,

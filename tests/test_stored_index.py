@@ -14,7 +14,7 @@ from mapdb_cli.index import index as index_command
 
 from mapdb.errors import MapdbIOError, MapFormatError
 from mapdb.match import stored_index
-from mapdb.match.fast import QuadIndex, _label_keys, canonical_quads, neighbour_quads
+from mapdb.match.quads import QuadIndex, canonical_quads, label_keys, neighbour_quads
 from mapdb.match.stored_index import StoredQuadIndex, build_index, index_path, open_index
 from mapdb.objects import Objects
 from mapdb.store import MemoryMap, open_map, write_map
@@ -59,7 +59,7 @@ def _map_quads(objects: Objects, neighbours: int = 8):
     q = q[np.abs(z[q] - z[q[:, :1]]).max(axis=1) > 0]
     order, inv, _ = canonical_quads(z[q])
     ids = np.take_along_axis(q, order, axis=1)
-    return ids, inv, _label_keys(objects.label[ids], len(objects.labels))
+    return ids, inv, label_keys(objects.label[ids], len(objects.labels))
 
 
 def test_index_holds_exactly_the_quads_of_quadindex(small) -> None:
@@ -95,7 +95,7 @@ def _queries(objects: Objects, m: int = 400, seed: int = 1):
 
 def _brute_force(objects: Objects, query, labels, radius):
     ids, inv, keys = _map_quads(objects)
-    qkeys = _label_keys(labels, len(objects.labels))
+    qkeys = label_keys(labels, len(objects.labels))
     hits = []
     for i in range(len(query)):
         sel = np.flatnonzero(keys == qkeys[i])

@@ -57,9 +57,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .hypotheses import anchor_batches, prioritise, round_hypotheses
-from .quads import LABEL_GAP as _LABEL_GAP  # noqa: F401  (old names, until every caller uses .quads)
-from .quads import QuadIndex, canonical_quads, neighbour_quads  # noqa: F401
-from .quads import label_keys as _label_keys  # noqa: F401
+from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct, merge_candidates, polish
 from .verify import ObjectIndex, decision_nfa, refine, screen
 

@@ -16,7 +16,8 @@ from scipy.spatial import cKDTree
 
 from ..objects import Objects
 
-__all__ = ["LABEL_GAP", "QuadIndex", "canonical_quads", "label_keys", "neighbour_quads", "quad_frames"]
+__all__ = ["LABEL_GAP", "QuadIndex", "canonical_quads", "label_keys", "nearest_others", "neighbour_quads",
+           "quad_frames"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -50,11 +51,7 @@ def neighbour_quads(
     if k < 3 or not anchor_ids.size:
         empty = np.zeros((0, 4), dtype=np.int64)
         return (empty, np.zeros(0, np.int64)) if with_anchor else empty
-    _, nn = cKDTree(xy).query(xy[anchor_ids], k + 1)
-    # The point itself is usually first, but not when another point sits on it: drop it wherever it is.
-    own = nn == anchor_ids[:, None]
-    own[~own.any(axis=1), -1] = True
-    nn = nn[~own].reshape(anchor_ids.size, k)
+    nn = nearest_others(cKDTree(xy), xy, anchor_ids, k)
     triples = np.array(list(combinations(range(k), 3)))
     anchor = np.repeat(anchor_ids, len(triples))
     quads = np.concatenate([anchor[:, None], nn[:, triples].reshape(-1, 3)], axis=1)
@@ -66,6 +63,22 @@ def neighbour_quads(
         _, first = np.unique(key, return_index=True)
         return quads[np.sort(first)]
     return np.unique(quads, axis=0)
+
+
+def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, workers: int = 1) -> np.ndarray:
+    """The ``k`` nearest other points of points ``ids`` (rows nearest first), from ``tree`` over ``xy``.
+
+    Examples
+    --------
+    >>> xy = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
+    >>> nearest_others(cKDTree(xy), xy, np.arange(3), 1).ravel().tolist()
+    [1, 0, 1]
+    """
+    _, nn = tree.query(xy[ids], k + 1, workers=workers)
+    # The point itself is usually first, but not when another point sits on it: drop it wherever it is.
+    own = nn == ids[:, None]
+    own[~own.any(axis=1), -1] = True
+    return nn[~own].reshape(ids.size, k)
 
 
 def quad_frames(zq: np.ndarray, pair: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

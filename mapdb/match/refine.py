@@ -14,7 +14,7 @@ from scipy.sparse import csr_array
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
 
 from .geometry import fit_similarity_complex, prediction_variance_factor
-from .verify import ObjectIndex
+from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
 
 __all__ = ["Candidate", "candidates", "distinct", "merge_candidates", "polish"]
 
@@ -66,8 +66,7 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
 
 def residual_sigma(dist: np.ndarray) -> float:
     """Per-axis error of a similarity fitted to ``k`` pairs: ``sqrt(sum r^2 / (2k - 4))`` (4 parameters)."""
-    k = dist.size
-    return math.sqrt(float(np.sum(dist**2)) / max(2 * k - 4, 1))
+    return float(residual_sigmas(np.asarray(dist, np.float64)[None, :], np.ones((1, np.size(dist)), bool))[0])
 
 
 def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: int) -> list[int]:
@@ -94,7 +93,7 @@ def polish(
     """
     a, b = cand.a, cand.b
     farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
-    gate = max(3.5 * cand.sigma_axis_m, farthest, 1e-9)
+    gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
     for _ in range(iterations):
         w = a * z + b

@@ -78,7 +78,7 @@ from ..errors import MapdbIOError, MapFormatError, MapVersionError, reading
 from ..outputs import atomic_path, check_outputs
 from ..store import MAGIC as MAP_MAGIC
 from ..store import MetaMap, open_map
-from .fast import _label_keys, canonical_quads
+from .quads import canonical_quads, label_keys, nearest_others
 
 __all__ = [
     "INDEX_SUFFIX",
@@ -199,8 +199,8 @@ _SHARED: dict[str, Any] = {}
 def _neighbour_table(xy: np.ndarray, k: int, workers: int) -> np.ndarray:
     """Each object's ``k`` nearest other objects (uint32 ids, nearest first), as neighbour_quads finds them.
 
-    The same cKDTree over the same points and the same own-point rule as
-    :func:`mapdb.match.fast.neighbour_quads`, so the quads built from this table are that function's
+    The same cKDTree over the same points and the same search (:func:`~mapdb.match.quads.nearest_others`)
+    as :func:`~mapdb.match.quads.neighbour_quads`, so the quads built from this table are that function's
     (``tests/test_stored_index.py`` checks it); queried in chunks to bound memory.
     """
     n = len(xy)
@@ -209,11 +209,7 @@ def _neighbour_table(xy: np.ndarray, k: int, workers: int) -> np.ndarray:
     step = 1 << 18
     for lo in range(0, n, step):
         ids = np.arange(lo, min(n, lo + step))
-        _, nn = tree.query(xy[ids], k + 1, workers=workers)
-        # The point itself is usually first, but not when another point sits on it: drop it wherever it is.
-        own = nn == ids[:, None]
-        own[~own.any(axis=1), -1] = True
-        table[ids] = nn[~own].reshape(ids.size, k)
+        table[ids] = nearest_others(tree, xy, ids, k, workers)
     return table
 
 
@@ -255,7 +251,7 @@ def _chunk_quads(lo: int, hi: int, anchors: np.ndarray | None = None) -> tuple[n
     members.sort(axis=1)
     order, inv, _ = canonical_quads(z[members])
     ids = np.take_along_axis(members, order, axis=1)
-    lk = np.rint(_label_keys(label[ids], n_labels)).astype(np.int64)
+    lk = np.rint(label_keys(label[ids], n_labels)).astype(np.int64)
     return anchor, triple, inv, lk
 
 
@@ -931,7 +927,7 @@ class StoredQuadIndex:
                         if self._combo_cell.size else 0.0, 0.0)
 
     def _combo(self, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        lk = np.rint(_label_keys(labels, len(self.labels))).astype(np.int64) if len(labels) else np.zeros(0, np.int64)
+        lk = np.rint(label_keys(labels, len(self.labels))).astype(np.int64) if len(labels) else np.zeros(0, np.int64)
         if not self._combo_keys.size:
             return np.zeros(lk.size, np.int64), np.zeros(lk.size, bool)
         pos = np.searchsorted(self._combo_keys, lk)

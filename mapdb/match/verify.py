@@ -17,7 +17,13 @@ from ..objects import Objects
 from .decision import log10_nfa_curve
 from .geometry import fit_similarity_complex
 
-__all__ = ["U_MAX", "ObjectIndex", "decision_nfa", "first_per_map_object", "refine", "screen"]
+# Residual sigmas within which an association is kept (refinement's second net, the final assignment's gate).
+GATE_SIGMAS = 3.5
+
+__all__ = [
+    "GATE_SIGMAS", "U_MAX", "ObjectIndex", "decision_nfa", "first_per_map_object", "refine", "residual_sigmas",
+    "screen",
+]
 
 # Normalised residual beyond which an object counts as unmatched (a random point would be that close
 # with probability 1 - e^-3 = 95%): also the search bound of the nearest-neighbour queries.
@@ -259,12 +265,10 @@ def refine(
         u_sorted = np.sort(u, axis=1)
         u_cut = u_sorted[rows, np.clip(k_best - 1, 0, n - 1)]
         inlier = (u <= u_cut[:, None]) & np.isfinite(dist)
-        k = inlier.sum(axis=1)
-        # A generous second net: everything within 3.5 sigma of the current fit (sigma from its inliers),
+        # A generous second net: everything within GATE_SIGMAS sigmas of the current fit (sigma from its inliers),
         # so that the final fit uses every true correspondence, as the bound does.
-        with np.errstate(invalid="ignore", divide="ignore"):
-            sigma = np.sqrt(np.where(inlier, dist**2, 0.0).sum(axis=1) / np.maximum(2 * k - 4, 1))
-        inlier |= (dist <= 3.5 * sigma[:, None]) & np.isfinite(dist)
+        sigma = residual_sigmas(dist, inlier)
+        inlier |= (dist <= GATE_SIGMAS * sigma[:, None]) & np.isfinite(dist)
         inlier &= first_per_map_object(mid, dist, inlier)
         if it == iterations:
             break
@@ -274,6 +278,17 @@ def refine(
         a = np.where(ok, a_new, a)
         b = np.where(ok, b_new, b)
     return a, b, nfa, inlier, mid, dist
+
+
+def residual_sigmas(dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
+    """Per-axis error of each row's similarity fitted to its inliers: ``sqrt(sum r^2 / (2k - 4))``.
+
+    ``dist`` and ``inlier`` are ``(H, n)``; 4 parameters are fitted, so ``2k - 4`` degrees of freedom
+    (at least 1).
+    """
+    k = inlier.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.where(inlier, dist**2, 0.0).sum(axis=1) / np.maximum(2 * k - 4, 1))
 
 
 def first_per_map_object(mid: np.ndarray, dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
