@@ -10,7 +10,7 @@ import sys
 import click
 
 from mapdb.errors import ImageInputError
-from mapdb.images import Prior, parse_image, read_image_documents
+from mapdb.images import Prior, check_prior, read_image_documents
 from mapdb.localize import METHODS, localize_documents
 from mapdb.match.fast import FastOptions
 from mapdb.outputs import atomic_open, check_outputs
@@ -57,14 +57,10 @@ def parse_prior_crs(ctx: click.Context | None, param: click.Parameter | None, va
 def checked_prior(values: tuple[float, float, float], lonlat: bool) -> Prior:
     """The --prior values checked exactly as an image's ``prior`` is (the image schema's ranges)."""
     x, y, r = values
-    position = {"lon": x, "lat": y} if lonlat else {"x": x, "y": y}
     try:
-        prior = parse_image({"width": 1, "height": 1, "objects": [], "prior": {**position, "radius": r}},
-                            f"'{x:g},{y:g},{r:g}'").prior
+        return check_prior(x, y, r, f"'{x:g},{y:g},{r:g}'", lonlat=lonlat)
     except ImageInputError as exc:
         raise click.BadParameter(str(exc), param_hint="'--prior'") from None
-    assert prior is not None
-    return prior
 
 
 def _prior_argument(prior: Prior, prior_crs, map_crs: str):

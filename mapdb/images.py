@@ -223,8 +223,9 @@ def _make_prior(p: dict[str, Any], source: str) -> Prior:
     )
 
 
-def check_prior(x: float, y: float, radius: float, source: str = "prior") -> Prior:
-    """A prior in map-CRS metres (``--prior X,Y,R``), checked as an image's ``prior`` is.
+def check_prior(x: float, y: float, radius: float, source: str = "prior", *, lonlat: bool = False) -> Prior:
+    """A prior in map-CRS metres (``--prior X,Y,R``), or lon/lat degrees with ``lonlat``, checked as an
+    image's ``prior`` is.
 
     Raises
     ------
@@ -239,7 +240,7 @@ def check_prior(x: float, y: float, radius: float, source: str = "prior") -> Pri
     Traceback (most recent call last):
     mapdb.errors.ImageInputError: --prior: prior.radius: 1e+308 is greater than the maximum of 20000000
     """
-    doc = {"x": x, "y": y, "radius": radius}
+    doc = {"lon": x, "lat": y, "radius": radius} if lonlat else {"x": x, "y": y, "radius": radius}
     error = _first_error(_prior_validator(), doc)
     if error is not None:
         raise ImageInputError(f"{source}: {_schema_message(error, ('prior',))}")
