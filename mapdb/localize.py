@@ -324,6 +324,14 @@ def _rejected(image_id: Any, reason: str, start: float, candidates: list | None 
     return record
 
 
+@lru_cache(maxsize=64)
+def _checked_caller_prior(x: float, y: float, radius: float) -> tuple[float, float, float]:
+    """A caller's prior, checked against the same ranges as an image's (a radius of 1e308 would overflow the
+    tiles); once per prior, not per image of a batch that shares it."""
+    checked = check_prior(x, y, radius, source="prior argument")
+    return (checked.x, checked.y, checked.radius)
+
+
 def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float] | Prior | None):
     """The prior that applies, as (x, y, radius) in the map's CRS: the image's own, else the caller's.
 
@@ -335,9 +343,7 @@ def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float]
         if prior is None:
             return None
         if not isinstance(prior, Prior):
-            # A caller's prior meets the same ranges as an image's (a radius of 1e308 would overflow the tiles).
-            checked = check_prior(*prior, source="prior argument")
-            return (checked.x, checked.y, checked.radius)
+            return _checked_caller_prior(*prior)
         p = prior
     if not p.lonlat:
         return (p.x, p.y, p.radius)
