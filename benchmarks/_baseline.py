@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,3 +30,8 @@ def import_baseline(rev: str, workdir: Path, module: str = "localize") -> Module
         (pkg_dir / "mapdb").rename(pkg_dir / "mapdb_baseline")
         sys.path.insert(0, str(pkg_dir))
     return importlib.import_module(f"mapdb_baseline.{module}")
+
+
+def as_json(answer: Any) -> dict:
+    """An answer as JSON, from this revision (an :class:`mapdb.answers.Answer`) or an older one (a dict)."""
+    return answer.to_json() if hasattr(answer, "to_json") else answer

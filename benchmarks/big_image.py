@@ -42,7 +42,7 @@ with open_map(map_path) as m:
     start = time.perf_counter()
     answer = localize(image, m)
     seconds = time.perf_counter() - start
-print(json.dumps({"objects": n, "status": answer["status"], "seconds": seconds,
+print(json.dumps({"objects": n, "status": answer.status, "seconds": seconds,
                   "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                   "before_mb": base / 1024}))
 """

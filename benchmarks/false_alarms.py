@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, import_baseline  # noqa: E402
+from _baseline import ROOT, as_json, import_baseline  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "osm"
 EXTRACTS = {
@@ -109,7 +109,7 @@ def localize_all(localize, store, cases: list[dict]) -> list[dict]:
                 localize(images[0], m)  # builds the whole map's index once, outside the timing
                 for im in images:
                     start = time.perf_counter()
-                    a = localize(im, m)
+                    a = as_json(localize(im, m))
                     ms = (time.perf_counter() - start) * 1000.0
                     scores = [c["score"] for c in a.get("candidates", []) if c.get("score") is not None]
                     best = a["score"] if a["status"] == "ok" else max(scores, default=None)

@@ -36,6 +36,9 @@ from mapdb.match.paper import PaperOptions
 from mapdb.simulate import paper_map, simulate_images
 from mapdb.store import MemoryMap, open_map, write_map
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _baseline import as_json  # noqa: E402
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 REAL_MAPS = {"Monaco": "osm/monaco-2021-12-03.osm.pbf", "Andorra": "osm/andorra-2021-06-22.osm.pbf"}
 KEEP_LABELS = ("building", "road_intersection")
@@ -43,7 +46,7 @@ KEEP_LABELS = ("building", "road_intersection")
 
 def _timed(image: dict, m, **kwargs) -> tuple[dict, float]:
     start = time.perf_counter()
-    answer = localize(image, m, **kwargs)
+    answer = as_json(localize(image, m, **kwargs))
     return answer, (time.perf_counter() - start) * 1000.0
 
 

@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, import_baseline  # noqa: E402
+from _baseline import ROOT, as_json, import_baseline  # noqa: E402
 
 ANDORRA = ROOT.parent / "shared" / "data" / "osm" / "andorra-2021-06-22.osm.pbf"
 
@@ -44,7 +44,7 @@ def time_images(versions: dict, map_path: Path, images: list[dict]) -> dict:
         for im in subset:
             for label, (localize, _) in versions.items():
                 start = time.perf_counter()
-                answer = localize(im, maps[label])
+                answer = as_json(localize(im, maps[label]))
                 times[label].append((time.perf_counter() - start) * 1000.0)
                 good[label] += answer["status"] == "ok" and math.hypot(
                     answer["x"] - im["truth"]["x"], answer["y"] - im["truth"]["y"]) <= 2.0

@@ -160,7 +160,7 @@ def query(map_file, images_file, output, method, prior, prior_crs, min_score, pa
             for record in localize_documents(documents, m, method, prior_arg, options=options):
                 if erase:
                     erase()
-                out.write(json.dumps(record, separators=(",", ":"), allow_nan=False) + "\n")
+                out.write(json.dumps(record.to_json(), separators=(",", ":"), allow_nan=False) + "\n")
                 if streaming:
                     out.flush()  # the answer reaches a reader on a pipe before the next line is read
                 if say:

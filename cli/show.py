@@ -6,6 +6,7 @@ from typing import Any
 
 import click
 
+from mapdb.answers import Answer
 from mapdb.errors import ImageInputError
 from mapdb.images import parse_image, read_image_documents
 from mapdb.localize import METHODS, localize
@@ -45,12 +46,10 @@ def find_image(images_file: str, image_id: str | None, line: int | None) -> tupl
     raise ImageInputError(f"{images_file}: no images")
 
 
-def _summary(answer: dict[str, Any]) -> str:
-    name = answer.get("id")
-    if answer.get("status") == "ok":
-        return (f"{name}: ok at {answer['x']:.1f}, {answer['y']:.1f} ({answer.get('inliers')} inliers, "
-                f"score {answer.get('score')})")
-    return f"{name}: rejected ({answer.get('reason')})"
+def _summary(answer: Answer) -> str:
+    if answer.ok:
+        return f"{answer.id}: ok at {answer.x:.1f}, {answer.y:.1f} ({answer.inliers} inliers, score {answer.score})"
+    return f"{answer.id}: rejected ({answer.reason})"
 
 
 @click.command()

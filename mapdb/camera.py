@@ -66,6 +66,7 @@ __all__ = [
     "Camera",
     "Pose",
     "footprint",
+    "image_plane",
     "image_to_ground",
     "level_pixels",
     "nadir_pixel",
@@ -206,6 +207,19 @@ def level_pixels(
     """
     level = rotation_body_to_ned(0.0, pitch_deg, roll_deg) @ _pixels_to_body(u, v, camera)
     return _body_to_pixels(level, camera)
+
+
+def image_plane(u: npt.ArrayLike, v: npt.ArrayLike, width: float, height: float) -> np.ndarray:
+    """Pixels as the matcher sees them: complex ``x + iy`` from the image centre, ``y`` up (pixels have it down).
+
+    Examples
+    --------
+    >>> image_plane([0.0, 640.0], [0.0, 240.0], 640, 480).tolist()
+    [(-320+240j), (320+0j)]
+    >>> image_plane([], [], 640, 480).size
+    0
+    """
+    return (np.asarray(u, np.float64) - width / 2.0) + 1j * (height / 2.0 - np.asarray(v, np.float64))
 
 
 def nadir_pixel(camera: Camera, roll_deg: float = 0.0, pitch_deg: float = 0.0) -> tuple[float, float]:

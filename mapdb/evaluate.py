@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from .answers import Answer
 from .errors import ImageInputError, MapdbError, MapdbIOError, MapFormatError
 from .images import read_image_documents
 from .outputs import Progress, ProgressLike, as_progress
@@ -83,7 +84,7 @@ def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def outcome(image: dict[str, Any], result: dict[str, Any], time_ms: float) -> dict[str, Any]:
+def outcome(image: dict[str, Any], result: Answer, time_ms: float) -> dict[str, Any]:
     """One image's result compared with its truth.
 
     Returns a dict with ``id``, ``status`` ("ok", "rejected" or "error"), ``x``, ``y`` (None unless ok),
@@ -91,10 +92,10 @@ def outcome(image: dict[str, Any], result: dict[str, Any], time_ms: float) -> di
     ``n_objects`` (in the image), ``n_true`` (of them from the map; None if unknown), ``time_ms``, ``reason``.
     """
     truth = image["truth"]
-    status = result.get("status", "error")
+    status = result.status
     x, y, error = None, None, None
-    if status == "ok":
-        x, y = float(result["x"]), float(result["y"])
+    if result.ok and result.x is not None and result.y is not None:
+        x, y = float(result.x), float(result.y)
         error = math.hypot(x - truth["x"], y - truth["y"])
     bound = truth.get("bound")
     index = truth.get("map_index")
@@ -110,7 +111,7 @@ def outcome(image: dict[str, Any], result: dict[str, Any], time_ms: float) -> di
         "n_objects": len(image.get("objects") or ()),
         "n_true": None if index is None else int(np.sum(np.asarray(index) >= 0)),
         "time_ms": float(time_ms),
-        "reason": result.get("reason"),
+        "reason": result.reason,
     }
 
 
@@ -203,7 +204,7 @@ def _init_worker(spec: tuple[str, Any], method: str) -> None:
     _WORKER["method"] = method
 
 
-def _localize_timed(map_: Any, image: dict[str, Any], method: str) -> tuple[dict[str, Any], float]:
+def _localize_timed(map_: Any, image: dict[str, Any], method: str) -> tuple[Answer, float]:
     from .localize import localize
 
     start = time.perf_counter()
@@ -214,11 +215,11 @@ def _localize_timed(map_: Any, image: dict[str, Any], method: str) -> tuple[dict
         # images that happened to avoid the bad page would mislead.  The run ends with this one-line error.
         raise
     except MapdbError as exc:  # a problem with this image must not lose the other images' figures
-        result = {"status": "error", "reason": str(exc)}
+        result = Answer(id=None, status="error", reason=str(exc))
     return result, (time.perf_counter() - start) * 1000.0
 
 
-def _worker_run(image: dict[str, Any]) -> tuple[dict[str, Any], float]:
+def _worker_run(image: dict[str, Any]) -> tuple[Answer, float]:
     if "map_error" in _WORKER:
         raise _WORKER["map_error"]
     return _localize_timed(_WORKER["map"], image, _WORKER["method"])
@@ -239,7 +240,7 @@ def _run_budgeted(
     budget_s: float,
     cost: Callable[[dict[str, Any]], float],
     say: Progress,
-) -> dict[int, tuple[dict[str, Any], float]]:
+) -> dict[int, tuple[Answer, float]]:
     """Localize images in order, in worker processes, until ``budget_s`` runs out: a hard limit.
 
     An image is started only while it is predicted (its ``cost`` times 1.5 x the mean time per unit of
@@ -249,7 +250,7 @@ def _run_budgeted(
     images still running are stopped and left out.
     """
     deadline = time.perf_counter() + budget_s
-    done: dict[int, tuple[dict[str, Any], float]] = {}
+    done: dict[int, tuple[Answer, float]] = {}
     spent_ms, spent_cost = 0.0, 0.0
     pending = list(range(len(images)))
     # The pool's context exit terminates its workers, which is what stops images running at the deadline.
@@ -325,7 +326,7 @@ def evaluate_images(
         say.done()
         outcomes = [outcome(images[i], *done[i]) for i in sorted(done)]
         return outcomes, summarize(outcomes, fp_threshold)
-    results: list[tuple[dict[str, Any], float]] = []
+    results: list[tuple[Answer, float]] = []
     if jobs <= 1:
         for image in images:
             results.append(_localize_timed(map, image, method))

@@ -4,7 +4,8 @@
 document of a JSON Lines file in input order, a malformed line becoming a
 ``rejected`` record so that one bad line never stops a batch.
 
-The answer (one JSON-able dict)::
+The answer (an :class:`mapdb.answers.Answer`; ``Answer.to_json()`` gives this JSON, which ``mapdb query``
+writes)::
 
     {"id": ..., "status": "ok", "x": ..., "y": ..., "lon": ..., "lat": ..., "crs": "EPSG:...",
      "inliers": 14, "heading_deg": ..., "scale_m_per_px": ..., "sigma_m": ..., "score": ...,
@@ -40,7 +41,8 @@ from typing import Any
 
 import numpy as np
 
-from .camera import Camera, level_pixels
+from .answers import Answer, Candidate
+from .camera import Camera, image_plane, level_pixels
 from .errors import ImageInputError
 from .images import ImageObjects, Prior, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
@@ -188,7 +190,7 @@ class Localizer:
     >>> from mapdb.objects import Objects
     >>> from mapdb.store import MemoryMap
     >>> loc = Localizer(MemoryMap(Objects.from_names([0.0, 50.0], [0.0, 0.0], ["park"] * 2, crs="EPSG:32631")))
-    >>> loc.localize({"width": 640, "height": 480, "objects": []})["reason"]
+    >>> loc.localize({"width": 640, "height": 480, "objects": []}).reason
     '0 objects: at least 3 are needed'
     """
 
@@ -208,7 +210,7 @@ class Localizer:
         self._previous_block: tuple | None = None
 
     def localize(self, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None = None, *,
-                 source: str = "image") -> dict[str, Any]:
+                 source: str = "image") -> Answer:
         """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own."""
         return _answer(self, image, self.prior if prior is None else prior, source)
 
@@ -317,11 +319,14 @@ def localizer_for(map: Any, method: str = "fast", options: FastOptions | PaperOp
     return per_map[key]
 
 
-def _rejected(image_id: Any, reason: str, start: float, candidates: list | None = None, **extra: Any) -> dict:
-    record = {"id": image_id, "status": "rejected", "reason": reason, "candidates": candidates or []}
-    record.update(extra)
-    record["time_ms"] = _rounded((time.perf_counter() - start) * 1000.0, 3)
-    return record
+def _elapsed_ms(start: float) -> float:
+    return _rounded((time.perf_counter() - start) * 1000.0, 3)
+
+
+def _rejected(image_id: Any, reason: str, start: float, candidates: list[Candidate] | None = None,
+              **extra: Any) -> Answer:
+    return Answer(id=image_id, status="rejected", reason=reason, candidates=candidates or [], **extra,
+                  time_ms=_elapsed_ms(start))
 
 
 @lru_cache(maxsize=64)
@@ -385,7 +390,7 @@ def localize(
     *,
     options: FastOptions | PaperOptions | None = None,
     source: str = "image",
-) -> dict[str, Any]:
+) -> Answer:
     """Find where an image was taken.
 
     Parameters
@@ -406,16 +411,16 @@ def localize(
 
     Returns
     -------
-    dict
-        The answer record (module docs).  Bad input gives ``status: "rejected"`` with the reason;
-        nothing about the image raises.
+    Answer
+        The answer (module docs).  Bad input gives ``status == "rejected"`` with the reason; nothing
+        about the image raises.
 
     Examples
     --------
     >>> from mapdb.objects import Objects
     >>> from mapdb.store import MemoryMap
     >>> m = MemoryMap(Objects.from_names([0.0, 50.0], [0.0, 0.0], ["building"] * 2, crs="EPSG:32631"))
-    >>> localize({"width": 640, "height": 480, "objects": []}, m)["reason"]
+    >>> localize({"width": 640, "height": 480, "objects": []}, m).reason
     '0 objects: at least 3 are needed'
     """
     if method not in METHODS:
@@ -426,7 +431,7 @@ def localize(
 class _RejectionError(Exception):
     """A step's reason to reject the image (with what the answer should still carry)."""
 
-    def __init__(self, reason: str, candidates: list | None = None, **extra: Any) -> None:
+    def __init__(self, reason: str, candidates: list[Candidate] | None = None, **extra: Any) -> None:
         super().__init__(reason)
         self.reason, self.candidates, self.extra = reason, candidates, extra
 
@@ -440,12 +445,12 @@ class _Pose:
     inliers: int
     sigma_m: float | None
     score: float | None
-    candidates: list
+    candidates: list[Candidate]
     extra: dict[str, Any]
 
 
 def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
-            prior: tuple[float, float, float] | None, source: str) -> dict[str, Any]:
+            prior: tuple[float, float, float] | None, source: str) -> Answer:
     start = time.perf_counter()
     image_id = _image_id(image)
     try:
@@ -519,7 +524,7 @@ def _image_plane(im: ImageObjects) -> tuple[np.ndarray, bool, list[str]]:
             if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
                 raise _RejectionError("attitude puts objects at or above the horizon")
             levelled = True
-    return (u - im.width / 2.0) + 1j * (im.height / 2.0 - v), levelled, notes
+    return image_plane(u, v, im.width, im.height), levelled, notes
 
 
 def _scale_hints(im: ImageObjects, diag_px: float):
@@ -542,8 +547,8 @@ def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: floa
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
                            scale_range=scale_range)
         candidates = [
-            {"x": _rounded(c.b.real, 3), "y": _rounded(c.b.imag, 3), "inliers": c.inliers,
-             "score": _finite(c.score, 2), "sigma_m": _finite(c.sigma_m, 3)}
+            Candidate(x=_rounded(c.b.real, 3), y=_rounded(c.b.imag, 3), inliers=c.inliers,
+                      score=_finite(c.score, 2), sigma_m=_finite(c.sigma_m, 3))
             for c in found.candidates
         ]
         extra: dict[str, Any] = {"hypotheses": found.n_hypotheses, **skipped}
@@ -564,35 +569,33 @@ def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: floa
 
 
 def _ok_record(image_id: Any, crs: str, pose: _Pose, focal_px: float | None, levelled: bool,
-               start: float) -> dict[str, Any]:
+               start: float) -> Answer:
     """The answer of a localized image (module docs)."""
     a, b = pose.a, pose.b
     lon, lat = _to_lonlat(crs, b.real, b.imag)
-    record: dict[str, Any] = {
-        "id": image_id,
-        "status": "ok",
-        "x": _rounded(b.real, 3),
-        "y": _rounded(b.imag, 3),
-        "lon": lon,
-        "lat": lat,
-        "crs": crs or None,
-        "inliers": int(pose.inliers),
-        "heading_deg": _rounded((-math.degrees(np.angle(a))) % 360.0, 3),
-        "scale_m_per_px": _rounded(abs(a), 6),
-        "sigma_m": None if pose.sigma_m is None else _rounded(pose.sigma_m, 3),
-        "score": pose.score,
+    return Answer(
+        id=image_id,
+        status="ok",
+        x=_rounded(b.real, 3),
+        y=_rounded(b.imag, 3),
+        lon=lon,
+        lat=lat,
+        crs=crs or None,
+        inliers=int(pose.inliers),
+        heading_deg=_rounded((-math.degrees(np.angle(a))) % 360.0, 3),
+        scale_m_per_px=_rounded(abs(a), 6),
+        sigma_m=None if pose.sigma_m is None else _rounded(pose.sigma_m, 3),
+        score=pose.score,
         # The number of false alarms the score stands for: how many answers this good the search would be
         # expected to find by chance in a map that does not hold the place (benchmarks/false_alarms.py
         # measures how that holds on real places not in the map).
-        "expected_false_alarms": None if pose.score is None else float(f"{10.0 ** -pose.score:.3g}"),
-    }
-    if focal_px is not None:
-        record["altitude_m"] = _rounded(abs(a) * focal_px, 2)
-    record["levelled"] = levelled
-    record["candidates"] = pose.candidates
-    record.update(pose.extra)
-    record["time_ms"] = _rounded((time.perf_counter() - start) * 1000.0, 3)
-    return record
+        expected_false_alarms=None if pose.score is None else float(f"{10.0 ** -pose.score:.3g}"),
+        altitude_m=None if focal_px is None else _rounded(abs(a) * focal_px, 2),
+        levelled=levelled,
+        candidates=pose.candidates,
+        **pose.extra,
+        time_ms=_elapsed_ms(start),
+    )
 
 
 def localize_documents(
@@ -602,7 +605,7 @@ def localize_documents(
     prior: tuple[float, float, float] | None = None,
     *,
     options: FastOptions | PaperOptions | None = None,
-) -> Iterator[dict[str, Any]]:
+) -> Iterator[Answer]:
     """Answer every document of a batch, in order; a document that failed to decode is rejected.
 
     Parameters
@@ -615,29 +618,18 @@ def localize_documents(
 
     Yields
     ------
-    dict
+    Answer
         One answer per document, as soon as that document is read (a lazy ``documents``, such as
         :func:`~mapdb.images.read_image_documents` gives, is consumed one document at a time).  A
         rejection of a document without an ``id`` names its place (``where``) in the reason, so that
-        it can be found in the input.  Every number in an answer is finite (strict JSON): a value
-        that is not, such as the score of a candidate with no evidence, is given as None.
+        it can be found in the input.
     """
-
-    def strict(value: Any) -> Any:
-        if isinstance(value, float):
-            return value if math.isfinite(value) else None
-        if isinstance(value, dict):
-            return {key: strict(item) for key, item in value.items()}
-        if isinstance(value, list | tuple):
-            return [strict(item) for item in value]
-        return value
-
     for where, doc in documents:
         if isinstance(doc, Exception):
             start = time.perf_counter()
             yield _rejected(None, str(doc), start)
             continue
-        record = localize(doc, map, method, prior, options=options, source=where)
-        if record["status"] == "rejected" and record["id"] is None and not record["reason"].startswith(where):
-            record["reason"] = f"{where}: {record['reason']}"
-        yield strict(record)
+        answer = localize(doc, map, method, prior, options=options, source=where)
+        if not answer.ok and answer.id is None and not (answer.reason or "").startswith(where):
+            answer.reason = f"{where}: {answer.reason}"
+        yield answer

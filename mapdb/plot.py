@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from .camera import Camera, Pose, image_to_ground, level_pixels
+from .answers import Answer, Candidate
+from .camera import Camera, Pose, image_plane, image_to_ground, level_pixels
 from .errors import MapdbIOError
 from .evaluate import DEFAULT_FP_THRESHOLD_M
 from .images import ImageObjects, parse_image
@@ -111,22 +112,22 @@ class MatchGeometry:
     position: complex
 
 
-def _answer_placer(im: ImageObjects, answer: dict[str, Any]):
+def _answer_placer(im: ImageObjects, answer: Answer):
     """Pixels -> map (complex) by the answer's similarity ``z -> a z + b``, as the localizer fitted it.
 
     ``a = scale * exp(-i heading)`` (``heading_deg`` is ``-arg(a)``, clockwise from north) and ``b`` is
     ``(x, y)``.  The pixels are levelled first when the localizer levelled them.
     """
-    a = float(answer["scale_m_per_px"]) * complex(np.exp(-1j * math.radians(float(answer["heading_deg"]))))
-    b = complex(float(answer["x"]), float(answer["y"]))
-    fov = im.fov_deg if answer.get("levelled") else None
+    assert answer.scale_m_per_px is not None and answer.heading_deg is not None
+    a = answer.scale_m_per_px * complex(np.exp(-1j * math.radians(answer.heading_deg)))
+    b = _xy(answer)
+    fov = im.fov_deg if answer.levelled else None
 
     def place(u: np.ndarray, v: np.ndarray) -> np.ndarray:
         u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
         if fov is not None:
             u, v = level_pixels(u, v, _camera(im, fov), im.roll_deg or 0.0, im.pitch_deg or 0.0)
-        # The localizer's image plane: centred, y up.
-        return a * ((u - im.width / 2.0) + 1j * (im.height / 2.0 - v)) + b
+        return a * image_plane(u, v, im.width, im.height) + b
 
     return place
 
@@ -149,9 +150,14 @@ def _truth_placer(im: ImageObjects, truth: dict[str, Any]):
     return place
 
 
-def _has_pose(answer: dict[str, Any]) -> bool:
-    return answer.get("status") == "ok" and all(
-        isinstance(answer.get(k), int | float) for k in ("x", "y", "heading_deg", "scale_m_per_px"))
+def _has_pose(answer: Answer) -> bool:
+    return answer.ok and all(
+        isinstance(getattr(answer, k), int | float) for k in ("x", "y", "heading_deg", "scale_m_per_px"))
+
+
+def _xy(answer: Answer | Candidate) -> complex:
+    return complex(float(answer.x or 0.0), float(answer.y or 0.0))
+
 
 
 def _truth_pose(truth: dict[str, Any] | None, im: ImageObjects) -> bool:
@@ -196,7 +202,7 @@ def _gate(distance: np.ndarray, expected: int) -> float:
     return max(GATE_SIGMAS * residual_sigma(best), float(best[-1]), 1e-9)
 
 
-def match_geometry(image: dict[str, Any] | ImageObjects, answer: dict[str, Any], map: Any,
+def match_geometry(image: dict[str, Any] | ImageObjects, answer: Answer, map: Any,
                    truth: dict[str, Any] | None = None) -> MatchGeometry | None:
     """Place an image's objects and footprint in the map, and find which meet a map object of their label.
 
@@ -227,8 +233,8 @@ def match_geometry(image: dict[str, Any] | ImageObjects, answer: dict[str, Any],
         truth = image.get("truth")
     if _has_pose(answer):
         pose, place = "answer", _answer_placer(im, answer)
-        position = complex(float(answer["x"]), float(answer["y"]))
-        expected = int(answer.get("inliers") or 0)
+        position = _xy(answer)
+        expected = int(answer.inliers or 0)
     elif _truth_pose(truth, im):
         assert truth is not None
         pose, place = "truth", _truth_placer(im, truth)
@@ -364,17 +370,16 @@ def _truth_xy(truth: Any) -> complex | None:
     return None
 
 
-def _match_title(im: ImageObjects, answer: dict[str, Any], truth_xy: complex | None) -> str:
-    name = answer.get("id", im.id)
+def _match_title(im: ImageObjects, answer: Answer, truth_xy: complex | None) -> str:
+    name = answer.id if answer.id is not None else im.id
     head = f"{name if name is not None else 'image'}: "
-    if answer.get("status") == "ok":
-        head += f"accepted, score {_fmt(answer.get('score'), 1)}, {answer.get('inliers')} inliers of {len(im)}"
-        head += f", sigma {_fmt(answer.get('sigma_m'), 2, ' m')}"
+    if answer.ok:
+        head += f"accepted, score {_fmt(answer.score, 1)}, {answer.inliers} inliers of {len(im)}"
+        head += f", sigma {_fmt(answer.sigma_m, 2, ' m')}"
         if truth_xy is not None:
-            error = abs(complex(float(answer["x"]), float(answer["y"])) - truth_xy)
-            head += f", error {_fmt(error, 2, ' m')}"
+            head += f", error {_fmt(abs(_xy(answer) - truth_xy), 2, ' m')}"
         return head
-    return textwrap.fill(head + f"rejected: {answer.get('reason', 'no reason given')}", width=110)
+    return textwrap.fill(head + f"rejected: {answer.reason or 'no reason given'}", width=110)
 
 
 def _draw_map_objects(ax: Any, objects: Objects, colours: dict[str, str]) -> list[tuple[Any, str]]:
@@ -419,7 +424,7 @@ def _draw_geometry(ax: Any, geom: MatchGeometry, colours: dict[str, str]) -> lis
     return handles
 
 
-def _draw_positions(ax: Any, answer: dict[str, Any], truth_xy: complex | None, view: tuple[float, ...] | None,
+def _draw_positions(ax: Any, answer: Answer, truth_xy: complex | None, view: tuple[float, ...] | None,
                     overview: bool = False) -> list[tuple[Any, str]]:
     """The answer (star), the truth (circled cross) and the candidates (numbered triangles) within ``view``."""
     handles = []
@@ -428,9 +433,7 @@ def _draw_positions(ax: Any, answer: dict[str, Any], truth_xy: complex | None, v
     def inside(p: complex) -> bool:
         return view is None or (view[0] <= p.real <= view[2] and view[1] <= p.imag <= view[3])
 
-    cands = [c for c in answer.get("candidates") or []
-             if isinstance(c.get("x"), int | float) and isinstance(c.get("y"), int | float)]
-    shown = [(i, complex(c["x"], c["y"])) for i, c in enumerate(cands, 1)]
+    shown = [(i, _xy(c)) for i, c in enumerate(answer.candidates, 1)]
     shown = [(i, p) for i, p in shown if inside(p)]
     if shown:
         h = ax.scatter([p.real for _, p in shown], [p.imag for _, p in shown], s=60 * scale, marker="^",
@@ -440,10 +443,10 @@ def _draw_positions(ax: Any, answer: dict[str, Any], truth_xy: complex | None, v
         for i, p in shown:
             ax.annotate(str(i), (p.real, p.imag), xytext=offsets[(i - 1) % 4], textcoords="offset points",
                         fontsize=7, color="#5b3a8a", zorder=6)
-        rejected = answer.get("status") != "ok"
+        rejected = not answer.ok
         handles.append((h, "candidates (1 = best)" if rejected else "runner-up candidates"))
-    if _has_pose(answer) or answer.get("status") == "ok":
-        p = complex(float(answer["x"]), float(answer["y"]))
+    if _has_pose(answer) or answer.ok:
+        p = _xy(answer)
         h = ax.scatter([p.real], [p.imag], s=220 * scale, marker="*", color=_ANSWER, edgecolors="black",
                        linewidths=0.9, zorder=7)
         handles.append((h, "answer (its x, y)"))
@@ -456,7 +459,7 @@ def _draw_positions(ax: Any, answer: dict[str, Any], truth_xy: complex | None, v
     return handles
 
 
-def _draw_overview(ax: Any, map: Any, answer: dict[str, Any], truth_xy: complex | None,
+def _draw_overview(ax: Any, map: Any, answer: Answer, truth_xy: complex | None,
                    view: tuple[float, float, float, float] | None) -> list[tuple[Any, str]]:
     from matplotlib.patches import Rectangle
 
@@ -479,7 +482,7 @@ def _draw_overview(ax: Any, map: Any, answer: dict[str, Any], truth_xy: complex 
     return handles
 
 
-def plot_match(image: dict[str, Any] | ImageObjects, answer: dict[str, Any], map: Any, path: str | Path, *,
+def plot_match(image: dict[str, Any] | ImageObjects, answer: Answer, map: Any, path: str | Path, *,
                truth: dict[str, Any] | None = None, title: str | None = None) -> None:
     """Save a picture of one image's match: its objects placed over the map, inliers and outliers, footprint.
 
@@ -539,15 +542,15 @@ def plot_match(image: dict[str, Any] | ImageObjects, answer: dict[str, Any], map
     _save(fig, path)
 
 
-def _draw_main_view(ax: Any, im: ImageObjects, answer: dict[str, Any], map: Any, geom: MatchGeometry | None,
+def _draw_main_view(ax: Any, im: ImageObjects, answer: Answer, map: Any, geom: MatchGeometry | None,
                     truth_xy: complex | None) -> tuple[list[tuple[Any, str]], tuple[float, float, float, float] | None]:
     """The large view: around the pose, else the best candidate, else the image in pixels.  (handles, view)"""
     colours = _label_colours(map.labels)
-    cands = [c for c in answer.get("candidates") or [] if isinstance(c.get("x"), int | float)]
+    cands = answer.candidates
     if geom is not None:
         focus = geom.position
     elif cands:
-        focus = complex(float(cands[0]["x"]), float(cands[0]["y"]))
+        focus = _xy(cands[0])
     else:
         # Nothing places the image in the map: show what it holds, in pixels.
         return _draw_pixels(ax, im, colours), None
@@ -564,18 +567,18 @@ def _draw_main_view(ax: Any, im: ImageObjects, answer: dict[str, Any], map: Any,
     return handles, view
 
 
-def _candidate_notes(answer: dict[str, Any], truth_xy: complex | None, limit: int = 5) -> str:
+def _candidate_notes(answer: Answer, truth_xy: complex | None, limit: int = 5) -> str:
     """A small table of the candidates: inliers, score, and distance from the answer or the truth."""
-    cands = [c for c in answer.get("candidates") or [] if isinstance(c.get("x"), int | float)][:limit]
+    cands = answer.candidates[:limit]
     if not cands:
         return ""
-    ok = answer.get("status") == "ok"
-    ref = complex(float(answer["x"]), float(answer["y"])) if ok else truth_xy
+    ok = answer.ok
+    ref = _xy(answer) if ok else truth_xy
     what = "from answer" if ok else "from truth"
     rows = [("runner-up" if ok else "candidate") + f"  inliers  score  {what if ref is not None else ''}"]
     for i, c in enumerate(cands, 1):
-        far = "" if ref is None else f"{abs(complex(c['x'], c['y']) - ref):,.0f} m"
-        rows.append(f"{i:>9}  {c.get('inliers', '-')!s:>7}  {_fmt(c.get('score'), 1):>5}  {far:>9}")
+        far = "" if ref is None else f"{abs(_xy(c) - ref):,.0f} m"
+        rows.append(f"{i:>9}  {c.inliers if c.inliers is not None else '-'!s:>7}  {_fmt(c.score, 1):>5}  {far:>9}")
     return "\n".join(rows)
 
 
@@ -586,12 +589,12 @@ def _size_hint(im: ImageObjects) -> float:
     return DEFAULT_VIEW_M
 
 
-def _view_title(geom: MatchGeometry | None, answer: dict[str, Any], focus: complex, truth_xy: complex | None) -> str:
+def _view_title(geom: MatchGeometry | None, answer: Answer, focus: complex, truth_xy: complex | None) -> str:
     if geom is None:
         return "best candidate; a rejected answer has no pose to place the image's objects by"
     if geom.pose == "answer":
-        parts = [f"image placed by the answer: heading {answer['heading_deg']:.1f} deg, "
-                 f"{answer['scale_m_per_px']:.3f} m/pixel"]
+        parts = [f"image placed by the answer: heading {answer.heading_deg:.1f} deg, "
+                 f"{answer.scale_m_per_px:.3f} m/pixel"]
     else:
         parts = ["image placed by its TRUE pose (the answer was rejected)"]
     if truth_xy is not None and geom.pose == "answer":

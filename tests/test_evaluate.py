@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
+from mapdb.answers import Answer
 from mapdb.bench import bench_paper, format_bench
 from mapdb.errors import ImageInputError, MapdbIOError
 from mapdb.evaluate import evaluate_images, format_summary, load_images, outcome, plot_evaluation, summarize
@@ -41,7 +42,7 @@ def test_statistics_of_correct_rejected_and_false_positive_answers() -> None:
         {"status": "rejected", "reason": "fewer than 3 objects"},
     ]
     times = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
-    outcomes = [outcome(im, r, t) for im, r, t in zip(images, results, times, strict=True)]
+    outcomes = [outcome(im, Answer.from_json(r), t) for im, r, t in zip(images, results, times, strict=True)]
     assert outcomes[0]["error_m"] == pytest.approx(0.5)
     assert outcomes[4]["error_m"] is None and outcomes[4]["reason"] == "no match"
     assert outcomes[6]["n_true"] == 2 and outcomes[6]["bound_error_m"] is None
@@ -71,7 +72,7 @@ def test_statistics_of_correct_rejected_and_false_positive_answers() -> None:
 
 def test_empty_statistics_are_none() -> None:
     images = [_image(0, 0.0, 0.0, 0.2, 5)]
-    s = summarize([outcome(images[0], {"status": "rejected"}, 1.0)])
+    s = summarize([outcome(images[0], Answer(id=0, status="rejected"), 1.0)])
     assert s["rms_m"] is None and s["false_positive_fraction"] is None and s["rejected_fraction"] == 1.0
     assert "-" in format_summary(s)
 
@@ -96,7 +97,7 @@ def test_plot_is_written(tmp_path: Path) -> None:
     images = [_image(i, 10.0 * i, 5.0, 0.1, 8) for i in range(4)]
     results = [{"status": "ok", "x": 0.2, "y": 5.0}, {"status": "rejected"}, {"status": "ok", "x": 60.0, "y": 5.0},
                {"status": "ok", "x": 30.0, "y": 5.5}]
-    outcomes = [outcome(im, r, 1.0) for im, r in zip(images, results, strict=True)]
+    outcomes = [outcome(im, Answer.from_json(r), 1.0) for im, r in zip(images, results, strict=True)]
     png = tmp_path / "eval.png"
     plot_evaluation(outcomes, png, map_objects=paper_map())
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

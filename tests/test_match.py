@@ -117,12 +117,12 @@ def test_fast_recovers_a_known_similarity_exactly(heading: float, scale: float) 
     doc = _image_of(m, centre, scale, heading)
     assert len(doc["objects"]) >= 6
     out = localize(doc, m)
-    assert out["status"] == "ok", out
-    assert abs(complex(out["x"], out["y"]) - centre) < 2e-3  # output rounded to the millimetre
-    assert out["heading_deg"] == pytest.approx(heading, abs=1e-3)
-    assert out["scale_m_per_px"] == pytest.approx(scale, rel=1e-5)
-    assert out["inliers"] == len(doc["objects"]) and out["score"] > 3 and out["sigma_m"] < 1e-3
-    assert out["crs"] == CRS and 0 < out["lon"] < 3 and 42 < out["lat"] < 43
+    assert out.status == "ok", out
+    assert abs(complex(out.x, out.y) - centre) < 2e-3  # output rounded to the millimetre
+    assert out.heading_deg == pytest.approx(heading, abs=1e-3)
+    assert out.scale_m_per_px == pytest.approx(scale, rel=1e-5)
+    assert out.inliers == len(doc["objects"]) and out.score > 3 and out.sigma_m < 1e-3
+    assert out.crs == CRS and 0 < out.lon < 3 and 42 < out.lat < 43
 
 
 def test_fast_with_simulated_paper_images_matches_the_bound() -> None:
@@ -130,9 +130,9 @@ def test_fast_with_simulated_paper_images_matches_the_bound() -> None:
     for image in simulate_images(m, 6, pixel_std=1.0, yaw="random", seed=9):
         out = localize(image, m)
         truth = image["truth"]
-        assert out["status"] == "ok", out
-        assert math.hypot(out["x"] - truth["bound"]["x"], out["y"] - truth["bound"]["y"]) < 1e-3  # mm output
-        assert out["altitude_m"] == pytest.approx(100.0, rel=0.02)
+        assert out.status == "ok", out
+        assert math.hypot(out.x - truth["bound"]["x"], out.y - truth["bound"]["y"]) < 1e-3  # mm output
+        assert out.altitude_m == pytest.approx(100.0, rel=0.02)
 
 
 def test_attitude_and_field_of_view_level_the_image_to_the_nadir() -> None:
@@ -147,12 +147,12 @@ def test_attitude_and_field_of_view_level_the_image_to_the_nadir() -> None:
            "objects": [{"label": str(names[i]), "x": float(u[i]), "y": float(v[i])} for i in np.flatnonzero(inside)]}
     plain = localize(doc, m)
     levelled = localize({**doc, "attitude": {"roll_deg": 3.0, "pitch_deg": -2.0}}, m)
-    assert levelled["status"] == "ok" and levelled["levelled"]
-    assert math.hypot(levelled["x"] - pose.x, levelled["y"] - pose.y) < 2e-3
-    assert levelled["altitude_m"] == pytest.approx(120.0, abs=0.01)
-    assert levelled["heading_deg"] == pytest.approx(75.0, abs=1e-3)
+    assert levelled.status == "ok" and levelled.levelled
+    assert math.hypot(levelled.x - pose.x, levelled.y - pose.y) < 2e-3
+    assert levelled.altitude_m == pytest.approx(120.0, abs=0.01)
+    assert levelled.heading_deg == pytest.approx(75.0, abs=1e-3)
     # Without the attitude the answer is the point under the image centre, metres away (120 m * tan 3 deg).
-    assert plain["status"] == "ok" and math.hypot(plain["x"] - pose.x, plain["y"] - pose.y) > 4.0
+    assert plain.status == "ok" and math.hypot(plain.x - pose.x, plain.y - pose.y) > 4.0
 
 
 def test_images_unrelated_to_the_map_are_rejected() -> None:
@@ -164,8 +164,8 @@ def test_images_unrelated_to_the_map_are_rejected() -> None:
                "objects": [{"label": "building", "x": float(x), "y": float(y)}
                            for x, y in zip(rng.uniform(0, W, n), rng.uniform(0, H, n), strict=True)]}
         out = localize(doc, m)
-        assert out["status"] == "rejected", out
-        assert "certain" in out["reason"] or "no consistent" in out["reason"]
+        assert out.status == "rejected", out
+        assert "certain" in out.reason or "no consistent" in out.reason
 
 
 def test_prior_restricts_the_search() -> None:
@@ -173,13 +173,13 @@ def test_prior_restricts_the_search() -> None:
     centre = complex(X0 + 250.0, Y0 + 240.0)
     doc = _image_of(m, centre, 0.12, 10.0)
     near = localize({**doc, "prior": {"x": centre.real + 30, "y": centre.imag - 20, "radius": 100}}, m)
-    assert near["status"] == "ok" and abs(complex(near["x"], near["y"]) - centre) < 2e-3
+    assert near.status == "ok" and abs(complex(near.x, near.y) - centre) < 2e-3
     # The true place lies outside this prior: nothing else there matches.
     far = localize(doc, m, prior=(centre.real + 200, centre.imag, 50.0))
-    assert far["status"] == "rejected"
+    assert far.status == "rejected"
     # No map objects at all around the prior.
     empty = localize(doc, m, prior=(X0 + 50_000, Y0, 100.0))
-    assert empty["status"] == "rejected" and "objects here" in empty["reason"]
+    assert empty.status == "rejected" and "objects here" in empty.reason
 
 
 @pytest.mark.parametrize(
@@ -195,9 +195,9 @@ def test_prior_restricts_the_search() -> None:
 def test_bad_images_are_rejected_with_a_reason(objects, reason) -> None:
     m = _random_map(n=50)
     out = localize({"id": "bad", "width": W, "height": H, "objects": objects}, m)
-    assert out["status"] == "rejected" and out["id"] == "bad"
-    assert out["reason"].startswith(reason), out["reason"]
-    assert out["candidates"] == [] and out["time_ms"] >= 0
+    assert out.status == "rejected" and out.id == "bad"
+    assert out.reason.startswith(reason), out.reason
+    assert out.candidates == [] and out.time_ms >= 0
 
 
 def test_match_fast_needs_four_objects_and_a_map() -> None:
@@ -223,8 +223,8 @@ def test_paper_method_finds_the_centre_of_a_noise_free_image() -> None:
     assert res.best is not None and abs(res.best.b - centre) < 1e-6
     assert res.best.matched == z.size and res.best.error_std < 1e-9
     out = localize(doc, m, method="paper")
-    assert out["status"] == "ok" and out["score"] is None
-    assert out["heading_deg"] == pytest.approx(30.0, abs=1e-6)
+    assert out.status == "ok" and out.score is None
+    assert out.heading_deg == pytest.approx(30.0, abs=1e-6)
 
 
 def test_paper_method_rejects_below_n_min() -> None:
@@ -232,7 +232,7 @@ def test_paper_method_rejects_below_n_min() -> None:
     doc = _image_of(m, complex(X0 + 100.0, Y0 + 100.0), 0.15, 30.0)
     doc["objects"] = doc["objects"][:5]
     out = localize(doc, m, method="paper")
-    assert out["status"] == "rejected" and "N_min = 6" in out["reason"]
+    assert out.status == "rejected" and "N_min = 6" in out.reason
 
 
 def test_lonlat_prior_and_the_precision_gate() -> None:
@@ -245,15 +245,15 @@ def test_lonlat_prior_and_the_precision_gate() -> None:
     doc = _image_of(m, centre, 0.12, 200.0)
     lon, lat = Transformer.from_crs(CRS, "EPSG:4326", always_xy=True).transform(centre.real + 20, centre.imag)
     out = localize({**doc, "prior": {"lon": lon, "lat": lat, "radius": 60.0}}, m)
-    assert out["status"] == "ok" and abs(complex(out["x"], out["y"]) - centre) < 2e-3
+    assert out.status == "ok" and abs(complex(out.x, out.y) - centre) < 2e-3
     # An answer less precise than max_sigma_m is withheld but still offered as a candidate.
     rng = np.random.default_rng(8)
     noisy = {**doc, "objects": [{**o, "x": min(max(o["x"] + rng.normal(0, 2), 0), W),
                                  "y": min(max(o["y"] + rng.normal(0, 2), 0), H)} for o in doc["objects"]]}
     strict = localize(noisy, m, options=FastOptions(max_sigma_m=1e-4))
-    assert strict["status"] == "rejected" and strict["reason"].startswith("imprecise")
-    best = strict["candidates"][0]
-    assert abs(complex(best["x"], best["y"]) - centre) < 1.0 and best["sigma_m"] > 1e-4
+    assert strict.status == "rejected" and strict.reason.startswith("imprecise")
+    best = strict.candidates[0]
+    assert abs(complex(best.x, best.y) - centre) < 1.0 and best.sigma_m > 1e-4
 
 
 def _paper_case(
@@ -359,12 +359,12 @@ def test_an_image_with_thousands_of_objects_is_matched_on_its_central_ones() -> 
                for r, t in zip(radius, angle)]
     crowded = {**image, "width": w, "height": h, "objects": true_objects + clutter}
     answer = localize(crowded, m)
-    assert answer["status"] == "ok", answer.get("reason")
-    assert math.hypot(answer["x"] - truth["x"], answer["y"] - truth["y"]) < 1.0
+    assert answer.status == "ok", answer.reason
+    assert math.hypot(answer.x - truth["x"], answer.y - truth["y"]) < 1.0
     noise = {"width": 4000, "height": 3000, "objects": [
         {"label": "building", "x": float(x), "y": float(y)}
         for x, y in zip(rng.uniform(0, 4000, 20_000), rng.uniform(0, 3000, 20_000))]}
-    assert localize(noise, m)["status"] == "rejected"
+    assert localize(noise, m).status == "rejected"
 
 
 def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path) -> None:
@@ -383,7 +383,7 @@ def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path
         memory._stored_index = lambda: None  # the same map, as if it had no index file
         for im in images:
             a, b = stored.localize(im), memory.localize(im)
-            assert a["status"] == b["status"] == "ok"
-            assert math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"]) < 1.0
+            assert a.status == b.status == "ok"
+            assert math.hypot(a.x - im["truth"]["x"], a.y - im["truth"]["y"]) < 1.0
         assert isinstance(stored.whole_map_indexes()[1], StoredQuads)
         assert isinstance(memory.whole_map_indexes()[1], QuadIndex)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import subprocess
@@ -16,6 +17,7 @@ from mapdb_cli.main import cli
 from mapdb_cli.show import show
 from PIL import Image
 
+from mapdb.answers import Answer, Candidate
 from mapdb.evaluate import outcome
 from mapdb.localize import localize
 from mapdb.objects import Objects
@@ -161,15 +163,15 @@ def test_the_answer_places_true_objects_on_their_map_objects(setup, k: int) -> N
     map_path, _, images = setup
     with open_map(map_path) as m:
         answer = localize(images[k], m)
-        assert answer["status"] == "ok" and answer["levelled"] == (k == 2)
+        assert answer.status == "ok" and answer.levelled == (k == 2)
         geom = match_geometry(images[k], answer, m)
         true, where = _true_pairs(images, m, k)
     assert geom is not None and geom.pose == "answer"
     # Pixel noise of 1 px at ~0.1 m/px: a sign or angle error in the similarity would put them metres off.
     assert np.max(np.abs(geom.world[true] - where)) < 1.0
-    assert geom.inlier[true].all() and geom.inlier.sum() >= answer["inliers"]
+    assert geom.inlier[true].all() and geom.inlier.sum() >= answer.inliers
     assert np.all(geom.distance[geom.inlier] <= geom.gate_m)
-    assert geom.position == complex(answer["x"], answer["y"])
+    assert geom.position == complex(answer.x, answer.y)
     if k == 1:  # a level image's footprint is centred on the answer (a tilted one's is not)
         assert abs(np.mean(geom.footprint) - geom.position) < 1e-6
 
@@ -178,10 +180,10 @@ def test_a_rejected_simulated_image_is_placed_by_its_true_pose(setup) -> None:
     map_path, _, images = setup
     with open_map(map_path) as m:
         answer = localize(images[-1], m)
-        assert answer["status"] == "rejected"
+        assert answer.status == "rejected"
         geom = match_geometry(images[-1], answer, m)
         # The unscrambled original under its true pose: its true objects sit on their map objects.
-        original = match_geometry(images[0], {"status": "rejected"}, m)
+        original = match_geometry(images[0], Answer(id=None, status="rejected"), m)
         true, where = _true_pairs(images, m, 0)
     assert geom is not None and geom.pose == "truth"
     assert geom.position == complex(images[-1]["truth"]["x"], images[-1]["truth"]["y"])
@@ -197,7 +199,7 @@ def test_objects_of_a_label_the_map_lacks_are_outliers(setup) -> None:
         doc["objects"].append({"label": "lighthouse", "x": 320.0, "y": 240.0})
         geom = match_geometry(doc, answer, m)
     assert geom is not None
-    assert not geom.inlier[-1] and math.isinf(geom.distance[-1]) and geom.inlier[:-1].sum() >= answer["inliers"]
+    assert not geom.inlier[-1] and math.isinf(geom.distance[-1]) and geom.inlier[:-1].sum() >= answer.inliers
 
 
 def test_pictures_without_a_pose_still_draw(setup, tmp_path: Path) -> None:
@@ -205,12 +207,12 @@ def test_pictures_without_a_pose_still_draw(setup, tmp_path: Path) -> None:
     doc = {k: v for k, v in images[-1].items() if k != "truth"}
     with open_map(map_path) as m:
         answer = localize(doc, m)
-        assert answer["status"] == "rejected" and match_geometry(doc, answer, m) is None
+        assert answer.status == "rejected" and match_geometry(doc, answer, m) is None
         # Around the best candidate, and (with none) the image's own objects in pixels.
-        with_candidate = dict(answer, candidates=[{"x": images[0]["truth"]["x"], "y": images[0]["truth"]["y"],
-                                                   "inliers": 4, "score": -1.0}])
+        with_candidate = dataclasses.replace(answer, candidates=[
+            Candidate(images[0]["truth"]["x"], images[0]["truth"]["y"], inliers=4, score=-1.0, sigma_m=None)])
         plot_match(doc, with_candidate, m, tmp_path / "candidate.png")
-        plot_match(doc, dict(answer, candidates=[]), m, tmp_path / "pixels.png")
+        plot_match(doc, dataclasses.replace(answer, candidates=[]), m, tmp_path / "pixels.png")
     _assert_png(tmp_path / "candidate.png")
     _assert_png(tmp_path / "pixels.png")
 
@@ -226,10 +228,10 @@ def test_evaluation_picture_with_false_positives_rejections_and_no_answers(tmp_p
                {"status": "rejected", "reason": "no match"},
                {"status": "ok", "x": 500_123.0, "y": 5_000_050.0},  # a false positive, 3 m off
                {"status": "ok", "x": 500_160.0, "y": 5_000_050.2}]
-    outcomes = [outcome(im, r, 1.0) for im, r in zip(images, results, strict=True)]
+    outcomes = [outcome(im, Answer.from_json(r), 1.0) for im, r in zip(images, results, strict=True)]
     plot_evaluation(outcomes, tmp_path / "eval.png", map_objects=paper_map(), title="t")
     _assert_png(tmp_path / "eval.png")
-    rejected = [outcome(im, {"status": "rejected"}, 1.0) for im in images]  # nothing accepted: no curve
+    rejected = [outcome(im, Answer(id=im["id"], status="rejected"), 1.0) for im in images]  # nothing accepted: no curve
     plot_evaluation(rejected, tmp_path / "none.png", crs="EPSG:32631")
     _assert_png(tmp_path / "none.png")
 

@@ -250,7 +250,7 @@ def test_numbers_at_the_corners_of_their_ranges_give_strict_json_answers(paper_s
             doc["attitude"] = {"roll_deg": attitude, "pitch_deg": -attitude}
         lines.append(json.dumps(doc))
     with open_map(map_path) as m:
-        answers = list(localize_documents(split_image_documents("\n".join(lines)), m))
+        answers = [a.to_json() for a in localize_documents(split_image_documents("\n".join(lines)), m)]
     assert [a["id"] for a in answers] == list(range(len(lines)))
     for answer in answers:
         json.dumps(answer, allow_nan=False)  # raises on NaN or infinity anywhere
