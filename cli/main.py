@@ -29,8 +29,20 @@ COMMANDS = {
 }
 
 
+# Subcommands spelled as two words (``mapdb simulate flight``) whose first word is also a command of its
+# own (``mapdb simulate MAP``): (first, second) -> module.
+TWO_WORD_COMMANDS = {("simulate", "flight"): "flight"}
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported on first use."""
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        module = TWO_WORD_COMMANDS.get((args[0], args[1])) if len(args) >= 2 else None
+        if module is not None and importlib.util.find_spec(f"mapdb_cli.{module}") is not None:
+            command = getattr(importlib.import_module(f"mapdb_cli.{module}"), module)
+            return f"{args[0]} {args[1]}", command, args[2:]
+        return super().resolve_command(ctx, args)
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return [name for name in COMMANDS if importlib.util.find_spec(f"mapdb_cli.{name}") is not None]
