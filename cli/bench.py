@@ -1,15 +1,20 @@
-"""``mapdb bench``: reproducible benchmarks; ``mapdb bench paper`` reproduces the paper's Table 1."""
+"""``mapdb bench``: reproducible benchmarks; ``mapdb bench paper`` reproduces the paper's Table 1, ``mapdb bench
+storage`` measures a map's bytes against other formats and imagery."""
 
 from __future__ import annotations
+
+import sys
 
 import click
 
 from mapdb.bench import bench_paper, format_bench
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 from mapdb.simulate import paper_map
+from mapdb.storage import DEFAULT_GSD_M, DEFAULT_JPEG_BPP, format_storage, storage_reports
 from mapdb.store import write_map
 
 from .options import (
+    TerminalProgress,
     debug_option,
     finite_float,
     handle_errors,
@@ -71,3 +76,41 @@ def paper(n_images, paper_images, budget, cases, yaw, miss_rate, spurious_rate, 
                          with_prior=with_prior, seed=seed, map_seed=map_seed, jobs=jobs,
                          progress=progress_printer(quiet))
     click.echo(dumps_strict(result, indent=2) if as_json else format_bench(result))
+
+
+@bench.command()
+@click.argument("sources", nargs=-1, required=True, type=click.Path(), metavar="MAP_OR_SOURCE...")
+@click.option("--cell", type=finite_float(0.001, 1000.0), default=1.0, show_default=True,
+              help="Side of the region cells, km, in the map's CRS.")
+@click.option("--gsd", type=finite_float(0.01, 100.0), default=DEFAULT_GSD_M, show_default=True,
+              help="Ground sample distance of the orthophoto compared, metres a pixel.")
+@click.option("--jpeg-bpp", type=finite_float(0.01, 24.0), default=DEFAULT_JPEG_BPP, show_default=True,
+              help="Bits a pixel of that orthophoto as JPEG (an assumed rate: 24-bit RGB at 16:1).")
+@json_option
+@quiet_option
+@debug_option
+@handle_errors
+def storage(sources, cell, gsd, jpeg_bpp, as_json, quiet, debug):
+    """The paper's storage argument, measured: bytes per object and per km² of each map against the same
+    objects as GeoPackage, GeoParquet (zstd), FlatGeobuf, their sorted columns through lzma (whole, and
+    in chunks that are the map's pages) and an orthophoto of the same area as JPEG; per cell and in total.
+
+    Each MAP_OR_SOURCE is a map, or a source `mapdb build` reads (built with its defaults into a
+    temporary map).  Nothing is left on disk.  One table a map, and their total; a source that fails
+    gets one error line and the others are still measured (exit status 1).
+    """
+    progress = progress_printer(quiet)
+
+    def report_error(exc: Exception) -> None:
+        if debug:
+            raise exc
+        if isinstance(progress, TerminalProgress):
+            progress.abandon()  # the error goes on a line of its own, not over a half-drawn bar
+        click.echo(f"mapdb: error: {exc}", err=True)
+
+    result = storage_reports(sources, cell_m=cell * 1000.0, gsd_m=gsd, jpeg_bpp=jpeg_bpp, progress=progress,
+                             on_error=report_error)
+    if result["maps"]:
+        click.echo(dumps_strict(result, indent=2) if as_json else format_storage(result))
+    if result["errors"]:
+        sys.exit(1)

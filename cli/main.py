@@ -22,10 +22,11 @@ COMMANDS = {
     "export": "Export a map's objects as points (GeoPackage, GeoJSON, GeoParquet, FlatGeobuf, CSV).",
     "index": "Build a map's lost-in-space quad index (a checksummed file beside the map).",
     "simulate": "Simulate downward-looking camera images of a map, one JSON object per line.",
+    "objects": "Image objects from segmentation masks (PNG, GeoTIFF) and COCO detections, for query.",
     "query": "Localize every image of a JSON Lines file (or stdin, streamed) in a map.",
     "evaluate": "Localize simulated images and measure the answers against their truth.",
     "show": "Draw one image's match over the map: inliers, outliers, footprint, truth, candidates.",
-    "bench": "Reproducible benchmarks (the paper's Table 1).",
+    "bench": "Reproducible benchmarks: the paper's Table 1, storage against other formats and imagery.",
 }
 
 

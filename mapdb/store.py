@@ -59,6 +59,7 @@ __all__ = [
     "MapBase",
     "MemoryMap",
     "MetaMap",
+    "area_codes",
     "open_map",
     "write_map",
 ]
@@ -114,6 +115,17 @@ def _area_encode(area: np.ndarray) -> np.ndarray:
     log = (np.log2(area[pos]) - _AREA_FLOOR_LOG2) * _AREA_STEPS
     code[pos] = np.clip(np.rint(log) + 1, 1, _MAX_AREA_CODE).astype(np.uint16)
     return code
+
+
+def area_codes(area: np.ndarray) -> np.ndarray:
+    """Areas (m^2) as the map stores them: uint16 codes on a log scale (0 for a point), as in ``docs/format.md``.
+
+    Examples
+    --------
+    >>> area_codes(np.array([0.0, 1.0, 100.0])).tolist()[0]
+    0
+    """
+    return _area_encode(np.asarray(area, np.float64))
 
 
 def _area_decode(code: np.ndarray) -> np.ndarray:
@@ -1175,6 +1187,11 @@ class MetaMap(MapBase):
         self._table = table
         self._offsets = dir_start + dir_len + np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
         self.metadata = header
+
+    @property
+    def page_directory(self) -> np.ndarray:
+        """The checked page directory: one record per page (origin and extent in quanta, count, length)."""
+        return self._table
 
     @staticmethod
     def _inflate_header(header_bytes: bytes, where: str) -> bytes:
