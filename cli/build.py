@@ -34,13 +34,17 @@ from .options import (
               help="Smallest land-cover patch kept, m^2.")
 @click.option("--label-column", default="label", show_default=True, help="Label column of point/polygon layers.")
 @click.option("--layer-crs", help="CRS of CSV layers with x,y columns.")
+@click.option("--label", "layer_label", metavar="NAME",
+              help="Label of every feature of a layer without a label column (e.g. building footprints).")
+@click.option("--label-map", type=click.Path(), metavar="FILE.toml",
+              help="Map a layer column's values to labels ([classes] table; 'column' names the column).")
 @overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_area, label_column, layer_crs,
-          overwrite, parents, quiet, debug):
+          layer_label, label_map, overwrite, parents, quiet, debug):
     """Build a map from OSM extracts, land-cover rasters and point/polygon layers.
 
     Prints a JSON summary (object counts per label, and "warnings") on stdout.  An existing OUTPUT is
@@ -51,12 +55,17 @@ def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_
     file, or the same SHA-256) is read once; with --crs auto, sources spanning more than 12 degrees of
     longitude (two UTM zones) are too far apart for one UTM zone: give a --crs that holds them all or
     build one map per area.
+
+    Layers: each feature's label is read from --label-column; with --label-map FILE.toml the column's
+    values are mapped to labels (values not listed are skipped and counted); a layer without the
+    column gets --label NAME for every feature.
     """
-    check_outputs([output], [*sources, labels_file], parents=parents)
+    check_outputs([output], [*sources, labels_file, label_map], parents=parents)
     refuse_existing(output, overwrite)
     summary = build_map(sources, output, labels=labels_file, crs=crs, bbox=bbox, quantum=quantum,
                         raster_classes=raster_classes, min_area_m2=min_area, label_column=label_column,
-                        layer_crs=layer_crs, progress=progress_printer(quiet))
+                        layer_crs=layer_crs, label=layer_label, label_map=label_map,
+                        progress=progress_printer(quiet))
     for warning in summary["warnings"]:
         click.echo(f"mapdb: warning: {warning}", err=True)
     click.echo(dumps_strict(summary))

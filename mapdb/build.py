@@ -16,6 +16,7 @@ from pyproj import CRS, Transformer
 from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
+from .classmap import ClassTable, check_label, load_class_table
 from .errors import EmptyMapError, SourceError
 from .geo import _lon_arc, bbox_text, central_longitude, check_bbox, in_bbox
 from .labels import LabelTable, load_label_table
@@ -141,7 +142,7 @@ def build_map(
     sources: Sequence[str | Path], output: str | Path, *, labels: str | Path | None = None, crs: str = "auto",
     bbox: tuple[float, float, float, float] | None = None, quantum: float = 0.1, raster_classes: str | None = None,
     min_area_m2: float = 10_000.0, label_column: str = "label", layer_crs: str | None = None,
-    progress: ProgressLike = None,
+    label: str | None = None, label_map: str | Path | None = None, progress: ProgressLike = None,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -164,6 +165,11 @@ def build_map(
         Stored resolution in metres, in (0, 1000].
     min_area_m2 : float
         Smallest land-cover patch kept, finite and >= 0.
+    label : str, optional
+        The label of every feature of a layer that has no label column (a building footprint file).
+    label_map : path, optional
+        A TOML class table (:mod:`mapdb.classmap`) mapping the values of a layer column to labels;
+        features with other values are skipped and counted (``unmapped_labels``).
     progress : Progress or callable, optional
         Receives the stages as messages, and a count over the sources read, the projection and the
         writing (see :class:`mapdb.outputs.Progress`).
@@ -188,12 +194,15 @@ def build_map(
     say = as_progress(progress)
     say.start(len(sources) + 2, "build")  # one count: each source read, then the projection, then the writing
     read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
-                    "label_column": label_column, "layer_crs": layer_crs}
+                    "label_column": label_column, "layer_crs": layer_crs, "label": label,
+                    "label_map": _label_map(label_map, label, table)}
     merged, target, described, totals, warnings = _gather(sources, table, read_options, target, say)
     build = {"crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
              "labels_file": Path(labels).name if labels else None,
              "labels_sha256": _sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
-             "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs}
+             "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs, "label": label,
+             "label_map": Path(label_map).name if label_map else None,
+             "label_map_sha256": _sha256(Path(label_map)) if label_map else None}
     written, label_counts = _write(output, merged, target, quantum, {"sources": described, "build": build}, totals, say)
     return {"output": str(output), "crs": target, "count": written, "labels": label_counts,
             "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": warnings}
@@ -299,6 +308,13 @@ def _tally_skipped(described: list[dict[str, Any]], skipped: list[Counter[str]],
         if n:
             say(f"  {n:,} {SKIPPED_KINDS.get(kind, kind)}")
     return totals
+
+
+def _label_map(path: str | Path | None, label: str | None, table: LabelTable) -> ClassTable | None:
+    """The --label-map table, checked against the label table (and --label checked too)."""
+    if label is not None:
+        check_label(label, table.labels, "--label")
+    return None if path is None else load_class_table(path, table.labels, column=True)
 
 
 def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: dict[str, Any]

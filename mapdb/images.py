@@ -28,6 +28,9 @@ field                       accepted
 width, height               1 <= v <= ``MAX_IMAGE_SIDE_PX`` (1,000,000)
 objects                     at most ``MAX_OBJECTS`` (20,000)
 objects[].x, objects[].y    0 <= v <= width (height)
+objects[].area_px           optional, 0 <= v <= 1e12 (pixels)
+objects[].border            optional, boolean (the region touches the image border)
+objects[].bbox              optional, [x0, y0, x1, y1], each 0 <= v <= 1,000,000
 prior.radius                0 < r <= ``MAX_PRIOR_RADIUS_M`` (20,000 km)
 prior.x, prior.y            abs(v) <= ``MAX_MAP_COORDINATE_M`` (1e8 m)
 prior.lon, prior.lat        [-180, 180], [-90, 90]
@@ -81,6 +84,8 @@ IMAGE_SCHEMA_PATH = Path(str(resources.files("mapdb") / "data" / "image.schema.j
 # A guard against documents that would take minutes: no detector reports this many objects in a frame.
 MAX_OBJECTS = 20_000
 MAX_IMAGE_SIDE_PX = 1_000_000
+# An object's area in pixels: at most a whole image of the largest size.
+MAX_AREA_PX = 1e12
 # Narrower than any lens; a denormal field of view made the focal length infinite.
 MIN_FOV_DEG = 0.001
 # Half the Earth's circumference: a wider prior excludes nothing, and a finite bound keeps the prior's
@@ -130,6 +135,12 @@ class ImageObjects:
     pitch_deg: float | None = None
     fov_deg: float | None = None
     altitude_m: float | None = None
+    # The optional region attributes of a mask's objects (mapdb.masks), None when no object has one:
+    # ``area_px`` (NaN where an object lacks it), ``border`` (False where it lacks it), ``bbox`` (n, 4;
+    # NaN rows where it lacks one).
+    area_px: np.ndarray | None = None
+    border: np.ndarray | None = None
+    bbox: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.x.size)
@@ -197,6 +208,19 @@ def _plain_object_ok(obj: Any) -> bool:
         and type(y) in (int, float)
         and 0 <= x <= MAX_IMAGE_SIDE_PX
         and 0 <= y <= MAX_IMAGE_SIDE_PX
+        and (len(obj) == 3 or _region_fields_ok(obj))
+    )
+
+
+def _region_fields_ok(obj: dict[str, Any]) -> bool:
+    """The schema's rules for an object's optional ``area_px``, ``border``, ``bbox`` and ``box``."""
+    area: Any = obj.get("area_px", 0)
+    box: Any = obj.get("bbox", (0, 0, 0, 0))
+    return (
+        type(area) in (int, float) and 0 <= area <= MAX_AREA_PX
+        and type(obj.get("border", False)) is bool and type(obj.get("box", False)) is bool
+        and type(box) in (list, tuple) and len(box) == 4
+        and all(type(v) in (int, float) and 0 <= v <= MAX_IMAGE_SIDE_PX for v in box)
     )
 
 
@@ -269,6 +293,7 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
     objects = doc["objects"]
     x, y = _positions(objects, width, height, source)
     names = np.array([o["label"] for o in objects], dtype=object)
+    area_px, border, bbox = _region_fields(objects, source)
     prior = _make_prior(doc["prior"], source) if "prior" in doc else None
     attitude = doc.get("attitude") or {}
     roll = attitude.get("roll_deg")
@@ -287,7 +312,31 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
         pitch_deg=None if pitch is None else _finite(pitch, "attitude.pitch_deg", source),
         fov_deg=None if fov is None else _finite(fov, "camera.fov_deg", source),
         altitude_m=None if altitude is None else _finite(altitude, "altitude_m", source),
+        area_px=area_px,
+        border=border,
+        bbox=bbox,
     )
+
+
+def _region_fields(objects: list[dict[str, Any]], source: str
+                   ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """The objects' optional ``area_px``, ``border`` and ``bbox`` as arrays (None when no object has one)."""
+    nan_box = (math.nan,) * 4
+    area = np.array([o.get("area_px", math.nan) for o in objects], np.float64) \
+        if any("area_px" in o for o in objects) else None
+    border = np.array([o.get("border", False) for o in objects], bool) if any("border" in o for o in objects) else None
+    bbox = np.array([o.get("bbox", nan_box) for o in objects], np.float64).reshape(-1, 4) \
+        if any("bbox" in o for o in objects) else None
+    # The schema lets NaN and infinities through (JSON's readers accept them): a value given must be finite.
+    for name, values in (("area_px", area), ("bbox", bbox)):
+        if values is None:
+            continue
+        given = np.array([name in o for o in objects], bool)
+        bad = given & ~np.isfinite(values.reshape(len(objects), -1)).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise ImageInputError(f"{source}: objects[{i}].{name} is {objects[i][name]!r}, not finite")
+    return area, border, bbox
 
 
 def _check_schema(doc: Any, source: str) -> None:

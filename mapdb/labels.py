@@ -26,6 +26,7 @@ __all__ = [
     "TagRule",
     "default_label_table",
     "load_label_table",
+    "read_toml",
 ]
 
 DEFAULT_LABELS_PATH = Path(str(resources.files("mapdb") / "data" / "labels.toml"))
@@ -79,7 +80,7 @@ class LabelTable:
             ) from None
 
 
-def _read_toml(path: Path) -> dict[str, Any]:
+def read_toml(path: Path) -> dict[str, Any]:
     with reading(path, "label file"), path.open("rb") as f:
         text = f.read(MAX_LABEL_FILE_BYTES + 1)
     if len(text) > MAX_LABEL_FILE_BYTES:
@@ -275,7 +276,7 @@ def default_label_table() -> LabelTable:
     """
     global _DEFAULT
     if _DEFAULT is None:
-        _DEFAULT = _parse(_read_toml(DEFAULT_LABELS_PATH), "default", None)
+        _DEFAULT = _parse(read_toml(DEFAULT_LABELS_PATH), "default", None)
     return _DEFAULT
 
 
@@ -288,4 +289,4 @@ def load_label_table(path: str | Path | None = None) -> LabelTable:
     if path is None:
         return default_label_table()
     path = Path(path)
-    return _parse(_read_toml(path), str(path), default_label_table())
+    return _parse(read_toml(path), str(path), default_label_table())

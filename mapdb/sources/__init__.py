@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import SourceError
 from ..labels import LabelTable
@@ -16,6 +17,9 @@ from ..objects import Objects
 from .landcover import RASTER_SUFFIXES, read_landcover
 from .layers import LAYER_SUFFIXES, read_layer
 from .osm import OSM_SUFFIXES, read_osm
+
+if TYPE_CHECKING:
+    from ..classmap import ClassTable
 
 __all__ = ["DEFAULT_MIN_AREA_M2", "SKIPPED_KINDS", "SOURCE_KINDS", "read_source", "source_kind"]
 
@@ -32,6 +36,7 @@ SKIPPED_KINDS = {
     "invalid_geometries": "invalid polygons skipped: nothing with an area left after repair",
     "repaired_geometries": "invalid polygons repaired (shapely make_valid) and kept",
     "outside_crs": "objects skipped: no position in the map's CRS",
+    "unmapped_labels": "layer features skipped: their value is not in the --label-map",
 }
 
 
@@ -60,11 +65,14 @@ def read_source(
     min_area_m2: float = DEFAULT_MIN_AREA_M2,
     label_column: str = "label",
     layer_crs: str | None = None,
+    label: str | None = None,
+    label_map: ClassTable | None = None,
     progress: Callable[[str], None] | None = None,
     counts: Counter[str] | None = None,
 ) -> Objects:
     """Read one source of any kind, labelled with ``table``; each reader checks its own file.
 
+    ``label`` and ``label_map`` label a layer's features (:func:`~mapdb.sources.layers.read_layer`).
     ``counts`` is incremented with what the reader skipped or repaired (keys of :data:`SKIPPED_KINDS`).
     """
     kind = source_kind(path)
@@ -73,4 +81,5 @@ def read_source(
     if kind == "landcover":
         return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
                               progress=progress)
-    return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox, counts=counts)
+    return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox, counts=counts,
+                      label=label, label_map=label_map)

@@ -8,6 +8,12 @@ Every feature with a label becomes one object:
   OSM source applies to features drawn as lines, such as roundabouts;
 - null or empty geometries, and rows without a label, are skipped.
 
+Labels come from a column of label names (``label_column``, default ``label``); or a label map
+(:mod:`mapdb.classmap`, ``mapdb build --label-map``) translates the values of a column (the map's
+``column``, else ``label_column``) to labels, features whose value it does not list being skipped and
+counted (``"unmapped_labels"``); or, for a layer without that column (a building footprint file),
+``label`` gives every feature one label (``mapdb build --label``).
+
 Broken input is skipped or repaired, and counted, rather than failing the read:
 a coordinate that is not finite (or, in a geographic CRS, lies outside lon
 [-180, 180] / lat [-90, 90]) drops its feature (``"invalid_coordinates"``); a
@@ -28,7 +34,8 @@ from __future__ import annotations
 import os
 import warnings
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +46,7 @@ from pyproj.crs import ProjectedCRS
 from pyproj.crs.coordinate_operation import LambertAzimuthalEqualAreaConversion
 from pyproj.exceptions import CRSError
 
+from ..classmap import ClassTable
 from ..errors import MapdbIOError, SourceError
 from ..geo import check_bbox, in_bbox
 from ..objects import Objects
@@ -63,7 +71,8 @@ def is_layer_path(path: str | os.PathLike[str]) -> bool:
 
 def read_layer(path: str | os.PathLike[str], labels: Sequence[str], label_column: str = "label",
                crs: str | None = None, bbox: tuple[float, float, float, float] | None = None,
-               counts: Counter[str] | None = None) -> Objects:
+               counts: Counter[str] | None = None, *, label: str | None = None,
+               label_map: ClassTable | None = None) -> Objects:
     """Read a labelled point or polygon layer as objects.
 
     Parameters
@@ -84,6 +93,11 @@ def read_layer(path: str | os.PathLike[str], labels: Sequence[str], label_column
         antimeridian).
     counts : Counter, optional
         Incremented with the features skipped or repaired (see the module notes).
+    label : str, optional
+        The label of every feature when the layer has no label column.
+    label_map : ClassTable, optional
+        Translates the values of its ``column`` (else ``label_column``) to labels; values it does not
+        list are skipped and counted as ``"unmapped_labels"``.
 
     Returns
     -------
@@ -113,13 +127,48 @@ def read_layer(path: str | os.PathLike[str], labels: Sequence[str], label_column
     bbox = None if bbox is None else check_bbox(bbox)
     _check_path(path)
     read = _read_csv if path.suffix.lower() == ".csv" else _read_vector
-    x, y, names, area, layer_crs = read(path, label_column, crs, counts)
-    _check_labels(path, names, labels, label_column)
+    rule = _LabelRule(label_map.column or label_column if label_map else label_column, label,
+                      _map_lookup(label_map) if label_map else None)
+    x, y, names, area, layer_crs = read(path, rule, crs, counts)
+    _check_labels(path, names, labels, rule.column)
     objects = Objects.from_names(x, y, names, area=area, crs=layer_crs.to_string(), labels=labels)
     if bbox is not None and len(objects):
         lon, lat = _to_lonlat(layer_crs, objects.x, objects.y)
         objects = objects.take(np.flatnonzero(in_bbox(bbox, lon, lat)))
     return objects
+
+
+@dataclass(frozen=True)
+class _LabelRule:
+    """Where a layer's labels come from: ``column`` (names, or values that ``values`` maps), else ``label``."""
+
+    column: str
+    label: str | None = None
+    values: Mapping[str, str] | None = None
+
+
+def _map_lookup(table: ClassTable) -> dict[str, str]:
+    """A label map's values as looked up in a column: an integer key also matches a float column's ``"3.0"``."""
+    lookup = dict(table.classes)
+    lookup.update({f"{code}.0": name for code, name in table.codes.items() if f"{code}.0" not in lookup})
+    return lookup
+
+
+def _feature_labels(path: Path, frame: Any, rule: _LabelRule, columns: list[str], counts: Counter[str]
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's label name (object array) and which rows have one, after ``rule``."""
+    if rule.column not in frame.columns:
+        if rule.label is not None:
+            return np.full(len(frame), rule.label, dtype=object), np.ones(len(frame), bool)
+        raise SourceError(f"{path}: no column {rule.column!r} (columns: {', '.join(columns) or 'none'}); "
+                          "give every feature one label with --label NAME")
+    names, keep = _label_strings(frame[rule.column].to_numpy())
+    if rule.values is not None:
+        mapped = np.array([rule.values.get(v) for v in names], dtype=object)
+        unmapped = keep & np.array([m is None for m in mapped], bool)
+        counts["unmapped_labels"] += int(unmapped.sum())
+        names, keep = mapped, keep & ~unmapped
+    return names, keep
 
 
 def _check_path(path: Path) -> None:
@@ -173,7 +222,7 @@ def _label_strings(values: Any) -> tuple[np.ndarray, np.ndarray]:
     return names, series.notna().to_numpy() & (names != "")
 
 
-def _read_csv(path: Path, label_column: str, crs: str | None, counts: Counter[str]
+def _read_csv(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[str]
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CRS]:
     import pandas as pd
 
@@ -182,8 +231,7 @@ def _read_csv(path: Path, label_column: str, crs: str | None, counts: Counter[st
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise SourceError(f"{path}: not a readable CSV file ({' '.join(str(exc).split())})") from None
     columns = [str(c) for c in table.columns]
-    if label_column not in table.columns:
-        raise SourceError(f"{path}: no column {label_column!r} (columns: {', '.join(columns)})")
+    names, keep = _feature_labels(path, table, rule, columns, counts)
     has_xy, has_lonlat = {"x", "y"} <= set(table.columns), {"lon", "lat"} <= set(table.columns)
     if has_xy and crs is not None:
         xcol, ycol, layer_crs = "x", "y", _parse_crs(path, crs)
@@ -195,7 +243,6 @@ def _read_csv(path: Path, label_column: str, crs: str | None, counts: Counter[st
         raise SourceError(f"{path}: CSV needs columns x,y or lon,lat (columns: {', '.join(columns)})")
     raw = table[[xcol, ycol]]
     coords = raw.apply(pd.to_numeric, errors="coerce").to_numpy(dtype=np.float64)
-    names, keep = _label_strings(table[label_column])
     # Text that is no number at all is a broken file; an empty cell, "nan", "inf" or a number out of
     # range is a bad coordinate: that row is skipped and counted.
     text = (raw.notna() & np.isnan(coords)).to_numpy().any(axis=1)
@@ -210,12 +257,10 @@ def _read_csv(path: Path, label_column: str, crs: str | None, counts: Counter[st
     return x, y, names[keep], np.zeros(x.size), layer_crs
 
 
-def _read_vector(path: Path, label_column: str, crs: str | None, counts: Counter[str]
+def _read_vector(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[str]
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CRS]:
     gdf = _read_frame(path, counts)
-    if label_column not in gdf.columns:
-        columns = [str(c) for c in gdf.columns if c != gdf.geometry.name]
-        raise SourceError(f"{path}: no column {label_column!r} (columns: {', '.join(columns) or 'none'})")
+    names, keep = _feature_labels(path, gdf, rule, [str(c) for c in gdf.columns if c != gdf.geometry.name], counts)
     if gdf.crs is None:
         if crs is None:
             raise SourceError(f"{path}: layer has no CRS (add one to the file, e.g. a .prj, or pass crs=...)")
@@ -223,7 +268,6 @@ def _read_vector(path: Path, label_column: str, crs: str | None, counts: Counter
     else:
         layer_crs = CRS.from_user_input(gdf.crs)
 
-    names, keep = _label_strings(gdf[label_column].to_numpy())
     geoms = gdf.geometry.to_numpy()
     keep &= ~(shapely.is_missing(geoms) | shapely.is_empty(geoms))
     geoms, names = geoms[keep], names[keep]
