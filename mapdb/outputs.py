@@ -47,6 +47,7 @@ __all__ = [
     "check_outputs",
     "dumps_strict",
     "json_safe",
+    "pid_alive",
     "refuse_existing",
     "remove_stale_temporaries",
 ]
@@ -200,7 +201,7 @@ def _temp_pattern(target: Path) -> re.Pattern[str]:
     return re.compile(rf"\.{name}\.(\d+)\.[0-9a-f]+\.tmp(?:\.[^.]*)?")
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
     if pid <= 0:
         return False
     try:
@@ -232,7 +233,7 @@ def remove_stale_temporaries(target: PathLike) -> int:
     prefix = f".{target.name[:_NAME_KEEP]}."
     for name in names:
         match = pattern.fullmatch(name) if name.startswith(prefix) else None
-        if match and not _pid_alive(int(match.group(1))):
+        if match and not pid_alive(int(match.group(1))):
             try:
                 os.unlink(target.parent / name)
                 removed += 1

@@ -8,6 +8,10 @@
 * :mod:`mapdb.match.paper` - the seed paper's Algorithm 1 as published, the reference (its exact pruning
   bound in :mod:`~mapdb.match.paper_bound`).
 * :mod:`mapdb.match.geometry` - similarity fits.
+* :mod:`mapdb.match.stored_index` - the lost-in-space quad index stored beside a map (``mapdb index``), read
+  by :class:`~mapdb.match.stored_index.StoredQuadIndex`; its file layout in :mod:`~mapdb.match.index_layout`,
+  its writer in :mod:`~mapdb.match.index_build` (quads from :mod:`~mapdb.match.index_generate`), what a
+  lookup reads in :mod:`~mapdb.match.index_lookup`.
 
 Most callers want :func:`mapdb.localize.localize` (or a :class:`mapdb.localize.Localizer`), which parses
 an image document, picks the map region and formats the answer.
