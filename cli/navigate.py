@@ -1,0 +1,93 @@
+"""``mapdb navigate``: a flight's frames in, a navigated track out (particle filter + prior-aided queries)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import click
+
+from mapdb.images import read_image_documents
+from mapdb.navigation.navigator import Navigator, NavigatorOptions
+from mapdb.navigation.track import plot_track, track_geojson
+from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
+from mapdb.store import open_map
+
+from .evaluate import parse_plot
+from .options import debug_option, finite_float, handle_errors, parents_option, quiet_option
+from .query import LONLAT, _stdin_file, checked_prior, parse_prior, parse_prior_crs
+
+
+def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float] | None:
+    """--initial in the map's CRS (converted from lon/lat with --initial-crs EPSG:4326)."""
+    if prior is None:
+        return None
+    checked = checked_prior(prior, prior_crs == LONLAT)
+    if not checked.lonlat:
+        return (checked.x, checked.y, checked.radius)
+    if not map_crs:
+        raise click.BadParameter("the map has no CRS to place a lon/lat position in", param_hint="'--initial'")
+    from mapdb.localize import _transformer
+
+    x, y = _transformer("EPSG:4326", map_crs).transform(checked.x, checked.y)
+    return (float(x), float(y), checked.radius)
+
+
+@click.command()
+@click.argument("map_file", metavar="MAP", type=click.Path())
+@click.argument("flight_file", metavar="FLIGHT.jsonl", type=click.Path())
+@click.option("-o", "--output", default="-", metavar="TRACK.jsonl",
+              help="Track file, one JSON record per frame (default stdout, streamed).")
+@click.option("--geojson", "geojson_file", default=None, metavar="TRACK.geojson",
+              help="Also write the track as GeoJSON (RFC 7946, lon/lat).")
+@click.option("--plot", "plot_file", callback=parse_plot, default=None, metavar="TRACK.png",
+              help="Also draw the track over the map.")
+@click.option("--initial", callback=parse_prior, metavar="X,Y,R",
+              help="Start within R metres of X,Y (map CRS, or see --initial-crs) [default: wait for a "
+                   "lost-in-space fix].")
+@click.option("--initial-crs", callback=parse_prior_crs, metavar="CRS", help="EPSG:4326 reads --initial as lon,lat.")
+@click.option("--particles", type=click.IntRange(10, 1_000_000), default=NavigatorOptions.particles,
+              show_default=True, help="Particles of the filter.")
+@click.option("--attitude-std", type=finite_float(0.0, 10.0), default=NavigatorOptions.attitude_std,
+              show_default=True, help="Accuracy of the frames' roll, pitch and yaw, degrees.")
+@click.option("--seed", type=int, default=0, show_default=True, help="The filter's random draws.")
+@parents_option
+@quiet_option
+@debug_option
+@handle_errors
+def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, initial_crs, particles, attitude_std,
+             seed, parents, quiet, debug):
+    """Navigate the frames of FLIGHT.jsonl ('-' for stdin) over MAP: one track record per frame.
+
+    A particle filter fuses the velocity from frame to frame with absolute fixes (the answer and its
+    runner-up candidates); each frame's query uses the filter's prediction as its prior.  Per frame:
+    position (map CRS and lon/lat), velocity, heading, covariance, the fix used or why none, the time
+    spent.  Frames are read as they arrive and each record is written, flushed, before the next frame is
+    read.  A bad frame (out of time order, no objects, a NaN sensor) is answered with its reason; only a
+    file that cannot be read at all is an error.
+    """
+    check_outputs([output, geojson_file, plot_file],
+                  [map_file, _stdin_file() if flight_file == "-" else flight_file], parents=parents)
+    options = NavigatorOptions(particles=particles, attitude_std=attitude_std, seed=seed)
+    records = []
+    with open_map(map_file) as m:
+        navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m.crs))
+        documents = read_image_documents(flight_file)
+        with atomic_open(output) as out:
+            streaming = output == "-"
+            for where, doc in documents:
+                record = navigator.step(doc, where)
+                out.write(json.dumps(record.to_json(), separators=(",", ":"), allow_nan=False) + "\n")
+                if streaming:
+                    out.flush()  # the record reaches a reader on a pipe before the next frame is read
+                records.append(record)
+        if geojson_file:
+            with atomic_open(geojson_file) as f:
+                f.write(dumps_strict(track_geojson(records)) + "\n")
+        if plot_file:
+            # the temporary name keeps the ending, from which matplotlib picks the format
+            with atomic_path(plot_file, keep_suffix=True) as tmp:
+                plot_track(records, m, tmp, title=f"{flight_file}: {len(records)} frames over {map_file}")
+    if not quiet and output != "-":
+        placed = sum(r.placed for r in records)
+        print(f"{len(records)} frames, {placed} placed -> {output}", file=sys.stderr)

@@ -1,0 +1,246 @@
+"""A simulated flight: frames of labelled objects along a path, with the autopilot's sensors and the truth.
+
+The aircraft flies a :class:`~mapdb.navigation.path.FlightPath` at constant speed, banking in turns as a
+coordinated turn needs (``roll = atan(v^2 / (g R))``), with a little turbulence on roll and pitch.  Each
+frame is the image a downward-looking camera takes at that pose, made by the single-image simulator's own
+steps (:mod:`mapdb.simulate`: its camera, detector errors, label confusion and truth), so that a frame is
+also a valid ``mapdb query`` input.
+
+Frame document (one JSON line each; the image keys are the query schema's)::
+
+    {"id": "frame-000012", "time_s": 1.2, "width": 640, "height": 480, "objects": [...],
+     "camera": {"fov_deg": 70.0},
+     "attitude": {"roll_deg": ..., "pitch_deg": ..., "yaw_deg": ...},   # the AHRS, with its errors
+     "altitude_m": 151.3,                                                # barometric, with its errors
+     "imu_velocity_mps": [east, north],                                  # with an IMU only
+     "map_withheld": true,                                               # inside a --map-gap only
+     "truth": {"x", "y", "heading_deg", "altitude_m", "roll_deg", "pitch_deg", "fov_deg", "n_visible",
+               "map_index", "bound": null, "time_s", "velocity_mps": [east, north], "blackout": bool}}
+
+Sensor error model (all draws depend only on ``seed`` and the frame number):
+
+* attitude: true roll, pitch and heading plus independent normal errors of ``attitude_std`` degrees per
+  frame; the heading also carries a constant bias drawn once (std ``heading_bias_deg``, a magnetometer's);
+* barometric altitude: true height plus a constant bias (std ``baro_bias_m``) and noise (``baro_std_m``);
+* inertial velocity (when ``imu_std_mps`` is given): true velocity plus a constant bias vector (std
+  ``imu_bias_mps`` per axis) and noise;
+* detector: the simulator's (``pixel_std``, ``miss_rate``, ``spurious_rate``, ``label_noise``); during a
+  blackout (``blackouts``: ``(start_s, seconds)`` pairs) a frame has no objects at all.
+
+``map_gaps`` marks frames during which the navigator must not query the map (the matcher is off), to
+measure how far frame-to-frame velocity alone drifts.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..camera import Camera, project_to_image
+from ..objects import Objects
+from ..outputs import ProgressLike, as_progress
+from ..simulate import _detect, _Detector, _image_document, _label_mix, _map_objects, _placement_limits, _Shot, _truth
+from .path import FlightPath, heading_deg, survey_pattern
+
+__all__ = ["DEFAULT_LENGTH_M", "FlightOptions", "in_windows", "simulate_flight"]
+
+GRAVITY = 9.80665
+# The default survey's length when no path is given.
+DEFAULT_LENGTH_M = 5000.0
+
+
+@dataclass(frozen=True)
+class FlightOptions:
+    """What :func:`simulate_flight` simulates (module docs); lengths in metres, angles in degrees.
+
+    ``length_m`` None flies the whole given path, or :data:`DEFAULT_LENGTH_M` of the default survey.
+    ``altitude_m`` is a constant height above ground or ``(start, end)``, changing linearly along the
+    flight.  ``imu_std_mps`` None: no inertial velocity in the frames.
+    """
+
+    length_m: float | None = None
+    speed_mps: float = 20.0
+    fps: float = 10.0
+    altitude_m: float | tuple[float, float] = 150.0
+    fov_deg: float = 70.0
+    size: tuple[int, int] = (640, 480)
+    turn_radius_m: float = 75.0
+    pixel_std: float = 0.0
+    miss_rate: float = 0.0
+    spurious_rate: float = 0.0
+    label_noise: float = 0.0
+    attitude_std: float = 0.0
+    turbulence_deg: float = 0.5
+    heading_bias_deg: float = 1.0
+    baro_std_m: float = 0.3
+    baro_bias_m: float = 2.0
+    imu_std_mps: float | None = None
+    imu_bias_mps: float = 0.2
+    blackouts: tuple[tuple[float, float], ...] = field(default_factory=tuple)
+    map_gaps: tuple[tuple[float, float], ...] = field(default_factory=tuple)
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        positive = {"speed_mps": self.speed_mps, "fps": self.fps, "turn_radius_m": self.turn_radius_m}
+        for name, value in positive.items():
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value}")
+        heights = self.altitude_m if isinstance(self.altitude_m, tuple) else (self.altitude_m,)
+        if not all(math.isfinite(h) and h > 0 for h in heights):
+            raise ValueError(f"altitude must be positive, got {self.altitude_m}")
+        if self.length_m is not None and not (math.isfinite(self.length_m) and self.length_m > 0):
+            raise ValueError(f"length_m must be positive, got {self.length_m}")
+        for start, seconds in (*self.blackouts, *self.map_gaps):
+            if not (math.isfinite(start) and math.isfinite(seconds) and seconds >= 0):
+                raise ValueError(f"a window is START:SECONDS with SECONDS >= 0, got {start}:{seconds}")
+
+
+def in_windows(t: np.ndarray, windows: Sequence[tuple[float, float]]) -> np.ndarray:
+    """Whether each time lies in one of the ``(start, seconds)`` windows (start included, end not).
+
+    Examples
+    --------
+    >>> in_windows(np.array([0.9, 1.0, 2.9, 3.0]), [(1.0, 2.0)]).tolist()
+    [False, True, True, False]
+    """
+    t = np.asarray(t, np.float64)
+    inside = np.zeros(t.shape, bool)
+    for start, seconds in windows:
+        inside |= (t >= start) & (t < start + seconds)
+    return inside
+
+
+@dataclass(frozen=True)
+class _Trajectory:
+    """The true state at every frame time."""
+
+    t: np.ndarray
+    z: np.ndarray  # position, complex map metres
+    velocity: np.ndarray  # complex m/s (east + i north)
+    heading: np.ndarray
+    roll: np.ndarray  # the coordinated turn's bank, before turbulence
+    altitude: np.ndarray
+
+
+def _trajectory(path: FlightPath, options: FlightOptions, length: float) -> _Trajectory:
+    """Frame times along ``length`` metres of ``path`` and the true state at each."""
+    n = int(math.floor(length / options.speed_mps * options.fps + 1e-9)) + 1
+    t = np.arange(n) / options.fps
+    s = options.speed_mps * t
+    z, tangent, curvature = path.at(s)
+    a = options.altitude_m if isinstance(options.altitude_m, tuple) else (options.altitude_m,) * 2
+    altitude = a[0] + (a[1] - a[0]) * s / max(length, 1e-9)
+    # A left turn (positive curvature) banks the left wing down: negative roll.
+    roll = -np.degrees(np.arctan(options.speed_mps**2 * curvature / GRAVITY))
+    return _Trajectory(t, z, options.speed_mps * tangent, heading_deg(tangent), roll, altitude)
+
+
+def _biases(options: FlightOptions) -> dict[str, Any]:
+    """The flight's constant sensor biases, drawn once."""
+    rng = np.random.default_rng([options.seed, 2])
+    draws = rng.standard_normal(4)
+    return {"heading": options.heading_bias_deg * draws[0], "baro": options.baro_bias_m * draws[1],
+            "imu": options.imu_bias_mps * complex(draws[2], draws[3])}
+
+
+def _visible(objects: Objects, tree: cKDTree, shot: _Shot, x: float, y: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Map indices and pixels of the objects inside the image of a camera at ``(x, y)``."""
+    _, _, reach = _placement_limits(shot, (x, y, x, y), False)
+    near = np.asarray(tree.query_ball_point([x, y], reach * 1.001 + 1e-6), dtype=np.int64)
+    near.sort()
+    u, v = project_to_image(objects.x[near], objects.y[near], shot.pose(x, y), shot.camera)
+    seen = np.isfinite(u) & (u >= 0) & (u < shot.camera.width) & (v >= 0) & (v < shot.camera.height)
+    return near[seen], u[seen], v[seen]
+
+
+def _sensors(rng: np.random.Generator, options: FlightOptions, biases: dict[str, Any], shot: _Shot,
+             velocity: complex) -> dict[str, Any]:
+    """What the autopilot reports of the true ``shot`` and velocity (module docs)."""
+    err = rng.standard_normal(6)
+    att = options.attitude_std
+    out: dict[str, Any] = {
+        "attitude": {"roll_deg": float(shot.roll + att * err[0]), "pitch_deg": float(shot.pitch + att * err[1]),
+                     "yaw_deg": float((shot.heading + biases["heading"] + att * err[2]) % 360.0)},
+        "altitude_m": float(shot.altitude + biases["baro"] + options.baro_std_m * err[3]),
+    }
+    if options.imu_std_mps is not None:
+        measured = velocity + biases["imu"] + options.imu_std_mps * complex(err[4], err[5])
+        out["imu_velocity_mps"] = [float(measured.real), float(measured.imag)]
+    return out
+
+
+def _frame(i: int, truth: _Trajectory, options: FlightOptions, objects: Objects, tree: cKDTree,
+           detector: _Detector, biases: dict[str, Any], blackout: bool, withheld: bool) -> dict[str, Any]:
+    """Frame ``i``: the camera's objects, the sensors, the truth."""
+    rng = np.random.default_rng([options.seed, i])
+    wobble = options.turbulence_deg * rng.standard_normal(2)
+    camera = Camera(options.size[0], options.size[1], options.fov_deg)
+    shot = _Shot(float(truth.altitude[i]), camera, float(truth.heading[i]), float(truth.roll[i] + wobble[0]),
+                 float(wobble[1]))
+    x, y = float(truth.z[i].real), float(truth.z[i].imag)
+    index, u, v = _visible(objects, tree, shot, x, y)
+    n_visible = index.size
+    if blackout:
+        index, u, v, names = index[:0], u[:0], v[:0], np.zeros(0, object)
+    else:
+        index, u, v, names = _detect(rng, objects, index, u, v, camera, detector)
+    doc = _image_document(f"frame-{i:06d}", camera, names, u, v)
+    doc = {"id": doc.pop("id"), "time_s": round(float(truth.t[i]), 6), **doc}
+    doc.update(_sensors(np.random.default_rng([options.seed, i, 1]), options, biases, shot, complex(truth.velocity[i])))
+    if withheld:
+        doc["map_withheld"] = True
+    doc["truth"] = {**_truth(shot, x, y, n_visible, index, None), "time_s": doc["time_s"],
+                    "velocity_mps": [float(truth.velocity[i].real), float(truth.velocity[i].imag)],
+                    "blackout": bool(blackout)}
+    return doc
+
+
+def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: np.ndarray | None = None,
+                    progress: ProgressLike = None) -> list[dict[str, Any]]:
+    """Frames of a simulated flight over a map (module docs).
+
+    Parameters
+    ----------
+    map : MetaMap, MemoryMap or Objects
+        The map the camera sees (all its objects are read).
+    options : FlightOptions, optional
+    waypoints : complex array, optional
+        The path's waypoints in map metres (:func:`~mapdb.navigation.path.read_linestring`); by default a
+        survey pattern over the map's densest part (:func:`~mapdb.navigation.path.survey_pattern`).
+    progress : Progress or callable, optional
+        Counts the frames made.
+
+    Returns
+    -------
+    list of dict
+        One frame document per ``1 / fps`` seconds, from the path's start.
+    """
+    options = options or FlightOptions()
+    objects, counts = _map_objects(map)
+    wanted = options.length_m
+    if waypoints is None:
+        wanted = wanted or DEFAULT_LENGTH_M
+        waypoints = survey_pattern(objects, wanted)
+    path = FlightPath.from_waypoints(waypoints, options.turn_radius_m)
+    length = min(wanted or path.length, path.length)
+    truth = _trajectory(path, options, length)
+    names, mix = _label_mix(counts)
+    detector = _Detector(options.pixel_std, options.miss_rate, options.spurious_rate, options.label_noise, names, mix)
+    tree = cKDTree(np.column_stack([objects.x, objects.y]))
+    biases = _biases(options)
+    blackout = in_windows(truth.t, options.blackouts)
+    withheld = in_windows(truth.t, options.map_gaps)
+    say = as_progress(progress)
+    say.start(truth.t.size, "simulate flight")
+    frames = []
+    for i in range(truth.t.size):
+        frames.append(_frame(i, truth, options, objects, tree, detector, biases, bool(blackout[i]), bool(withheld[i])))
+        say.advance()
+    say.done()
+    return frames

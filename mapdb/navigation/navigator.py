@@ -1,0 +1,378 @@
+"""The navigation loop: each frame's query uses the filter's prediction, and its answer updates the filter.
+
+Per frame (:meth:`Navigator.step`), in this order:
+
+1. **Read** the frame: its time, objects, attitude (roll, pitch, yaw), barometric altitude and inertial
+   velocity.  A sensor that is missing or not finite is ignored for this frame (a note says so); objects
+   that cannot be read leave a frame to predict from.  A frame not later than the previous one is skipped.
+2. **Predict** the particles to the frame's time, turning their velocities by the autopilot's heading change.
+3. **Frame orientation**: the image-to-ground similarity ``A = s exp(-i heading)``.  The heading is the last
+   applied fix's plus the autopilot's yaw change since (the frame-to-frame rotation where the yaw is
+   missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
+   over the focal length before any fix).  Both ratios telescope, so neither drifts frame by frame.
+4. **Velocity** from the previous frame (:mod:`mapdb.navigation.velocity`), guessed from the filter's
+   velocity; and the inertial velocity when the frame has one.
+5. **Fix**: unless the flight withholds the map, the frame is localized with the filter's prediction as the
+   prior, radius from the particle cloud (99 % of the weight, plus the attitude errors' floor).  After
+   ``widen_after`` queries in a row without an applied fix the radius doubles every frame, and past
+   ``max_radius_m`` the query is lost-in-space.  The answer and its runner-up candidates update the
+   filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`).  Fixes rejected as outliers
+   ``recover_after`` times in a row at places consistent with the filter's velocity draw half the
+   particles to them: a filter started far off, or captured, gets back.
+6. **Record** the estimate (:class:`~mapdb.navigation.track.TrackRecord`).
+
+Without an initial position the filter waits for a first fix with score at least ``init_min_score``
+(lost-in-space, no prior); until then every frame is recorded as "not initialised".
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..answers import Answer
+from ..camera import Camera
+from ..localize import Localizer, _to_lonlat
+from .filter import FixComponent, ParticleFilter
+from .frames import Frame, read_frame
+from .track import TrackRecord
+from .velocity import FramePoints, frame_points, match_frames, velocity_from_motion
+
+__all__ = ["Navigator", "NavigatorOptions"]
+
+
+@dataclass(frozen=True)
+class NavigatorOptions:
+    """Tuning of the navigator (module docs); angles in degrees, lengths in metres.
+
+    ``attitude_std`` and ``baro_std_m`` are the accuracies the autopilot's sensors are trusted with;
+    ``heading_std`` that of its heading before any fix (a magnetometer's bias); ``imu_std_mps`` that of
+    an inertial velocity (bias included).
+    """
+
+    particles: int = 2000
+    accel_std: float = 0.5
+    attitude_std: float = 0.1
+    baro_std_m: float = 0.5
+    heading_std: float = 3.0
+    imu_std_mps: float = 0.5
+    outlier_probability: float = 0.02
+    min_radius_m: float = 10.0
+    max_radius_m: float = 2000.0
+    init_min_score: float = 6.0
+    candidate_min_score: float = 4.0
+    widen_after: int = 10
+    recover_after: int = 3
+    seed: int = 0
+
+
+@dataclass
+class _Orientation:
+    """The image-to-ground similarity's heading and scale, with their references (module docs, step 3)."""
+
+    heading: float | None = None
+    scale: float | None = None
+    heading_sigma: float = 180.0
+    scale_rel_sigma: float = 1.0
+    yaw: float | None = None  # the autopilot's yaw at the previous frame
+    baro: float | None = None  # the barometric altitude at the previous frame
+
+    def to_map(self) -> complex | None:
+        if self.heading is None or self.scale is None:
+            return None
+        return self.scale * complex(np.exp(-1j * math.radians(self.heading)))
+
+
+@dataclass
+class _Previous:
+    time_s: float | None = None
+    points: FramePoints | None = None
+    to_map: complex | None = None
+    pending: list[tuple[float, complex]] = field(default_factory=list)  # rejected fixes: (time, place)
+    misses: int = 0  # frames with objects and no applied fix
+
+
+def _wrap(deg: float) -> float:
+    return (deg + 180.0) % 360.0 - 180.0
+
+
+class Navigator:
+    """Frames in, a :class:`TrackRecord` per frame out (module docs).
+
+    Parameters
+    ----------
+    map : MetaMap or MemoryMap
+        The map (the navigator does not close it).
+    options : NavigatorOptions, optional
+    initial : (x, y, radius), optional
+        Where the flight starts (map CRS metres): the particles start uniform in that disc.
+    localizer : Localizer, optional
+        Reused if given (one per map).
+    """
+
+    def __init__(self, map: Any, options: NavigatorOptions | None = None,
+                 initial: tuple[float, float, float] | None = None, localizer: Localizer | None = None) -> None:
+        self.map = map
+        self.options = options or NavigatorOptions()
+        self.localizer = localizer or Localizer(map)
+        self.filter = ParticleFilter(self.options.particles, self.options.accel_std,
+                                     self.options.outlier_probability, self.options.seed)
+        self.initial = initial
+        self.labels: dict[str, int] = {name: code for code, name in enumerate(map.labels)}
+        self.orientation = _Orientation()
+        self.previous = _Previous()
+        self.last_velocity: complex | None = None
+        if initial is not None:
+            self.filter.initialise(complex(initial[0], initial[1]), initial[2])
+
+    # ------------------------------------------------------------------------------------- frames
+
+    def step(self, doc: Any, where: str = "frame") -> TrackRecord:
+        """Navigate one frame document (or the :class:`ImageInputError` that replaced an unreadable line)."""
+        start = time.perf_counter()
+        frame = read_frame(doc, where)
+        record = TrackRecord(id=frame.id, time_s=frame.time_s, status="predicting", notes=list(frame.notes))
+        previous_t = self.previous.time_s
+        if frame.time_s is None or (previous_t is not None and frame.time_s <= previous_t):
+            why = "no valid time_s" if frame.time_s is None else \
+                f"out of time order: time_s {frame.time_s:g} is not after {previous_t:g}"
+            record.notes.append(f"skipped: {why}")
+            return self._finish(record, frame, "skipped", start, {})
+        dt = 0.0 if previous_t is None else frame.time_s - previous_t
+        timing: dict[str, float] = {}
+        t0 = time.perf_counter()
+        self.filter.predict(dt, self._turn(frame))
+        self._orient(frame)
+        timing["filter"] = time.perf_counter() - t0
+        points = self._points(frame)
+        record.velocity_measurement = self._velocity(frame, points, dt, timing)
+        record.fix = self._fix(frame, record, timing)
+        self.previous.time_s = frame.time_s
+        self.previous.points = points
+        self.previous.to_map = self.orientation.to_map()
+        used = record.fix.get("status") in ("used", "initialised")
+        status = "fix" if used else ("dead-reckoning" if record.velocity_measurement.get("status") == "used"
+                                     else "predicting")
+        return self._finish(record, frame, status, start, timing)
+
+    def _finish(self, record: TrackRecord, frame: Frame, status: str, start: float,
+                timing: dict[str, float]) -> TrackRecord:
+        """Fill the estimate, the truth's error and the times in."""
+        record.status = status if self.filter.initialised else "not initialised"
+        if self.filter.initialised:
+            position, velocity, cov, _ = self.filter.estimate()
+            lon, lat = _to_lonlat(self.map.crs, position.real, position.imag)
+            record.x, record.y, record.lon, record.lat = position.real, position.imag, lon, lat
+            record.velocity, record.cov, record.crs = velocity, cov, self.map.crs or None
+            record.heading_deg = None if self.orientation.heading is None else self.orientation.heading % 360.0
+        if frame.truth is not None:
+            error = (None if record.x is None or record.y is None
+                     else math.hypot(record.x - frame.truth[0], record.y - frame.truth[1]))
+            record.truth = {"x": frame.truth[0], "y": frame.truth[1],
+                            "error_m": None if error is None else round(error, 3)}
+        record.time_ms = {"total": 1e3 * (time.perf_counter() - start),
+                          **{k: 1e3 * v for k, v in timing.items()}}
+        return record
+
+    # --------------------------------------------------------------------------- orientation, points
+
+    def _turn(self, frame: Frame) -> float | None:
+        """The heading change since the previous frame (radians, clockwise), from the autopilot's yaw."""
+        if frame.yaw is None or self.orientation.yaw is None:
+            return None
+        return math.radians(_wrap(frame.yaw - self.orientation.yaw))
+
+    def _orient(self, frame: Frame) -> None:
+        """Carry the heading and scale to this frame (module docs, step 3)."""
+        o, opts = self.orientation, self.options
+        if o.heading is None and frame.yaw is not None:
+            o.heading, o.heading_sigma = frame.yaw, opts.heading_std
+        elif o.heading is not None and frame.yaw is not None and o.yaw is not None:
+            o.heading = o.heading + _wrap(frame.yaw - o.yaw)
+        if frame.altitude is not None and frame.fov is not None and o.scale is None:
+            o.scale = frame.altitude / Camera(frame.width, frame.height, frame.fov).focal_px
+            o.scale_rel_sigma = 0.05  # a barometer's bias against the height above ground
+        elif frame.altitude is not None and o.baro is not None and o.scale is not None:
+            o.scale *= frame.altitude / o.baro
+        o.yaw = frame.yaw if frame.yaw is not None else o.yaw
+        o.baro = frame.altitude if frame.altitude is not None else o.baro
+
+    def _points(self, frame: Frame) -> FramePoints | None:
+        if frame.image is None or len(frame.image) == 0:
+            return None
+        codes = np.fromiter((self.labels.setdefault(str(n), len(self.labels)) for n in frame.image.names),
+                            np.int64, count=len(frame.image))
+        return frame_points(frame.image, codes, frame.roll, frame.pitch)
+
+    # --------------------------------------------------------------------------------- velocity
+
+    def _velocity(self, frame: Frame, points: FramePoints | None, dt: float, timing: dict[str, float]
+                  ) -> dict[str, Any]:
+        """Frame-to-frame velocity (and the inertial one) into the filter; what happened, for the record."""
+        t0 = time.perf_counter()
+        out = self._frame_velocity(frame, points, dt)
+        timing["velocity"] = time.perf_counter() - t0
+        if frame.imu is not None and self.filter.initialised:
+            cov = self.options.imu_std_mps**2 * np.eye(2)
+            out["imu"] = "used" if self.filter.update_velocity(frame.imu, cov) else "rejected as an outlier"
+        return out
+
+    def _frame_velocity(self, frame: Frame, points: FramePoints | None, dt: float) -> dict[str, Any]:
+        prev, opts = self.previous, self.options
+        if points is None or prev.points is None or dt <= 0:
+            return {"status": "none", "reason": "no objects in this or the previous frame"}
+        if prev.to_map is None:
+            return {"status": "none", "reason": "no heading or scale yet (attitude yaw, altitude and fov needed)"}
+        # A_cur = A_prev a: the turn and the altitude change since the previous frame, as the sensors say.
+        to_map = self.orientation.to_map()
+        a_guess = to_map / prev.to_map if to_map is not None else 1 + 0j
+        b_guess = self.filter.estimate()[1] * dt / prev.to_map if self.filter.velocity_known else None
+        motion = match_frames(prev.points, points, a_guess, b_guess, len(self.labels))
+        if isinstance(motion, str):
+            return {"status": "none", "reason": motion}
+        if frame.yaw is None and self.orientation.heading is not None:
+            self.orientation.heading -= math.degrees(np.angle(motion.a))  # no yaw: the images' own rotation
+        o = self.orientation
+        level = (frame.altitude or 0.0) * math.tan(math.radians(opts.attitude_std))
+        baro_rel = opts.baro_std_m * math.sqrt(2.0) / max(frame.altitude or 1.0, 1.0)
+        vel = velocity_from_motion(motion, prev.to_map, dt, level_sigma_m=level,
+                                   scale_rel_sigma=math.hypot(o.scale_rel_sigma, baro_rel),
+                                   heading_sigma_deg=o.heading_sigma)
+        self.last_velocity = vel.v
+        sigma = math.sqrt(float(np.max(np.linalg.eigvalsh(vel.cov))))
+        used = self.filter.update_velocity(vel.v, vel.cov) if self.filter.initialised else False
+        status = "used" if used else ("rejected" if self.filter.initialised else "measured")
+        return {"status": status, "velocity_mps": [round(vel.v.real, 3), round(vel.v.imag, 3)],
+                "sigma_mps": round(sigma, 3), "inliers": motion.inliers,
+                "method": "guided" if motion.guided else "quads"}
+
+    # --------------------------------------------------------------------------------------- fix
+
+    def _prior(self) -> tuple[float, float, float] | None:
+        """The query's prior from the particle cloud (module docs, step 5); None for lost-in-space."""
+        if not self.filter.initialised:
+            return None
+        opts = self.options
+        centre = self.filter.estimate()[0]
+        radius = max(opts.min_radius_m, self.filter.radius(centre) + 3.0 * self._floor())
+        if self.previous.misses >= opts.widen_after:
+            # Doubling every frame: lost-in-space within a second when even a wide search finds nothing.
+            radius *= 2.0 ** min(self.previous.misses - opts.widen_after + 1, 30)
+        if radius > opts.max_radius_m:
+            return None
+        return (centre.real, centre.imag, radius)
+
+    def _floor(self) -> float:
+        """Per-axis error of a fix from the attitude errors: altitude times the tangent of their std."""
+        altitude = self.orientation.baro or 100.0
+        return max(altitude * math.tan(math.radians(self.options.attitude_std)), 0.1)
+
+    def _fix(self, frame: Frame, record: TrackRecord, timing: dict[str, float]) -> dict[str, Any]:
+        """Localize the frame with the filter's prior and update the filter (module docs, step 5)."""
+        if frame.withheld:
+            return {"status": "withheld", "reason": "the flight withholds the map here"}
+        if frame.image is None or len(frame.image) < 3:
+            n = 0 if frame.image is None else len(frame.image)
+            return {"status": "none", "reason": f"{n} objects: no query"}
+        prior = self._prior()
+        record.prior_radius_m = None if prior is None else prior[2]
+        t0 = time.perf_counter()
+        answer = self.localizer.localize(frame.image, prior=prior)
+        timing["query"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        try:
+            return self._apply_fix(frame, answer, prior)
+        finally:
+            timing["filter"] = timing.get("filter", 0.0) + time.perf_counter() - t0
+
+    def _components(self, answer: Answer) -> list[FixComponent]:
+        """The places an answer gives (module docs of :mod:`mapdb.navigation.filter`)."""
+        places: list[tuple[complex, float | None, float]] = []
+        if answer.ok and answer.x is not None and answer.y is not None:
+            places.append((complex(answer.x, answer.y), answer.sigma_m, answer.score or 0.0))
+        if answer.ok or (answer.reason or "").startswith(("ambiguous", "imprecise")):
+            places += [(complex(c.x, c.y), c.sigma_m, c.score) for c in answer.candidates
+                       if c.score is not None and c.score >= self.options.candidate_min_score]
+        if not places:
+            return []
+        top = max(score for _, _, score in places)
+        floor = self._floor()
+        return [FixComponent(z, math.hypot(sigma or 1.0, floor), 10.0 ** max(score - top, -300.0))
+                for z, sigma, score in places]
+
+    def _apply_fix(self, frame: Frame, answer: Answer, prior: tuple[float, float, float] | None
+                   ) -> dict[str, Any]:
+        components = self._components(answer)
+        info: dict[str, Any] = {"status": "none"}
+        if answer.ok:
+            info.update(x=answer.x, y=answer.y, score=answer.score, sigma_m=answer.sigma_m, inliers=answer.inliers)
+        if not components:
+            self.previous.misses += 1
+            info["reason"] = answer.reason or "no usable place"
+            return info
+        if not self.filter.initialised:
+            return self._initialise(answer, components, info)
+        area = math.pi * prior[2] ** 2 if prior else self._map_area()
+        outcome = self.filter.update_fix(components, area)
+        info["inlier_probability"] = round(outcome.inlier_probability, 4)
+        info["distance_m"] = round(outcome.distance_m, 3)
+        if outcome.applied:
+            info["status"] = "used"
+            info["components"] = len(components)
+            self._fixed(answer, frame)
+            return info
+        info["status"] = "rejected"
+        info["reason"] = (f"outlier: {outcome.distance_m:.1f} m from the estimate, "
+                          f"inlier probability {outcome.inlier_probability:.2g}")
+        self.previous.misses += 1
+        if answer.ok and self._recover(frame, complex(answer.x or 0.0, answer.y or 0.0)):
+            info["reason"] += f"; {self.options.recover_after} consistent rejected fixes: particles drawn there"
+        return info
+
+    def _map_area(self) -> float:
+        """Where a lost-in-space fix could have come from: the map's bounding box (square metres)."""
+        x0, y0, x1, y1 = self.map.bounds
+        return max((x1 - x0) * (y1 - y0), 1.0)
+
+    def _initialise(self, answer: Answer, components: list[FixComponent], info: dict[str, Any]) -> dict[str, Any]:
+        if not answer.ok or (answer.score or 0.0) < self.options.init_min_score:
+            info["reason"] = (f"not initialised: needs a fix with score >= {self.options.init_min_score:g}"
+                              + (f" ({answer.reason})" if answer.reason else ""))
+            return info
+        best = components[0]
+        self.filter.initialise(best.centre, 3.0 * best.sigma_m, self.last_velocity,
+                               30.0 if self.last_velocity is None else 3.0)
+        self._fixed(answer, None)
+        info["status"] = "initialised"
+        return info
+
+    def _fixed(self, answer: Answer, frame: Frame | None) -> None:
+        """An applied fix resets the heading and scale references and the miss count."""
+        if answer.ok and answer.heading_deg is not None and answer.scale_m_per_px is not None:
+            o = self.orientation
+            o.heading, o.scale = answer.heading_deg, answer.scale_m_per_px
+            o.heading_sigma = math.sqrt(2.0) * self.options.attitude_std
+            o.scale_rel_sigma = 0.002
+        self.previous.misses = 0
+        self.previous.pending.clear()
+
+    def _recover(self, frame: Frame, place: complex) -> bool:
+        """Remember a rejected fix; after ``recover_after`` consistent ones, draw half the particles there."""
+        assert frame.time_s is not None
+        pending = self.previous.pending
+        pending.append((frame.time_s, place))
+        del pending[: -self.options.recover_after]
+        if len(pending) < self.options.recover_after:
+            return False
+        velocity = self.filter.estimate()[1]
+        for (t0, z0), (t1, z1) in zip(pending, pending[1:], strict=False):
+            if t1 - t0 > 1.0 or abs(z1 - z0 - velocity * (t1 - t0)) > 5.0 + 3.0 * (t1 - t0):
+                return False
+        self.filter.inject(place, 3.0 * self._floor() + 1.0, 0.5, velocity)
+        pending.clear()
+        return True
+
