@@ -19,13 +19,16 @@ from mapdb import __version__
 COMMANDS = {
     "build": "Build a map from OSM extracts, land-cover rasters and point/polygon layers.",
     "info": "Describe a map: CRS, bounds, objects per label, pages, size, sources.",
+    "merge": "Merge maps of neighbouring or overlapping regions into one, shared objects kept once.",
     "export": "Export a map's objects as points (GeoPackage, GeoJSON, GeoParquet, FlatGeobuf, CSV).",
     "index": "Build a map's lost-in-space quad index (a checksummed file beside the map).",
-    "simulate": "Simulate downward-looking camera images of a map, one JSON object per line.",
+    "simulate": "Simulate camera images of a map, one JSON object per line (`simulate flight`: a whole flight).",
     "objects": "Image objects from segmentation masks (PNG, GeoTIFF) and COCO detections, for query.",
     "query": "Localize every image of a JSON Lines file (or stdin, streamed) in a map.",
     "evaluate": "Localize simulated images and measure the answers against their truth.",
+    "analyze": "Where a map localizes: success, ambiguity, objects and storage per grid cell (GeoTIFF, PNG).",
     "show": "Draw one image's match over the map: inliers, outliers, footprint, truth, candidates.",
+    "navigate": "Navigate a flight's frames: a particle filter over frame-to-frame velocities and fixes.",
     "bench": "Reproducible benchmarks: the paper's Table 1, storage against other formats and imagery.",
 }
 
