@@ -68,6 +68,7 @@ MAX_SPURIOUS_RATE = 100.0
 MAX_ATTITUDE_STD = 90.0
 MAX_PRIOR_RADIUS = 2.0e7  # half the Earth's circumference, metres
 MAX_PIXEL_STD = 1.0e6
+MAX_MASK_NOISE_PX = 1000.0
 
 
 @click.command()
@@ -98,20 +99,44 @@ MAX_PIXEL_STD = 1.0e6
 @click.option("--min-objects", type=click.IntRange(0, None), default=0, show_default=True,
               help="Redraw camera positions until at least this many map objects are in view (sparse maps).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same images.")
+@click.option("--render", type=click.Choice(["centroids", "masks"]), default="centroids", show_default=True,
+              help="centroids: each visible map object at its projected centroid; masks: objects extracted from "
+                   "label masks rendered from the --source outlines (heights, relief, border, merging).")
+@click.option("--source", "source_file", type=click.Path(), metavar="EXTRACT.osm.pbf",
+              help="With --render masks: the OSM extract the map was built from (its outlines are drawn).")
+@click.option("--masks-dir", type=click.Path(file_okay=False), metavar="DIR",
+              help="With --render masks: each image's mask is written here as ID.png, with classes.toml.")
+@click.option("--mask-noise", type=finite_float(0.0, MAX_MASK_NOISE_PX), default=0.0, show_default=True,
+              metavar="PX", help="With --render masks: grow or shrink each object's image by up to PX pixels.")
+@click.option("--no-heights", is_flag=True, help="With --render masks: draw buildings flat (no relief).")
 @bbox_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std, pixel_std, miss_rate,
-             spurious_rate, label_noise, with_prior, with_attitude, with_altitude, min_objects, seed, bbox, parents,
-             quiet, debug):
+             spurious_rate, label_noise, with_prior, with_attitude, with_altitude, min_objects, seed, render,
+             source_file, masks_dir, mask_noise, no_heights, bbox, parents, quiet, debug):
     """Simulate downward-looking camera images of MAP, one JSON object per line.
 
     Camera positions are uniform over the map (or --bbox), keeping the image footprint inside it. Each
     image carries its "truth": camera nadir x, y (map CRS), heading, altitude, roll, pitch, the map
     objects it shows, and the "bound" (the fit with the true correspondences).
+
+    With --render masks, each image's label mask is rendered from the outlines of --source (buildings
+    extruded to their heights) and its objects are extracted as `mapdb objects` does; --miss-rate then
+    leaves objects out of the mask, --min-objects counts blobs, and the truth says which map objects
+    each blob covers.
     """
+    if render == "masks":
+        _check_render_options(source_file, masks_dir, pixel_std, spurious_rate)
+        return _simulate_masks(map_file, output, n_images, source_file, masks_dir, parents, quiet, seed, bbox,
+                               dict(altitude=altitude, fov_deg=fov, size=size, yaw=yaw, attitude_std=attitude_std,
+                                    miss_rate=miss_rate, label_noise=label_noise, mask_noise_px=mask_noise,
+                                    heights=not no_heights, with_prior=with_prior, with_attitude=with_attitude,
+                                    with_altitude=with_altitude, min_objects=min_objects, seed=seed))
+    if source_file is not None or masks_dir is not None or mask_noise or no_heights:
+        raise click.UsageError("--source, --masks-dir, --mask-noise and --no-heights need --render masks")
     check_outputs([output], [map_file], parents=parents)
     say = progress_printer(quiet)
     with open_map(map_file) as m:
@@ -126,3 +151,50 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
     if say:
         n_obj = sum(len(im["objects"]) for im in images)
         say(f"{len(images)} images, {n_obj / max(len(images), 1):.1f} objects per image -> {output}")
+
+
+def _check_render_options(source_file, masks_dir, pixel_std, spurious_rate) -> None:
+    """Usage errors for --render masks: what it needs and the ideal-detector options it has no use for."""
+    if source_file is None or masks_dir is None:
+        raise click.UsageError("--render masks needs --source EXTRACT.osm.pbf and --masks-dir DIR")
+    if pixel_std or spurious_rate:
+        raise click.UsageError("--pixel-std and --spurious-rate describe the centroid detector; with --render masks "
+                               "use --mask-noise")
+
+
+def _simulate_masks(map_file, output, n_images, source_file, masks_dir, parents, quiet, seed, bbox, options) -> None:
+    """``--render masks``: render, extract, and write the masks, then the documents (each file atomically)."""
+    from collections import Counter
+    from pathlib import Path
+
+    from mapdb.errors import MapdbIOError
+    from mapdb.render_source import read_scene
+    from mapdb.simulate_masks import png_bytes, simulate_masks, write_masks
+
+    directory = Path(masks_dir)
+    if directory.exists() and not directory.is_dir():
+        raise MapdbIOError(f"{directory}: exists and is not a directory")
+    if not directory.exists() and not parents and not directory.absolute().parent.is_dir():
+        raise MapdbIOError(f"{directory}: directory {directory.absolute().parent} does not exist")
+    check_outputs([output, directory / "classes.toml"] if directory.is_dir() else [output],
+                  [map_file, source_file], parents=parents)
+    say = progress_printer(quiet)
+    with open_map(map_file) as m:
+        area = map_bbox_from_lonlat(m.crs, bbox, within=m.bounds) if bbox else None
+        counts: Counter[str] = Counter()
+        scene = read_scene(source_file, m.all(), seed=seed, counts=counts)
+        skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
+        if say and skipped:
+            say(f"{source_file}: outlines left out: {skipped}")
+        images, masks = [], []
+        for doc, mask in simulate_masks(m, scene, n_images, bbox=area, progress=say, **options):
+            images.append(doc)
+            masks.append((doc["truth"]["mask"], png_bytes(mask)))
+    classes = "".join(f'{code + 1} = "{name}"\n' for code, name in enumerate(scene.labels))
+    masks.append(("classes.toml", f"# mask codes of mapdb simulate --render masks\n[classes]\n{classes}".encode()))
+    write_masks(masks, masks_dir)
+    write_images(images, output)
+    if say:
+        n_obj = sum(len(im["objects"]) for im in images)
+        say(f"{len(images)} images, {n_obj / max(len(images), 1):.1f} blobs per image -> {output}, "
+            f"masks in {masks_dir}")
