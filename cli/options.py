@@ -219,3 +219,66 @@ def progress_printer(quiet: bool) -> Progress | None:
     if stream.isatty():
         return TerminalProgress(stream)
     return LineProgress(lambda message: click.echo(message, err=True))
+
+
+# ------------------------------------------------------------------------------ camera and detector options
+# Shared by the commands that simulate images (``mapdb simulate``'s definitions: the same parsers, ranges and
+# help); the parsers and limits still live in cli/simulate.py and are imported when a command is defined.
+
+
+def _stack(options: list[Callable[..., Any]]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """One decorator applying ``options`` in order (the first is listed first in ``--help``)."""
+
+    def decorate(func: Callable[..., Any]) -> Callable[..., Any]:
+        for option in reversed(options):
+            func = option(func)
+        return func
+
+    return decorate
+
+
+def _one_value(parse: Callable[..., Any]) -> Callable[..., Any]:
+    """A ``LOW:HIGH`` parser that refuses a range (where every image must share one value)."""
+
+    def callback(ctx: click.Context | None, param: click.Parameter | None, value: str | None) -> Any:
+        parsed = parse(ctx, param, value)
+        if isinstance(parsed, tuple):
+            raise click.BadParameter(f"{value!r}: one value here (compare several with --scenarios)")
+        return parsed
+
+    return callback
+
+
+def camera_options(altitude: str = "100", fov: str = "35", *,
+                   ranges: bool = True) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``--altitude``, ``--fov`` and ``--size`` with these defaults; ``ranges`` allows ``LOW:HIGH`` drawn per
+    image."""
+    from .simulate import parse_fov, parse_range, parse_size
+
+    drawn = ", or LOW:HIGH drawn per image" if ranges else ""
+    return _stack([
+        click.option("--altitude", default=altitude, callback=parse_range if ranges else _one_value(parse_range),
+                     show_default=True, help=f"Height above ground, metres{drawn}."),
+        click.option("--fov", default=fov, callback=parse_fov if ranges else _one_value(parse_fov),
+                     show_default=True, help=f"Horizontal field of view, degrees{drawn}."),
+        click.option("--size", default="640x480", callback=parse_size, show_default=True, help="Image size WxH."),
+    ])
+
+
+def detector_error_options(attitude_std: float = 0.0,
+                           pixel_std: float = 0.0) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``--attitude-std``, ``--pixel-std``, ``--miss-rate``, ``--spurious-rate``, ``--label-noise``."""
+    from .simulate import MAX_ATTITUDE_STD, MAX_PIXEL_STD, MAX_SPURIOUS_RATE, rate
+
+    return _stack([
+        click.option("--attitude-std", type=finite_float(0.0, MAX_ATTITUDE_STD), default=attitude_std,
+                     show_default=True, help="Roll and pitch error std, degrees."),
+        click.option("--pixel-std", type=finite_float(0.0, MAX_PIXEL_STD), default=pixel_std, show_default=True,
+                     help="Detector position error std per axis, pixels."),
+        click.option("--miss-rate", type=rate, default=0.0, show_default=True,
+                     help="Fraction of visible objects the detector misses."),
+        click.option("--spurious-rate", type=finite_float(0.0, MAX_SPURIOUS_RATE), default=0.0, show_default=True,
+                     help="Extra objects per true object, at random pixels."),
+        click.option("--label-noise", type=rate, default=0.0, show_default=True,
+                     help="Fraction of objects given a wrong label."),
+    ])

@@ -41,6 +41,7 @@ __all__ = [
     "map_bbox_from_lonlat",
     "paper_density",
     "paper_map",
+    "simulate_image_at",
     "simulate_images",
     "write_images",
 ]
@@ -538,6 +539,71 @@ def simulate_images(
         say.advance()
     say.done()
     return images
+
+
+def simulate_image_at(
+    objects: Objects,
+    pose: Pose,
+    camera: Camera,
+    rng: np.random.Generator,
+    *,
+    pixel_std: float = 0.0,
+    miss_rate: float = 0.0,
+    spurious_rate: float = 0.0,
+    label_noise: float = 0.0,
+    label_counts: dict[str, int] | None = None,
+    with_prior: float | None = None,
+    image_id: str = "sim",
+) -> dict[str, Any]:
+    """One simulated image taken from a given pose: the steps of :func:`simulate_images` without the draw
+    of the camera's place.
+
+    Parameters
+    ----------
+    objects : Objects
+        Map objects the camera may see (those around ``pose`` are enough); ``truth.map_index`` indexes them.
+    pose : Pose
+        Camera position (map metres), altitude, heading, roll and pitch (degrees).
+    camera : Camera
+        Image size and field of view.
+    rng : numpy.random.Generator
+        Draws the detector's errors and the prior's offset, in the order :func:`simulate_images` draws them.
+    pixel_std, miss_rate, spurious_rate, label_noise : float
+        The detector's error model, as for :func:`simulate_images`.
+    label_counts : dict, optional
+        Objects per label that spurious and confused labels are drawn from (the whole map's, so that a
+        place's own mix does not leak into its errors); by default those of ``objects``.
+    with_prior : float, optional
+        Adds a prior of this radius centred within it of the truth.
+    image_id : str
+        The document's ``id``.
+
+    Returns
+    -------
+    dict
+        A query-input document with its ``truth``, as :func:`simulate_images` makes them.
+
+    Examples
+    --------
+    >>> image = simulate_image_at(paper_map(), Pose(500_125.0, 5_000_075.0, 100.0), Camera(),
+    ...                           np.random.default_rng(1))
+    >>> len(image["objects"]) == image["truth"]["n_visible"] > 0
+    True
+    """
+    _check_simulate_args(1, 0.0, 0.0, pixel_std, miss_rate, spurious_rate, label_noise, 0, 1)
+    # (with no objects at all nothing is ever drawn from the mix; a placeholder keeps it well defined)
+    names, mix = _label_mix(label_counts or objects.counts() or {"": 1})
+    detector = _Detector(pixel_std, miss_rate, spurious_rate, label_noise, names, mix)
+    shot = _Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
+    u, v = project_to_image(objects.x, objects.y, pose, camera)
+    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    index = np.flatnonzero(seen).astype(np.int64)
+    index, u, v, label_names = _detect(rng, objects, index, u[seen], v[seen], camera, detector)
+    bound = _bound(objects, index, u, v, shot, pose.x, pose.y, False)
+    image = _image_document(image_id, camera, label_names, u, v)
+    _add_hints(rng, image, shot, pose.x, pose.y, with_prior, False, False)
+    image["truth"] = _truth(shot, pose.x, pose.y, int(seen.sum()), index, bound)
+    return image
 
 
 def map_bbox_from_lonlat(

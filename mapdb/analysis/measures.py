@@ -1,0 +1,286 @@
+"""What one cell's simulated images measure: the work a task does, on any worker.
+
+:func:`measure_cells` takes a map's *path*, the sampling configuration and a list of cells (absolute
+indices), and returns their measures.  A worker process opens each map once and keeps it with one
+:class:`~mapdb.localize.Localizer` (its whole-map indexes loaded once) for every task it is given.
+
+Sample ``s`` of the cell ``(i, j)`` draws everything from ``numpy.random.default_rng([seed, i', j', s])``
+(``i'``, ``j'``: the indices made non-negative), in a fixed order: its position (uniform in the cell),
+heading (uniform), roll and pitch (normal), then the detector's errors and the prior's offset.  Nothing
+else reaches it, and the localizer's answers depend on nothing but the image (the whole map's quad index
+serves every query, with or without a prior): a cell's measures are the same bytes whichever worker, task
+or run computes them.
+
+An image that shows fewer than :data:`MIN_VISIBLE` objects of the analysed labels is counted as not
+localized without being simulated: the fast matcher places an image from a quad of four image objects
+matched to four map objects, so with fewer than four true objects in view it cannot find the true place.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..answers import Answer
+from ..camera import Camera, Pose, project_to_image
+from ..evaluate import DEFAULT_FP_THRESHOLD_M
+
+__all__ = ["MIN_VISIBLE", "CellMeasures", "SampleConfig", "ambiguity", "measure_cells"]
+
+# The fewest true objects in view from which the fast matcher can find the true place (one quad).
+MIN_VISIBLE = 4
+# An image's footprint is widened by this many roll/pitch standard deviations when objects are gathered.
+_TILT_SIGMAS = 5.0
+# Maps (with their localizers) a worker keeps open.
+_KEEP_MAPS = 2
+
+
+@dataclass(frozen=True)
+class SampleConfig:
+    """How each cell is sampled: the camera, the detector's errors, the labels, the prior.
+
+    ``labels`` None means all the map's labels; ``prior`` a radius (m) of a position prior given with each
+    image (success is then that of the prior-aided search; ambiguity stays that of the search without
+    one).  ``fp_threshold`` is the error (m) above which an accepted answer is false.
+    """
+
+    altitude: float = 150.0
+    fov_deg: float = 45.0
+    size: tuple[int, int] = (640, 480)
+    attitude_std: float = 0.0
+    pixel_std: float = 0.0
+    miss_rate: float = 0.0
+    spurious_rate: float = 0.0
+    label_noise: float = 0.0
+    labels: tuple[str, ...] | None = None
+    samples: int = 16
+    prior: float | None = None
+    seed: int = 0
+    fp_threshold: float = DEFAULT_FP_THRESHOLD_M
+
+    @property
+    def camera(self) -> Camera:
+        return Camera(int(self.size[0]), int(self.size[1]), float(self.fov_deg))
+
+    @property
+    def reach_m(self) -> float:
+        """How far from the camera an object in its image can be (the level footprint's half-diagonal,
+        widened for the tilts the attitude error allows)."""
+        w, h = self.camera.footprint_m(self.altitude)
+        tilt = min(_TILT_SIGMAS * self.attitude_std, 80.0)
+        return 1.01 * math.hypot(w, h) / 2.0 + 2.0 * self.altitude * math.tan(math.radians(tilt)) + 1.0
+
+    @property
+    def separation_m(self) -> float:
+        """Places at least this far from the truth are *wrong* places: the matcher's own distance between
+        distinct places (a twentieth of the footprint's diagonal), and never below ``fp_threshold``."""
+        from ..match.refine import PLACE_FRACTION
+
+        w, h = self.camera.footprint_m(self.altitude)
+        return max(PLACE_FRACTION * math.hypot(w, h), self.fp_threshold)
+
+
+@dataclass
+class CellMeasures:
+    """Measures of a list of cells (one row each); NaN where a measure has no value."""
+
+    visible: np.ndarray        # median objects (analysed labels) in view
+    per_label: np.ndarray      # (cells, labels): median objects of each analysed label in view
+    success: np.ndarray        # fraction localized within fp_threshold of the truth
+    false: np.ndarray          # fraction accepted farther than fp_threshold
+    error: np.ndarray          # median error of the correct answers (m)
+    ambiguity: np.ndarray      # median over the samples of the ambiguity (0 unique .. 1 indistinguishable)
+    simulated: np.ndarray      # samples simulated and localized (the others showed < MIN_VISIBLE objects)
+    seconds: float = 0.0       # time spent measuring (set-up excluded)
+    label_names: tuple[str, ...] = field(default=())
+
+    @classmethod
+    def empty(cls, n: int, label_names: tuple[str, ...]) -> CellMeasures:
+        """Measures of ``n`` cells where nothing is in view: no objects, no success, no error or ambiguity."""
+        nothing = np.full(n, np.nan, np.float32)
+        return cls(np.zeros(n, np.float32), np.zeros((n, len(label_names)), np.float32), np.zeros(n, np.float32),
+                   np.zeros(n, np.float32), nothing, nothing.copy(), np.zeros(n, np.int32),
+                   label_names=label_names)
+
+
+def _natural(v: int) -> int:
+    """An integer as a non-negative one, one to one (zigzag), as a seed needs."""
+    return 2 * v if v >= 0 else -2 * v - 1
+
+
+def ambiguity(answer: Answer, x: float, y: float, separation: float, min_score: float = 4.0) -> float:
+    """How close the best wrong place comes to the true one in a search's answer: 0 unique, 1 indistinguishable.
+
+    The places are the answer's own (if accepted) and its runner-up candidates, each with its score
+    (``-log10`` of its number of false alarms).  A place within ``separation`` of the truth ``(x, y)`` is
+    the true one, any other a wrong one.  The value is the best wrong place's score over the true place's,
+    clipped to [0, 1] (a wrong place with no evidence, a score <= 0, counts 0).  An accepted wrong place is
+    1; when the search found no evidence for the true place, 1 if a wrong place scores ``min_score`` (what
+    acceptance needs), else NaN (nothing to compare).
+
+    Examples
+    --------
+    >>> from mapdb.answers import Candidate
+    >>> ok = Answer(id=None, status="ok", x=0.0, y=0.0, score=20.0,
+    ...             candidates=[Candidate(40.0, 0.0, 6, 15.0, 0.5)])
+    >>> ambiguity(ok, 0.5, 0.0, 5.0)
+    0.75
+    >>> ambiguity(ok, 40.0, 0.0, 5.0)  # the accepted place is the wrong one
+    1.0
+    """
+    places = [(answer.x, answer.y, answer.score)] if answer.ok else []
+    places += [(c.x, c.y, c.score) for c in answer.candidates]
+    true_score = wrong_score = -math.inf
+    for px, py, score in places:
+        if px is None or py is None or score is None:
+            continue
+        if math.hypot(px - x, py - y) <= separation:
+            true_score = max(true_score, score)
+        else:
+            wrong_score = max(wrong_score, score)
+    if answer.ok and answer.x is not None and answer.y is not None and \
+            math.hypot(answer.x - x, answer.y - y) > separation:
+        return 1.0
+    if true_score <= 0.0:
+        return 1.0 if wrong_score >= min_score else math.nan
+    return float(min(max(wrong_score, 0.0) / true_score, 1.0))
+
+
+# ------------------------------------------------------------------------------------------ a worker's maps
+
+_OPEN: dict[tuple[str, int, int], tuple[Any, Any]] = {}
+
+
+def _opened(map_path: str) -> tuple[Any, Any]:
+    """This process's open map and localizer for a path (opened once; reopened if the file changed)."""
+    from ..localize import Localizer
+    from ..store import open_map
+
+    st = os.stat(map_path)
+    key = (os.path.realpath(map_path), st.st_mtime_ns, st.st_size)
+    if key not in _OPEN:
+        while len(_OPEN) >= _KEEP_MAPS:
+            _OPEN.pop(next(iter(_OPEN)))[0].close()
+        m = open_map(map_path)
+        localizer = Localizer(m)
+        # With the whole map's quad index loaded, every query (with a prior too) looks hypotheses up in it:
+        # an answer then never depends on which images a worker answered before.
+        localizer.whole_map_indexes()
+        _OPEN[key] = (m, localizer)
+    return _OPEN[key]
+
+
+# ------------------------------------------------------------------------------------------ the cells
+
+
+@dataclass
+class _Context:
+    """What every sample of a task needs."""
+
+    config: SampleConfig
+    cell_m: float
+    localizer: Any
+    objects: Any               # the analysed labels' objects around the task's cells
+    tree: Any                  # their KD-tree
+    codes: np.ndarray          # label codes (in the map) of the analysed labels
+    label_counts: dict[str, int]
+
+
+def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.ndarray) -> CellMeasures:
+    """The measures of cells given by absolute indices (rows ``(i, j)`` of ``cells``)."""
+    from scipy.spatial import cKDTree
+
+    m, localizer = _opened(map_path)
+    cells = np.asarray(cells, np.int64).reshape(-1, 2)
+    # All the map's labels that have objects, in the map's order (as the run's bands are).
+    names = config.labels or tuple(m.label_counts)
+    codes = np.array([m.labels.index(n) for n in names], np.int64)
+    n = len(cells)
+    out = CellMeasures.empty(n, names)
+    if not n:
+        return out
+    start = time.perf_counter()
+    reach = config.reach_m
+    lo, hi = cells.min(axis=0) * cell_m - reach, (cells.max(axis=0) + 1) * cell_m + reach
+    objects = m.query_bbox(lo[0], lo[1], hi[0], hi[1], labels=list(names))
+    counts = m.label_counts
+    ctx = _Context(config, cell_m, localizer, objects,
+                   cKDTree(np.column_stack([objects.x, objects.y])) if len(objects) else None, codes,
+                   {k: counts[k] for k in names if counts.get(k)})
+    for row, (i, j) in enumerate(cells.tolist()):
+        _measure_cell(ctx, int(i), int(j), out, row)
+    out.seconds = time.perf_counter() - start
+    return out
+
+
+def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) -> None:
+    """Sample one cell and write its measures into row ``row`` of ``out``."""
+    cfg = ctx.config
+    visible = np.zeros((cfg.samples, len(ctx.codes)), np.int64)
+    correct: list[float] = []
+    amb: list[float] = []
+    false = simulated = 0
+    for s in range(cfg.samples):
+        rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
+        where = rng.random(2)
+        heading = float(rng.uniform(0.0, 360.0))
+        roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
+        pose = Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
+                    heading, roll, pitch)
+        local, seen = _in_view(ctx, pose)
+        visible[s] = np.bincount(local.label[seen], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
+        if seen.sum() < MIN_VISIBLE:
+            continue
+        simulated += 1
+        error, lost = _localize(ctx, local, pose, rng, f"{i},{j},{s}")
+        if error is not None and error <= cfg.fp_threshold:
+            correct.append(error)
+        elif error is not None:
+            false += 1
+        amb.append(ambiguity(lost, pose.x, pose.y, cfg.separation_m))
+    out.visible[row] = np.median(visible.sum(axis=1))
+    out.per_label[row] = np.median(visible, axis=0)
+    out.success[row] = len(correct) / cfg.samples
+    out.false[row] = false / cfg.samples
+    out.simulated[row] = simulated
+    if correct:
+        out.error[row] = np.median(correct)
+    defined = [a for a in amb if not math.isnan(a)]
+    if defined:
+        out.ambiguity[row] = np.median(defined)
+
+
+def _in_view(ctx: _Context, pose: Pose) -> tuple[Any, np.ndarray]:
+    """The analysed objects near a pose, and which of them its image shows."""
+    if ctx.tree is None:
+        return ctx.objects, np.zeros(0, bool)
+    near = np.sort(np.asarray(ctx.tree.query_ball_point([pose.x, pose.y], ctx.config.reach_m), np.int64))
+    local = ctx.objects.take(near)
+    camera = ctx.config.camera
+    u, v = project_to_image(local.x, local.y, pose, camera)
+    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    return local, seen
+
+
+def _localize(ctx: _Context, local: Any, pose: Pose, rng: np.random.Generator,
+              image_id: str) -> tuple[float | None, Answer]:
+    """Simulate the image, localize it: the error of an accepted answer (None if rejected), and the answer
+    of the search without a prior (the one ambiguity is read from)."""
+    from ..simulate import simulate_image_at
+
+    cfg = ctx.config
+    image = simulate_image_at(local, pose, cfg.camera, rng, pixel_std=cfg.pixel_std, miss_rate=cfg.miss_rate,
+                              spurious_rate=cfg.spurious_rate, label_noise=cfg.label_noise,
+                              label_counts=ctx.label_counts, with_prior=cfg.prior, image_id=image_id)
+    answer = ctx.localizer.localize(image)
+    lost = answer
+    if cfg.prior is not None:
+        lost = ctx.localizer.localize({key: value for key, value in image.items() if key != "prior"})
+    if not answer.ok or answer.x is None or answer.y is None:
+        return None, lost
+    return math.hypot(answer.x - pose.x, answer.y - pose.y), lost
