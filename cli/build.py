@@ -7,6 +7,7 @@ import click
 from mapdb.build import build_map
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 from mapdb.sources import DEFAULT_MIN_AREA_M2
+from mapdb.sources.osm import NODE_INDEXES
 from mapdb.store import DEFAULT_QUANTUM
 
 from .options import (
@@ -38,13 +39,22 @@ from .options import (
               help="Label of every feature of a layer without a label column (e.g. building footprints).")
 @click.option("--label-map", type=click.Path(), metavar="FILE.toml",
               help="Map a layer column's values to labels ([classes] table; 'column' names the column).")
+@click.option("--node-index", type=click.Choice(NODE_INDEXES), default="auto", show_default=True,
+              help="Where OSM node locations are kept: auto (memory for small extracts, a temporary file from "
+                   "64 MiB), or a libosmium index.")
+@click.option("--index-dir", type=click.Path(file_okay=False), metavar="DIR",
+              help="Directory of the temporary files of large OSM extracts (default: the system's temp dir).")
+@click.option("--jobs", type=click.IntRange(1, 1024), default=None, metavar="N",
+              help="Read the sources in parallel on a local Dask cluster of N processes.")
+@click.option("--scheduler", metavar="tcp://HOST:PORT",
+              help="Read the sources on an existing Dask cluster (its workers must see the same files).")
 @overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_area, label_column, layer_crs,
-          layer_label, label_map, overwrite, parents, quiet, debug):
+          layer_label, label_map, node_index, index_dir, jobs, scheduler, overwrite, parents, quiet, debug):
     """Build a map from OSM extracts, land-cover rasters and point/polygon layers.
 
     Prints a JSON summary (object counts per label, and "warnings") on stdout.  An existing OUTPUT is
@@ -59,13 +69,19 @@ def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_
     Layers: each feature's label is read from --label-column; with --label-map FILE.toml the column's
     values are mapped to labels (values not listed are skipped and counted); a layer without the
     column gets --label NAME for every feature.
+
+    Large extracts: node locations go to a temporary file (--node-index, --index-dir) and progress
+    says how much of the input is read and about how long is left.  With --jobs N or --scheduler the
+    sources are read in parallel (one Dask task a source); the map is the same as without.
     """
+    if jobs is not None and scheduler is not None:
+        raise click.UsageError("give --jobs (a local cluster) or --scheduler (an existing one), not both")
     check_outputs([output], [*sources, labels_file, label_map], parents=parents)
     refuse_existing(output, overwrite)
     summary = build_map(sources, output, labels=labels_file, crs=crs, bbox=bbox, quantum=quantum,
                         raster_classes=raster_classes, min_area_m2=min_area, label_column=label_column,
-                        layer_crs=layer_crs, label=layer_label, label_map=label_map,
-                        progress=progress_printer(quiet))
+                        layer_crs=layer_crs, label=layer_label, label_map=label_map, node_index=node_index,
+                        index_dir=index_dir, jobs=jobs, scheduler=scheduler, progress=progress_printer(quiet))
     for warning in summary["warnings"]:
         click.echo(f"mapdb: warning: {warning}", err=True)
     click.echo(dumps_strict(summary))

@@ -17,15 +17,17 @@ from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
 from .classmap import ClassTable, check_label, load_class_table
-from .errors import EmptyMapError, SourceError
+from .cluster import open_client, run_tasks, worker_count
+from .errors import EmptyMapError, MapdbError, SourceError
 from .geo import _lon_arc, bbox_text, central_longitude, check_bbox, in_bbox
 from .labels import LabelTable, load_label_table
 from .objects import Objects, concat
 from .outputs import Progress, ProgressLike, as_progress
 from .sources import SKIPPED_KINDS, read_source, source_kind
+from .sources.osm import NODE_INDEXES, read_osm
 from .store import open_map, write_map
 
-__all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "utm_crs_for"]
+__all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "read_one_source", "utm_crs_for"]
 
 # With ``crs="auto"`` the map is projected in one UTM zone (6 degrees of longitude wide).  Sources whose
 # objects span more longitude than two zones put some of them about 6 degrees or more from the zone's
@@ -142,7 +144,9 @@ def build_map(
     sources: Sequence[str | Path], output: str | Path, *, labels: str | Path | None = None, crs: str = "auto",
     bbox: tuple[float, float, float, float] | None = None, quantum: float = 0.1, raster_classes: str | None = None,
     min_area_m2: float = 10_000.0, label_column: str = "label", layer_crs: str | None = None,
-    label: str | None = None, label_map: str | Path | None = None, progress: ProgressLike = None,
+    label: str | None = None, label_map: str | Path | None = None, node_index: str = "auto",
+    index_dir: str | Path | None = None, jobs: int | None = None, scheduler: str | None = None,
+    progress: ProgressLike = None,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -170,6 +174,13 @@ def build_map(
     label_map : path, optional
         A TOML class table (:mod:`mapdb.classmap`) mapping the values of a layer column to labels;
         features with other values are skipped and counted (``unmapped_labels``).
+    node_index, index_dir : str, path, optional
+        Where OSM node locations are kept (:func:`mapdb.sources.osm.read_osm`: ``"auto"`` chooses memory or a
+        temporary file by the input's size) and the directory of such temporary files.
+    jobs, scheduler : int, str, optional
+        Read the sources in parallel, one Dask task a source, on a local cluster of ``jobs`` worker
+        processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
+        the one read in this process.  A source that fails fails the build, naming the source.
     progress : Progress or callable, optional
         Receives the stages as messages, and a count over the sources read, the projection and the
         writing (see :class:`mapdb.outputs.Progress`).
@@ -186,7 +197,10 @@ def build_map(
     Raises
     ------
     SourceError
-        A bad source, or an argument out of range (``quantum``, ``min_area_m2``, ``bbox``).
+        A bad source, or an argument out of range (``quantum``, ``min_area_m2``, ``bbox``, ``node_index``,
+        both ``jobs`` and ``scheduler``).
+    MapdbIOError
+        ``index_dir`` cannot hold an OSM source's temporary files; a Dask scheduler that does not answer.
     EmptyMapError
         If no object survives (for example a bbox over empty ground).
     """
@@ -196,7 +210,12 @@ def build_map(
     read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
                     "label_column": label_column, "layer_crs": layer_crs, "label": label,
                     "label_map": _label_map(label_map, label, table)}
-    merged, target, described, totals, warnings = _gather(sources, table, read_options, target, say)
+    osm_options = {"node_index": _checked_node_index(node_index), "index_dir": index_dir}
+    if jobs is not None and scheduler is not None:
+        raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")
+    with open_client(jobs, scheduler) as client:
+        merged, target, described, totals, warnings = _gather(sources, table, (read_options, osm_options), target,
+                                                              say, client)
     build = {"crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
              "labels_file": Path(labels).name if labels else None,
              "labels_sha256": _sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
@@ -208,12 +227,12 @@ def build_map(
             "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": warnings}
 
 
-def _gather(sources: Sequence[str | Path], table: LabelTable, read_options: dict[str, Any], target: str | None,
-            say: Progress) -> tuple[Objects, str, list[dict[str, Any]], Counter[str], list[str]]:
+def _gather(sources: Sequence[str | Path], table: LabelTable, options: _ReadOptions, target: str | None,
+            say: Progress, client: Any) -> tuple[Objects, str, list[dict[str, Any]], Counter[str], list[str]]:
     """Read, clip and project every source: the merged objects, the CRS (chosen when ``target`` is None), the
     sources' metadata entries, what the readers skipped in all, and the warnings."""
-    parts, described, skipped, warnings = _read_sources(sources, table, say, read_options)
-    bbox = read_options["bbox"]
+    parts, described, skipped, warnings = _read_sources(sources, table, say, options, client)
+    bbox = options[0]["bbox"]
     parts, lonlat = _clip(parts, bbox)
     total = sum(len(p) for p in parts)
     names = ", ".join(str(s) for s in sources)
@@ -288,14 +307,23 @@ def _auto_crs(lonlat: list[tuple[np.ndarray, np.ndarray]]) -> str:
 
 def _project(parts: list[Objects], lonlat: list[tuple[np.ndarray, np.ndarray]], skipped: list[Counter[str]],
              target: str, table: LabelTable) -> Objects:
-    """All sources' objects in ``target``, in one label table; those it cannot hold are dropped and counted."""
+    """All sources' objects in ``target``, in one label table; those it cannot hold are dropped and counted.
+
+    ``parts`` and ``lonlat`` are emptied as they are projected, and nothing is copied that need not be: a
+    country's objects are held about twice at most, not four times.
+    """
     projected = []
     to_target = Transformer.from_crs("EPSG:4326", target, always_xy=True)
-    for p, (lon, lat), counts in zip(parts, lonlat, skipped, strict=True):
+    for counts in skipped:
+        p, (lon, lat) = parts.pop(0), lonlat.pop(0)
         x, y = to_target.transform(lon, lat)
         finite = np.isfinite(x) & np.isfinite(y)
         counts["outside_crs"] += int((~finite).sum())
-        projected.append(Objects(x, y, p.label, p.area, p.labels, target).take(finite))
+        moved = Objects(x, y, p.label, p.area, p.labels, target)
+        projected.append(moved if finite.all() else moved.take(finite))
+        del p, lon, lat, moved
+    if len(projected) == 1:
+        return projected[0].relabel(table.labels)
     return concat(projected, labels=table.labels)
 
 
@@ -317,10 +345,10 @@ def _label_map(path: str | Path | None, label: str | None, table: LabelTable) ->
     return None if path is None else load_class_table(path, table.labels, column=True)
 
 
-def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: dict[str, Any]
-                  ) -> tuple[list[Objects], list[dict[str, Any]], list[Counter[str]], list[str]]:
+def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: _ReadOptions,
+                  client: Any) -> tuple[list[Objects], list[dict[str, Any]], list[Counter[str]], list[str]]:
     """Read each source once: its objects, its metadata entry, what its reader skipped; and the warnings."""
-    parts, described, skipped, warnings = [], [], [], []
+    unique, warnings = [], []
     seen: dict[Any, Path] = {}
     for path in map(Path, sources):
         fingerprint = _fingerprint(path)
@@ -329,20 +357,84 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
             warnings.append(duplicate)
             say.advance()
             continue
+        unique.append((path, fingerprint))
+    read = _read_here if client is None else _read_on_cluster
+    results = read([path for path, _ in unique], table, options, say, client)
+    described = [{"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
+                  "sha256": fingerprint[1] if fingerprint else _sha256(path), "objects": len(objects)}
+                 for (path, fingerprint), (objects, _) in zip(unique, results, strict=True)]
+    return [objects for objects, _ in results], described, [counts for _, counts in results], warnings
+
+
+# The options of read_source, and those only OSM sources take (node_index, index_dir).
+_ReadOptions = tuple[dict[str, Any], dict[str, Any]]
+
+
+def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None = None
+                    ) -> tuple[Objects, Counter[str]]:
+    """One source's objects (those not on Earth dropped and counted) and what its reader skipped.
+
+    A whole build's worth of one source: the unit of work of a parallel build (a Dask task).
+    """
+    counts: Counter[str] = Counter()
+    read_options, osm_options = options
+    if source_kind(path) == "osm":
+        objects = read_osm(path, table, bbox=read_options["bbox"], progress=say, counts=counts, **osm_options)
+    else:
+        objects = read_source(path, table, progress=say, counts=counts, **read_options)
+    if len(objects):
+        # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not
+        # finite or out of range (a projected layer outside its projection) is dropped and counted.
+        lon, lat = _to_lonlat(objects)
+        valid = np.isfinite(lon) & np.isfinite(lat) & (np.abs(lon) <= 180) & (np.abs(lat) <= 90)
+        counts["invalid_coordinates"] += int((~valid).sum())
+        objects = objects if valid.all() else objects.take(valid)
+    return objects, counts
+
+
+def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: None
+               ) -> list[tuple[Objects, Counter[str]]]:
+    results = []
+    for path in paths:
         say(f"reading {path} ...")
-        counts: Counter[str] = Counter()
-        objects = read_source(path, table, progress=say, counts=counts, **options)
-        if len(objects):
-            # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not
-            # finite or out of range (a projected layer outside its projection) is dropped and counted.
-            lon, lat = _to_lonlat(objects)
-            valid = np.isfinite(lon) & np.isfinite(lat) & (np.abs(lon) <= 180) & (np.abs(lat) <= 90)
-            counts["invalid_coordinates"] += int((~valid).sum())
-            objects = objects.take(valid)
-        say(f"  {len(objects)} objects from {path.name}")
+        results.append(read_one_source(path, table, options, say))
+        say(f"  {len(results[-1][0])} objects from {path.name}")
         say.advance()
-        parts.append(objects)
-        skipped.append(counts)
-        described.append({"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
-                          "sha256": fingerprint[1] if fingerprint else _sha256(path), "objects": len(objects)})
-    return parts, described, skipped, warnings
+    return results
+
+
+def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: Any
+                     ) -> list[tuple[Objects, Counter[str]]]:
+    """The sources read as Dask tasks, one a source; the results in source order, whatever order they end in."""
+    say(f"reading {len(paths)} sources on {worker_count(client)} Dask workers ...")
+    results: list[tuple[Objects, Counter[str]] | None] = [None] * len(paths)
+    tasks = [(path, table, options) for path in paths]
+    try:
+        for i, result in run_tasks(client, _read_task, tasks):
+            results[i] = result
+            say(f"  {len(result[0])} objects from {paths[i].name}")
+            say.advance()
+    except MapdbError:
+        raise
+    except Exception as exc:  # a worker lost (killed, out of memory): the sources not read are named
+        pending = ", ".join(str(path) for path, result in zip(paths, results, strict=True) if result is None)
+        detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
+        raise SourceError(f"{pending}: not read, a Dask worker failed ({exc.__class__.__name__}: {detail})") from None
+    return [result for result in results if result is not None]
+
+
+def _read_task(path: Path, table: LabelTable, options: _ReadOptions) -> tuple[Objects, Counter[str]]:
+    """:func:`read_one_source` on a worker: an unexpected error still names its source in one line."""
+    try:
+        return read_one_source(path, table, options)
+    except MapdbError:
+        raise
+    except Exception as exc:
+        detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
+        raise SourceError(f"{path}: reading failed on a Dask worker ({exc.__class__.__name__}: {detail})") from None
+
+
+def _checked_node_index(node_index: str) -> str:
+    if node_index not in NODE_INDEXES:
+        raise SourceError(f"node index {node_index!r}: not one of {', '.join(NODE_INDEXES)}")
+    return node_index

@@ -14,7 +14,11 @@ some rule of the label table may match ever reach Python:
   in the table's intersection rule.
 
 Per object, Python does only the tag test and asks osmium for WKB; geometry
-(areas, centroids) is computed afterwards in batches with shapely and numpy.
+(areas, centroids) is computed in blocks of :data:`AREA_BLOCK` areas with shapely
+and numpy as the pass goes, and the geometries are dropped: what the pass keeps is
+compact arrays (position, label, area), the road network's node ids (spilled to
+temporary files past :data:`ROAD_REFS_IN_MEMORY`) and the node location index, which
+lives in a file for inputs from :data:`FILE_INDEX_BYTES` up (:func:`choose_node_index`).
 Coordinates stay in lon/lat (``EPSG:4326``); areas are in square metres.
 
 Broken data is skipped or repaired and counted (``read_osm(counts=...)``), never
@@ -28,14 +32,17 @@ that much time, memory and temporary disk before a one-line error.
 from __future__ import annotations
 
 import bz2
+import ctypes
 import gzip
+import math
 import os
 import re
+import shutil
 import tempfile
 import time
 import zlib
 from array import array
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
@@ -54,7 +61,9 @@ from ..geo import check_bbox, in_bbox
 from ..labels import IntersectionRule, LabelTable, TagRule
 from ..objects import Objects, concat
 
-__all__ = ["MAX_INFLATION", "MIN_INFLATED_BYTES", "OSM_SUFFIXES", "inflation_limit", "is_osm_path", "read_osm"]
+__all__ = ["AREA_BLOCK", "DENSE_INDEX_BYTES", "FILE_INDEX_BYTES", "MAX_INFLATION", "MIN_INFLATED_BYTES",
+           "NODE_INDEXES", "OSM_SUFFIXES", "ROAD_REFS_IN_MEMORY", "choose_node_index", "inflation_limit",
+           "is_osm_path", "read_osm"]
 
 OSM_SUFFIXES = (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz")
 _XML_SUFFIXES = (".osm", ".osm.bz2", ".osm.gz")
@@ -77,7 +86,45 @@ _E2 = _F * (2 - _F)
 _PROGRESS_SECONDS = 2.0
 _PROGRESS_STRIDE = 4096
 
+# Areas whose centroid and area are computed together, after which their geometries are dropped: big
+# enough for shapely's vectorised calls to pay, small enough that the geometries cost a few megabytes.
+AREA_BLOCK = 4096
+# Node ids of road ways kept in memory; past this many they go to a temporary file, in buckets by node
+# id, and the junctions are found one bucket at a time (8 bytes a node id; 32 bytes in the buckets).
+ROAD_REFS_IN_MEMORY = 1 << 19
+# Buckets of road edges on disk: one per this many bytes of input (a 1 GB extract holds about 20 million
+# road node ids, a bucket about a million edges), at least 2 and at most _MAX_EDGE_BUCKETS.
+_INPUT_BYTES_PER_BUCKET = 16 << 20
+_MAX_EDGE_BUCKETS = 1024
+
+# Where libosmium keeps node locations (16 bytes a node in a sparse index, 8 bytes a node id in a dense
+# one).  Small inputs keep them in memory; from FILE_INDEX_BYTES of input the index is a file (mapped, its
+# pages released to the page cache as the pass goes, so that the process's memory stays bounded); from
+# DENSE_INDEX_BYTES, a continent or the planet, whose node ids are dense, a dense file array.
+FILE_INDEX_BYTES = 64 << 20
+DENSE_INDEX_BYTES = 16 << 30
+NODE_INDEXES = ("auto", "flex_mem", "sparse_mem_array", "dense_mem_array", "sparse_file_array", "dense_file_array")
+# Disk a file index needs, per byte of input, as checked before the pass (a full disk would make libosmium's
+# mapped file fault): sparse 16 bytes a node at up to ~0.15 nodes a PBF byte, dense 8 bytes an id.
+_INDEX_BYTES_PER_INPUT_BYTE = {"sparse_file_array": 3.0, "dense_file_array": 1.0}
+
+_MADV_DONTNEED = 4  # Linux
+_ETA_WINDOW_SECONDS = 60.0
+
 Progress = Callable[[str], None]
+
+
+def choose_node_index(input_bytes: int) -> str:
+    """The libosmium node location index ``node_index="auto"`` uses for an input of this many bytes.
+
+    Examples
+    --------
+    >>> choose_node_index(2 << 20), choose_node_index(1 << 30), choose_node_index(70 << 30)
+    ('flex_mem', 'sparse_file_array', 'dense_file_array')
+    """
+    if input_bytes >= DENSE_INDEX_BYTES:
+        return "dense_file_array"
+    return "sparse_file_array" if input_bytes >= FILE_INDEX_BYTES else "flex_mem"
 
 
 def is_osm_path(path: str | Path) -> bool:
@@ -103,7 +150,8 @@ def inflation_limit(compressed_bytes: int) -> int:
 
 
 def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, float, float] | None = None,
-             progress: Progress | None = None, counts: Counter[str] | None = None) -> Objects:
+             progress: Progress | None = None, counts: Counter[str] | None = None, *, node_index: str = "auto",
+             index_dir: str | Path | None = None) -> Objects:
     """Read the labelled objects of an OpenStreetMap extract.
 
     Parameters
@@ -125,6 +173,13 @@ def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, floa
         lon [-180, 180], lat [-90, 90]), ``"unclosed_rings"`` (ways tagged as areas that do not
         close), ``"repaired_geometries"`` (areas whose rings cross themselves, rebuilt with
         shapely's ``make_valid``) and ``"invalid_geometries"`` (areas that could not be repaired).
+    node_index : str
+        Where libosmium keeps node locations: ``"auto"`` (:func:`choose_node_index`, by the input's size),
+        or one of :data:`NODE_INDEXES` (``"flex_mem"`` in memory, ``"sparse_file_array"`` and
+        ``"dense_file_array"`` in a temporary file).
+    index_dir : path, optional
+        The directory of the temporary files of large inputs (a file node index, the road network's
+        buckets); the system's temporary directory by default.
 
     Returns
     -------
@@ -138,7 +193,9 @@ def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, floa
         The file is missing or cannot be opened.
     SourceError
         The file is empty, truncated, not OSM data, or a compressed file that inflates past
-        :func:`inflation_limit`.
+        :func:`inflation_limit`; or ``node_index`` is not one of :data:`NODE_INDEXES`.
+    MapdbIOError
+        ``index_dir`` cannot hold the temporary files (missing, not writable, too little free space).
 
     Notes
     -----
@@ -153,18 +210,21 @@ def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, floa
     1205
     """
     path = Path(path)
+    if node_index not in NODE_INDEXES:
+        raise SourceError(f"node index {node_index!r}: not one of {', '.join(NODE_INDEXES)}")
     _check_readable(path)
     bbox = None if bbox is None else check_bbox(bbox)
     counts = counts if counts is not None else Counter()
-    return _read(path, table, bbox, progress or (lambda message: None), counts)
+    with _Workspace(index_dir) as workspace:
+        return _read(path, table, bbox, progress or (lambda message: None), counts, workspace, node_index)
 
 
 def _read(path: Path, table: LabelTable, bbox: tuple[float, float, float, float] | None, report: Progress,
-          counts: Counter[str]) -> Objects:
+          counts: Counter[str], workspace: _Workspace, node_index: str) -> Objects:
     """:func:`read_osm` on checked arguments: collect, assemble, clip, and say what came of it."""
     started = time.monotonic()
     report(f"{path}: reading OpenStreetMap data")
-    objects = _assemble(_collect(path, table, report, counts), table, counts)
+    objects = _assemble(_collect(path, table, report, counts, workspace, node_index), table, counts)
     if bbox is not None:
         objects = objects.take(in_bbox(bbox, objects.x, objects.y))
     summary = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
@@ -175,13 +235,18 @@ def _read(path: Path, table: LabelTable, bbox: tuple[float, float, float, float]
     return objects
 
 
-def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[str]) -> _Collected:
+def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[str], workspace: _Workspace,
+             node_index: str) -> _Collected:
     """The single pass over the file (and the repair of areas osmium could not assemble)."""
     try:
         with _xml_input(path) if path.name.lower().endswith(_XML_SUFFIXES) else nullcontext(str(path)) as source:
-            collected = _scan(path, source, table, report, counts)
+            size = os.path.getsize(source)
+            collected = _Collected(table.labels, workspace, counts, size)
+            collected.locations, collected.index_file = workspace.node_index(node_index, size, path)
+            _scan(path, source, table, report, collected)
             if collected.failed_area_ways:
                 _repair_ways(source, collected, counts)
+            collected.finish_areas()
     except (RuntimeError, UnicodeDecodeError, osmium.InvalidLocationError) as exc:
         # libosmium reports bad input (XML syntax, PBF framing, unknown format) as RuntimeError.
         detail = " ".join(str(exc).split()) or exc.__class__.__name__
@@ -193,7 +258,7 @@ def _assemble(collected: _Collected, table: LabelTable, counts: Counter[str]) ->
     """The objects of what the pass collected: points, areas, ways and (when the table asks) intersections."""
     parts = [
         _point_objects(collected.node_lon, collected.node_lat, collected.node_code, table.labels),
-        _area_objects(collected.area_wkb, collected.area_code, table.labels, counts),
+        concat(collected.areas, labels=table.labels) if collected.areas else Objects.empty(table.labels, "EPSG:4326"),
         _way_objects(collected, table.labels),
     ]
     if table.intersections is not None:
@@ -298,27 +363,45 @@ def _has_odd_coordinate(path: Path) -> bool:
 
 
 class _Collected:
-    """What the single pass over the file keeps: small per-object values in lists, arrays later."""
+    """What the single pass over the file keeps: compact per-object values, the geometries of one block of areas."""
 
-    def __init__(self) -> None:
-        self.node_lon: list[float] = []
-        self.node_lat: list[float] = []
-        self.node_code: list[int] = []
+    def __init__(self, labels: tuple[str, ...], workspace: _Workspace, counts: Counter[str], input_bytes: int) -> None:
+        self.labels = labels
+        self.counts = counts
+        self.node_lon = array("d")
+        self.node_lat = array("d")
+        self.node_code = array("i")
+        # The current block of assembled areas (WKB and label code); each full block becomes the centroids
+        # and areas of ``areas`` and its geometries are dropped.
         self.area_wkb: list[str] = []
         self.area_code: list[int] = []
-        # Ways matched by a "way" rule: node ids, locations and label code per way.
-        self.way_refs: list[list[int]] = []
-        self.way_lon: list[list[float]] = []
-        self.way_lat: list[list[float]] = []
-        self.way_code: list[int] = []
-        # Node ids of the road ways considered for intersections, flattened, with each way's length
-        # (typed arrays: 8 bytes an id instead of a Python int's 32, for country-sized extracts).
-        self.road_refs = array("q")
-        self.road_lengths = array("q")
+        self.areas: list[Objects] = []
+        # Ways matched by a "way" rule: node ids and locations of all of them, one after the other, and the
+        # number of nodes and label code of each (typed arrays: no long-lived Python numbers, which would
+        # pin the allocator's arenas between the blocks of areas).
+        self.way_refs = array("q")
+        self.way_lon = array("d")
+        self.way_lat = array("d")
+        self.way_lengths = array("q")
+        self.way_code = array("i")
+        self.roads = _RoadNetwork(workspace, input_bytes)
         self.locations: Any = None  # osmium's node location table, for looking up junction nodes
+        self.index_file: str | None = None  # its file, when it has one
         # Closed ways whose area osmium could not assemble (rings crossing themselves), with their
         # label code: rebuilt by _repair_ways.
         self.failed_area_ways: dict[int, int] = {}
+
+    def add_area(self, wkb: str, code: int) -> None:
+        self.area_wkb.append(wkb)
+        self.area_code.append(code)
+        if len(self.area_wkb) >= AREA_BLOCK:
+            self.finish_areas()
+
+    def finish_areas(self) -> None:
+        """Centroids and areas of the current block of areas; the geometries are dropped."""
+        if self.area_wkb:
+            self.areas.append(_area_objects(self.area_wkb, self.area_code, self.labels, self.counts))
+            self.area_wkb, self.area_code = [], []
 
 
 def _rules_for(table: LabelTable, geometry: str) -> list[tuple[int, TagRule]]:
@@ -345,22 +428,21 @@ def _tag_prefilter(rules: Sequence[TagRule], extra: Sequence[tuple[str, str]] = 
     return osmium.filter.TagFilter(*pairs) if pairs else None
 
 
-def _scan(path: Path, source: str, table: LabelTable, report: Progress, counts: Counter[str]) -> _Collected:
+def _scan(path: Path, source: str, table: LabelTable, report: Progress, out: _Collected) -> None:
     """One pass over ``source``: the labelled nodes, areas and ways, and the road ways' nodes."""
     area_rules = _rules_for(table, "area")
     node_rules = _rules_for(table, "node")
     way_rules = _rules_for(table, "way")
     roads = frozenset(table.intersections.highways) if table.intersections is not None else frozenset()
-    processor = _processor(source, area_rules, node_rules, way_rules, roads)
-    out = _Collected()
+    processor = _processor(source, out.locations, area_rules, node_rules, way_rules, roads)
     wkb = osmium.geom.WKBFactory()
+    counts = out.counts
     seen = 0
-    last_report = time.monotonic()
+    meter = _ByteProgress(path, source, report, out.index_file)
     for obj in processor:
         seen += 1
-        if seen % _PROGRESS_STRIDE == 0 and time.monotonic() - last_report >= _PROGRESS_SECONDS:
-            last_report = time.monotonic()
-            report(f"{path}: {seen:,} tagged objects read")
+        if seen % _PROGRESS_STRIDE == 0:
+            meter.tick(seen)
         kind = obj.type_str()
         if kind == "a":
             _take_area(obj, area_rules, wkb, out, counts)
@@ -368,12 +450,12 @@ def _scan(path: Path, source: str, table: LabelTable, report: Progress, counts: 
             _take_node(obj, node_rules, out, counts)
         elif kind == "w":
             _take_way(obj, way_rules, area_rules, roads, wkb, out, counts)
-    out.locations = processor.node_location_storage
-    return out
+    meter.release()
 
 
-def _processor(source: str, area_rules: list[tuple[int, TagRule]], node_rules: list[tuple[int, TagRule]],
-               way_rules: list[tuple[int, TagRule]], roads: frozenset[str]) -> Any:
+def _processor(source: str, locations: Any, area_rules: list[tuple[int, TagRule]],
+               node_rules: list[tuple[int, TagRule]], way_rules: list[tuple[int, TagRule]],
+               roads: frozenset[str]) -> Any:
     """osmium's reader of ``source``, letting through (a superset of) the objects the rules may use."""
     area_filter = _tag_prefilter([r for _, r in area_rules])
     node_filter = _tag_prefilter([r for _, r in node_rules])
@@ -381,9 +463,7 @@ def _processor(source: str, area_rules: list[tuple[int, TagRule]], node_rules: l
     # node out of range, and they must be counted.
     way_filter = _tag_prefilter([r for _, r in way_rules + area_rules], [("highway", h) for h in sorted(roads)])
 
-    # flex_mem starts as a sparse index and turns dense only for big inputs: right for city and
-    # country extracts alike, and it is pyosmium's default.
-    processor = osmium.FileProcessor(source).with_locations("flex_mem")
+    processor = osmium.FileProcessor(source).with_locations(locations)
     kinds = osmium.osm.NOTHING
     if area_filter is not None:
         # The same filter picks the multipolygon relations worth assembling in the first pass.
@@ -418,8 +498,7 @@ def _take_area(obj: Any, area_rules: list[tuple[int, TagRule]], wkb: Any, out: _
         else:
             counts["invalid_geometries"] += 1
         return
-    out.area_wkb.append(geometry)
-    out.area_code.append(code)
+    out.add_area(geometry, code)
 
 
 def _take_node(obj: Any, node_rules: list[tuple[int, TagRule]], out: _Collected, counts: Counter[str]) -> None:
@@ -446,10 +525,7 @@ def _take_way(obj: Any, way_rules: list[tuple[int, TagRule]], area_rules: list[t
     elif area_rules:
         _check_area_way(obj, tags, area_rules, wkb, counts)
     if roads and tags.get("highway") in roads:
-        refs = [n.ref for n in obj.nodes]
-        if len(refs) >= 2:
-            out.road_refs.extend(refs)
-            out.road_lengths.append(len(refs))
+        out.roads.add([n.ref for n in obj.nodes])
 
 
 def _defined(location: Any) -> bool:
@@ -469,9 +545,10 @@ def _collect_way(way: Any, code: int, out: _Collected, counts: Counter[str]) -> 
         return
     nodes = [n for n in way.nodes if n.location.valid()]  # nodes missing from an extract are left out
     if nodes:
-        out.way_refs.append([n.ref for n in nodes])
-        out.way_lon.append([n.lon for n in nodes])
-        out.way_lat.append([n.lat for n in nodes])
+        out.way_refs.extend(n.ref for n in nodes)
+        out.way_lon.extend(n.lon for n in nodes)
+        out.way_lat.extend(n.lat for n in nodes)
+        out.way_lengths.append(len(nodes))
         out.way_code.append(code)
 
 
@@ -521,8 +598,210 @@ def _repair_ways(source: str, c: _Collected, counts: Counter[str]) -> None:
             counts["invalid_geometries"] += 1
             continue
         counts["repaired_geometries"] += 1
-        c.area_wkb.append(shapely.to_wkb(fixed, hex=True))
-        c.area_code.append(code)
+        c.add_area(shapely.to_wkb(fixed, hex=True), code)
+
+
+# --------------------------------------------------------------------------------------------------
+# Temporary files of large inputs: the node location index, the road network's buckets
+
+
+class _Workspace:
+    """A temporary directory under ``index_dir``, made when first needed and removed at the end."""
+
+    def __init__(self, index_dir: str | Path | None) -> None:
+        self.parent = Path(index_dir) if index_dir is not None else Path(tempfile.gettempdir())
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    def __enter__(self) -> _Workspace:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._tmp is not None:
+            self._tmp.cleanup()
+
+    def file(self, name: str, need_bytes: int = 0, what: str = "temporary files") -> str:
+        """A path for a new temporary file, after checking that ``need_bytes`` fit in the directory."""
+        try:
+            if self._tmp is None:
+                self._tmp = tempfile.TemporaryDirectory(prefix="mapdb-osm-", dir=self.parent)
+            free = shutil.disk_usage(self._tmp.name).free
+        except OSError as exc:
+            raise MapdbIOError(f"{self.parent}: cannot hold the {what} ({exc.strerror or exc})") from None
+        if need_bytes > free:
+            raise MapdbIOError(f"{self.parent}: {free / 2**30:.1f} GiB free, the {what} need about "
+                               f"{need_bytes / 2**30:.1f} GiB; free some space or choose another directory")
+        return os.path.join(self._tmp.name, name)
+
+    def node_index(self, kind: str, input_bytes: int, path: Path) -> tuple[Any, str | None]:
+        """libosmium's node location index for an input of ``input_bytes`` (``kind`` "auto": by its size),
+        and its file (None in memory)."""
+        kind = choose_node_index(input_bytes) if kind == "auto" else kind
+        if kind not in _INDEX_BYTES_PER_INPUT_BYTE:
+            return osmium.index.create_map(kind), None
+        need = int(_INDEX_BYTES_PER_INPUT_BYTE[kind] * input_bytes)
+        location = self.file("node-locations", need, f"node location index of {path.name} ({kind})")
+        try:
+            return osmium.index.create_map(f"{kind},{location}"), location
+        except (RuntimeError, OSError) as exc:
+            raise MapdbIOError(f"{self.parent}: cannot hold the node location index ({exc})") from None
+
+
+class _RoadNetwork:
+    """The node ids of the road ways, for finding junctions: in memory, or in buckets by node id on disk.
+
+    Up to :data:`ROAD_REFS_IN_MEMORY` ids are kept in memory (typed arrays, 8 bytes an id) and the
+    junctions found by :func:`_junction_node_ids`.  Past that, each full buffer is turned into directed
+    edges ``(node, neighbour)`` that are appended to temporary bucket files by ``node % buckets``, and
+    the junctions are found one bucket at a time: memory holds one bucket, not the network.
+    """
+
+    def __init__(self, workspace: _Workspace, input_bytes: int) -> None:
+        self.workspace = workspace
+        self.bucket_count = min(_MAX_EDGE_BUCKETS, max(2, input_bytes // _INPUT_BYTES_PER_BUCKET))
+        self.in_memory = ROAD_REFS_IN_MEMORY
+        self.refs = array("q")
+        self.lengths = array("q")
+        self.buckets: list[str] = []
+
+    def add(self, refs: list[int]) -> None:
+        if len(refs) < 2:
+            return
+        self.refs.extend(refs)
+        self.lengths.append(len(refs))
+        if len(self.refs) >= self.in_memory:
+            self._spill()
+
+    def _spill(self) -> None:
+        if not self.buckets:
+            self.buckets = [self.workspace.file(f"road-edges-{i}", what="road network")
+                            for i in range(self.bucket_count)]
+        src, dst = _directed_edges(np.frombuffer(self.refs, np.int64), np.frombuffer(self.lengths, np.int64))
+        bucket = (src % len(self.buckets)).astype(np.uint16)
+        order = np.argsort(bucket, kind="stable")  # a radix sort on 16 bits
+        bounds = np.searchsorted(bucket[order], np.arange(len(self.buckets) + 1))
+        pairs = np.empty((src.size, 2), np.int64)
+        pairs[:, 0], pairs[:, 1] = src[order], dst[order]
+        del src, dst, order
+        for i, name in enumerate(self.buckets):
+            with open(name, "ab") as f:
+                pairs[bounds[i]:bounds[i + 1]].tofile(f)
+        self.refs, self.lengths = array("q"), array("q")
+
+    def junctions(self) -> np.ndarray:
+        """Sorted ids of the nodes with three or more arms (as :func:`_junction_node_ids`)."""
+        if not self.buckets:
+            return _junction_node_ids(np.frombuffer(self.refs, np.int64), np.frombuffer(self.lengths, np.int64))
+        if len(self.refs):
+            self._spill()
+        found = []
+        for name in self.buckets:
+            pairs = np.fromfile(name, np.int64).reshape(-1, 2)
+            os.unlink(name)
+            found.append(_nodes_with_three_arms(pairs[:, 0], pairs[:, 1]))
+        return np.sort(np.concatenate(found))
+
+
+class _ByteProgress:
+    """Progress of the pass by bytes of input read, with the time left; releases a file index's pages.
+
+    The bytes read are the position of libosmium's descriptor of the input (``/proc/self/fdinfo``, Linux);
+    elsewhere only the objects are counted.  A file node index is a shared mapping: its pages stay in the
+    page cache, which the kernel reclaims under pressure, and are released from the process (``madvise``)
+    at each report so that its resident memory does not grow with the input.
+    """
+
+    def __init__(self, path: Path, source: str, report: Progress, index_file: str | None) -> None:
+        self.path, self.report = path, report
+        self.size = max(1, os.path.getsize(source))
+        self.identity = _file_identity(source)
+        self.last = time.monotonic()
+        self.index_file = index_file
+        # (time, bytes read) of the last minute or so: the rate of the recent past gives the time left,
+        # since nodes (most of a PBF's bytes) go much faster than ways and areas.
+        self.history: deque[tuple[float, int]] = deque()
+
+    def tick(self, seen: int) -> None:
+        now = time.monotonic()
+        if now - self.last < _PROGRESS_SECONDS:
+            return
+        self.last = now
+        self.release()
+        done = _bytes_read(self.identity)
+        if done is None:
+            self.report(f"{self.path}: {seen:,} tagged objects read")
+            return
+        self.history.append((now, done))
+        while len(self.history) > 2 and now - self.history[1][0] >= _ETA_WINDOW_SECONDS:
+            self.history.popleft()
+        then, before = self.history[0]
+        rate = (done - before) / (now - then) if now > then else 0.0
+        left = (self.size - done) / rate if rate > 0 else float("nan")
+        self.report(f"{self.path}: {min(1.0, done / self.size):.0%} of {self.size / 2**20:,.1f} MiB read, "
+                    f"{seen:,} tagged objects, about {_duration(left)} left")
+
+    def release(self) -> None:
+        if self.index_file is not None:
+            _release_mapped(self.index_file)
+
+
+def _duration(seconds: float) -> str:
+    """``"2 h 05 min"``, ``"3 min 20 s"``, ``"40 s"``; ``"?"`` when not known.
+
+    Examples
+    --------
+    >>> _duration(40.2), _duration(200), _duration(7500), _duration(float("nan"))
+    ('40 s', '3 min 20 s', '2 h 05 min', '?')
+    """
+    if not math.isfinite(seconds):
+        return "?"
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
+def _file_identity(path: str) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _bytes_read(identity: tuple[int, int] | None) -> int | None:
+    """How far this process has read the file of this (device, inode), or None if that cannot be told."""
+    if identity is None:
+        return None
+    try:
+        fds = os.listdir("/proc/self/fd")
+    except OSError:
+        return None
+    positions = []
+    for fd in fds:
+        try:
+            st = os.stat(f"/proc/self/fd/{fd}")
+            if (st.st_dev, st.st_ino) != identity:
+                continue
+            with open(f"/proc/self/fdinfo/{fd}") as f:
+                positions += [int(line.split()[1]) for line in f if line.startswith("pos:")]
+        except (OSError, ValueError, IndexError):
+            continue
+    return max(positions) if positions else None
+
+
+def _release_mapped(path: str) -> None:
+    """Drop this process's resident pages of a shared file mapping (they stay in the page cache); Linux only."""
+    try:
+        with open("/proc/self/maps") as f:
+            ranges = [line.split()[0] for line in f if line.rstrip().endswith(path)]
+        libc = ctypes.CDLL(None, use_errno=True)
+    except OSError:
+        return
+    for span in ranges:
+        start, end = (int(v, 16) for v in span.split("-"))
+        libc.madvise(ctypes.c_void_p(start), ctypes.c_size_t(end - start), _MADV_DONTNEED)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -558,8 +837,8 @@ def _from_local(
     return lon, lat
 
 
-def _point_objects(lon: list[float], lat: list[float], code: list[int], labels: tuple[str, ...]) -> Objects:
-    return Objects(np.asarray(lon, float), np.asarray(lat, float), np.asarray(code, np.int32),
+def _point_objects(lon: array, lat: array, code: array, labels: tuple[str, ...]) -> Objects:
+    return Objects(np.frombuffer(lon, float), np.frombuffer(lat, float), np.frombuffer(code, np.int32),
                    np.zeros(len(code)), labels, "EPSG:4326")
 
 
@@ -603,14 +882,14 @@ def _way_objects(c: _Collected, labels: tuple[str, ...]) -> Objects:
     Centroid: length-weighted centroid of the group's lines.  Area: the convex hull of the
     group's nodes, which for a roundabout ring is the ground it encloses (0 for a straight line).
     """
-    if not c.way_code:
+    if not len(c.way_code):
         return Objects.empty(labels, "EPSG:4326")
-    lengths = np.array([len(r) for r in c.way_refs])
+    lengths = np.frombuffer(c.way_lengths, np.int64)
     way_of_node = np.repeat(np.arange(lengths.size), lengths)
-    refs = np.concatenate([np.asarray(r, np.int64) for r in c.way_refs])
-    lon = np.concatenate([np.asarray(v, float) for v in c.way_lon])
-    lat = np.concatenate([np.asarray(v, float) for v in c.way_lat])
-    codes = np.asarray(c.way_code, np.int32)
+    refs = np.frombuffer(c.way_refs, np.int64)
+    lon = np.frombuffer(c.way_lon, float)
+    lat = np.frombuffer(c.way_lat, float)
+    codes = np.frombuffer(c.way_code, np.int32)
 
     # Ways join when they share a node and a label: components of the way--node bipartite graph,
     # nodes keyed by (id, label) so that differently labelled ways never merge.
@@ -706,21 +985,64 @@ def _junction_node_ids(refs: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     inside = (way[1:] == way[:-1]) & (index[1:] != index[:-1])
     a, b = index[:-1][inside], index[1:][inside]
     lo, hi = np.minimum(a, b), np.maximum(a, b)
-    edges = np.unique(lo * ids.size + hi)
+    edges = _sorted_unique(lo * ids.size + hi)
     arms = np.bincount(edges // ids.size, minlength=ids.size) + np.bincount(edges % ids.size, minlength=ids.size)
     return ids[arms >= 3]
 
 
-def _intersection_objects(c: _Collected, rule: IntersectionRule, labels: tuple[str, ...],
-                          counts: Counter[str]) -> Objects:
-    """Junction nodes of the road network, those of one crossing within ``merge_distance_m`` merged."""
-    junctions = _junction_node_ids(np.frombuffer(c.road_refs, np.int64), np.frombuffer(c.road_lengths, np.int64))
-    if c.way_refs:
-        # A junction on a way that is an object of its own (a roundabout ring) is part of that
-        # object: the camera sees one roundabout, not one intersection per entry.
-        junctions = junctions[~np.isin(junctions, np.concatenate([np.asarray(r) for r in c.way_refs]))]
-    lon, lat = [], []
-    for node_id in junctions.tolist():
+def _sorted_unique(values: np.ndarray) -> np.ndarray:
+    """``np.unique(values)`` by a sort (numpy 2.3's hashing ``unique`` takes seconds on millions of ids).
+
+    Examples
+    --------
+    >>> _sorted_unique(np.array([3, 1, 3, 2])).tolist()
+    [1, 2, 3]
+    """
+    values = np.sort(values)
+    keep = np.ones(values.size, bool)
+    keep[1:] = values[1:] != values[:-1]
+    return values[keep]
+
+
+def _directed_edges(refs: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both directions of every step between two different consecutive nodes of a way: (node, neighbour).
+
+    Examples
+    --------
+    >>> [e.tolist() for e in _directed_edges(np.array([1, 2, 2, 3, 2, 4]), np.array([2, 2, 2]))]
+    [[1, 2, 2, 2, 3, 4], [2, 3, 4, 1, 2, 2]]
+    """
+    way = np.repeat(np.arange(lengths.size), lengths)
+    inside = (way[1:] == way[:-1]) & (refs[1:] != refs[:-1])
+    a, b = refs[:-1][inside], refs[1:][inside]
+    return np.concatenate([a, b]), np.concatenate([b, a])
+
+
+def _nodes_with_three_arms(node: np.ndarray, neighbour: np.ndarray) -> np.ndarray:
+    """Sorted ids of the nodes with three or more distinct neighbours among directed edges.
+
+    The arms of :func:`_junction_node_ids`, counted from the edges of the nodes of one bucket.
+
+    Examples
+    --------
+    >>> _nodes_with_three_arms(*_directed_edges(np.array([1, 2, 2, 3, 2, 4]), np.array([2, 2, 2]))).tolist()
+    [2]
+    """
+    if node.size == 0:
+        return np.zeros(0, np.int64)
+    nodes, node_index = np.unique(node, return_inverse=True)
+    others, other_index = np.unique(neighbour, return_inverse=True)
+    edges = _sorted_unique(node_index.reshape(-1) * others.size + other_index.reshape(-1))
+    arms = np.bincount(edges // others.size, minlength=nodes.size)
+    return nodes[arms >= 3]
+
+
+def _junction_locations(c: _Collected, junctions: np.ndarray, counts: Counter[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Lon/lat of the junction nodes the index holds (a file index's pages released as the lookups go)."""
+    lon, lat = array("d"), array("d")
+    for i, node_id in enumerate(junctions.tolist()):
+        if c.index_file is not None and i % _PROGRESS_STRIDE == 0:
+            _release_mapped(c.index_file)
         try:
             location = c.locations.get(node_id)
         except KeyError:  # a node outside the extract: no location, no object
@@ -730,9 +1052,23 @@ def _intersection_objects(c: _Collected, rule: IntersectionRule, labels: tuple[s
             continue
         lon.append(location.lon)
         lat.append(location.lat)
-    if not lon:
+    if c.index_file is not None:
+        _release_mapped(c.index_file)
+    return np.frombuffer(lon, float), np.frombuffer(lat, float)
+
+
+def _intersection_objects(c: _Collected, rule: IntersectionRule, labels: tuple[str, ...],
+                          counts: Counter[str]) -> Objects:
+    """Junction nodes of the road network, those of one crossing within ``merge_distance_m`` merged."""
+    junctions = c.roads.junctions()
+    if len(c.way_refs):
+        # A junction on a way that is an object of its own (a roundabout ring) is part of that
+        # object: the camera sees one roundabout, not one intersection per entry.
+        junctions = junctions[~np.isin(junctions, np.frombuffer(c.way_refs, np.int64))]
+    lon, lat = _junction_locations(c, junctions, counts)
+    if not lon.size:
         return Objects.empty(labels, "EPSG:4326")
-    xyz = _ecef(np.asarray(lon), np.asarray(lat))
+    xyz = _ecef(lon, lat)
     pairs = cKDTree(xyz).query_pairs(rule.merge_distance_m, output_type="ndarray")
     cluster = _components(len(xyz), pairs[:, 0], pairs[:, 1])
     n = int(cluster.max()) + 1
