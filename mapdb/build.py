@@ -59,7 +59,8 @@ def utm_crs_for(lon: float, lat: float) -> str:
     return f"EPSG:{wanted if wanted in codes else codes[0]}"
 
 
-def _sha256(path: Path) -> str:
+def file_sha256(path: Path) -> str:
+    """The SHA-256 of a file's bytes, read in blocks (sources and tables are recorded by it)."""
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):
@@ -73,7 +74,7 @@ def _fingerprint(path: Path) -> tuple[tuple[int, int], str] | None:
         st = os.stat(path)
         if not stat.S_ISREG(st.st_mode):
             return None
-        return (st.st_dev, st.st_ino), _sha256(path)
+        return (st.st_dev, st.st_ino), file_sha256(path)
     except OSError:
         return None
 
@@ -218,10 +219,10 @@ def build_map(
                                                               say, client)
     build = {"crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
              "labels_file": Path(labels).name if labels else None,
-             "labels_sha256": _sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
+             "labels_sha256": file_sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
              "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs, "label": label,
              "label_map": Path(label_map).name if label_map else None,
-             "label_map_sha256": _sha256(Path(label_map)) if label_map else None}
+             "label_map_sha256": file_sha256(Path(label_map)) if label_map else None}
     written, label_counts = _write(output, merged, target, quantum, {"sources": described, "build": build}, totals, say)
     return {"output": str(output), "crs": target, "count": written, "labels": label_counts,
             "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": warnings}
@@ -361,7 +362,7 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
     read = _read_here if client is None else _read_on_cluster
     results = read([path for path, _ in unique], table, options, say, client)
     described = [{"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
-                  "sha256": fingerprint[1] if fingerprint else _sha256(path), "objects": len(objects)}
+                  "sha256": fingerprint[1] if fingerprint else file_sha256(path), "objects": len(objects)}
                  for (path, fingerprint), (objects, _) in zip(unique, results, strict=True)]
     return [objects for objects, _ in results], described, [counts for _, counts in results], warnings
 

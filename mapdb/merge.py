@@ -38,7 +38,7 @@ import numpy as np
 from pyproj import CRS, Transformer
 from scipy.spatial import cKDTree
 
-from .build import _auto_crs, _projected_crs, _to_lonlat
+from .build import _auto_crs, _projected_crs, _to_lonlat, file_sha256
 from .errors import EmptyMapError, SourceError
 from .objects import Objects, concat
 from .outputs import ProgressLike, as_progress
@@ -111,17 +111,9 @@ def _read_input(path: Path, say: Any) -> dict[str, Any]:
         objects = m.all()
         header = m.metadata
     sources = header.get("sources") if isinstance(header.get("sources"), list) else []
-    return {"path": path, "name": path.name, "sha256": _sha256(path), "objects_": objects, "objects": len(objects),
+    return {"path": path, "name": path.name, "sha256": file_sha256(path), "objects_": objects, "objects": len(objects),
             "crs": objects.crs, "quantum": float(header["quantum"]), "labels": objects.labels,
             "sources": sources, "build": header.get("build")}
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def _common_layout(maps: list[dict[str, Any]]) -> tuple[float, tuple[str, ...]]:

@@ -16,6 +16,7 @@ display), so that ``import mapdb`` does not pay for it.
 from __future__ import annotations
 
 import math
+import os
 import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,6 +39,8 @@ __all__ = [
     "match_geometry",
     "plot_evaluation",
     "plot_match",
+    "pyplot",
+    "save_figure",
 ]
 
 # The main view of a match shows this fraction of the footprint's size around it (map context).
@@ -285,7 +288,8 @@ def crs_name(crs: str | None) -> str:
     return f"{crs} ({name})" if name and name != "unknown" else str(crs)
 
 
-def _pyplot():
+def pyplot() -> Any:
+    """matplotlib's pyplot on the Agg back end (pictures are files; no display is needed or opened)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -307,10 +311,11 @@ def _metre_axes(ax: Any, crs: str | None, nbins: int = 6) -> None:
     ax.grid(True, alpha=0.25, linewidth=0.6)
 
 
-def _save(fig: Any, path: str | Path) -> None:
-    plt = _pyplot()
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: int = DPI) -> None:
+    """Write a figure (the format from the ending) and close it; an unwritable path is a :class:`MapdbIOError`."""
+    plt = pyplot()
     try:
-        fig.savefig(path, dpi=DPI)
+        fig.savefig(path, dpi=dpi)
     except OSError as exc:
         raise MapdbIOError(f"{path}: cannot write plot ({exc.strerror or exc})") from None
     finally:
@@ -521,7 +526,7 @@ def plot_match(image: dict[str, Any] | ImageObjects, answer: Answer, map: Any, p
     if truth is None and isinstance(image, dict):
         truth = image.get("truth")
     truth_xy = _truth_xy(truth)
-    plt = _pyplot()
+    plt = pyplot()
     fig = plt.figure(figsize=(11.5, 7.2))
     grid = fig.add_gridspec(2, 2, width_ratios=[2.15, 1], height_ratios=[1, 1.15], wspace=0.08, hspace=0.12,
                             left=0.08, right=0.98, bottom=0.08, top=0.9)
@@ -539,7 +544,7 @@ def plot_match(image: dict[str, Any] | ImageObjects, answer: Answer, map: Any, p
         ax_key.text(0.0, 0.0, notes, transform=ax_key.transAxes, fontsize=7.5, va="bottom", family="monospace")
     fig.suptitle(title + "\n" + _match_title(im, answer, truth_xy) if title else _match_title(im, answer, truth_xy),
                  fontsize=11)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _draw_main_view(ax: Any, im: ImageObjects, answer: Answer, map: Any, geom: MatchGeometry | None,
@@ -664,7 +669,7 @@ def plot_evaluation(
     ok = status == "ok"
     error = np.array([o["error_m"] if o["status"] == "ok" else np.nan for o in outcomes], dtype=np.float64)
     fp = ok & (error > fp_threshold)
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax_err, ax_map) = plt.subplots(1, 2, figsize=(12.5, 5.8), gridspec_kw={"width_ratios": [1, 1.35]})
     _draw_error_cdf(ax_err, outcomes, error, ok, fp, fp_threshold)
     _draw_outcome_map(ax_map, outcomes, ok, fp, map_objects, crs or (map_objects.crs if map_objects else None))
@@ -673,7 +678,7 @@ def plot_evaluation(
     fig.tight_layout()
     if fp.any():
         _name_errors(ax_map, outcomes, fp)
-    _save(fig, path)
+    save_figure(fig, path)
 
 
 def _draw_error_cdf(ax: Any, outcomes: Sequence[dict[str, Any]], error: np.ndarray, ok: np.ndarray,

@@ -14,8 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MapdbIOError
-from ..plot import crs_name
+from ..plot import crs_name, pyplot, save_figure
 from .measures import MIN_VISIBLE
 from .run import Analysis
 
@@ -39,15 +38,6 @@ SPARSE_APART = ("success", "false")
 SPARSE_COLOUR = "#bdbdbd"
 # Measures of the map's own objects, shown only in the cells that hold some.
 PER_OBJECT = ("objects_per_km2", "bytes_per_km2")
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _view(analysis: Analysis) -> tuple[float, float, float, float]:
@@ -109,7 +99,7 @@ def _panel(ax: Any, analysis: Analysis, band: str, cmap: str, limits: tuple[floa
            factor: float, dots: tuple[np.ndarray, np.ndarray], view: Sequence[float]) -> None:
     from matplotlib.ticker import FuncFormatter, MaxNLocator
 
-    plt = _pyplot()
+    plt = pyplot()
     values = analysis.measures[band] * factor
     hidden = ~analysis.reached | np.isnan(values)
     if band in PER_OBJECT:
@@ -161,16 +151,6 @@ def _footnote(fig: Any, analysis: Analysis) -> None:
              fontsize=7, ha="left", va="bottom", color="#333333")
 
 
-def _save(fig: Any, path: str | os.PathLike[str]) -> None:
-    plt = _pyplot()
-    try:
-        fig.savefig(path, dpi=DPI)
-    except OSError as exc:
-        raise MapdbIOError(f"{path}: cannot write plot ({exc.strerror or exc})") from None
-    finally:
-        plt.close(fig)
-
-
 def _note(analysis: Analysis, band: str) -> str:
     """One line of what a panel adds up to."""
     m = analysis.measures
@@ -199,7 +179,7 @@ def _note(analysis: Analysis, band: str) -> str:
 
 def plot_analysis(path: str | os.PathLike[str], analysis: Analysis) -> None:
     """Six panels (success, ambiguity, false, visible objects, error, storage) over the map's objects."""
-    plt = _pyplot()
+    plt = pyplot()
     view = _view(analysis)
     dots = _dots(analysis.map_path, view)
     aspect = (view[3] - view[1]) / max(view[2] - view[0], 1e-9)
@@ -214,7 +194,7 @@ def plot_analysis(path: str | os.PathLike[str], analysis: Analysis) -> None:
     fig.suptitle(f"Where {name} localizes an aircraft\n{_what(analysis)}", fontsize=11)
     _footnote(fig, analysis)
     fig.tight_layout(rect=(0, 0.02, 1, 0.96))
-    _save(fig, path)
+    save_figure(fig, path, DPI)
 
 
 def _settings(analysis: Analysis) -> str:
@@ -231,7 +211,7 @@ def _settings(analysis: Analysis) -> str:
 def plot_scenarios(path: str | os.PathLike[str], analyses: Sequence[Analysis]) -> None:
     """Small multiples: one row per scenario, one column per measure of :data:`SCENARIO_PANELS`, each
     measure on one colour scale across the rows."""
-    plt = _pyplot()
+    plt = pyplot()
     first = analyses[0]
     view = _view(first)
     dots = _dots(first.map_path, view)
@@ -253,7 +233,7 @@ def plot_scenarios(path: str | os.PathLike[str], analyses: Sequence[Analysis]) -
                  f"random positions and headings, seed {first.config.seed}", fontsize=11)
     _footnote(fig, first)
     fig.tight_layout(rect=(0, 0.02, 1, 0.97))
-    _save(fig, path)
+    save_figure(fig, path, DPI)
 
 
 def _shared_limits(analyses: Sequence[Analysis], band: str, factor: float) -> tuple[float, float]:

@@ -212,10 +212,10 @@ def plot_track(records: Sequence[TrackRecord], map: Any, path: str | Path, *, ti
     """Draw a track over its map: map objects, the true track (when known), the estimate with its 3-sigma
     discs, fixes used and rejected; below, the stated 3-sigma and the true error against time.  Axes in
     metres of the map's CRS (named), with a scale bar."""
-    from ..plot import _metre_axes, _pyplot, _save, _widened
+    from ..plot import _metre_axes, _widened, pyplot, save_figure
 
     s = _series(records)
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(8.0, 9.5), gridspec_kw={"height_ratios": [3.2, 1]})
     points = np.concatenate([s["z"], s["truth"]]) if s["z"].size or s["truth"].size else np.zeros(1, complex)
     pad = 0.08 * max(float(np.ptp(points.real)), float(np.ptp(points.imag)), 200.0)
@@ -232,4 +232,4 @@ def plot_track(records: Sequence[TrackRecord], map: Any, path: str | Path, *, ti
     ax.set_title(title or f"navigated track: {len(records)} frames", fontsize=10)
     _draw_errors(ax_err, s)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
