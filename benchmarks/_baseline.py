@@ -35,3 +35,18 @@ def import_baseline(rev: str, workdir: Path, module: str = "localize") -> Module
 def as_json(answer: Any) -> dict:
     """An answer as JSON, from this revision (an :class:`mapdb.answers.Answer`) or an older one (a dict)."""
     return answer.to_json() if hasattr(answer, "to_json") else answer
+
+
+def cached_maps(extracts: dict[str, str], data: Path, cache: Path) -> dict[str, Path]:
+    """Each extract's map (``name -> file name`` under ``data``), built once into ``cache``, outside the
+    repository."""
+    from mapdb.build import build_map
+
+    cache.mkdir(exist_ok=True)
+    paths = {}
+    for name, pbf in extracts.items():
+        path = cache / f"{name}.mapdb"
+        if not path.exists():
+            build_map([data / pbf], path)
+        paths[name] = path
+    return paths

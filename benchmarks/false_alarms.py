@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, as_json, import_baseline  # noqa: E402
+from _baseline import ROOT, as_json, cached_maps, import_baseline  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "osm"
 EXTRACTS = {
@@ -45,16 +45,7 @@ CACHE = Path(tempfile.gettempdir()) / "mapdb-bench-maps"
 
 def build_maps() -> dict[str, Path]:
     """The extracts' maps, built once into a cache outside the repository."""
-    from mapdb.build import build_map
-
-    CACHE.mkdir(exist_ok=True)
-    paths = {}
-    for name, pbf in EXTRACTS.items():
-        path = CACHE / f"{name}.mapdb"
-        if not path.exists():
-            build_map([DATA / pbf], path)
-        paths[name] = path
-    return paths
+    return cached_maps(EXTRACTS, DATA, CACHE)
 
 
 def _objects(path: Path):

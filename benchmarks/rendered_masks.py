@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, as_json, import_baseline  # noqa: E402
+from _baseline import ROOT, as_json, cached_maps, import_baseline  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "osm"
 EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-03.osm.pbf"}
@@ -43,16 +43,7 @@ KINDS = ("yes", "no", "ideal")
 
 def build_maps() -> dict[str, Path]:
     """The extracts' maps, built once into a cache outside the repository."""
-    from mapdb.build import build_map
-
-    CACHE.mkdir(exist_ok=True)
-    paths = {}
-    for name, pbf in EXTRACTS.items():
-        path = CACHE / f"{name}.mapdb"
-        if not path.exists():
-            build_map([DATA / pbf], path)
-        paths[name] = path
-    return paths
+    return cached_maps(EXTRACTS, DATA, CACHE)
 
 
 def render(m: Any, scene: Any, n: int, altitude: float, kind: str, seed: int) -> tuple[list[dict], float]:
