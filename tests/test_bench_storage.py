@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from clichecks import assert_one_line_error
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 from osmxml import X0, Y0, OsmXml, square
@@ -32,13 +33,6 @@ def row(report: dict, name: str) -> dict:
     return next(r for r in report["formats"] if r["format"] == name)
 
 
-def assert_one_line_error(result, *needles: str) -> None:
-    assert result.exit_code == 1, result.output
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("mapdb: error: "), result.stderr
-    assert "Traceback" not in result.output
-    for needle in needles:
-        assert needle in lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -187,17 +181,17 @@ def test_bad_maps_are_one_line(tmp_path: Path, content: bytes | None, needle: st
     if content is not None:
         path.write_bytes(content)
     result = run(path, "-q")
-    assert_one_line_error(result, str(path), needle)
+    assert_one_line_error(result, str(path), needle, alone=True)
     assert result.stdout == ""
 
 
 def test_truncated_map_and_empty_source_are_one_line(helsinki: Path, tmp_path: Path, private_tmp: Path) -> None:
     cut = tmp_path / "cut.mapdb"
     cut.write_bytes(helsinki.read_bytes()[:-10])
-    assert_one_line_error(run(cut), "truncated")
+    assert_one_line_error(run(cut), "truncated", alone=True)
     empty = OsmXml()
     empty.node(0, 0, {"amenity": "bench"})
-    assert_one_line_error(run(empty.write(tmp_path / "nothing.osm"), "-q"), "no labelled objects")
+    assert_one_line_error(run(empty.write(tmp_path / "nothing.osm"), "-q"), "no labelled objects", alone=True)
     assert list(private_tmp.iterdir()) == []
 
 

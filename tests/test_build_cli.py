@@ -14,6 +14,7 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 import pytest
+from clichecks import assert_one_line_error
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 from osmxml import OsmXml, lonlat, square
@@ -25,14 +26,6 @@ def run(*args: str):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
 
-def assert_one_line_error(result, *needles: str) -> None:
-    assert result.exit_code == 1, result.output
-    lines = result.stderr.strip().splitlines()
-    errors = [line for line in lines if line.startswith("mapdb: error: ")]
-    assert len(errors) == 1 and lines[-1] == errors[0], result.stderr  # progress lines may come first
-    assert "Traceback" not in result.output
-    for needle in needles:
-        assert needle in errors[0]
 
 
 @pytest.fixture

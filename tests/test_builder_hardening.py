@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rasterio
+from clichecks import assert_one_line_error
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 from osmxml import OsmXml, lonlat, square
@@ -44,16 +45,10 @@ def run(*args: object):
 
 def assert_fails_cleanly(result, out: Path, *needles: str) -> str:
     """Exit 1, one ``mapdb: error:`` line naming what is wrong, no traceback, nothing left in out's folder."""
-    assert result.exit_code == 1, result.output
-    lines = result.stderr.strip().splitlines()
-    errors = [line for line in lines if line.startswith("mapdb: error: ")]
-    assert len(errors) == 1 and lines[-1] == errors[0], result.stderr
-    assert "Traceback" not in result.output
-    for needle in needles:
-        assert needle in errors[0], errors[0]
+    line = assert_one_line_error(result, *needles)
     assert not out.exists()
     assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.stem}")], "temporary file left"
-    return errors[0]
+    return line
 
 
 def build_ok(*args: object) -> dict:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from clichecks import assert_one_line_error
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 from osmxml import OsmXml
@@ -44,12 +45,6 @@ def run(*args: object):
     return CliRunner().invoke(cli, [str(a) for a in args])
 
 
-def assert_one_line_error(result, *needles: str) -> None:
-    assert result.exit_code == 1, result.output
-    errors = [line for line in result.stderr.strip().splitlines() if line.startswith("mapdb: error: ")]
-    assert len(errors) == 1 and "Traceback" not in result.output, result.output
-    for needle in needles:
-        assert needle in errors[0]
 
 
 @pytest.fixture(scope="module")

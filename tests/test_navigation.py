@@ -9,13 +9,11 @@ from __future__ import annotations
 import json
 import math
 import queue
-import subprocess
-import sys
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+from clichecks import start_piped
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
@@ -274,17 +272,7 @@ def test_navigate_on_a_pipe_answers_each_frame_before_the_next_is_sent(world, tm
     write_map(map_path, world.all())
     frames = _flight(world, 0.6)
     start = frames[0]["truth"]
-    proc = subprocess.Popen([sys.executable, "-m", "mapdb_cli", "navigate", str(map_path), "-", "--initial",
-                             f"{start['x']},{start['y']},20"],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    answers: queue.Queue = queue.Queue()
-
-    def read() -> None:
-        for out in proc.stdout:
-            answers.put(out)
-        answers.put(None)
-
-    threading.Thread(target=read, daemon=True).start()
+    proc, answers = start_piped("navigate", str(map_path), "-", "--initial", f"{start['x']},{start['y']},20")
     try:
         lines = [json.dumps(f).encode() for f in frames[:3]] + [b"{oops"] + [json.dumps(f).encode() for f in frames[3:]]
         for i, line in enumerate(lines):

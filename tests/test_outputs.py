@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from clichecks import assert_one_line_error as one_line_error
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 from osmxml import OsmXml, square
@@ -35,13 +36,10 @@ def digest(path: Path) -> str:
 
 
 def assert_one_line_error(result, *needles: str) -> str:
-    assert result.exit_code == 1, result.output
-    lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("mapdb: error: "), result.stderr
-    assert "Traceback" not in result.output and ".tmp" not in lines[0]
-    for needle in needles:
-        assert needle in lines[0], lines[0]
-    return lines[0]
+    """The only line on stderr, which names the real path, never the temporary one."""
+    line = one_line_error(result, *needles, alone=True)
+    assert ".tmp" not in line
+    return line
 
 
 def hidden_files(directory: Path) -> list[str]:

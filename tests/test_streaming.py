@@ -19,9 +19,9 @@ import os
 import queue
 import subprocess
 import sys
-import threading
 
 import pytest
+from clichecks import start_piped
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
@@ -125,19 +125,7 @@ def test_a_batch_of_bad_lines_of_every_kind_keeps_count_order_and_ids(paper_setu
 
 
 def _start_query(map_path) -> tuple[subprocess.Popen, queue.Queue]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "mapdb_cli", "query", str(map_path), "-"],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-    )
-    answers: queue.Queue = queue.Queue()
-
-    def read() -> None:
-        for line in proc.stdout:
-            answers.put(line)
-        answers.put(None)
-
-    threading.Thread(target=read, daemon=True).start()
-    return proc, answers
+    return start_piped("query", str(map_path), "-")
 
 
 def test_query_on_a_pipe_answers_each_line_before_the_next_is_sent(paper_setup) -> None:
