@@ -38,6 +38,7 @@ from .render import Rendering, blob_sources, render_mask
 from .render_source import Scene
 from .simulate import (
     _add_hints,
+    _bound,
     _camera_area,
     _check_simulate_args,
     _confuse_labels,
@@ -48,7 +49,6 @@ from .simulate import (
     _place_camera,
     _Shot,
     _truth,
-    bound_fit,
 )
 
 __all__ = ["MAX_RENDERS", "RenderedImage", "png_bytes", "simulate_masks", "write_masks"]
@@ -88,11 +88,7 @@ def _rendered_truth(
     seen_map = np.unique(scene.map_index[seen[seen > 0] - 1])
     u = np.array([o["x"] for o in doc["objects"]], np.float64)
     v = np.array([o["y"] for o in doc["objects"]], np.float64)
-    true = index >= 0
-    att = (shot.roll, shot.pitch) if with_attitude else (None, None)
-    fit = bound_fit(u[true], v[true], objects.x[index[true]], objects.y[index[true]], shot.camera, *att)
-    bound = None if fit is None else {"x": fit[0], "y": fit[1], "error_m": math.hypot(fit[0] - cam_x, fit[1] - cam_y),
-                                      "n": int(true.sum())}
+    bound = _bound(objects, index, u, v, shot, cam_x, cam_y, with_attitude)
     truth = _truth(shot, cam_x, cam_y, int((seen_map >= 0).sum()), index, bound)
     truth["covers"] = [[j for j, _ in c] for c in covers]
     truth["cover_px"] = [[px for _, px in c] for c in covers]
