@@ -19,19 +19,17 @@ Examples
 
 from __future__ import annotations
 
-import importlib.util
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
 
-from .errors import MapdbError, MapdbIOError
+from .errors import DaskMissingError, SchedulerError
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
     "DaskMissingError",
     "SchedulerError",
-    "dask_available",
     "open_client",
     "run_tasks",
     "worker_count",
@@ -42,17 +40,6 @@ DEFAULT_TIMEOUT_S = 10.0
 INSTALL_HINT = 'pip install "mapdb[dask]"'
 
 
-class DaskMissingError(MapdbError, ImportError):
-    """``--jobs`` or ``--scheduler`` was asked for and dask.distributed is not installed."""
-
-
-class SchedulerError(MapdbIOError):
-    """The Dask scheduler asked for cannot be reached (or its address cannot be read)."""
-
-
-def dask_available() -> bool:
-    """Whether dask.distributed can be imported (without importing it)."""
-    return importlib.util.find_spec("distributed") is not None
 
 
 def _distributed(what: str) -> Any:

@@ -13,6 +13,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 __all__ = [
+    "AnalysisError",
+    "DaskMissingError",
     "EmptyMapError",
     "ImageInputError",
     "LabelTableError",
@@ -22,6 +24,7 @@ __all__ = [
     "MapdbIOError",
     "OutputClashError",
     "OutputExistsError",
+    "SchedulerError",
     "SourceError",
     "reading",
 ]
@@ -57,6 +60,18 @@ class MapFormatError(MapdbError, ValueError):
 
 class MapVersionError(MapFormatError):
     """A map file was written by a newer format version than this reader supports."""
+
+
+class AnalysisError(MapdbError, ValueError):
+    """A region analysis cannot run as asked (a grid too fine, a bad box, a bad scenario)."""
+
+
+class DaskMissingError(MapdbError, ImportError):
+    """``--jobs`` or ``--scheduler`` was asked for and dask.distributed is not installed."""
+
+
+class SchedulerError(MapdbIOError):
+    """The Dask scheduler asked for cannot be reached (or its address cannot be read)."""
 
 
 class EmptyMapError(MapdbError, ValueError):

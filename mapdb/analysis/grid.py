@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import EmptyMapError, MapdbError
+from ..errors import AnalysisError, EmptyMapError
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress
 
@@ -43,10 +43,6 @@ MAX_CELLS = 40_000_000
 _DIR_RECORD = 36
 # Rows of cells read from the map at a time.
 _STRIP_ROWS = 64
-
-
-class AnalysisError(MapdbError, ValueError):
-    """A region analysis cannot run as asked (a grid too fine, a bad box, a bad scenario)."""
 
 
 @dataclass(frozen=True)
