@@ -20,22 +20,12 @@ True
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from .outputs import json_safe
+
 __all__ = ["Answer", "Candidate"]
-
-
-def _strict(value: Any) -> Any:
-    """JSON has no NaN or infinity: a number that is not finite is given as None."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {key: _strict(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_strict(item) for item in value]
-    return value
 
 
 def _number(value: Any) -> float | None:
@@ -58,7 +48,7 @@ class Candidate:
     sigma_m: float | None
 
     def to_json(self) -> dict[str, Any]:
-        return _strict(dataclasses.asdict(self))
+        return json_safe(dataclasses.asdict(self))
 
 
 # Fields written only when they have a value, in this order, after the pose and before the time.
@@ -114,7 +104,7 @@ class Answer:
         record["candidates"] = [c.to_json() for c in self.candidates]
         record.update((name, getattr(self, name)) for name in _OPTIONAL if getattr(self, name) is not None)
         record["time_ms"] = self.time_ms
-        return _strict(record)
+        return json_safe(record)
 
     @classmethod
     def from_json(cls, record: dict[str, Any]) -> Answer:

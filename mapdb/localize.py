@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-import weakref
 from collections import Counter, OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from functools import lru_cache
@@ -46,6 +45,7 @@ from .camera import Camera, image_plane, level_pixels
 from .errors import ImageInputError
 from .images import ImageObjects, Prior, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
+from .match.hypotheses import PRIOR_SLACK
 from .match.paper import PaperOptions, match_paper
 from .match.stored_index import StoredQuadIndex
 from .store import MetaMap
@@ -263,7 +263,7 @@ class Localizer:
         x, y, r = prior
         # Hypotheses may put the image centre 1.1 radius away; its objects reach ``margin`` beyond, and the
         # decision counts label densities up to half as far again.
-        reach = 1.1 * r + 1.5 * margin
+        reach = PRIOR_SLACK * r + 1.5 * margin
         t = TILE_SIZE_M
         k = max(1, math.ceil(reach / t))
         if (2 * k + 1) ** 2 > MAX_PRIOR_TILES:
@@ -305,18 +305,10 @@ class Localizer:
         return self._tiles.get((ix, iy), build)
 
 
-# Localizers of the maps that :func:`localize` was called with, so that repeated calls reuse the indexes;
-# dropped with the map.
-_LOCALIZERS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def localizer_for(map: Any, method: str = "fast", options: FastOptions | PaperOptions | None = None) -> Localizer:
-    """The :class:`Localizer` that :func:`localize` keeps for this map, method and options."""
-    per_map = _LOCALIZERS.setdefault(map, {})
-    key = (method, options)
-    if key not in per_map:
-        per_map[key] = Localizer(map, method, options)
-    return per_map[key]
+    """The :class:`Localizer` that :func:`localize` keeps for this map, method and options (in the map's own
+    cache of derived values, so that its indexes go when the map is closed)."""
+    return map.cached(f"mapdb.localize/{method}/{options!r}", lambda: Localizer(map, method, options))
 
 
 def _elapsed_ms(start: float) -> float:
@@ -423,8 +415,6 @@ def localize(
     >>> localize({"width": 640, "height": 480, "objects": []}, m).reason
     '0 objects: at least 3 are needed'
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
     return localizer_for(map, method, options).localize(image, prior, source=source)
 
 
@@ -624,12 +614,13 @@ def localize_documents(
         rejection of a document without an ``id`` names its place (``where``) in the reason, so that
         it can be found in the input.
     """
+    localizer = localizer_for(map, method, options)
     for where, doc in documents:
         if isinstance(doc, Exception):
             start = time.perf_counter()
             yield _rejected(None, str(doc), start)
             continue
-        answer = localize(doc, map, method, prior, options=options, source=where)
+        answer = localizer.localize(doc, prior, source=where)
         if not answer.ok and answer.id is None and not (answer.reason or "").startswith(where):
             answer.reason = f"{where}: {answer.reason}"
         yield answer

@@ -450,7 +450,7 @@ def _draw_positions(ax: Any, answer: Answer, truth_xy: complex | None, view: tup
                         fontsize=7, color="#5b3a8a", zorder=6)
         rejected = not answer.ok
         handles.append((h, "candidates (1 = best)" if rejected else "runner-up candidates"))
-    if _has_pose(answer) or answer.ok:
+    if answer.ok:
         p = _xy(answer)
         h = ax.scatter([p.real], [p.imag], s=220 * scale, marker="*", color=_ANSWER, edgecolors="black",
                        linewidths=0.9, zorder=7)

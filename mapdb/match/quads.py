@@ -173,7 +173,6 @@ class QuadIndex:
         else:
             self.tree = None
         self.quad_z = z[quads]
-        self.quad_label = label[quads]
 
     @property
     def n_quads(self) -> int:
@@ -230,11 +229,9 @@ class QuadIndex:
         if not parts:
             merged.tree = None
             merged.quad_z = np.zeros((0, 4), np.complex128)
-            merged.quad_label = np.zeros((0, 4), np.int64)
             return merged
         merged.tree = cKDTree(
             np.concatenate([q.tree.data for q in parts if q.tree is not None]), balanced_tree=False, compact_nodes=False
         )
         merged.quad_z = np.concatenate([q.quad_z for q in parts])
-        merged.quad_label = np.concatenate([q.quad_label for q in parts])
         return merged
