@@ -106,15 +106,10 @@ def _compressors() -> list[tuple[str, Callable[[bytes], int]]]:
 # ------------------------------------------------------------------------------------------ the map
 
 
-def _page_tree(table: np.ndarray) -> shapely.STRtree:
-    """An R-tree of the page boxes, in quanta (closed boxes: a position on a box's edge is in it)."""
-    return shapely.STRtree(shapely.box(table["ox"], table["oy"], table["ox"] + table["ex"], table["oy"] + table["ey"]))
-
-
-def _page_of_objects(table: np.ndarray, tree: shapely.STRtree, qx: np.ndarray, qy: np.ndarray,
-                     where: str) -> np.ndarray:
+def _page_of_objects(m: MetaMap, qx: np.ndarray, qy: np.ndarray) -> np.ndarray:
     """The page holding each object: the one page whose box holds its position (page boxes are disjoint)."""
-    hits = tree.query(shapely.points(qx, qy), predicate="intersects")
+    table, where = m.page_directory, str(m.path)
+    hits = m.pages_meeting(shapely.points(qx, qy))
     page = np.full(qx.size, -1, np.int64)
     page[hits[0]] = hits[1]
     if hits.shape[1] != qx.size or (page < 0).any() or \
@@ -123,10 +118,11 @@ def _page_of_objects(table: np.ndarray, tree: shapely.STRtree, qx: np.ndarray, q
     return page
 
 
-def _window_bytes(table: np.ndarray, tree: shapely.STRtree, cells: np.ndarray, cell_q: float) -> np.ndarray:
+def _window_bytes(m: MetaMap, cells: np.ndarray, cell_q: float) -> np.ndarray:
     """Bytes of the pages whose box meets each cell (cells as (i, j) rows, ``cell_q`` quanta a side)."""
+    table = m.page_directory
     lo = cells * cell_q
-    hits = tree.query(shapely.box(lo[:, 0], lo[:, 1], lo[:, 0] + cell_q, lo[:, 1] + cell_q), predicate="intersects")
+    hits = m.pages_meeting(shapely.box(lo[:, 0], lo[:, 1], lo[:, 0] + cell_q, lo[:, 1] + cell_q))
     return np.bincount(hits[0], weights=table["length"][hits[1]].astype(np.float64), minlength=len(cells))
 
 
@@ -240,12 +236,9 @@ def _measure(m: MetaMap, tmp: Path, cell_m: float, gsd_m: float, jpeg_bpp: float
     n, where = len(objects), str(m.path)
     qx, qy = (np.rint(v / m.quantum).astype(np.int64) for v in (objects.x, objects.y))
     table = m.page_directory
-    tree = _page_tree(table)
-    page = _page_of_objects(table, tree, qx, qy, where)
+    page = _page_of_objects(m, qx, qy)
     cells, geometry = _geometry(m, qx, qy, cell_m)
-    page_bytes = table["length"].astype(np.float64) + _DIR_RECORD
-    head = m.file_size - float(page_bytes.sum())  # prefix, header and its checksum
-    share = (page_bytes / table["count"])[page] + head / n
+    share = m.page_shares()[page]
     rows = [_row("mapdb", m.file_size, _per_cell(geometry, share), geometry, "pages")]
     order = np.lexsort((qx, qy, objects.label))
     rows += [_row(name, size, _per_cell(geometry, np.full(n, size / n)), geometry, "objects")
@@ -254,12 +247,13 @@ def _measure(m: MetaMap, tmp: Path, cell_m: float, gsd_m: float, jpeg_bpp: float
     rows += _orthophoto_rows(geometry, gsd_m, jpeg_bpp)
     for row in rows:
         row["ratio_to_mapdb"] = round(row["bytes"] / m.file_size, 3)
-    window = _window_bytes(table, tree, cells, cell_m / m.quantum)
+    window = _window_bytes(m, cells, cell_m / m.quantum)
     return {
         "map": where, "crs": m.crs, "quantum_m": m.quantum, "objects": n, "pages": len(table),
         "area": {"cell_m": cell_m, "occupied_cells": len(cells), "occupied_km2": round(geometry["area_km2"], 6),
                  "bbox_km2": round(geometry["bbox_km2"], 6)},
-        "mapdb_parts": {"header": int(head), "directory": _DIR_RECORD * len(table),
+        "mapdb_parts": {"header": m.file_size - _DIR_RECORD * len(table) - int(table["length"].sum()),
+                        "directory": _DIR_RECORD * len(table),
                         "pages": int(table["length"].sum())},
         "window_bytes": {**_stats(window), "file": m.file_size},
         "formats": rows,

@@ -1193,6 +1193,20 @@ class MetaMap(MapBase):
         """The checked page directory: one record per page (origin and extent in quanta, count, length)."""
         return self._table
 
+    def page_shares(self) -> np.ndarray:
+        """What the file spends on one object of each page, in bytes: the page and its directory record shared
+        by the page's objects, the rest of the file (prefix, header) by all the map's objects.  Summed over
+        every object, the file's size."""
+        page_bytes = self._table["length"].astype(np.float64) + _DIR_DTYPE.itemsize
+        header = self.file_size - float(page_bytes.sum())
+        return page_bytes / np.maximum(self._table["count"], 1) + header / max(len(self), 1)
+
+    def pages_meeting(self, geometries: np.ndarray) -> np.ndarray:
+        """``(2, k)`` pairs (geometry index, page index) of the pages whose box meets each shapely geometry, in
+        quanta.  Page boxes are disjoint (the reader refuses a map whose boxes share a position), so a point
+        of the map is in exactly one pair."""
+        return self._tree.query(geometries, predicate="intersects")
+
     @staticmethod
     def _inflate_header(header_bytes: bytes, where: str) -> bytes:
         limit = _header_json_limit(len(header_bytes))

@@ -39,8 +39,6 @@ __all__ = [
 # The most cells one analysis may hold: its measures are arrays of this many cells (about 4 bytes a cell and
 # a measure).  Germany at 100 m is about 36 million cells.
 MAX_CELLS = 40_000_000
-# A directory record of a page (docs/format.md): part of what each page costs.
-_DIR_RECORD = 36
 # Rows of cells read from the map at a time.
 _STRIP_ROWS = 64
 
@@ -213,26 +211,16 @@ class _ObjectBytes:
     objects, and the header shared by all the map's objects (the cells' shares sum to the file size)."""
 
     def __init__(self, m: Any) -> None:
-        import shapely
-
-        # The reader's own checked page directory (origins and extents in quanta, counts, byte lengths).
-        table = m._table
-        self.quantum = m.quantum
-        self.boxes = shapely.STRtree(shapely.box(table["ox"], table["oy"], table["ox"] + table["ex"],
-                                                 table["oy"] + table["ey"]))
-        page_bytes = table["length"].astype(np.float64) + _DIR_RECORD
-        header = m.file_size - float(page_bytes.sum())
-        self.per_object = page_bytes / np.maximum(table["count"], 1) + header / max(len(m), 1)
+        self.map = m
+        self.per_object = m.page_shares()
 
     def __call__(self, objects: Objects) -> np.ndarray:
         import shapely
 
         if not len(objects):
             return np.zeros(0)
-        points = shapely.points(np.rint(objects.x / self.quantum), np.rint(objects.y / self.quantum))
-        hits = self.boxes.query(points, predicate="intersects")
+        quantum = self.map.quantum
+        hits = self.map.pages_meeting(shapely.points(np.rint(objects.x / quantum), np.rint(objects.y / quantum)))
         page = np.zeros(len(objects), np.int64)
-        # Pages do not overlap; an object on an edge two boxes share takes the first.
-        first = np.unique(hits[0], return_index=True)[1]
-        page[hits[0][first]] = hits[1][first]
+        page[hits[0]] = hits[1]  # page boxes are disjoint: one page a position
         return self.per_object[page]
