@@ -70,6 +70,7 @@ __all__ = [
     "image_to_ground",
     "level_pixels",
     "nadir_pixel",
+    "project_points",
     "project_to_image",
     "rotation_body_to_ned",
 ]
@@ -165,9 +166,29 @@ def project_to_image(
     >>> round(float(u[0]), 6), round(float(240.0 - v[0]), 6) == round(cam.focal_px / 10.0, 6)
     (320.0, True)
     """
+    return project_points(x, y, 0.0, pose, camera)
+
+
+def project_points(
+    x: npt.ArrayLike, y: npt.ArrayLike, z: npt.ArrayLike, pose: Pose, camera: Camera
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of map points ``(x, y, z)``, ``z`` metres above the ground (:func:`project_to_image` generalised to a
+    height; NaN for points at or above the camera).
+
+    Examples
+    --------
+    A roof corner 20 m up, 30 m east of a level camera at 120 m, appears 30 * f / 100 pixels right of
+    the centre, where its footprint appears at 30 * f / 120:
+
+    >>> cam = Camera(640, 480, 60.0)
+    >>> u, v = project_points([30.0, 30.0], [0.0, 0.0], [0.0, 20.0], Pose(0.0, 0.0, 120.0), cam)
+    >>> [round(float(d / cam.focal_px), 6) for d in u - 320.0]
+    [0.25, 0.3]
+    """
     xs = np.asarray(x, dtype=np.float64).reshape(-1)
     ys = np.asarray(y, dtype=np.float64).reshape(-1)
-    ned = np.stack([ys - pose.y, xs - pose.x, np.full_like(xs, pose.altitude)])
+    zs = np.broadcast_to(np.asarray(z, dtype=np.float64), xs.shape)
+    ned = np.stack([ys - pose.y, xs - pose.x, pose.altitude - zs])
     frd = rotation_body_to_ned(pose.yaw_deg, pose.pitch_deg, pose.roll_deg).T @ ned
     return _body_to_pixels(frd, camera)
 

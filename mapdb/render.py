@@ -6,7 +6,7 @@ nothing), made from the outlines of :class:`mapdb.render_source.Scene` seen from
 Geometry
 --------
 A point ``(X, Y, Z)`` above flat ground projects as in :mod:`mapdb.camera` with the camera height
-``altitude - Z`` (:func:`project_points`).  A building is a prism: its footprint at ``Z = 0``,
+``altitude - Z`` (:func:`mapdb.camera.project_points`).  A building is a prism: its footprint at ``Z = 0``,
 its roof at ``Z = height`` and one wall quad per footprint edge; the image of the prism is the union
 of the images of these faces, so all are burnt into the mask with the building's value.  Vertical
 lines project to lines through the nadir pixel, so a roof at ``h`` is displaced away from the nadir:
@@ -42,16 +42,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import shapely
 from affine import Affine
 from rasterio.features import rasterize
 
-from .camera import Camera, Pose, _body_to_pixels, footprint, nadir_pixel, rotation_body_to_ned
+from .camera import Camera, Pose, footprint, nadir_pixel, project_points
 from .masks import DEFAULT_MIN_AREA_PX
 from .render_source import LAYER_BUILDING, Scene
 
-__all__ = ["MAX_HEIGHT_FRACTION", "Rendering", "blob_sources", "project_points", "render_mask"]
+__all__ = ["MAX_HEIGHT_FRACTION", "Rendering", "blob_sources", "render_mask"]
 
 MAX_HEIGHT_FRACTION = 0.9
 # When the image reaches the horizon (its ground footprint is unbounded), only shapes within this many
@@ -70,30 +69,6 @@ class Rendering:
     mask: np.ndarray
     instance: np.ndarray
     classes: dict[int, str]
-
-
-def project_points(
-    x: npt.ArrayLike, y: npt.ArrayLike, z: npt.ArrayLike, pose: Pose, camera: Camera
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels of map points ``(x, y, z)``, ``z`` metres above the ground (:func:`mapdb.camera.project_to_image`
-    generalised to a height; NaN for points at or above the camera).
-
-    Examples
-    --------
-    A roof corner 20 m up, 30 m east of a level camera at 120 m, appears 30 * f / 100 pixels right of
-    the centre, where its footprint appears at 30 * f / 120:
-
-    >>> cam = Camera(640, 480, 60.0)
-    >>> u, v = project_points([30.0, 30.0], [0.0, 0.0], [0.0, 20.0], Pose(0.0, 0.0, 120.0), cam)
-    >>> [round(float(d / cam.focal_px), 6) for d in u - 320.0]
-    [0.25, 0.3]
-    """
-    xs = np.asarray(x, dtype=np.float64).reshape(-1)
-    ys = np.asarray(y, dtype=np.float64).reshape(-1)
-    zs = np.broadcast_to(np.asarray(z, dtype=np.float64), xs.shape)
-    ned = np.stack([ys - pose.y, xs - pose.x, pose.altitude - zs])
-    frd = rotation_body_to_ned(pose.yaw_deg, pose.pitch_deg, pose.roll_deg).T @ ned
-    return _body_to_pixels(frd, camera)
 
 
 def _candidates(scene: Scene, pose: Pose, camera: Camera) -> np.ndarray:

@@ -15,10 +15,10 @@ from mapdb_cli.main import cli
 from osmxml import X0, Y0, OsmXml, square
 
 from mapdb.build import build_map
-from mapdb.camera import Camera, Pose, project_to_image
+from mapdb.camera import Camera, Pose, project_points, project_to_image
 from mapdb.errors import SourceError
 from mapdb.masks import from_mask, read_mask
-from mapdb.render import blob_sources, project_points, render_mask
+from mapdb.render import blob_sources, render_mask
 from mapdb.render_source import FROM_HEIGHT, FROM_LEVELS, FROM_TYPE, Scene, read_scene
 from mapdb.simulate_masks import simulate_masks
 from mapdb.store import open_map
