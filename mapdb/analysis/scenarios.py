@@ -15,7 +15,7 @@ values (the cells, bounding box and seed are always the command line's, so that 
 Keys: ``altitude`` (m), ``fov`` (degrees), ``size`` ("640x480"), ``attitude_std`` (degrees),
 ``pixel_std`` (pixels), ``miss_rate``, ``spurious_rate``, ``label_noise``, ``labels`` (a list, or
 "all"), ``samples``, ``prior`` (m, or ``false`` for none).  Any other key, a value of the wrong type or
-out of range, or a file without scenarios is an :class:`~mapdb.analysis.grid.AnalysisError` naming the file,
+out of range, or a file without scenarios is an :class:`~mapdb.errors.AnalysisError` naming the file,
 the scenario and the key.
 """
 
@@ -118,7 +118,7 @@ def read_scenarios(path: str | os.PathLike[str], base: SampleConfig) -> dict[str
     >>> _ = open(f, "w").write('[scenario.low]\\naltitud = 80\\n')
     >>> read_scenarios(f, SampleConfig())  # doctest: +ELLIPSIS
     Traceback (most recent call last):
-    mapdb.analysis.grid.AnalysisError: ...s.toml: scenario 'low': unknown key 'altitud'; a scenario may set ...
+    mapdb.errors.AnalysisError: ...s.toml: scenario 'low': unknown key 'altitud'; a scenario may set ...
     """
     with reading(os.fspath(path), "scenarios file"), open(path, "rb") as f:
         try:
