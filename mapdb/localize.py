@@ -460,7 +460,8 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         outside = None if prior is None else _outside_bounds(prior, margin, localizer.map.bounds)
         if outside:
             raise _RejectionError(outside)
-        pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped)
+        anchorable = None if im.border is None else ~im.border
+        pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable)
     except _RejectionError as rejection:
         return _rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
     return _ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start)
@@ -495,7 +496,11 @@ def _known_objects(im: ImageObjects, map_labels: tuple[str, ...]) -> tuple[Image
             raise _RejectionError(
                 f"unknown label{'s' if len(unknown) > 1 else ''} {listed}: the map has {', '.join(map_labels)}; "
                 f"{n} object{'' if n == 1 else 's'} left: at least 3 are needed", **skipped)
-        im = dataclasses.replace(im, x=im.x[is_known], y=im.y[is_known], names=im.names[is_known])
+        im = dataclasses.replace(
+            im, x=im.x[is_known], y=im.y[is_known], names=im.names[is_known],
+            area_px=None if im.area_px is None else im.area_px[is_known],
+            border=None if im.border is None else im.border[is_known],
+            bbox=None if im.bbox is None else im.bbox[is_known])
     return im, np.fromiter((known[name] for name in im.names), dtype=np.int64, count=n), skipped
 
 
@@ -530,12 +535,12 @@ def _scale_hints(im: ImageObjects, diag_px: float):
 
 def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: float,
            prior: tuple[float, float, float] | None, margin: float, scale_range: tuple[float, float] | None,
-           notes: list[str], skipped: dict[str, Any]) -> _Pose:
+           notes: list[str], skipped: dict[str, Any], anchorable: np.ndarray | None = None) -> _Pose:
     """Run the localizer's method on the image plane; the pose, or a :class:`_RejectionError`."""
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
-                           scale_range=scale_range)
+                           scale_range=scale_range, anchorable=anchorable)
         candidates = [
             Candidate(x=_rounded(c.b.real, 3), y=_rounded(c.b.imag, 3), inliers=c.inliers,
                       score=_finite(c.score, 2), sigma_m=_finite(c.sigma_m, 3))

@@ -24,13 +24,21 @@ if TYPE_CHECKING:
 __all__ = ["anchor_batches", "lookup_hypotheses", "prioritise", "round_hypotheses"]
 
 
-def anchor_batches(z: np.ndarray, opts: FastOptions) -> list[np.ndarray]:
+def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | None = None) -> list[np.ndarray]:
     """Image quads ``(m, 4)`` in rounds: anchors nearest the image centre first, each quad in its earliest
-    round, at most ``opts.max_batches`` rounds."""
+    round, at most ``opts.max_batches`` rounds.
+
+    ``anchorable`` (bool, ``(n,)``) limits quads to those objects: a region cut by the image border has its
+    centroid pulled inward, by up to half the hidden part, so a quad holding one predicts the others badly
+    and its invariants miss the map's.  Such objects still count as evidence in verification.
+    """
     n = z.size
-    img_quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag]), opts.image_neighbours, with_anchor=True)
+    members = np.arange(n) if anchorable is None else np.flatnonzero(anchorable)
+    img_quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag])[members], opts.image_neighbours,
+                                        with_anchor=True)
     if not len(img_quads):
         return []
+    img_quads, anchor = members[img_quads], members[anchor]
     rank = np.empty(n, np.int64)
     rank[np.argsort(np.abs(z), kind="stable")] = np.arange(n)
     batch_of = rank[anchor] // opts.anchors_per_batch
