@@ -160,6 +160,7 @@ def match_fast(
     options: FastOptions | None = None,
     prior: tuple[float, float, float] | None = None,
     scale_range: tuple[float, float] | None = None,
+    anchorable: np.ndarray | None = None,
 ) -> MatchResult:
     """Match image objects against a map's indexes.
 
@@ -182,28 +183,37 @@ def match_fast(
         within 1.1 times the radius are tried).
     scale_range : (low, high), optional
         Allowed metres per pixel (from a known altitude and field of view).
+    anchorable : bool array (n,), optional
+        Objects that may build hypotheses (default all): objects cut by the image border are better left
+        out (:func:`~mapdb.match.hypotheses.anchor_batches`).  Ignored when fewer than 4 are anchorable.
 
     Returns
     -------
     MatchResult
     """
     opts = options or FastOptions()
-    z, img_label = _central_objects(z, img_label, opts.max_objects)
+    z, img_label, anchorable = _central_objects(z, img_label, opts.max_objects, anchorable)
     reason = _unmatchable(z.size, objects, quads)
     if reason is not None:
         return MatchResult(None, [], reason, 0, 0)
-    pool, n_tests, done_rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range)
-    return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds)
+    if anchorable is not None and anchorable.sum() < 4:
+        anchorable = None
+    pool, n_tests, done_rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
+                                         anchorable)
+    return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds, whole=anchorable)
 
 
-def _central_objects(z, img_label, max_objects: int) -> tuple[np.ndarray, np.ndarray]:
+def _central_objects(z, img_label, max_objects: int, anchorable=None) -> tuple[np.ndarray, ...]:
     """The image objects as arrays, at most ``max_objects`` of them nearest the centre (input order kept)."""
     z = np.asarray(z, dtype=np.complex128)
     img_label = np.asarray(img_label, dtype=np.int64)
+    if anchorable is not None:
+        anchorable = np.asarray(anchorable, dtype=bool)
     if z.size > max_objects:
         central = np.sort(np.argsort(np.abs(z), kind="stable")[:max_objects])
         z, img_label = z[central], img_label[central]
-    return z, img_label
+        anchorable = None if anchorable is None else anchorable[central]
+    return z, img_label, anchorable
 
 
 def _unmatchable(n: int, objects: ObjectIndex, quads: Sequence[QuadIndex]) -> str | None:
@@ -217,13 +227,14 @@ def _unmatchable(n: int, objects: ObjectIndex, quads: Sequence[QuadIndex]) -> st
     return None
 
 
-def _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range) -> tuple[list[Candidate], int, int]:
+def _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
+            anchorable=None) -> tuple[list[Candidate], int, int]:
     """The lookup rounds (pixel sigma x anchor batch) until one accepts: candidates best first, tests, rounds."""
     n = z.size
     screen_of = cKDTree(np.column_stack([z.real, z.imag])).query(
         np.column_stack([z.real, z.imag]), k=min(opts.screen_objects, n)
     )[1].reshape(n, -1)
-    batches = anchor_batches(z, opts)
+    batches = anchor_batches(z, opts, anchorable)
     rounds = [(sigma_px, batch) for sigma_px in opts.pixel_sigmas for batch in batches]
     n_tests = 0
     pool: list[Candidate] = []
@@ -262,7 +273,7 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
 
 
 def _decide(pool: list[Candidate], z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, opts: FastOptions,
-            n_tests: int, rounds: int) -> MatchResult:
+            n_tests: int, rounds: int, whole: np.ndarray | None = None) -> MatchResult:
     """Accept the best candidate, or say why not: none, not certain enough, ambiguous, imprecise."""
     if not pool:
         return MatchResult(None, [], "no consistent pattern found in the map", n_tests, rounds)
@@ -275,7 +286,7 @@ def _decide(pool: list[Candidate], z: np.ndarray, img_label: np.ndarray, index: 
     if rest and rest[0].log10_nfa < opts.log10_epsilon and rest[0].score > best.score - opts.ambiguity_margin:
         reason = f"ambiguous: two places match about equally well (scores {best.score:.1f} and {rest[0].score:.1f})"
         return MatchResult(None, listed, reason, n_tests, rounds)
-    best = polish(best, z, img_label, index)
+    best = polish(best, z, img_label, index, whole=whole)
     if opts.max_sigma_m is not None and best.sigma_m > opts.max_sigma_m:
         reason = (f"imprecise: estimated 1-sigma error {best.sigma_m:.2f} m exceeds {opts.max_sigma_m:g} m "
                   f"({best.inliers} inliers)")

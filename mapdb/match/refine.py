@@ -10,10 +10,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from scipy.sparse import csr_array
 from scipy.sparse.csgraph import min_weight_full_bipartite_matching
-
-from .geometry import fit_similarity_complex, prediction_variance_factor
+from .geometry import prediction_variance_factor
+from .relief import ReliefFit, fit_with_relief
 from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
 
 __all__ = ["Candidate", "candidates", "distinct", "merge_candidates", "polish"]
@@ -81,7 +82,8 @@ def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: in
 
 
 def polish(
-    cand: Candidate, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, iterations: int = 2
+    cand: Candidate, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, iterations: int = 2,
+    whole: np.ndarray | None = None,
 ) -> Candidate:
     """Final association by optimal assignment, then the least-squares fit over it.
 
@@ -90,11 +92,16 @@ def polish(
     Here every image object may take any map object of its label within the gate (3.5 sigma of the
     current fit, and at least its farthest inlier), and the pairs minimising the total squared
     distance are kept (a minimum-weight full bipartite matching).
+
+    The fit is :func:`~mapdb.match.relief.fit_with_relief` over the pairs whose image object is ``whole``
+    (bool, ``(n,)``: not cut by the image border) when at least four are, else over all pairs; every pair
+    still counts as an inlier.
     """
     a, b = cand.a, cand.b
     farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
+    fit: ReliefFit | None = None
     for _ in range(iterations):
         w = a * z + b
         rows, cols, costs = index.within(w, img_label, gate, 3)
@@ -102,9 +109,10 @@ def polish(
             return cand
         if np.unique(rows).size == rows.size and np.unique(cols).size == cols.size:
             pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign
-            a, b = _fit_pairs(z, index, pairs, a, b)
-            if a is None:
+            fit = _fit_pairs(z, index, pairs, whole)
+            if fit is None:
                 return cand
+            a, b = fit.a, fit.b
             continue
         img_u, img_inv = np.unique(rows, return_inverse=True)
         map_u, map_inv = np.unique(cols, return_inverse=True)
@@ -122,30 +130,24 @@ def polish(
             r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
         good = cost[r_opt, c_opt] < big
         pairs = np.column_stack([img_u[r_opt[good]], map_u[c_opt[good]]])
-        a, b = _fit_pairs(z, index, pairs, a, b)
-        if a is None:
+        fit = _fit_pairs(z, index, pairs, whole)
+        if fit is None:
             return cand
-    dist = np.abs(a * z[pairs[:, 0]] + b - index.z[pairs[:, 1]])
-    k = len(pairs)
-    return Candidate(
-        a=a,
-        b=b,
-        log10_nfa=cand.log10_nfa,
-        inliers=k,
-        sigma_axis_m=residual_sigma(dist),
-        variance_factor=float(prediction_variance_factor(z[pairs[:, 0]])),
-        pairs=pairs,
-    )
+        a, b = fit.a, fit.b
+    if fit is None:
+        return cand
+    return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=fit.sigma_axis,
+                     variance_factor=fit.variance_factor, pairs=pairs)
 
 
-def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, a: complex, b: complex):
-    """The similarity fitted to ``pairs`` (image id, map id), or ``(None, None)`` when they cannot fix one."""
+def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, whole: np.ndarray | None) -> ReliefFit | None:
+    """The similarity fitted to ``pairs`` (image id, map id), whole objects only when four are, or None when
+    they cannot fix one."""
+    if whole is not None and np.count_nonzero(whole[pairs[:, 0]]) >= 4:
+        pairs = pairs[whole[pairs[:, 0]]]
     if len(pairs) < 3:
-        return None, None
-    a_new, b_new = fit_similarity_complex(z[pairs[:, 0]], index.z[pairs[:, 1]])
-    if not np.isfinite(a_new):
-        return None, None
-    return complex(a_new), complex(b_new)
+        return None
+    return fit_with_relief(z[pairs[:, 0]], index.z[pairs[:, 1]])
 
 
 def merge_candidates(pool: list[Candidate], diag_px: float) -> list[Candidate]:
