@@ -4,7 +4,10 @@
   :mod:`~mapdb.match.quads` (quad invariants and the map's quad index), :mod:`~mapdb.match.hypotheses`
   (image quads looked up, similarity hypotheses), :mod:`~mapdb.match.verify` (projected objects against
   the map's objects), :mod:`~mapdb.match.decision` (the number of false alarms) and
-  :mod:`~mapdb.match.refine` (one candidate per place, the final least-squares fit).
+  :mod:`~mapdb.match.refine` (one candidate per place, the final least-squares fit), with
+  :mod:`~mapdb.match.relief` (the final fit for blobs from masks: cut blobs left out, relief weighed
+  radially) and :mod:`~mapdb.match.ambiguity` (rival places looked for on purpose, where the map repeats
+  the winner's pattern, and compared under one density).
 * :mod:`mapdb.match.paper` - the seed paper's Algorithm 1 as published, the reference (its exact pruning
   bound in :mod:`~mapdb.match.paper_bound`).
 * :mod:`mapdb.match.geometry` - similarity fits.

@@ -54,8 +54,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from scipy.spatial import cKDTree
+from .ambiguity import find_rivals
 from .hypotheses import anchor_batches, prioritise, round_hypotheses
 from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct, merge_candidates, polish
@@ -116,6 +117,13 @@ class FastOptions:
     max_batches : int
         Anchor batches tried per lookup pass: an image that matches nowhere costs at most
         ``len(pixel_sigmas) * max_batches`` rounds, whatever its number of objects.
+    ambiguity_anchors : int
+        The winner's inliers (nearest the image centre) whose quads are looked up again in the quad indexes
+        for far places holding the same pattern (:mod:`mapdb.match.ambiguity`; 0, the default: the repeats
+        within the footprint and the search's runner-ups only, about 15 % less time an image).
+    ambiguity_places : int
+        At most this many other places (runner-ups, repeats, look-up hits; those where most image objects
+        land near a map object first) are refitted beside the winner.
     """
 
     map_neighbours: int = 8
@@ -137,6 +145,8 @@ class FastOptions:
     max_objects: int = 256
     density_neighbours: int = 6
     max_batches: int = 8
+    ambiguity_anchors: int = 0
+    ambiguity_places: int = 8
 
 
 @dataclass
@@ -200,7 +210,8 @@ def match_fast(
         anchorable = None
     pool, n_tests, done_rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
                                          anchorable)
-    return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds, whole=anchorable)
+    return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds, quads, diag_px, prior, scale_range,
+                   whole=anchorable)
 
 
 def _central_objects(z, img_label, max_objects: int, anchorable=None) -> tuple[np.ndarray, ...]:
@@ -273,8 +284,15 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
 
 
 def _decide(pool: list[Candidate], z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, opts: FastOptions,
-            n_tests: int, rounds: int, whole: np.ndarray | None = None) -> MatchResult:
-    """Accept the best candidate, or say why not: none, not certain enough, ambiguous, imprecise."""
+            n_tests: int, rounds: int, quads: Sequence[QuadIndex], diag_px: float,
+            prior: tuple[float, float, float] | None, scale_range: tuple[float, float] | None,
+            whole: np.ndarray | None = None) -> MatchResult:
+    """Accept the best candidate, or say why not: none, not certain enough, ambiguous, imprecise.
+
+    Ambiguous: a distinct place comes within ``ambiguity_margin`` of the winner's score, either one of the
+    search's runner-ups (its own score) or one of the places where the map repeats the winner's pattern,
+    looked for on purpose and scored beside the winner (:func:`mapdb.match.ambiguity.find_rivals`).
+    """
     if not pool:
         return MatchResult(None, [], "no consistent pattern found in the map", n_tests, rounds)
     best, rest = pool[0], pool[1 : 1 + opts.max_candidates]
@@ -283,9 +301,14 @@ def _decide(pool: list[Candidate], z: np.ndarray, img_label: np.ndarray, index: 
         reason = (f"no match is certain enough (best log10 NFA {best.log10_nfa:.1f} with {best.inliers} inliers; "
                   f"needs < {opts.log10_epsilon:g})")
         return MatchResult(None, listed, reason, n_tests, rounds)
-    if rest and rest[0].log10_nfa < opts.log10_epsilon and rest[0].score > best.score - opts.ambiguity_margin:
-        reason = f"ambiguous: two places match about equally well (scores {best.score:.1f} and {rest[0].score:.1f})"
-        return MatchResult(None, listed, reason, n_tests, rounds)
+    rivals = find_rivals(best, rest, z, img_label, index, quads, diag_px, opts, math.log10(max(n_tests, 1)),
+                         prior, scale_range)
+    # The rivals stand for the runner-ups' places too (scored beside the winner); a place keeps its better score.
+    rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates]
+    close = [c for c in rest if c.log10_nfa < opts.log10_epsilon and c.score > best.score - opts.ambiguity_margin]
+    if close:
+        reason = f"ambiguous: two places match about equally well (scores {best.score:.1f} and {close[0].score:.1f})"
+        return MatchResult(None, [best, *rest][: opts.max_candidates], reason, n_tests, rounds)
     best = polish(best, z, img_label, index, whole=whole)
     if opts.max_sigma_m is not None and best.sigma_m > opts.max_sigma_m:
         reason = (f"imprecise: estimated 1-sigma error {best.sigma_m:.2f} m exceeds {opts.max_sigma_m:g} m "

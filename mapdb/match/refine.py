@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from .geometry import prediction_variance_factor
 from .relief import ReliefFit, fit_with_relief
 from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
 
-__all__ = ["Candidate", "candidates", "distinct", "merge_candidates", "polish"]
+__all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "polish", "pose_shift"]
 
 # Two answers closer than this fraction of the footprint's diagonal are one place.
 PLACE_FRACTION = 1.0 / 20.0
@@ -150,12 +151,29 @@ def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, whole: np.n
     return fit_with_relief(z[pairs[:, 0]], index.z[pairs[:, 1]])
 
 
+def pose_shift(a: Any, b: Any, a0: complex, b0: complex, diag_px: float) -> Any:
+    """How far (map metres, at most) any point of the image moves between poses ``(a, b)`` and ``(a0, b0)``.
+
+    ``a``, ``b`` are complex numbers (a float back) or arrays of them (an array back).
+
+    ``|a z + b - (a0 z + b0)| <= |b - b0| + |a - a0| diag_px / 2`` over the image (``|z| <= diag_px / 2``):
+    two poses are one place when this is below the place's width, so the same centre seen a quarter turn
+    apart (a square lattice does that) is two places, not one.
+
+    Examples
+    --------
+    >>> float(pose_shift(1.0, 3.0, 1.0, 0.0, 100.0)), float(pose_shift(1j, 0.0, 1.0, 0.0, 100.0)) > 70
+    (3.0, True)
+    """
+    return abs(b - b0) + abs(a - a0) * (diag_px / 2.0)  # builtin abs: Python numbers stay cheap in a loop
+
+
 def merge_candidates(pool: list[Candidate], diag_px: float) -> list[Candidate]:
     """Best first, one candidate per place (refinement often brings several hypotheses to one pose)."""
     pool = sorted(pool, key=lambda c: (c.log10_nfa, -c.inliers))
     kept: list[Candidate] = []
     for c in pool:
         sep = abs(c.a) * diag_px * PLACE_FRACTION
-        if all(abs(c.b - k.b) > sep for k in kept):
+        if all(pose_shift(c.a, c.b, k.a, k.b, diag_px) > sep for k in kept):
             kept.append(c)
     return kept
