@@ -23,7 +23,8 @@ Everything is in log10 and vectorised over hypotheses.
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import betainc
+
+from .._scipy import betainc
 
 __all__ = ["log10_binomial_tail", "log10_nfa_curve"]
 

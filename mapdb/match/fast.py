@@ -55,7 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scipy.spatial import cKDTree
+from .._scipy import cKDTree
 from .ambiguity import find_rivals
 from .hypotheses import anchor_batches, prioritise, round_hypotheses
 from .quads import QuadIndex

@@ -11,8 +11,8 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .._scipy import cKDTree
 from .index_layout import CELL_LADDER, cell_keys, cells_of, triples
 from .quads import canonical_quads, label_keys, nearest_others
 

@@ -11,7 +11,8 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from .._scipy import cKDTree
 
 if TYPE_CHECKING:
     from .paper import PaperOptions

@@ -12,8 +12,8 @@ from collections.abc import Sequence
 from itertools import combinations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .._scipy import cKDTree
 from ..objects import Objects
 
 __all__ = ["LABEL_GAP", "QuadIndex", "canonical_quads", "label_keys", "nearest_others", "neighbour_quads",

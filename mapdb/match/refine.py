@@ -12,8 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from scipy.sparse import csr_array
-from scipy.sparse.csgraph import min_weight_full_bipartite_matching
+from .._scipy import csr_array, min_weight_full_bipartite_matching
 from .geometry import prediction_variance_factor
 from .relief import ReliefFit, fit_with_relief
 from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas

@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .._scipy import cKDTree
 from ..objects import Objects
 from .decision import log10_nfa_curve
 from .geometry import fit_similarity_complex
