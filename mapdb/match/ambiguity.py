@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .hypotheses import PRIOR_SLACK, round_hypotheses
+from .hypotheses import allowed_poses, round_hypotheses
 from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, merge_candidates, pose_shift
 from .verify import ObjectIndex, refine
@@ -95,7 +95,7 @@ def find_rivals(
     b = np.array([c.b for c in others], np.complex128)
     sigma_px = max(opts.pixel_sigmas[0], best.sigma_axis_m / max(abs(best.a), 1e-12))
     hit_a, hit_b = _shifted(best, index, opts.tolerance_factor * math.sqrt(2.0) * sigma_px * abs(best.a))
-    allowed = _allowed(hit_a, hit_b, prior, scale_range)
+    allowed = allowed_poses(hit_a, hit_b, prior, scale_range)
     hit_a, hit_b = hit_a[allowed], hit_b[allowed]
     batch = inlier_quads(z, best.pairs[:, 0], opts.image_neighbours, opts.ambiguity_anchors)
     if len(batch):
@@ -160,18 +160,6 @@ def _shifted(best: Candidate, index: ObjectIndex, tolerance: float) -> tuple[np.
                       & (lab[None, :] == lab[i1]))
     turn = step[j, k] / base
     return turn * best.a, turn * (best.b - p[i0]) + p[j]
-
-
-def _allowed(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,
-             scale_range: tuple[float, float] | None) -> np.ndarray:
-    """Which poses the search itself could have answered: centre in the prior's disc (with the search's
-    slack), scale in range (:func:`~mapdb.match.hypotheses.round_hypotheses` applies the same rule)."""
-    ok = np.isfinite(a) & (np.abs(a) > 0)
-    if prior is not None:
-        ok &= np.abs(b - complex(prior[0], prior[1])) <= PRIOR_SLACK * prior[2]
-    if scale_range is not None:
-        ok &= (np.abs(a) >= scale_range[0]) & (np.abs(a) <= scale_range[1])
-    return ok
 
 
 def _places(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np.ndarray:

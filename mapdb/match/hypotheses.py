@@ -21,7 +21,7 @@ from .quads import PAIRS, QuadIndex, neighbour_quads, quad_frames
 if TYPE_CHECKING:
     from .fast import FastOptions
 
-__all__ = ["anchor_batches", "lookup_hypotheses", "prioritise", "round_hypotheses"]
+__all__ = ["allowed_poses", "anchor_batches", "lookup_hypotheses", "prioritise", "round_hypotheses"]
 
 
 def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | None = None) -> list[np.ndarray]:
@@ -67,12 +67,20 @@ def round_hypotheses(
     """
     img_ids, map_z = lookup_hypotheses(z, img_label, batch, quads, opts, sigma_px)
     a, b = fit_similarity_complex(z[img_ids], map_z)
+    ok = allowed_poses(a, b, prior, scale_range)
+    return a[ok], b[ok], img_ids[ok], map_z[ok]
+
+
+def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,
+                  scale_range: tuple[float, float] | None) -> np.ndarray:
+    """Which similarities ``z -> a z + b`` the search may answer: finite, the image centre ``b`` within
+    ``PRIOR_SLACK`` prior radii of the prior's centre, the scale ``|a|`` within ``scale_range``."""
     ok = np.isfinite(a) & (np.abs(a) > 0)
     if prior is not None:
         ok &= np.abs(b - complex(prior[0], prior[1])) <= PRIOR_SLACK * prior[2]
     if scale_range is not None:
         ok &= (np.abs(a) >= scale_range[0]) & (np.abs(a) <= scale_range[1])
-    return a[ok], b[ok], img_ids[ok], map_z[ok]
+    return ok
 
 
 # Hypotheses may put the image centre this many prior radii from the prior's centre.
