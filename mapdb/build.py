@@ -7,9 +7,9 @@ import math
 import os
 import stat
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from pyproj import CRS, Transformer
@@ -21,11 +21,11 @@ from .cluster import open_client, run_tasks, worker_count
 from .errors import EmptyMapError, MapdbError, SourceError
 from .geo import _lon_arc, bbox_text, central_longitude, check_bbox, in_bbox
 from .labels import LabelTable, load_label_table
-from .objects import Objects, concat
+from .objects import Objects
 from .outputs import Progress, ProgressLike, as_progress
 from .sources import SKIPPED_KINDS, read_source, source_kind
 from .sources.osm import NODE_INDEXES, read_osm
-from .store import open_map, write_map
+from .store import MapWriter, open_map
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "read_one_source", "utm_crs_for"]
 
@@ -215,55 +215,71 @@ def build_map(
     if jobs is not None and scheduler is not None:
         raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")
     with open_client(jobs, scheduler) as client:
-        merged, target, described, totals, warnings = _gather(sources, table, (read_options, osm_options), target,
-                                                              say, client)
+        read = _gather(sources, table, (read_options, osm_options), target, say, client)
     build = {"crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
              "labels_file": Path(labels).name if labels else None,
              "labels_sha256": file_sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
              "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs, "label": label,
              "label_map": Path(label_map).name if label_map else None,
              "label_map_sha256": file_sha256(Path(label_map)) if label_map else None}
-    written, label_counts = _write(output, merged, target, quantum, {"sources": described, "build": build}, totals, say)
-    return {"output": str(output), "crs": target, "count": written, "labels": label_counts,
-            "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": warnings}
+    written, label_counts, totals = _write(output, read, table, quantum, build, say)
+    return {"output": str(output), "crs": read.target, "count": written, "labels": label_counts,
+            "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": read.warnings}
+
+
+class _Read(NamedTuple):
+    """The sources read and clipped, not yet projected: each source's objects and their lon/lat, the map's
+    CRS, the sources' metadata entries, what each reader skipped, the warnings and the sources' names."""
+
+    parts: list[Objects]
+    lonlat: list[tuple[np.ndarray, np.ndarray]]
+    target: str
+    described: list[dict[str, Any]]
+    skipped: list[Counter[str]]
+    warnings: list[str]
+    names: str
 
 
 def _gather(sources: Sequence[str | Path], table: LabelTable, options: _ReadOptions, target: str | None,
-            say: Progress, client: Any) -> tuple[Objects, str, list[dict[str, Any]], Counter[str], list[str]]:
-    """Read, clip and project every source: the merged objects, the CRS (chosen when ``target`` is None), the
-    sources' metadata entries, what the readers skipped in all, and the warnings."""
+            say: Progress, client: Any) -> _Read:
+    """Read and clip every source, and choose the CRS when ``target`` is None (from every object's lon/lat)."""
     parts, described, skipped, warnings = _read_sources(sources, table, say, options, client)
     bbox = options[0]["bbox"]
     parts, lonlat = _clip(parts, bbox)
-    total = sum(len(p) for p in parts)
     names = ", ".join(str(s) for s in sources)
-    if total == 0:
+    if sum(len(p) for p in parts) == 0:
         where = f" inside bbox {bbox_text(bbox)}" if bbox else ""
         raise EmptyMapError(f"{names}: no labelled objects{where}")
     if target is None:
         target = _auto_crs(lonlat)
         spread = _spread_warning([d["name"] for d in described], lonlat, target)
         warnings += [spread] if spread else []
-    say(f"projecting {total} objects to {target} ...")
-    merged = _project(parts, lonlat, skipped, target, table)
-    say.advance()
-    if len(merged) == 0:
-        raise EmptyMapError(f"{names}: no object projects into {target}")
-    return merged, target, described, _tally_skipped(described, skipped, say), warnings
+    return _Read(parts, lonlat, target, described, skipped, warnings, names)
 
 
-def _write(output: str | Path, merged: Objects, target: str, quantum: float, metadata: dict[str, Any],
-           totals: Counter[str], say: Progress) -> tuple[int, dict[str, int]]:
-    """Write the map: the objects written and the count per label (``totals`` learns the merged duplicates)."""
-    say(f"writing {len(merged)} objects to {output} ({target}, quantum {quantum} m) ...")
-    written = write_map(output, merged, quantum=quantum, metadata=metadata)
-    say.advance()
-    say.done()
-    if written < len(merged):
-        totals["merged_duplicates"] += len(merged) - written
+def _write(output: str | Path, read: _Read, table: LabelTable, quantum: float, build: dict[str, Any],
+           say: Progress) -> tuple[int, dict[str, int], Counter[str]]:
+    """Project the sources' objects block by block into a streaming map writer, which holds a bounded number
+    of them, and write the map: the objects written, the count per label, and what was skipped in all
+    (merged duplicates included)."""
+    total = sum(len(p) for p in read.parts)
+    say(f"projecting {total} objects to {read.target} ...")
+    with MapWriter(output, quantum=quantum) as writer:
+        for block in _project(read.parts, read.lonlat, read.skipped, read.target, table):
+            writer.add(block)
+        say.advance()
+        if writer.count == 0:
+            raise EmptyMapError(f"{read.names}: no object projects into {read.target}")
+        totals = _tally_skipped(read.described, read.skipped, say)
+        say(f"writing {writer.count} objects to {output} ({read.target}, quantum {quantum} m) ...")
+        written = writer.finish({"sources": read.described, "build": build})
+        say.advance()
+        say.done()
+        if written < writer.count:
+            totals["merged_duplicates"] += writer.count - written
     with open_map(output) as m:
         label_counts = m.label_counts  # after the writer merged same-label duplicates
-    return written, label_counts
+    return written, label_counts, totals
 
 
 def _checked_arguments(sources: Sequence[str | Path], quantum: float, min_area_m2: float,
@@ -288,12 +304,15 @@ def _checked_arguments(sources: Sequence[str | Path], quantum: float, min_area_m
 
 def _clip(parts: list[Objects], bbox: tuple[float, float, float, float] | None
           ) -> tuple[list[Objects], list[tuple[np.ndarray, np.ndarray]]]:
-    """Each source's objects inside ``bbox`` (all without one), and their lon/lat."""
+    """Each source's objects inside ``bbox`` (all without one), and their lon/lat.
+
+    A source wholly inside (an OSM reader clips to the box itself) is kept as it is, not copied.
+    """
     lonlat = [_to_lonlat(p) if len(p) else (np.zeros(0), np.zeros(0)) for p in parts]
     if bbox is not None:
         keep = [in_bbox(bbox, lon, lat) for lon, lat in lonlat]
-        parts = [p.take(k) for p, k in zip(parts, keep, strict=True)]
-        lonlat = [(lon[k], lat[k]) for (lon, lat), k in zip(lonlat, keep, strict=True)]
+        parts = [p if k.all() else p.take(k) for p, k in zip(parts, keep, strict=True)]
+        lonlat = [(lon, lat) if k.all() else (lon[k], lat[k]) for (lon, lat), k in zip(lonlat, keep, strict=True)]
     return parts, lonlat
 
 
@@ -306,26 +325,29 @@ def _auto_crs(lonlat: list[tuple[np.ndarray, np.ndarray]]) -> str:
     return utm_crs_for(central_longitude(all_lon), float(np.median(all_lat)))
 
 
-def _project(parts: list[Objects], lonlat: list[tuple[np.ndarray, np.ndarray]], skipped: list[Counter[str]],
-             target: str, table: LabelTable) -> Objects:
-    """All sources' objects in ``target``, in one label table; those it cannot hold are dropped and counted.
+# Objects projected at once: the blocks handed to the map writer (about 20 MB of arrays a block).
+_PROJECT_BLOCK = 1 << 18
 
-    ``parts`` and ``lonlat`` are emptied as they are projected, and nothing is copied that need not be: a
-    country's objects are held about twice at most, not four times.
+
+def _project(parts: list[Objects], lonlat: list[tuple[np.ndarray, np.ndarray]], skipped: list[Counter[str]],
+             target: str, table: LabelTable) -> Iterator[Objects]:
+    """Every source's objects in ``target`` and in the label table, in blocks of :data:`_PROJECT_BLOCK`; those
+    the CRS cannot hold are dropped and counted.
+
+    ``parts`` and ``lonlat`` are emptied as they are projected, so that a source is released once its last
+    block is written, and no merged copy of all the sources is ever made.
     """
-    projected = []
     to_target = Transformer.from_crs("EPSG:4326", target, always_xy=True)
     for counts in skipped:
         p, (lon, lat) = parts.pop(0), lonlat.pop(0)
-        x, y = to_target.transform(lon, lat)
-        finite = np.isfinite(x) & np.isfinite(y)
-        counts["outside_crs"] += int((~finite).sum())
-        moved = Objects(x, y, p.label, p.area, p.labels, target)
-        projected.append(moved if finite.all() else moved.take(finite))
-        del p, lon, lat, moved
-    if len(projected) == 1:
-        return projected[0].relabel(table.labels)
-    return concat(projected, labels=table.labels)
+        for start in range(0, len(p), _PROJECT_BLOCK):
+            block = slice(start, start + _PROJECT_BLOCK)
+            x, y = to_target.transform(lon[block], lat[block])
+            finite = np.isfinite(x) & np.isfinite(y)
+            counts["outside_crs"] += int((~finite).sum())
+            moved = Objects(x, y, p.label[block], p.area[block], p.labels, target)
+            yield (moved if finite.all() else moved.take(finite)).relabel(table.labels)
+        del p, lon, lat
 
 
 def _tally_skipped(described: list[dict[str, Any]], skipped: list[Counter[str]], say: Progress) -> Counter[str]:

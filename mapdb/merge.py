@@ -40,9 +40,9 @@ from scipy.spatial import cKDTree
 
 from .build import _auto_crs, _projected_crs, _to_lonlat, file_sha256
 from .errors import EmptyMapError, SourceError
-from .objects import Objects, concat
+from .objects import Objects
 from .outputs import ProgressLike, as_progress
-from .store import open_map, write_map
+from .store import open_map, write_map_from_chunks
 
 __all__ = ["content_digest", "merge_maps"]
 
@@ -88,14 +88,18 @@ def merge_maps(inputs: Sequence[str | Path], output: str | Path, *, crs: str = "
     quantum, labels = _common_layout(maps)
     target, warnings = (chosen, []) if chosen else _output_crs(maps)
     parts, kept_counts, dropped = _deduplicated(maps, target, quantum, say)
-    merged = concat(parts, labels=labels)
-    if len(merged) == 0:
+    for read in maps:
+        del read["objects_"]  # the objects kept are in ``parts``: the inputs' own copies can go
+    total = sum(len(p) for p in parts)
+    if total == 0:
         raise EmptyMapError(f"{', '.join(str(p) for p in inputs)}: no object projects into {target}")
-    say(f"writing {len(merged):,} objects to {output} ({target}) ...")
+    say(f"writing {total:,} objects to {output} ({target}) ...")
     metadata = {"sources": [dict(s, map=m["name"]) for m in maps for s in m["sources"]],
                 "build": {"merged": [{key: m[key] for key in ("name", "sha256", "crs", "objects", "build")}
                                      for m in maps], "crs": crs}}
-    written = write_map(output, merged, quantum=quantum, metadata=metadata)
+    # Part by part into the streaming writer: no merged copy of all the parts is made.
+    written = write_map_from_chunks(output, (parts.pop(0).relabel(labels) for _ in range(len(parts))),
+                                    quantum=quantum, metadata=metadata)
     with open_map(output) as m:
         label_counts = m.label_counts
     return {"output": str(output), "crs": target, "count": written, "labels": label_counts,

@@ -59,7 +59,7 @@ from scipy.spatial import cKDTree
 from ..errors import MapdbIOError, SourceError, reading
 from ..geo import check_bbox, in_bbox
 from ..labels import IntersectionRule, LabelTable, TagRule
-from ..objects import Objects, concat
+from ..objects import Objects
 
 __all__ = ["AREA_BLOCK", "DENSE_INDEX_BYTES", "FILE_INDEX_BYTES", "MAX_INFLATION", "MIN_INFLATED_BYTES",
            "NODE_INDEXES", "OSM_SUFFIXES", "ROAD_REFS_IN_MEMORY", "choose_node_index", "inflation_limit",
@@ -224,9 +224,7 @@ def _read(path: Path, table: LabelTable, bbox: tuple[float, float, float, float]
     """:func:`read_osm` on checked arguments: collect, assemble, clip, and say what came of it."""
     started = time.monotonic()
     report(f"{path}: reading OpenStreetMap data")
-    objects = _assemble(_collect(path, table, report, counts, workspace, node_index), table, counts)
-    if bbox is not None:
-        objects = objects.take(in_bbox(bbox, objects.x, objects.y))
+    objects = _assemble(_collect(path, table, report, counts, workspace, node_index), table, counts, bbox)
     summary = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
     report(f"{path}: {len(objects):,} objects in {time.monotonic() - started:.1f} s ({summary})")
     skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
@@ -254,16 +252,42 @@ def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[st
     return collected
 
 
-def _assemble(collected: _Collected, table: LabelTable, counts: Counter[str]) -> Objects:
-    """The objects of what the pass collected: points, areas, ways and (when the table asks) intersections."""
-    parts = [
-        _point_objects(collected.node_lon, collected.node_lat, collected.node_code, table.labels),
-        concat(collected.areas, labels=table.labels) if collected.areas else Objects.empty(table.labels, "EPSG:4326"),
-        _way_objects(collected, table.labels),
-    ]
+def _assemble(collected: _Collected, table: LabelTable, counts: Counter[str],
+              bbox: tuple[float, float, float, float] | None) -> Objects:
+    """The objects of what the pass collected, inside ``bbox``: points, areas, ways and (when the table asks)
+    intersections."""
+    parts = [_point_objects(collected.node_lon, collected.node_lat, collected.node_code, table.labels),
+             *collected.areas, _way_objects(collected, table.labels)]
     if table.intersections is not None:
         parts.append(_intersection_objects(collected, table.intersections, table.labels, counts))
-    return concat(parts, labels=table.labels)
+    # The blocks and the node arrays are now only in ``parts``, which _joined empties as it copies them.
+    collected.areas = []
+    collected.node_lon, collected.node_lat, collected.node_code = array("d"), array("d"), array("i")
+    return _joined(parts, table.labels, bbox)
+
+
+def _joined(parts: list[Objects], labels: tuple[str, ...], bbox: tuple[float, float, float, float] | None) -> Objects:
+    """The objects of ``parts`` (lon/lat, in ``labels``) inside ``bbox``, in order, as one set.
+
+    Each part is released as soon as it is copied in (``parts`` is emptied), so that a country's objects are
+    held about once, not three times as blocks, their concatenation and a clipped copy.
+    """
+    keep = [None if bbox is None else in_bbox(bbox, p.x, p.y) for p in parts]
+    n = sum(len(p) if k is None else int(k.sum()) for p, k in zip(parts, keep, strict=True))
+    x, y, area = np.empty(n), np.empty(n), np.empty(n)
+    label = np.empty(n, np.int32)
+    at = 0
+    parts.reverse()
+    keep.reverse()
+    while parts:
+        part, inside = parts.pop().relabel(labels), keep.pop()
+        if inside is not None:
+            part = part.take(inside)
+        end = at + len(part)
+        x[at:end], y[at:end], label[at:end], area[at:end] = part.x, part.y, part.label, part.area
+        at = end
+        del part
+    return Objects(x, y, label, area, labels, "EPSG:4326")
 
 
 # --------------------------------------------------------------------------------------------------
