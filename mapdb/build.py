@@ -25,7 +25,7 @@ from .objects import Objects
 from .outputs import Progress, ProgressLike, as_progress
 from .sources import SKIPPED_KINDS, read_source, source_kind
 from .sources.osm import NODE_INDEXES, read_osm
-from .store import MapWriter, open_map
+from .store import MapWriter
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "read_one_source", "utm_crs_for"]
 
@@ -277,9 +277,7 @@ def _write(output: str | Path, read: _Read, table: LabelTable, quantum: float, b
         say.done()
         if written < writer.count:
             totals["merged_duplicates"] += writer.count - written
-    with open_map(output) as m:
-        label_counts = m.label_counts  # after the writer merged same-label duplicates
-    return written, label_counts, totals
+    return written, writer.label_counts, totals
 
 
 def _checked_arguments(sources: Sequence[str | Path], quantum: float, min_area_m2: float,

@@ -42,7 +42,7 @@ from .build import _auto_crs, _projected_crs, _to_lonlat, file_sha256
 from .errors import EmptyMapError, SourceError
 from .objects import Objects
 from .outputs import ProgressLike, as_progress
-from .store import open_map, write_map_from_chunks
+from .store import MapWriter, open_map
 
 __all__ = ["content_digest", "merge_maps"]
 
@@ -98,11 +98,11 @@ def merge_maps(inputs: Sequence[str | Path], output: str | Path, *, crs: str = "
                 "build": {"merged": [{key: m[key] for key in ("name", "sha256", "crs", "objects", "build")}
                                      for m in maps], "crs": crs}}
     # Part by part into the streaming writer: no merged copy of all the parts is made.
-    written = write_map_from_chunks(output, (parts.pop(0).relabel(labels) for _ in range(len(parts))),
-                                    quantum=quantum, metadata=metadata)
-    with open_map(output) as m:
-        label_counts = m.label_counts
-    return {"output": str(output), "crs": target, "count": written, "labels": label_counts,
+    with MapWriter(output, quantum=quantum, metadata=metadata) as writer:
+        while parts:
+            writer.add(parts.pop(0).relabel(labels))
+        written = writer.finish()
+    return {"output": str(output), "crs": target, "count": written, "labels": writer.label_counts,
             "inputs": [{"name": m["name"], "objects": m["objects"], "kept": k} for m, k in zip(maps, kept_counts,
                                                                                             strict=True)],
             "duplicates": dropped, "warnings": warnings}

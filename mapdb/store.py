@@ -709,6 +709,7 @@ class MapWriter:
             raise ValueError(f"quantum must be in (0, 1000] m and page capacity in [1, {_MAX_PAGE_OBJECTS}]")
         self.path = Path(path)
         self.quantum, self.page_capacity, self.metadata = quantum, page_capacity, dict(metadata or {})
+        self.label_counts: dict[str, int] = {}
         # A part of the map is cut in memory once it fits: never one that must still be cut for its size.
         self.memory_objects = max(int(memory_objects), page_capacity, _PILE + 1)
         self.labels: tuple[str, ...] | None = None
@@ -774,7 +775,8 @@ class MapWriter:
     def finish(self, metadata: dict[str, Any] | None = None) -> int:
         """Write the map file; ``metadata`` adds header entries to those given when the writer was made.
 
-        Returns the number of objects written (those added less the merged same-label duplicates).  Raises
+        Returns the number of objects written (those added less the merged same-label duplicates); their
+        number per label (the header's counts, labels without objects left out) is then ``label_counts``.  Raises
         :class:`EmptyMapError` when no object was added, and ``ValueError`` when the header would break a rule
         of the format (a CRS that is not projected, metadata that is not JSON).
         """
@@ -794,6 +796,7 @@ class MapWriter:
                 f.write(prefix)
                 f.write(table.tobytes())
                 pages.copy_to(f)
+            self.label_counts = {name: int(n) for name, n in zip(self.labels, per_label, strict=True) if n}
             return int(per_label.sum())
         finally:
             self.close()

@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import json
 import math
-import queue
 from pathlib import Path
 
 import numpy as np
 import pytest
-from clichecks import start_piped
+from clichecks import answered_one_by_one
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
@@ -272,30 +271,13 @@ def test_navigate_on_a_pipe_answers_each_frame_before_the_next_is_sent(world, tm
     write_map(map_path, world.all())
     frames = _flight(world, 0.6)
     start = frames[0]["truth"]
-    proc, answers = start_piped("navigate", str(map_path), "-", "--initial", f"{start['x']},{start['y']},20")
-    try:
-        lines = [json.dumps(f).encode() for f in frames[:3]] + [b"{oops"] + [json.dumps(f).encode() for f in frames[3:]]
-        for i, line in enumerate(lines):
-            proc.stdin.write(line + b"\n")
-            proc.stdin.flush()  # stdin stays open: an answer can only come from streaming
-            try:
-                got = answers.get(timeout=ANSWER_TIMEOUT_S)
-            except queue.Empty:
-                pytest.fail(f"no record for frame {i + 1} within {ANSWER_TIMEOUT_S} s while the input stays open")
-            record = json.loads(got)
-            if i == 3:
-                assert record["status"] == "skipped" and "<stdin> line 4: malformed JSON" in record["notes"][0]
-            else:
-                assert record["id"] == json.loads(line)["id"] and record["status"] == "fix", record
-            assert answers.empty()  # exactly one record per frame
-        proc.stdin.close()
-        assert answers.get(timeout=ANSWER_TIMEOUT_S) is None
-        assert proc.wait(timeout=ANSWER_TIMEOUT_S) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stderr.close()
+    lines = [json.dumps(f).encode() for f in frames[:3]] + [b"{oops"] + [json.dumps(f).encode() for f in frames[3:]]
+    args = ["navigate", str(map_path), "-", "--initial", f"{start['x']},{start['y']},20"]
+    for i, record in answered_one_by_one(args, lines, ANSWER_TIMEOUT_S):
+        if i == 3:
+            assert record["status"] == "skipped" and "<stdin> line 4: malformed JSON" in record["notes"][0]
+        else:
+            assert record["id"] == json.loads(lines[i])["id"] and record["status"] == "fix", record
 
 
 def test_frames_read_each_sensor_on_its_own() -> None:

@@ -16,12 +16,11 @@ import itertools
 import json
 import math
 import os
-import queue
 import subprocess
 import sys
 
 import pytest
-from clichecks import start_piped
+from clichecks import answered_one_by_one
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
@@ -124,36 +123,14 @@ def test_a_batch_of_bad_lines_of_every_kind_keeps_count_order_and_ids(paper_setu
     assert [same(json.loads(ln)) for ln in piped.output.splitlines()] == [same(a) for a in answers]
 
 
-def _start_query(map_path) -> tuple[subprocess.Popen, queue.Queue]:
-    return start_piped("query", str(map_path), "-")
-
-
 def test_query_on_a_pipe_answers_each_line_before_the_next_is_sent(paper_setup) -> None:
     map_path, images = paper_setup
-    proc, answers = _start_query(map_path)
-    try:
-        sent = [_line(images[0]), b"[1, 2]", _line(images[1]), b"{oops", _line(images[2])]
-        for i, line in enumerate(sent):
-            proc.stdin.write(line + b"\n")
-            proc.stdin.flush()  # stdin stays open: an answer can only come from streaming
-            try:
-                got = answers.get(timeout=ANSWER_TIMEOUT_S)
-            except queue.Empty:
-                pytest.fail(f"no answer to line {i + 1} within {ANSWER_TIMEOUT_S} s while the input stays open")
-            answer = json.loads(got)
-            if i % 2 == 0:
-                assert answer["status"] == "ok" and answer["id"] == images[i // 2]["id"], answer
-            else:
-                assert answer["status"] == "rejected" and f"<stdin> line {i + 1}: " in answer["reason"], answer
-            assert answers.empty()  # exactly one answer per line
-        proc.stdin.close()
-        assert answers.get(timeout=ANSWER_TIMEOUT_S) is None  # end of output once input ends
-        assert proc.wait(timeout=ANSWER_TIMEOUT_S) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stderr.close()
+    sent = [_line(images[0]), b"[1, 2]", _line(images[1]), b"{oops", _line(images[2])]
+    for i, answer in answered_one_by_one(["query", str(map_path), "-"], sent, ANSWER_TIMEOUT_S):
+        if i % 2 == 0:
+            assert answer["status"] == "ok" and answer["id"] == images[i // 2]["id"], answer
+        else:
+            assert answer["status"] == "rejected" and f"<stdin> line {i + 1}: " in answer["reason"], answer
 
 
 def test_the_answers_file_may_not_be_an_input(paper_setup, tmp_path) -> None:

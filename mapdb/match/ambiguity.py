@@ -90,7 +90,6 @@ def find_rivals(
         :data:`~mapdb.match.refine.PLACE_FRACTION` of the footprint's diagonal), with ``log10_nfa`` = the
         winner's plus how much worse the place's fit is under the common density (never better).
     """
-    separation = abs(best.a) * diag_px * PLACE_FRACTION
     a = np.array([c.a for c in others], np.complex128)
     b = np.array([c.b for c in others], np.complex128)
     sigma_px = max(opts.pixel_sigmas[0], best.sigma_axis_m / max(abs(best.a), 1e-12))
@@ -104,7 +103,7 @@ def find_rivals(
     keep = _places(hit_a, hit_b, best, diag_px)
     a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
     near = _near_counts(a, b, best, z, img_label, index, opts)
-    ok = (pose_shift(a, b, best.a, best.b, diag_px) > separation) & (near >= max(4.0, SCREEN_SHARE * best.inliers))
+    ok = _elsewhere(a, b, best, diag_px) & (near >= max(4.0, SCREEN_SHARE * best.inliers))
     # The places where most objects land near a map object of their label are refitted first.
     keep = np.flatnonzero(ok)[np.argsort(-near[ok], kind="stable")][: opts.ambiguity_places]
     if not keep.size:
@@ -162,10 +161,16 @@ def _shifted(best: Candidate, index: ObjectIndex, tolerance: float) -> tuple[np.
     return turn * best.a, turn * (best.b - p[i0]) + p[j]
 
 
+def _elsewhere(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np.ndarray:
+    """Which poses ``(a, b)`` are another place than the winner's: some image point moves by more than a
+    place's width (:data:`~mapdb.match.refine.PLACE_FRACTION` of the footprint's diagonal) between them."""
+    return pose_shift(a, b, best.a, best.b, diag_px) > abs(best.a) * diag_px * PLACE_FRACTION
+
+
 def _places(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np.ndarray:
     """Indices of one hypothesis per place other than the winner's (cells of a place's width)."""
     separation = abs(best.a) * diag_px * PLACE_FRACTION
-    away = np.flatnonzero((pose_shift(a, b, best.a, best.b, diag_px) > separation) & np.isfinite(b))
+    away = np.flatnonzero(_elsewhere(a, b, best, diag_px) & np.isfinite(b))
     if not away.size:
         return np.zeros(0, np.int64)
     # One number per cell of a place's width and twelfth of a turn (a lattice repeats itself turned too).
@@ -206,8 +211,7 @@ def _compared(best: Candidate, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_
     ra, rb, nfa, inlier, mid, dist = refine(rows_a, rows_b, z, img_label, index, np.concatenate([common, common]),
                                             log10_tests, 1)
     worse = nfa[h:] - nfa[:h]
-    separation = abs(best.a) * diag_px * PLACE_FRACTION
-    keep = np.flatnonzero((pose_shift(ra[h:], rb[h:], best.a, best.b, diag_px) > separation) & np.isfinite(worse))
+    keep = np.flatnonzero(_elsewhere(ra[h:], rb[h:], best, diag_px) & np.isfinite(worse))
     found = candidates(ra[h:][keep], rb[h:][keep], best.log10_nfa + np.maximum(worse[keep], 0.0),
                        inlier[h:][keep], mid[h:][keep], dist[h:][keep], z)
     return merge_candidates(found, diag_px)

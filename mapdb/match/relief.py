@@ -40,6 +40,7 @@ import math
 import numpy as np
 
 from .geometry import fit_similarity_complex, prediction_variance_factor
+from .verify import residual_sigmas
 
 __all__ = ["RELIEF_ITERATIONS", "ReliefFit", "fit_with_relief", "radial_excess"]
 
@@ -116,9 +117,8 @@ def fit_with_relief(src: np.ndarray, dst: np.ndarray) -> ReliefFit | None:
     if not math.isfinite(abs(a)) or a == 0:
         return None
     rho, tau, excess = radial_excess(src, dst, a, b)
-    dof = max(2 * src.size - 4, 1)
     if not excess:
-        sigma = math.sqrt(float(np.sum(rho**2 + tau**2)) / dof)
+        sigma = float(residual_sigmas(np.hypot(rho, tau)[None, :], np.ones((1, src.size), bool))[0])
         return ReliefFit(a, b, sigma, float(prediction_variance_factor(src)), 0.0)
     kappa = 0.0
     for _ in range(RELIEF_ITERATIONS):
