@@ -261,11 +261,13 @@ class Localizer:
             objects, quads = self.whole_map_indexes()
             return objects, [quads]
         x, y, r = prior
-        # Hypotheses may put the image centre 1.1 radius away; its objects reach ``margin`` beyond, and the
-        # decision counts label densities up to half as far again.
-        reach = PRIOR_SLACK * r + 1.5 * margin
+        # Hypotheses may put the image centre 1.1 radius away; its objects, and so the anchors of the map
+        # quads that can match, reach ``margin`` beyond; the decision counts label densities up to half as
+        # far again.
+        anchor_reach = PRIOR_SLACK * r + margin
+        reach = anchor_reach + 0.5 * margin
         t = TILE_SIZE_M
-        k = max(1, math.ceil(reach / t))
+        k = max(1, math.ceil(anchor_reach / t))
         if (2 * k + 1) ** 2 > MAX_PRIOR_TILES:
             # A prior this wide covers much of the map: the whole map's indexes serve it (and later images).
             return self.fast_indexes(None, 0.0)
@@ -284,7 +286,7 @@ class Localizer:
             reached = [
                 self._tile(ix, iy) for ix, iy in cells
                 if max(ix * t - x, 0.0, x - (ix + 1) * t) ** 2 + max(iy * t - y, 0.0, y - (iy + 1) * t) ** 2
-                <= reach**2
+                <= anchor_reach**2
             ]
             return objects, reached
         # One tree over the block's tiles: a lookup per image quad instead of one per tile and image quad.

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .geometry import fit_similarity_complex
-from .quads import PAIRS, QuadIndex, neighbour_quads, quad_frames
+from .quads import PAIRS, QuadIndex, first_rows, neighbour_quads, quad_frames
 
 if TYPE_CHECKING:
     from .fast import FastOptions
@@ -43,7 +43,7 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     rank[np.argsort(np.abs(z), kind="stable")] = np.arange(n)
     batch_of = rank[anchor] // opts.anchors_per_batch
     by_batch = np.argsort(batch_of, kind="stable")
-    _, first = np.unique(img_quads[by_batch], axis=0, return_index=True)
+    first = first_rows(img_quads[by_batch], n)
     keep = np.zeros(len(img_quads), bool)
     keep[by_batch[first]] = True
     n_batches = min(int(batch_of.max()) + 1, opts.max_batches)
@@ -123,56 +123,54 @@ def lookup_hypotheses(
 
 def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float) -> tuple[np.ndarray, ...] | None:
     """Every frame and ordering of the quads ``zq`` (m, 4) worth looking up: quad rows, orderings (k, 4),
-    invariants (k, 4) and lookup radii (k,); None when there is none."""
+    invariants (k, 4) and lookup radii (k,); None when there is none.
+
+    Rows come frame by frame (the longest pair's, then the second longest's), each ordering in turn
+    (A, B swapped or not, C, D swapped or not), in quad order within: all of it in a few array operations,
+    since an image has a few hundred quads and per-block calls would cost more than the arithmetic.
+    """
+    m = len(zq)
     d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
     by_length = np.argsort(-d, axis=1)
-    longest = d[np.arange(len(d)), by_length[:, 0]]
-    rows, orders, invs, radii = [], [], [], []
+    length = np.take_along_axis(d, by_length[:, :2], axis=1)  # (m, 2): longest, second longest
     # The longest pair decides the frame; when the second longest is within noise of it, a noisy image can
     # pick either, so both frames are looked up.
-    for rank in (0, 1):
-        pair = by_length[:, rank]
-        length = d[np.arange(len(d)), pair]
-        tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * sigma_px
-        use = np.ones(len(d), bool) if rank == 0 else longest - length < tie
-        use &= length > 0.0  # four objects on one spot have no frame
-        if not use.any():
-            continue
-        sel = np.flatnonzero(use)
-        order0, t0 = quad_frames(zq[sel], pair[sel])
-        # Predicted standard error of the four invariants (see the module docs of decision): per point
-        # sigma^2 (1 + |1 - t|^2 + |t|^2) / |AB|^2 per axis.
-        spread = (1.0 + np.abs(1.0 - t0) ** 2 + np.abs(t0) ** 2).sum(axis=1)
-        radius = opts.tolerance_factor * sigma_px * np.sqrt(spread) / length[sel]
-        for ok, order, t in _near_canonical_orderings(order0, t0, radius, opts.max_invariant_radius):
-            rows.append(sel[ok])
-            orders.append(order[ok])
-            invs.append(np.column_stack([t[ok, 0].real, t[ok, 0].imag, t[ok, 1].real, t[ok, 1].imag]))
-            radii.append(radius[ok])
-    if not rows:
+    tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * sigma_px
+    use = np.column_stack([np.ones(m, bool), length[:, 0] - length[:, 1] < tie]) & (length > 0.0)
+    rank, sel = np.nonzero(use.T)  # frame-major: every quad's first frame, then the ties' second
+    if not sel.size:
         return None
-    return np.concatenate(rows), np.concatenate(orders), np.concatenate(invs), np.concatenate(radii)
+    order0, t0 = quad_frames(zq[sel], by_length[sel, rank])
+    # Predicted standard error of the four invariants (see the module docs of decision): per point
+    # sigma^2 (1 + |1 - t|^2 + |t|^2) / |AB|^2 per axis.
+    spread = (1.0 + np.abs(1.0 - t0) ** 2 + np.abs(t0) ** 2).sum(axis=1)
+    radius = opts.tolerance_factor * sigma_px * np.sqrt(spread) / length[sel, rank]
+    order, t, ok = _orderings(order0, t0, radius, opts.max_invariant_radius)  # (4, k, ...)
+    # Output order: frame, then ordering, then quad.
+    block = int(np.searchsorted(rank, 1))
+    which, row = np.nonzero(ok[:, :block])
+    which2, row2 = np.nonzero(ok[:, block:])
+    which = np.concatenate([which, which2])
+    row = np.concatenate([row, row2 + block])
+    if not row.size:
+        return None
+    t = t[which, row]
+    inv = np.column_stack([t[:, 0].real, t[:, 0].imag, t[:, 1].real, t[:, 1].imag])
+    return sel[row], order[which, row], inv, radius[row]
 
 
-def _near_canonical_orderings(order0: np.ndarray, t0: np.ndarray, radius: np.ndarray, max_radius: float):
-    """The quads' four orderings (A, B swapped or not, C, D swapped or not) as ``(ok, order, t)``, ``ok``
-    marking the quads for which that ordering could be the canonical one within the lookup radius (and whose
-    radius is at most ``max_radius``); orderings no quad can take are left out."""
-    for swap_ab in (False, True):
-        for swap_cd in (False, True):
-            order = order0.copy()
-            t = t0.copy()
-            if swap_ab:
-                order[:, :2] = order[:, 1::-1]
-                t = 1.0 - t
-            if swap_cd:
-                order[:, 2:] = order[:, :1:-1]
-                t = t[:, ::-1]
-            slack = radius * math.sqrt(2.0)
-            ok = (t.real.sum(axis=1) - 1.0 <= slack) & (t[:, 0].real - t[:, 1].real <= slack)
-            ok &= radius <= max_radius
-            if ok.any():
-                yield ok, order, t
+def _orderings(order0: np.ndarray, t0: np.ndarray, radius: np.ndarray, max_radius: float):
+    """The quads' four orderings (A, B swapped or not, C, D swapped or not) stacked: orders ``(4, k, 4)``,
+    invariants ``(4, k, 2)`` and ``ok`` ``(4, k)``, marking the quads for which that ordering could be the
+    canonical one within the lookup radius (and whose radius is at most ``max_radius``)."""
+    swapped_ab = np.concatenate([order0[:, 1::-1], order0[:, 2:]], axis=1)
+    order = np.stack([order0, order0[:, [0, 1, 3, 2]], swapped_ab, swapped_ab[:, [0, 1, 3, 2]]])
+    t_ab = 1.0 - t0
+    t = np.stack([t0, t0[:, ::-1], t_ab, t_ab[:, ::-1]])
+    slack = radius * math.sqrt(2.0)
+    ok = (t.real.sum(axis=2) - 1.0 <= slack) & (t[:, :, 0].real - t[:, :, 1].real <= slack)
+    ok &= radius <= max_radius
+    return order, t, ok
 
 
 def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 from .._scipy import cKDTree
 from ..objects import Objects
 
-__all__ = ["LABEL_GAP", "QuadIndex", "canonical_quads", "label_keys", "nearest_others", "neighbour_quads",
+__all__ = ["LABEL_GAP", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "nearest_others", "neighbour_quads",
            "quad_frames"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
@@ -27,6 +27,9 @@ LABEL_GAP = 100.0
 PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 
 OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
+
+# Quads of fewer points than this are packed into one int64 key (n**4 < 2**63).
+_PACKABLE = 55_000
 
 
 
@@ -58,11 +61,30 @@ def neighbour_quads(
     quads.sort(axis=1)
     if with_anchor:
         return quads, anchor
-    if n < 55_000:  # n**4 fits in int64: deduplicate on one integer key, much faster than rows
+    if n < _PACKABLE:
+        return quads[np.sort(first_rows(quads, n))]
+    return np.unique(quads, axis=0)
+
+
+
+def first_rows(quads: np.ndarray, n: int) -> np.ndarray:
+    """Index of the first occurrence of each distinct row of ``quads`` (ids below ``n``), in row order.
+
+    Below ``_PACKABLE`` points each row becomes one integer key: unique on it is much faster than on rows.
+
+    Examples
+    --------
+    >>> first_rows(np.array([[0, 1, 2, 3], [1, 2, 3, 4], [0, 1, 2, 3]]), 5).tolist()
+    [0, 1]
+    >>> first_rows(np.zeros((0, 4), np.int64), 5).tolist()
+    []
+    """
+    if n < _PACKABLE:
         key = ((quads[:, 0] * n + quads[:, 1]) * n + quads[:, 2]) * n + quads[:, 3]
         _, first = np.unique(key, return_index=True)
-        return quads[np.sort(first)]
-    return np.unique(quads, axis=0)
+    else:
+        _, first = np.unique(quads, axis=0, return_index=True)
+    return first
 
 
 def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, workers: int = 1) -> np.ndarray:

@@ -108,6 +108,8 @@ def polish(
         if not rows.size:
             return cand
         if np.unique(rows).size == rows.size and np.unique(cols).size == cols.size:
+            if fit is not None and np.array_equal(pairs, np.column_stack([rows, cols])):
+                break  # the pairs of the last fit: fitting them again gives it again
             pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign
             fit = _fit_pairs(z, index, pairs, whole)
             if fit is None:
@@ -129,7 +131,10 @@ def polish(
         else:
             r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
         good = cost[r_opt, c_opt] < big
-        pairs = np.column_stack([img_u[r_opt[good]], map_u[c_opt[good]]])
+        assigned = np.column_stack([img_u[r_opt[good]], map_u[c_opt[good]]])
+        if fit is not None and np.array_equal(pairs, assigned):
+            break
+        pairs = assigned
         fit = _fit_pairs(z, index, pairs, whole)
         if fit is None:
             return cand

@@ -256,6 +256,7 @@ def refine(
     """Re-associate and refit ``H`` hypotheses; returns a, b, log10 NFA, inlier mask, map ids, distances."""
     h, n = len(a), z.size
     rows = np.arange(h)
+    previous: tuple[np.ndarray, np.ndarray] | None = None
     for it in range(iterations + 1):
         w = a[:, None] * z[None, :] + b[:, None]
         dist, mid = index.nearest(w, img_label, density)
@@ -272,6 +273,11 @@ def refine(
         inlier &= first_per_map_object(mid, dist, inlier)
         if it == iterations:
             break
+        if previous is not None and np.array_equal(previous[0], inlier) and np.array_equal(previous[1], mid):
+            # The same association as the fit that gave (a, b): refitting gives (a, b) again, and every
+            # further round the same association, so this is where the iterations would end.
+            break
+        previous = inlier, mid
         target = index.z[np.maximum(mid, 0)]
         a_new, b_new = fit_similarity_complex(z[None, :], target, inlier)
         ok = np.isfinite(a_new) & (inlier.sum(axis=1) >= 3)
