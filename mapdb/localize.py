@@ -159,10 +159,28 @@ class StoredQuads:
         self.stored = stored
         self.n_quads = stored.n_quads
 
+    def lookup(self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray, k: int,
+               near: tuple[complex, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        rows, ids = self.stored.lookup(invariants, labels, radius, k)
+        quad_z = self.stored.coordinates(ids)
+        if near is not None:  # after the k nearest: the stored index knows no positions
+            keep = np.abs(quad_z.mean(axis=1) - near[0]) <= near[1]
+            rows, quad_z = rows[keep], quad_z[keep]
+        return rows, quad_z
+
+
+class NearQuads:
+    """A quad index looked up only for quads within ``reach`` metres of ``centre``: where a prior lets an
+    image's quads lie (its disc widened by the footprint).  Tiles hold quad positions, so there the prior
+    applies before a lookup's nearest hits are taken (:class:`~mapdb.match.quads.QuadIndex`)."""
+
+    def __init__(self, index: QuadIndex | StoredQuads, centre: complex, reach: float) -> None:
+        self.index, self.near = index, (centre, reach)
+        self.n_quads = index.n_quads
+
     def lookup(self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray,
                k: int) -> tuple[np.ndarray, np.ndarray]:
-        rows, ids = self.stored.lookup(invariants, labels, radius, k)
-        return rows, self.stored.coordinates(ids)
+        return self.index.lookup(invariants, labels, radius, k, near=self.near)
 
 
 class Localizer:
@@ -273,8 +291,9 @@ class Localizer:
             return self.fast_indexes(None, 0.0)
         box = (x - reach, y - reach, x + reach, y + reach)
         objects = ObjectIndex(self.map.query_bbox(*box), bounds=box)
+        centre = complex(x, y)
         if self._whole_quads is not None:
-            return objects, [self._whole_quads]
+            return objects, [NearQuads(self._whole_quads, centre, anchor_reach)]
         cx, cy = math.floor(x / t), math.floor(y / t)
         block = (cx, cy, k)
         cells = [(ix, iy) for ix in range(cx - k, cx + k + 1) for iy in range(cy - k, cy + k + 1)]
@@ -284,14 +303,14 @@ class Localizer:
             # for a block that images in a row fall in, as a flight's do; scattered images would merge one
             # per image.
             reached = [
-                self._tile(ix, iy) for ix, iy in cells
+                NearQuads(self._tile(ix, iy), centre, anchor_reach) for ix, iy in cells
                 if max(ix * t - x, 0.0, x - (ix + 1) * t) ** 2 + max(iy * t - y, 0.0, y - (iy + 1) * t) ** 2
                 <= anchor_reach**2
             ]
             return objects, reached
         # One tree over the block's tiles: a lookup per image quad instead of one per tile and image quad.
         quads = self._block_quads.get(block, lambda: QuadIndex.merged([self._tile(ix, iy) for ix, iy in cells]))
-        return objects, [quads]
+        return objects, [NearQuads(quads, centre, anchor_reach)]
 
     def _tile(self, ix: int, iy: int) -> QuadIndex:
         """Quads anchored in one tile; neighbours are read from a margin around it."""
@@ -302,7 +321,7 @@ class Localizer:
             objects = self.map.query_bbox(x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad)
             # Half-open tiles: an object on a shared edge anchors its quads in one tile only.
             anchors = (objects.x >= x0) & (objects.x < x0 + t) & (objects.y >= y0) & (objects.y < y0 + t)
-            return QuadIndex(objects, self.fast_options.map_neighbours, anchors=anchors)
+            return QuadIndex(objects, self.fast_options.map_neighbours, anchors=anchors, positions=True)
 
         return self._tiles.get((ix, iy), build)
 

@@ -1694,13 +1694,15 @@ class MetaMap(MapBase):
     def query_bbox(self, minx: float, miny: float, maxx: float, maxy: float,
                    labels: Iterable[str] | None = None) -> Objects:
         """Objects inside the box (projected metres, edges included)."""
-        # The R-tree is in whole quanta; widen the box to whole quanta, then select objects exactly.
-        lo = np.floor(np.array([minx, miny], np.float64) / self.quantum)
-        hi = np.ceil(np.array([maxx, maxy], np.float64) / self.quantum)
-        if np.isnan(lo).any() or np.isnan(hi).any():
+        # The R-tree is in whole quanta; widen the box to whole quanta, then select objects exactly.  Plain
+        # floats: a prior's query is one box, where numpy's per-call cost would exceed the arithmetic.
+        box = [float(v) / self.quantum for v in (minx, miny, maxx, maxy)]
+        if any(math.isnan(v) for v in box):
             return Objects.empty(self.labels, self.crs)
-        lo, hi = np.clip(lo, -2.0 * _MAX_QUANTA, 2.0 * _MAX_QUANTA), np.clip(hi, -2.0 * _MAX_QUANTA, 2.0 * _MAX_QUANTA)
-        hits = np.sort(self._tree.query(shapely.box(lo[0], lo[1], hi[0], hi[1])))
+        limit = 2.0 * _MAX_QUANTA
+        box = [min(max(v, -limit), limit) for v in box]
+        lo_x, lo_y, hi_x, hi_y = math.floor(box[0]), math.floor(box[1]), math.ceil(box[2]), math.ceil(box[3])
+        hits = np.sort(self._tree.query(shapely.box(lo_x, lo_y, hi_x, hi_y)))
         found = self._objects(hits.tolist())
         inside = (found.x >= minx) & (found.x <= maxx) & (found.y >= miny) & (found.y <= maxy)
         return self._label_filter(found.take(inside), labels)

@@ -31,6 +31,12 @@ OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
 # Quads of fewer points than this are packed into one int64 key (n**4 < 2**63).
 _PACKABLE = 55_000
 
+# An index built with ``positions`` also holds each quad's centroid, in tree units per metre.  Small beside
+# lookup radii (0.01-0.3: a kilometre adds 0.01), so among quads that match an image quad about as well
+# the nearest to the prior come first, and a pattern repeated across a tile (a street grid, a lattice) does
+# not fill a lookup's hits with copies outside the prior's disc.
+POSITION_WEIGHT = 1e-5
+
 
 
 def neighbour_quads(
@@ -165,6 +171,10 @@ class QuadIndex:
     anchors : bool array, optional
         Which objects anchor quads (default all): a tile anchors its own objects and reads a margin
         around them for their neighbours.
+    positions : bool
+        Also index where each quad lies (its centroid, weighted by ``POSITION_WEIGHT``), so that a lookup
+        can be restricted to a disc *before* its ``k`` nearest are taken (``near``); such an index is only
+        looked up with ``near``.
 
     Examples
     --------
@@ -174,8 +184,10 @@ class QuadIndex:
     (True, 4)
     """
 
-    def __init__(self, objects: Objects, neighbours: int = 8, anchors: np.ndarray | None = None) -> None:
+    def __init__(self, objects: Objects, neighbours: int = 8, anchors: np.ndarray | None = None,
+                 positions: bool = False) -> None:
         self.labels = tuple(objects.labels)
+        self.positions = positions
         z = objects.x + 1j * objects.y
         label = objects.label.astype(np.int64)
         if len(objects) >= 4:
@@ -189,9 +201,11 @@ class QuadIndex:
             order, inv, _ = canonical_quads(z[quads])
             quads = np.take_along_axis(quads, order, axis=1)
             keys = label_keys(label[quads], len(self.labels))
-            self.tree: cKDTree | None = cKDTree(
-                np.column_stack([inv, keys * LABEL_GAP]), balanced_tree=False, compact_nodes=False
-            )
+            columns = [inv, keys * LABEL_GAP]
+            if positions:
+                centroid = z[quads].mean(axis=1)
+                columns += [POSITION_WEIGHT * centroid.real, POSITION_WEIGHT * centroid.imag]
+            self.tree: cKDTree | None = cKDTree(np.column_stack(columns), balanced_tree=False, compact_nodes=False)
         else:
             self.tree = None
         self.quad_z = z[quads]
@@ -201,7 +215,8 @@ class QuadIndex:
         return int(len(self.quad_z))
 
     def lookup(
-        self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray, k: int
+        self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray, k: int,
+        near: tuple[complex, float] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Map quads near image quads: the query row of each hit and the hit's four map points.
 
@@ -215,6 +230,9 @@ class QuadIndex:
             Lookup radius in invariant space, per query.
         k : int
             At most this many nearest map quads per query.
+        near : (centre, reach), optional
+            Only quads whose centroid lies within ``reach`` metres of ``centre`` (complex): a prior applied
+            before the ``k`` nearest are taken when the index holds positions, after otherwise.
 
         Returns
         -------
@@ -225,13 +243,33 @@ class QuadIndex:
         """
         if self.tree is None or not len(invariants):
             return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
-        query = np.column_stack([invariants, label_keys(labels, len(self.labels)) * LABEL_GAP])
+        columns = [invariants, label_keys(labels, len(self.labels)) * LABEL_GAP]
+        bound = float(radius.max())
+        place, reach = 0j, 0.0  # the prior's disc in tree units
+        if self.positions:
+            if near is None:
+                raise ValueError("an index with positions is looked up near a place")
+            place, reach = complex(near[0]) * POSITION_WEIGHT, POSITION_WEIGHT * float(near[1])
+            columns += [np.full(len(invariants), place.real), np.full(len(invariants), place.imag)]
+            bound += reach
         k = min(k, self.n_quads)
-        dist, hit = self.tree.query(query, k=k, distance_upper_bound=float(radius.max()))
-        dist = dist.reshape(len(query), k)
-        hit = hit.reshape(len(query), k)
-        rows, cols = np.nonzero(dist <= radius[:, None])
-        return rows, self.quad_z[hit[rows, cols]]
+        dist, hit = self.tree.query(np.column_stack(columns), k=k, distance_upper_bound=bound)
+        dist, hit = dist.reshape(len(invariants), k), hit.reshape(len(invariants), k)
+        if not self.positions:
+            rows, cols = np.nonzero(dist <= radius[:, None])
+            quad_z = self.quad_z[hit[rows, cols]]
+            if near is not None:
+                keep = np.abs(quad_z.mean(axis=1) - near[0]) <= near[1]
+                rows, quad_z = rows[keep], quad_z[keep]
+            return rows, quad_z
+        rows, cols = np.nonzero(dist <= bound)
+        hit = hit[rows, cols]
+        # The tree's distance mixes the invariants' with the position's: split them to hold the radius
+        # for the invariants alone and the reach for the position.
+        where = self.tree.data[hit, 5:7]
+        off2 = (where[:, 0] - place.real) ** 2 + (where[:, 1] - place.imag) ** 2
+        keep = (dist[rows, cols] ** 2 - off2 <= radius[rows] ** 2) & (off2 <= reach**2)
+        return rows[keep], self.quad_z[hit[keep]]
 
     @classmethod
     def merged(cls, parts: Sequence[QuadIndex]) -> QuadIndex:
@@ -248,6 +286,9 @@ class QuadIndex:
         parts = [q for q in parts if q.tree is not None]
         merged = cls.__new__(cls)
         merged.labels = parts[0].labels if parts else ()
+        merged.positions = bool(parts) and parts[0].positions
+        if any(q.positions != merged.positions for q in parts):
+            raise ValueError("cannot merge quad indexes with and without positions")
         if not parts:
             merged.tree = None
             merged.quad_z = np.zeros((0, 4), np.complex128)

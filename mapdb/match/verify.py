@@ -157,6 +157,9 @@ class ObjectIndex:
         reach = np.sqrt(U_MAX / (math.pi * lam))[labels]
         k = 1 if exclude is None else 1 + exclude.shape[1]
         d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(reach.max()))
+        if k == 1:  # nothing to exclude: the nearest is the answer when within reach
+            ok = d <= reach
+            return np.where(ok, d, np.inf).reshape(shape), np.where(ok, i, -1).reshape(shape)
         d, i = d.reshape(labels.size, k), i.reshape(labels.size, k)
         found = d <= reach[:, None]
         if exclude is not None:
