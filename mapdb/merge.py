@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 from pyproj import CRS, Transformer
-from scipy.spatial import cKDTree
 
+from ._scipy import cKDTree
 from .build import _auto_crs, _projected_crs, _to_lonlat, file_sha256
 from .errors import EmptyMapError, SourceError
 from .objects import Objects

@@ -172,7 +172,7 @@ def _truth_pose(truth: dict[str, Any] | None, im: ImageObjects) -> bool:
 
 
 def _nearest_of_label(world: np.ndarray, names: np.ndarray, objects: Objects) -> tuple[np.ndarray, np.ndarray]:
-    from scipy.spatial import cKDTree
+    from ._scipy import cKDTree
 
     nearest = np.full(world.shape, np.nan + 0j)
     distance = np.full(world.shape, np.inf)

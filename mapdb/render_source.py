@@ -46,8 +46,8 @@ import numpy as np
 import osmium
 import shapely
 from pyproj import Transformer
-from scipy.spatial import cKDTree
 
+from ._scipy import cKDTree
 from .errors import SourceError
 from .labels import LabelTable, TagRule, default_label_table
 from .objects import Objects

@@ -26,8 +26,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from ._scipy import cKDTree
 from .camera import Camera, Pose, footprint, image_to_ground, level_pixels, project_to_image
 from .errors import EmptyMapError
 from .match.geometry import apply_similarity, fit_similarity

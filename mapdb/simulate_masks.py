@@ -29,8 +29,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from ._scipy import cKDTree
 from .errors import EmptyMapError
 from .masks import DEFAULT_MIN_AREA_PX, from_mask
 from .outputs import ProgressLike, as_progress, atomic_path

@@ -193,7 +193,7 @@ class _Context:
 
 def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.ndarray) -> CellMeasures:
     """The measures of cells given by absolute indices (rows ``(i, j)`` of ``cells``)."""
-    from scipy.spatial import cKDTree
+    from .._scipy import cKDTree
 
     m, localizer = _opened(map_path)
     cells = np.asarray(cells, np.int64).reshape(-1, 2)

@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .._scipy import cKDTree
 from ..camera import Camera, project_to_image
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress

@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from .._scipy import cKDTree
 from ..errors import SourceError, reading
 from ..objects import Objects
 

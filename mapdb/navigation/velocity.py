@@ -172,7 +172,7 @@ def _translation_votes(prev: FramePoints, cur: FramePoints, a: complex) -> list[
     votes = (prev.z[None, :] - a * cur.z[:, None])[same]
     if votes.size < 3:
         return []
-    from scipy.spatial import cKDTree
+    from .._scipy import cKDTree
 
     xy = np.column_stack([votes.real, votes.imag])
     support = np.asarray(cKDTree(xy).query_ball_point(xy, VOTE_RADIUS_PX, return_length=True))
