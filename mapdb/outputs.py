@@ -27,6 +27,7 @@ import math
 import os
 import re
 import secrets
+import shutil
 import stat
 import sys
 import time
@@ -197,8 +198,10 @@ def refuse_existing(path: PathLike | None, overwrite: bool, what: str = "map") -
 
 
 def _temp_pattern(target: Path) -> re.Pattern[str]:
+    """Names of ``target``'s temporaries: files (``.NAME.PID.HEX.tmp[.ext]``) and the folders of records a
+    streaming map writer spills (``.NAME.PID.XXXXXXXX.spill``, :class:`mapdb.store.MapWriter`)."""
     name = re.escape(target.name[:_NAME_KEEP])
-    return re.compile(rf"\.{name}\.(\d+)\.[0-9a-f]+\.tmp(?:\.[^.]*)?")
+    return re.compile(rf"\.{name}\.(\d+)\.(?:[0-9a-f]+\.tmp(?:\.[^.]*)?|[A-Za-z0-9_]+\.spill)")
 
 
 def pid_alive(pid: int) -> bool:
@@ -216,7 +219,7 @@ def pid_alive(pid: int) -> bool:
 
 
 def remove_stale_temporaries(target: PathLike) -> int:
-    """Delete temporary files of ``target`` left by runs that were killed; return how many.
+    """Delete temporary files (and spill folders) of ``target`` left by runs that were killed; return how many.
 
     A temporary file is stale when its name has this target's prefix and the process id embedded in
     it is no longer running.  (Another host writing into a shared directory, or a reused pid, can make
@@ -234,8 +237,12 @@ def remove_stale_temporaries(target: PathLike) -> int:
     for name in names:
         match = pattern.fullmatch(name) if name.startswith(prefix) else None
         if match and not pid_alive(int(match.group(1))):
+            stale = target.parent / name
             try:
-                os.unlink(target.parent / name)
+                if name.endswith(".spill") and stale.is_dir() and not stale.is_symlink():
+                    shutil.rmtree(stale)
+                else:
+                    os.unlink(stale)
                 removed += 1
             except OSError:
                 pass

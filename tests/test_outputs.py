@@ -22,7 +22,7 @@ from mapdb_cli.main import cli
 from osmxml import OsmXml, square
 
 from mapdb.errors import MapdbIOError
-from mapdb.outputs import atomic_open, atomic_path, check_outputs
+from mapdb.outputs import atomic_open, atomic_path, check_outputs, remove_stale_temporaries
 from mapdb.simulate import paper_map, write_images
 from mapdb.store import open_map, write_map
 
@@ -353,3 +353,17 @@ def test_json_out_is_strict_even_for_non_finite_input(files: dict[str, Path], tm
     assert run("simulate", files["paper"], "-o", out, "--n", "3", "--yaw", "1e308", "--with-prior", "2e7",
                "-q").exit_code == 0
     assert len([_strict(line) for line in out.read_text().splitlines()]) == 3
+
+
+def test_a_killed_builds_spill_folder_is_removed_and_a_live_ones_kept(tmp_path: Path) -> None:
+    """A SIGKILLed streaming build leaves its spilled records in ``.NAME.PID.XXXX.spill`` beside the output:
+    the next write to that output removes it when that process is gone, and leaves a running one's alone."""
+    target = tmp_path / "world.mapdb"
+    dead = tmp_path / ".world.mapdb.999999999.k2j_x9ab.spill"
+    live = tmp_path / f".world.mapdb.{os.getpid()}.q1w2e3r4.spill"
+    other = tmp_path / ".other.mapdb.999999999.k2j_x9ab.spill"
+    for folder in (dead, live, other):
+        folder.mkdir()
+        (folder / "1.bin").write_bytes(b"records")
+    assert remove_stale_temporaries(target) == 1
+    assert not dead.exists() and live.exists() and other.exists()
