@@ -14,6 +14,11 @@ from copies of the three extracts (``benchmarks/synthetic_world.py``):
   (``image_queries`` below: each image quad in the frames and orderings that noise could make
   canonical, radius from a 1.5 px error, at most 16 hits): median time per image, and how often the
   true map quad is among the hits;
+* **localize**: the same images answered whole, as a user meets them (``Localizer.localize``, no prior,
+  with the map's stored index: lookups, verification, decision, refinement): median per image the first
+  time and in the steady state, images accepted and accepted wrongly, each map's median relative to
+  Andorra's; and a fresh process's first answer (map and index dropped from the page cache, from
+  ``open_map`` to the answer, the whole map's object index built on the way);
 * **QuadIndex** (the in-memory cKDTree index) on Andorra and, with ``--quadindex-world``, on the 1M
   world (about 250 s and 14 GB: run once): build time and memory, and the same lookups.
 
@@ -132,6 +137,45 @@ def _stored_lookups(map_path: Path, images: list[dict]) -> dict:
         result["ms"] = np.min(passes[1:], axis=0).tolist()
         result["cpu_ms"] = np.min(cpu[1:], axis=0).tolist()
     return result
+
+
+def _localize_times(map_path: Path, images: list[dict]) -> dict:
+    """Whole lost-in-space answers (``Localizer.localize``, no prior) with the map's stored index, per image.
+
+    What a user meets, lookups, verification, decision and refinement together.  The map's whole-map
+    indexes (the stored quad index, opened; the object index, built from ``MetaMap.all()``) are made
+    once, before the timing (``index_s``); then each image is localized once (``first_ms``: the index
+    blocks it needs read and checksummed the first time), and ``REPEATS`` more passes of which each
+    image keeps its fastest (``ms``, the steady state of a long-running process).  ``ok``: images
+    accepted; ``wrong``: accepted more than 5 m from the truth.
+    """
+    from mapdb.localize import Localizer, StoredQuads
+
+    with open_map(map_path) as m:
+        loc = Localizer(m)
+        start = time.perf_counter()
+        _, quads = loc.whole_map_indexes()
+        index_s = time.perf_counter() - start
+        if not isinstance(quads, StoredQuads):
+            raise RuntimeError(f"{map_path}: the localizer does not use a stored index")
+        passes, cpu, answers = [], [], []
+        for run in range(1 + REPEATS):
+            times, cpu_times = [], []
+            for image in images:
+                start, start_cpu = time.perf_counter(), time.process_time()
+                answer = loc.localize(image)
+                times.append((time.perf_counter() - start) * 1000.0)
+                cpu_times.append((time.process_time() - start_cpu) * 1000.0)
+                if run == 0:
+                    answers.append(answer)
+            passes.append(times)
+            cpu.append(cpu_times)
+    error = [math.hypot(a.x - im["truth"]["x"], a.y - im["truth"]["y"])
+             for a, im in zip(answers, images) if a.status == "ok"]
+    return {"first_ms": passes[0], "ms": np.min(passes[1:], axis=0).tolist(),
+            "cpu_ms": np.min(cpu[1:], axis=0).tolist(), "index_s": index_s, "ok": len(error),
+            "wrong": sum(e > 5.0 for e in error), "images": len(images),
+            "answers": [[a.status, a.x, a.y] for a in answers]}
 
 
 def _true_found(ids: np.ndarray, truth: np.ndarray, row: np.ndarray, hit_ids: np.ndarray) -> tuple[int, int]:
@@ -275,6 +319,25 @@ print(json.dumps({"imports_s": t1 - t0, "open_s": t2 - t1, "lookup_s": t3 - t2, 
                   "start_to_answer_s": t3 - t0, "hits": int(len(row))}))
 """
 
+FIRST_ANSWER = """
+import time
+t0 = time.perf_counter()
+import json, os, sys
+from mapdb.localize import Localizer
+from mapdb.match.stored_index import index_path
+from mapdb.store import open_map
+image = json.loads(sys.argv[2])
+for path in (sys.argv[1], index_path(sys.argv[1])):
+    fd = os.open(path, os.O_RDONLY)
+    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    os.close(fd)
+t1 = time.perf_counter()
+m = open_map(sys.argv[1])
+answer = Localizer(m).localize(image)
+t2 = time.perf_counter()
+print(json.dumps({"open_to_answer_s": t2 - t1, "start_to_answer_s": t2 - t0, "status": answer.status}))
+"""
+
 QUADINDEX = """
 import json, sys
 sys.path.insert(0, "benchmarks")
@@ -316,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
         maps[f"world {n / 1e6:g}M" + (f" jitter {args.jitter:g} m" if args.jitter else "")] = path
         world_path[n] = path
 
-    rows = []
+    rows, whole = [], []
     for name, path in maps.items():
         with open_map(path) as m:
             n_objects, map_bytes = len(m), path.stat().st_size
@@ -329,12 +392,17 @@ def main(argv: list[str] | None = None) -> int:
             build = _child(BUILD, str(path), str(args.workers))
         images = _images(path, args.images, args.seed)
         first = _child(OPEN, str(path), json.dumps(images[0]))
+        first_answer = _child(FIRST_ANSWER, str(path), json.dumps(images[0]))
         look = _stored_lookups(path, images)
+        located = _localize_times(path, images)
+        located["first_answer_s"] = first_answer["open_to_answer_s"]
         rows.append((name, n_objects, map_bytes, build, first, look))
+        whole.append((name, located))
         print(f"{name}: {n_objects} objects, index {build['bytes'] / 2**20:.0f} MiB ({build['quads']} quads) built "
               f"in {build.get('wall_s', math.nan):.1f} s, peak {build.get('peak_pss_mb', math.nan):.0f} MB; open+first "
               f"answer {first['open_to_answer_s'] * 1000:.0f} ms; lookups median "
-              f"{statistics.median(look['ms']):.2f} ms", flush=True)
+              f"{statistics.median(look['ms']):.2f} ms; localize median {statistics.median(located['ms']):.2f} ms"
+              f" ({statistics.median(located['first_ms']):.2f} ms the first time)", flush=True)
         if name == "Andorra" or (args.quadindex_world and not args.lookups_only
                                  and path == world_path.get(args.quadindex_world)):
             images_file = args.workdir / f"{path.stem}-images.json"
@@ -373,7 +441,29 @@ def main(argv: list[str] | None = None) -> int:
           " in CPU time (process_time: what other processes on the machine do not inflate);"
           " queries: lookups per image, hits: per image; true"
           " found: image quads of real objects whose true map quad is among the hits")
+    _whole_table(whole)
     return 0
+
+
+def _whole_table(whole: list[tuple[str, dict]]) -> None:
+    """The table of whole lost-in-space answers per image (``_localize_times``), with ratios to the first map's."""
+    print(f"\n{'map':<28} {'ok':>7} {'wrong':>5} {'indexes s':>9} {'1st answer s':>12} {'1st pass ms':>11}"
+          f" {'localize ms':>11} {'p95 ms':>7} {'CPU ms':>7} {'x first map':>11} {'x (1st pass)':>12}")
+    ref = whole[0][1] if whole else None
+    for name, r in whole:
+        ratio = statistics.median(r["ms"]) / statistics.median(ref["ms"])
+        ratio_first = statistics.median(r["first_ms"]) / statistics.median(ref["first_ms"])
+        print(f"{name:<28} {r['ok']:>3}/{r['images']:<3} {r['wrong']:>5} {r['index_s']:>9.2f}"
+              f" {r['first_answer_s']:>12.2f} {statistics.median(r['first_ms']):>11.2f}"
+              f" {statistics.median(r['ms']):>11.2f} {np.percentile(r['ms'], 95):>7.2f}"
+              f" {statistics.median(r['cpu_ms']):>7.2f} {ratio:>10.2f}x {ratio_first:>11.2f}x")
+    print("whole lost-in-space answers, Localizer.localize with no prior and the map's stored index: ok: images"
+          " accepted, wrong: accepted more than 5 m from the truth; indexes s: opening the stored index and"
+          " building the whole map's object index (once per process, before the timing); 1st answer s: a fresh"
+          " process, map and index dropped from the page cache, open_map to the first image's answer; 1st pass:"
+          " median per image the first time each image is localized, localize ms and p95: the fastest of 3 more"
+          " passes, CPU ms the same in CPU time; x first map: median localize time relative to the first map's"
+          " (Andorra's)")
 
 
 if __name__ == "__main__":

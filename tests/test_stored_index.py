@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from mapdb_cli.index import index as index_command
 
 from mapdb.errors import MapdbIOError, MapFormatError
-from mapdb.match import index_build, index_generate
+from mapdb.match import index_build, index_generate, index_lookup
 from mapdb.match.quads import QuadIndex, canonical_quads, label_keys, neighbour_quads
 from mapdb.match.stored_index import StoredQuadIndex, build_index, index_path, open_index
 from mapdb.objects import Objects
@@ -127,6 +127,18 @@ def test_lookup_equals_brute_force_within_the_clamped_radius(small) -> None:
     full = radius <= cell
     unclamped = _brute_force(objects, query[full], labels[full], radius[full])
     assert [len(h) for h in unclamped] == [int(np.sum(row == i)) for i in np.flatnonzero(full)]
+
+
+def test_a_lookup_reads_only_the_cells_its_ball_reaches() -> None:
+    # A query at a cell's centre with radius 0.9 cells: of the 81 cells around it, those differing in at
+    # most 3 coordinates (each 0.5 cells away; four such make 1.0 > 0.9): 1 + 8 + 24 + 32.
+    cell = np.array([0.1])
+    q = np.array([[0.05, 0.15, 0.25, 0.35]]) - 1.0 + np.array([[10, 10, 10, 10]]) * 0.1
+    which, rel, keys = index_lookup.query_cells(q, np.array([0.09]), cell, np.array([3]), 12)
+    assert which.tolist() == [0] * 65 and np.unique(keys).size == 65
+    # The query's place relative to each cell's corner, in 1/256ths of the cell.
+    assert set(np.round(rel.ravel(), 3).tolist()) <= {-128.0, 128.0, 384.0}
+    assert np.sum(np.all(np.round(rel, 3) == 128.0, axis=1)) == 1
 
 
 def test_lookup_of_nothing_and_bad_queries(small) -> None:
@@ -262,6 +274,23 @@ def test_corrupt_bytes_fail_their_checksum(small, tmp_path) -> None:
         _one_line_error(exc, "anchor block 0 checksum mismatch")
         with pytest.raises(MapFormatError, match="checksum mismatch"):
             ix.quads(0, 10)
+
+
+def test_a_lookup_reading_a_corrupt_anchor_block_fails(small, tmp_path) -> None:
+    # Lookups read a candidate's anchor only when its bounds let it through: that read is still checked.
+    path, target = _copy(small, tmp_path)
+    with open_map(path) as m, StoredQuadIndex.for_map(m) as ix:
+        ids = ix.quads(0, 8)
+        _, inv, _ = canonical_quads(ix.coordinates(ids))
+        labels = m.all().label[ids]
+    data = bytearray(target.read_bytes())
+    header = json.loads(bytes(data[struct.unpack_from("<Q", data, 12)[0] :]))
+    data[header["sections"]["anchor"]["offset"] + 4] ^= 0x10
+    target.write_bytes(bytes(data))
+    with open_index(target) as ix:
+        with pytest.raises(MapFormatError) as exc:
+            ix.lookup(inv, labels, 1e-9, 16)
+        _one_line_error(exc, "anchor block 0 checksum mismatch")
 
 
 def test_an_index_of_another_map_is_refused(small, tmp_path) -> None:

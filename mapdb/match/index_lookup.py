@@ -17,13 +17,15 @@ from typing import Any
 import numpy as np
 
 from ..errors import MapFormatError
-from .index_layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, cells_of, pread
+from .index_layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, pread
 
 __all__ = ["LOOKUP_CANDIDATES", "Best", "Section", "bound_candidates", "find_cells", "map_sections", "pieces",
            "query_cells"]
 
 LOOKUP_CANDIDATES = 1 << 20  # candidates handled at once by a lookup: bounds its memory
 _BOUND_MARGIN = 0.05  # in 1/256ths of a cell: far above float32 rounding of positions below 2^16
+_PREFETCH_GAP = 8  # blocks: runs of wanted blocks closer than this are prefetched together
+_CELL_SLACK = 1e-6  # in cells: far above float64 rounding, so no cell holding a quad within the radius is left out
 _STEPS = np.array(np.meshgrid(*[[-1, 0, 1]] * 4, indexing="ij")).reshape(4, -1).T  # the 81 neighbour cells
 
 
@@ -59,7 +61,9 @@ class Section:
         in parallel, not for one page fault after another."""
         if self.mapping is None or not hasattr(mmap, "MADV_WILLNEED"):
             return
-        cut = np.flatnonzero(np.diff(blocks) != 1) + 1
+        # Runs of blocks a few blocks apart are asked for in one call (a system call costs about as much as
+        # reading those few pages from the page cache; from a disk, one read of them costs about one seek).
+        cut = np.flatnonzero(np.diff(blocks) > _PREFETCH_GAP) + 1
         first, last = blocks[np.r_[0, cut]], blocks[np.r_[cut - 1, blocks.size - 1]]
         end = len(self.mapping)
         try:
@@ -134,20 +138,26 @@ def _mapped(mapping: mmap.mmap | None, dtype: str, offset: int, shape: tuple[int
 
 def query_cells(q: np.ndarray, r: np.ndarray, cell: np.ndarray, lk: np.ndarray,
                 bits: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The cells the balls of radius ``r`` (at most ``cell``) around invariants ``q`` overlap.
+    """The cells the balls of radius ``r`` (at most ``cell``) around invariants ``q`` reach.
 
-    At most 3 per invariant, 81 in all, within the key's range.  Returns the query row of each cell
-    (ascending), its coordinates ``(c, 4)`` and its key (with the query's label key ``lk``).
+    At most 3 per invariant, 81 in all, within the key's range; of those, only the cells whose box
+    comes within ``r`` of ``q`` (a 4-D ball fills a third of its bounding cube: the corner cells of
+    the cube hold no quad within the radius).  Returns the query row of each cell (ascending), the
+    query's position relative to the cell's corner in 1/256ths of the cell, float32 ``(c, 4)`` (what
+    :func:`bound_candidates` measures quads' positions inside their cells from), and its key (with the
+    query's label key ``lk``).
     """
-    lo, _ = cells_of(q - r[:, None], cell)
-    hi, _ = cells_of(q + r[:, None], cell)
-    base, _ = cells_of(q, cell)
+    s = (q + 1.0) / cell[:, None]  # the query in cell units: cell g spans [g, g + 1)
+    base = np.maximum(np.floor(s), 0).astype(np.int64)
     top = (1 << bits) - 1
     cand = base[:, None, :] + _STEPS[None, :, :]
-    inside = ((cand >= lo[:, None, :]) & (cand <= hi[:, None, :]) & (cand >= 0) & (cand <= top)).all(axis=2)
-    which, s = np.nonzero(inside)
-    cells = cand[which, s]
-    return which, cells, cell_keys(lk[which], cells, bits)
+    gap = np.maximum(np.maximum(cand - s[:, None, :], s[:, None, :] - (cand + 1)), 0.0)
+    reach = (r / cell)[:, None] * (1.0 + _CELL_SLACK) + _CELL_SLACK
+    inside = ((gap * gap).sum(axis=2) <= reach * reach) & ((cand >= 0) & (cand <= top)).all(axis=2)
+    which, step = np.nonzero(inside)
+    cells = cand[which, step]
+    rel = ((s[which] - cells) * SUB_CELLS).astype(np.float32)
+    return which, rel, cell_keys(lk[which], cells, bits)
 
 
 def find_cells(fence: np.ndarray, dir_key: Section, n_cells: int, keys: np.ndarray) -> np.ndarray:
@@ -176,22 +186,25 @@ def find_cells(fence: np.ndarray, dir_key: Section, n_cells: int, keys: np.ndarr
     return np.where(found, lo, -1)
 
 
-def bound_candidates(which: np.ndarray, idx: np.ndarray, cell_coords: np.ndarray, sub: np.ndarray,
-                     q: np.ndarray, r: np.ndarray, cell: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+def bound_candidates(which: np.ndarray, idx: np.ndarray, rel: np.ndarray, sub: np.ndarray,
+                     r: np.ndarray, cell: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The candidates (query rows ``which``, ascending; quad positions ``idx``) worth measuring.
 
-    Drops, from bounds on a candidate's distance given by its cell and its position ``sub`` inside it,
+    Drops, from bounds on a candidate's distance given by its position ``sub`` inside its cell and its
+    query's position ``rel`` relative to that cell (both in 1/256ths of the cell, :func:`query_cells`),
     those farther than the radius and those that cannot be among their query's ``k`` nearest.
     """
-    # Bounds of the distance from the position inside the cell, in 1/256ths of the cell: the candidate
-    # lies in [p, p + 1) per invariant.  Float32 (half the memory traffic; all of a lookup's time is
-    # here where cells are crowded) with a margin far above its rounding keeps the bounds safe.
-    scale = SUB_CELLS / cell
-    p = (cell_coords * SUB_CELLS + sub).astype(np.float32)
-    d = p - ((q + 1.0) * scale[:, None]).astype(np.float32)[which]
-    lower = (np.maximum(np.maximum(d, -1.0 - d), 0.0) ** 2).sum(axis=1)
-    reach = (r * scale + _BOUND_MARGIN).astype(np.float32)
-    near = lower <= reach[which] ** 2
+    # The candidate lies in [sub, sub + 1) per invariant.  Float32 (half the memory traffic; all of a
+    # lookup's time is here where cells are crowded) with a margin far above its rounding keeps the
+    # bounds safe.
+    d = sub.astype(np.float32)
+    d -= rel
+    gap = np.maximum(d, -1.0 - d)
+    np.maximum(gap, 0.0, out=gap)
+    gap *= gap
+    lower = gap.sum(axis=1)
+    reach = (r * (SUB_CELLS / cell) + _BOUND_MARGIN).astype(np.float32)
+    near = lower <= (reach * reach)[which]
     which, idx, lower, d = which[near], idx[near], lower[near], d[near]
     if not idx.size or np.bincount(which).max() <= k:
         return which, idx
@@ -203,7 +216,7 @@ def bound_candidates(which: np.ndarray, idx: np.ndarray, cell_coords: np.ndarray
     key = (which << 24) | np.minimum(upper, (1 << 24) - 1)
     order = np.argsort(key)
     rank = np.arange(which.size) - np.searchsorted(which[order], which[order])
-    kth = np.full(len(q), np.inf, np.float32)
+    kth = np.full(reach.size, np.inf, np.float32)
     kth[which[order[rank == k - 1]]] = upper[order[rank == k - 1]] / 16.0 + _BOUND_MARGIN
     near = lower <= np.minimum(kth, reach)[which] ** 2
     return which[near], idx[near]

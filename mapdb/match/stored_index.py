@@ -20,12 +20,13 @@ How quads are found (geometric hashing)
     ``target_occupancy`` other quads); quads are sorted by ``(label combination, cell)`` and a directory
     of the non-empty cells gives each one's range.  Each quad also keeps its position inside its cell
     to 1/256 of ``c`` (4 bytes): bounds on its distance to a query without reading its coordinates.
-    A lookup enumerates the cells its ball overlaps (at most 3^4), finds them in the memory-mapped
-    directory (a fence of every 512th key, read when opening, names the one page to search), drops
-    the candidates whose lower bound exceeds the radius or the query's k-th smallest upper bound
-    (they cannot be among its ``k`` nearest), recomputes the others' exact invariants from the
-    coordinate table with ``canonical_quads`` (bit-identical to the in-memory index's) and keeps those
-    within the radius, the ``k`` nearest per query.
+    A lookup enumerates the cells its ball reaches (at most 3^4, about a third of them for a ball as
+    wide as a cell), finds them in the memory-mapped directory (a fence of every 512th key, read when
+    opening, names the one page to search), drops the candidates whose lower bound exceeds the radius
+    or the query's k-th smallest upper bound (they cannot be among its ``k`` nearest) without reading
+    their anchor and triple, recomputes the others' exact invariants from the coordinate table with
+    ``canonical_quads`` (bit-identical to the in-memory index's) and keeps those within the radius,
+    the ``k`` nearest per query.
 
     **The lookup radius is clamped to the cell size** of the query's label combination: a ball wider
     than a cell would cover many cells, and where ``c`` is smaller than the radius the quads are dense
@@ -275,22 +276,22 @@ class StoredQuadIndex:
         cell = self._combo_cell[pos[rows]]
         q = inv[rows]
         r = np.minimum(radius[rows], cell)
-        which, start, length, cell_coords = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
+        which, start, length, rel = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
         best = Best(k)
         for piece, idx in pieces(start, length, LOOKUP_CANDIDATES):
-            self._candidates(which[piece], idx, cell_coords[piece], q, r, cell, k, best)
+            self._candidates(which[piece], idx, rel[piece], q, r, cell, k, best)
         row, ids, dist = best.result()
         row = rows[row]
         return (row, ids, dist) if return_distance else (row, ids)
 
     def _cell_ranges(self, q: np.ndarray, r: np.ndarray, cell: np.ndarray,
                      lk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The non-empty cells the queries' balls overlap: query row, first quad, quads, cell coordinates.
+        """The non-empty cells the queries' balls reach: query row, first quad, quads, the query's position
+        relative to the cell (:func:`~mapdb.match.index_lookup.query_cells`).
 
-        Their directory ranges are checked, and the blocks of ``sub``, ``anchor`` and ``triple`` holding
-        them (read below range by range).
+        Their directory ranges are checked, and the blocks of ``sub`` holding them (read below range by range).
         """
-        which, cells, keys = query_cells(q, r, cell, lk, self._bits)
+        which, rel, keys = query_cells(q, r, cell, lk, self._bits)
         dir_start = self._sections["dir_start"]
         at = find_cells(self._fence, self._sections["dir_key"], self.n_cells, keys)
         found = at >= 0
@@ -301,34 +302,31 @@ class StoredQuadIndex:
         if length.size and (start.min() < 0 or stop.max() > self.n_quads or length.min() < 1
                             or length.max() > self.max_cell):
             raise MapFormatError(f"{self.where}: quad index directory out of range (file is corrupt)")
-        for name in ("sub", "anchor", "triple"):
-            self._sections[name].check_ranges(start, stop)
-        return which, start, length, cells[found]
+        # Every candidate's position inside its cell is read; its anchor and triple only if it survives
+        # the bounds (a few in a hundred where cells are crowded): their blocks are checked as they are read.
+        self._sections["sub"].check_ranges(start, stop)
+        return which, start, length, rel[found]
 
-    def _candidates(self, which: np.ndarray, idx: np.ndarray, cell_coords: np.ndarray, q: np.ndarray,
+    def _candidates(self, which: np.ndarray, idx: np.ndarray, rel: np.ndarray, q: np.ndarray,
                     r: np.ndarray, cell: np.ndarray, k: int, best: Best) -> None:
         """Bound, resolve and measure one batch of candidates; offer those within the radius to ``best``.
 
         ``which`` (the query row of each candidate) is ascending.
         """
         sub = self._sections["sub"].array[idx]  # its blocks checked by _cell_ranges
-        which, idx = bound_candidates(which, idx, cell_coords, sub, q, r, cell, k)
+        which, idx = bound_candidates(which, idx, rel, sub, r, cell, k)
         if not idx.size:
             return
-        ids, inv = self._resolve(idx, checked=True)
+        ids, inv = self._resolve(idx)
         dist = np.sqrt(((inv - q[which]) ** 2).sum(axis=1))
         hit = dist <= r[which]
         best.offer(which[hit], ids[hit], dist[hit])
 
-    def _resolve(self, positions: np.ndarray, checked: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """Object ids ``(m, 4)`` in canonical order and invariants of the stored quads at ``positions``.
-
-        ``checked``: the blocks of ``anchor`` and ``triple`` holding them are known to be checked.
-        """
-        read = (lambda name: self._sections[name].array[positions]) if checked else \
-            (lambda name: self._sections[name].rows(positions))
-        anchor = read("anchor").astype(np.int64)
-        triple = read("triple").astype(np.int64)
+    def _resolve(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Object ids ``(m, 4)`` in canonical order and invariants of the stored quads at ``positions``."""
+        read = self._sections
+        anchor = read["anchor"].rows(positions).astype(np.int64)
+        triple = read["triple"].rows(positions).astype(np.int64)
         if anchor.size and (anchor.max() >= self.n_objects or triple.max() >= len(self._triples)):
             raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
         nb = self._sections["neighbours"].rows(anchor).astype(np.int64)
