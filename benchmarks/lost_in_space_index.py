@@ -292,6 +292,14 @@ from mapdb.match.stored_index import build_index
 print(json.dumps(build_index(sys.argv[1], workers=int(sys.argv[2]))))
 """
 
+# Drops the map and its index from the page cache, in the child processes below.
+DROP_CACHE = """
+for path in (sys.argv[1], index_path(sys.argv[1])):
+    fd = os.open(path, os.O_RDONLY)
+    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    os.close(fd)
+"""
+
 OPEN = """
 import time
 t0 = time.perf_counter()
@@ -302,11 +310,7 @@ from lost_in_space_index import _image_arrays, image_queries
 from mapdb.match.stored_index import StoredQuadIndex, index_path
 from mapdb.store import open_map
 image = json.loads(sys.argv[2])
-for path in (sys.argv[1], index_path(sys.argv[1])):
-    fd = os.open(path, os.O_RDONLY)
-    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
-    os.close(fd)
-t1 = time.perf_counter()
+""" + DROP_CACHE + """t1 = time.perf_counter()
 m = open_map(sys.argv[1])
 ix = StoredQuadIndex.for_map(m)
 t2 = time.perf_counter()
@@ -327,11 +331,7 @@ from mapdb.localize import Localizer
 from mapdb.match.stored_index import index_path
 from mapdb.store import open_map
 image = json.loads(sys.argv[2])
-for path in (sys.argv[1], index_path(sys.argv[1])):
-    fd = os.open(path, os.O_RDONLY)
-    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
-    os.close(fd)
-t1 = time.perf_counter()
+""" + DROP_CACHE + """t1 = time.perf_counter()
 m = open_map(sys.argv[1])
 answer = Localizer(m).localize(image)
 t2 = time.perf_counter()
