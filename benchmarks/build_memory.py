@@ -15,7 +15,11 @@ files.  Also shown, the peak of anonymous memory alone (sampled), since a file n
 cache that the kernel can reclaim.  The last lines give the ratio of the two builds' peaks (the country-scale
 issue asks for at most 1.5x from about 100 MB to 1 GB of input, and under 2 GB).  Run::
 
-    python benchmarks/build_memory.py [--gigabytes 1.0] [--baseline HEAD] [--keep DIR]
+    python benchmarks/build_memory.py [--gigabytes 1.0] [--baseline HEAD] [--keep DIR] [--stages]
+
+With ``--stages`` each input is built once more in a process that samples its own resident memory and cuts
+the time into the build's stages by its progress messages (the OSM pass, roundabouts and intersections, the
+automatic CRS, projection, writing), and the peak of each stage is printed.
 """
 
 from __future__ import annotations
@@ -370,6 +374,48 @@ print("objects", n)
 """
 
 
+# A build in this process with its resident memory (VmRSS: anonymous and mapped pages) sampled every 0.05 s,
+# cut into stages by the build's own progress messages; prints the peak of each stage as JSON.
+STAGES = """
+import json, sys, threading, time
+from mapdb.build import build_map
+MARKS = [("reading OpenStreetMap data", "the OSM pass (libosmium's reading and area assembly)"),
+         ("file read in", "roundabouts and road intersections after the pass"),
+         ("objects from", "checks and the automatic CRS (passes over the spooled objects)"),
+         ("projecting", "projection into the map writer"), ("writing", "writing the map")]
+samples, marks, done = [], [(0.0, "start-up and imports")], False
+t0 = time.monotonic()
+def rss():
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
+def sample():
+    while not done:
+        samples.append((time.monotonic() - t0, rss()))
+        time.sleep(0.05)
+def say(message):
+    for text, stage in MARKS:
+        if text in message and marks[-1][1] != stage:
+            marks.append((time.monotonic() - t0, stage))
+threading.Thread(target=sample, daemon=True).start()
+build_map([sys.argv[1]], sys.argv[2], progress=say)
+done = True
+time.sleep(0.1)
+ends = [t for t, _ in marks[1:]] + [samples[-1][0] + 1e-9]
+print(json.dumps([(stage, max([r for t, r in samples if start <= t < end] or [0.0]), end - start)
+                  for (start, stage), end in zip(marks, ends)]))
+"""
+
+
+def stages(path: Path, out: Path) -> list[tuple[str, float, float]]:
+    """Peak resident memory (MB) and duration (s) of each stage of ``mapdb build`` of ``path``."""
+    import json
+    run = subprocess.run([sys.executable, "-c", STAGES, str(path), str(out)], capture_output=True, text=True)
+    if run.returncode:
+        print(f"| (stages of {path.name} FAILED: {(run.stderr.strip().splitlines() or ['?'])[-1][:100]}) |")
+        return []
+    return [tuple(row) for row in json.loads(run.stdout.strip().splitlines()[-1])]
+
+
 def median(runs: list[Run]) -> Run:
     return sorted(runs, key=lambda r: r.seconds)[len(runs) // 2]
 
@@ -432,6 +478,8 @@ def main() -> None:
     parser.add_argument("--before-max-mb", type=float, default=150.0,
                         help="run the 'before' build only on inputs up to this size (it needs ~15 MB a MB)")
     parser.add_argument("--keep", type=Path, help="keep the generated inputs in this directory")
+    parser.add_argument("--stages", action="store_true",
+                        help="also build each input once more, sampling memory by stage, and print the peaks")
     args = parser.parse_args()
     extracts = sorted(DATA.glob("*.osm.pbf"))
     if not extracts:
@@ -465,7 +513,8 @@ def run_all(args: argparse.Namespace, extracts: list[Path], tmp: Path, before: P
         print(row(median([mapdb_build("mapdb build, Andorra (before)", [andorra], tmp / "andorra_before.mapdb",
                                       pythonpath=before) for _ in range(3)]), mb, bare))
     sizes = [("small", args.small_mb * 1e6), ("big", args.gigabytes * 1e9)]
-    peaks = {}
+    peaks: dict[str, tuple[float, float]] = {}
+    breakdown: dict[str, tuple[float, list[tuple[str, float, float]]]] = {}
     for label, target in sizes:
         copies = math.ceil(target / per_copy)
         path = tmp / f"{label}.osm.pbf"
@@ -480,6 +529,8 @@ def run_all(args: argparse.Namespace, extracts: list[Path], tmp: Path, before: P
         after = mapdb_build(f"mapdb build ({label}, after)", [path], tmp / f"{label}_after.mapdb")
         print(row(after, mb, bare))
         peaks[label] = (mb, after.peak_rss_mb if after.ok else math.nan)
+        if args.stages:
+            breakdown[label] = (mb, stages(path, tmp / f"{label}_stages.mapdb"))
         if before is not None and mb <= args.before_max_mb:
             old = mapdb_build(f"mapdb build ({label}, before)", [path], tmp / f"{label}_before.mapdb",
                               pythonpath=before)
@@ -492,7 +543,24 @@ def run_all(args: argparse.Namespace, extracts: list[Path], tmp: Path, before: P
     (small_mb, small), (big_mb, big) = peaks["small"], peaks["big"]
     print(f"\npeak RSS of the build (after): {big:,.0f} MB on {big_mb:,.0f} MB of input, {big / small:.2f}x the "
           f"{small:,.0f} MB on {small_mb:,.0f} MB (the country-scale issue asks for at most 1.5x and 2 GB)\n")
+    if breakdown:
+        print_stages(breakdown)
     jobs(extracts, tmp)
+
+
+def print_stages(breakdown: dict[str, tuple[float, list[tuple[str, float, float]]]]) -> None:
+    """The peak resident memory of each stage, the inputs side by side."""
+    labels = list(breakdown)
+    print("| stage | " + " | ".join(f"{breakdown[k][0]:,.0f} MB: peak RSS, time" for k in labels) + " |")
+    print("|---|" + "---|" * len(labels))
+    names = [name for name, _, _ in breakdown[labels[0]][1]]
+    for name in names:
+        cells = []
+        for k in labels:
+            found = [(peak, secs) for stage, peak, secs in breakdown[k][1] if stage == name]
+            cells.append(f"{found[0][0]:,.0f} MB, {found[0][1]:,.1f} s" if found else "-")
+        print(f"| {name} | " + " | ".join(cells) + " |")
+    print()
 
 
 def jobs(extracts: list[Path], tmp: Path) -> None:

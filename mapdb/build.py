@@ -6,8 +6,10 @@ import hashlib
 import math
 import os
 import stat
+import tempfile
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -16,15 +18,17 @@ from pyproj import CRS, Transformer
 from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
+from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 from .classmap import ClassTable, check_label, load_class_table
 from .cluster import open_client, run_tasks, worker_count
-from .errors import EmptyMapError, MapdbError, SourceError
-from .geo import _lon_arc, bbox_text, central_longitude, check_bbox, in_bbox
+from .errors import EmptyMapError, MapdbError, MapdbIOError, SourceError
+from .geo import bbox_text, check_bbox, in_bbox
 from .labels import LabelTable, load_label_table
 from .objects import Objects
 from .outputs import Progress, ProgressLike, as_progress
 from .sources import SKIPPED_KINDS, read_source, source_kind
-from .sources.osm import NODE_INDEXES, read_osm
+from .sources.osm import NODE_INDEXES, read_osm_spooled
+from .spool import ObjectSpool, release_freed_memory
 from .store import MapWriter
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "read_one_source", "utm_crs_for"]
@@ -94,15 +98,18 @@ def _duplicate(path: Path, fingerprint: tuple[tuple[int, int], str] | None, seen
     return None
 
 
-def _spread_warning(names: list[str], lonlat: list[tuple[np.ndarray, np.ndarray]], target: str) -> str | None:
-    """The warning for sources too wide in longitude for one auto-chosen UTM zone, else None."""
-    all_lon = np.concatenate([lon for lon, _ in lonlat])
-    start, width = _lon_arc(all_lon)
+def _spread_warning(names: list[str], lonlat: list[Blocks], target: str) -> str | None:
+    """The warning for sources too wide in longitude for one auto-chosen UTM zone, else None (``lonlat``: each
+    source's longitudes, block by block)."""
+    start, width = lon_arc_of(lambda: (lon for blocks in lonlat for lon in blocks()))
     if width <= MAX_AUTO_CRS_SPAN_DEG:
         return None
     # Name the sources at the two ends of the arc, by their own central longitude counted from its start.
-    middles = [(float(np.mod(central_longitude(lon) - start, 360.0)), name, central_longitude(lon))
-               for name, (lon, _) in zip(names, lonlat, strict=True) if lon.size]
+    middles = []
+    for name, blocks in zip(names, lonlat, strict=True):
+        if any(lon.size for lon in blocks()):
+            middle = central_longitude_of(blocks)
+            middles.append((float(np.mod(middle - start, 360.0)), name, middle))
     (_, west, west_lon), (_, east, east_lon) = min(middles), max(middles)
     where = (f"{west} (lon {west_lon:.1f}) and {east} (lon {east_lon:.1f})" if west != east
              else f"{west}")
@@ -177,7 +184,8 @@ def build_map(
         features with other values are skipped and counted (``unmapped_labels``).
     node_index, index_dir : str, path, optional
         Where OSM node locations are kept (:func:`mapdb.sources.osm.read_osm`: ``"auto"`` chooses memory or a
-        temporary file by the input's size) and the directory of such temporary files.
+        temporary file by the input's size) and the directory of such temporary files, and of the objects
+        read from OSM sources (28 bytes an object, read back in blocks; all removed at the end).
     jobs, scheduler : int, str, optional
         Read the sources in parallel, one Dask task a source, on a local cluster of ``jobs`` worker
         processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
@@ -214,25 +222,30 @@ def build_map(
     osm_options = {"node_index": _checked_node_index(node_index), "index_dir": index_dir}
     if jobs is not None and scheduler is not None:
         raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")
-    with open_client(jobs, scheduler) as client:
-        read = _gather(sources, table, (read_options, osm_options), target, say, client)
-    build = {"crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
-             "labels_file": Path(labels).name if labels else None,
-             "labels_sha256": file_sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
-             "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs, "label": label,
-             "label_map": Path(label_map).name if label_map else None,
-             "label_map_sha256": file_sha256(Path(label_map)) if label_map else None}
+    with open_client(jobs, scheduler) as client, _scratch(index_dir) as scratch:
+        read = _gather(sources, table, (read_options, osm_options), target, say, client, scratch)
+        return _built(output, read, table, quantum, say, {
+            "crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
+            "labels_file": Path(labels).name if labels else None,
+            "labels_sha256": file_sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
+            "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs, "label": label,
+            "label_map": Path(label_map).name if label_map else None,
+            "label_map_sha256": file_sha256(Path(label_map)) if label_map else None})
+
+
+def _built(output: str | Path, read: _Read, table: LabelTable, quantum: float, say: Progress,
+           build: dict[str, Any]) -> dict[str, Any]:
+    """Write the map of what was read, and say what came of it (:func:`build_map`'s result)."""
     written, label_counts, totals = _write(output, read, table, quantum, build, say)
     return {"output": str(output), "crs": read.target, "count": written, "labels": label_counts,
             "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": read.warnings}
 
 
 class _Read(NamedTuple):
-    """The sources read and clipped, not yet projected: each source's objects and their lon/lat, the map's
-    CRS, the sources' metadata entries, what each reader skipped, the warnings and the sources' names."""
+    """The sources read and clipped, not yet projected: each source's objects in lon/lat (spools of blocks), the
+    map's CRS, the sources' metadata entries, what each reader skipped, the warnings and the sources' names."""
 
-    parts: list[Objects]
-    lonlat: list[tuple[np.ndarray, np.ndarray]]
+    parts: list[list[ObjectSpool]]
     target: str
     described: list[dict[str, Any]]
     skipped: list[Counter[str]]
@@ -241,20 +254,49 @@ class _Read(NamedTuple):
 
 
 def _gather(sources: Sequence[str | Path], table: LabelTable, options: _ReadOptions, target: str | None,
-            say: Progress, client: Any) -> _Read:
+            say: Progress, client: Any, scratch: str) -> _Read:
     """Read and clip every source, and choose the CRS when ``target`` is None (from every object's lon/lat)."""
-    parts, described, skipped, warnings = _read_sources(sources, table, say, options, client)
+    parts, described, skipped, warnings = _read_sources(sources, table, say, options, client, scratch)
     bbox = options[0]["bbox"]
-    parts, lonlat = _clip(parts, bbox)
+    if bbox is not None:
+        parts = [_kept(spools, lambda block: in_bbox(bbox, block.x, block.y))[0] for spools in parts]
     names = ", ".join(str(s) for s in sources)
-    if sum(len(p) for p in parts) == 0:
+    if sum(len(spool) for spools in parts for spool in spools) == 0:
         where = f" inside bbox {bbox_text(bbox)}" if bbox else ""
         raise EmptyMapError(f"{names}: no labelled objects{where}")
     if target is None:
-        target = _auto_crs(lonlat)
-        spread = _spread_warning([d["name"] for d in described], lonlat, target)
+        lon = [_coordinate(spools, "x") for spools in parts]
+        target = _crs_of(lambda: (block for blocks in lon for block in blocks()),
+                         lambda: (block for spools in parts for block in _coordinate(spools, "y")()))
+        spread = _spread_warning([d["name"] for d in described], lon, target)
         warnings += [spread] if spread else []
-    return _Read(parts, lonlat, target, described, skipped, warnings, names)
+    return _Read(parts, target, described, skipped, warnings, names)
+
+
+def _coordinate(spools: list[ObjectSpool], axis: str) -> Blocks:
+    """One coordinate (``"x"``: longitude, ``"y"``: latitude) of a source's objects, block by block, afresh
+    at each call."""
+    return lambda: (getattr(block, axis) for spool in spools for block in spool.blocks())
+
+
+def _kept(spools: list[ObjectSpool], keep: Callable[[Objects], np.ndarray]) -> tuple[list[ObjectSpool], int]:
+    """A source's objects that ``keep`` keeps (a mask a block), and how many it dropped.
+
+    A pass over the blocks first: when nothing is dropped (a source already clipped or all valid) the spools
+    are kept as they are, not copied; else each is rewritten beside itself and the old one discarded.
+    """
+    dropped = sum(int((~keep(block)).sum()) for spool in spools for block in spool.blocks())
+    if not dropped:
+        return spools, 0
+    kept = []
+    for spool in spools:
+        copy = ObjectSpool(spool.labels, spool.crs, spool.directory, "kept-")
+        for block in spool.blocks():
+            mask = keep(block)
+            copy.add(block if mask.all() else block.take(mask))
+        spool.discard()
+        kept.append(copy)
+    return kept, dropped
 
 
 def _write(output: str | Path, read: _Read, table: LabelTable, quantum: float, build: dict[str, Any],
@@ -262,10 +304,10 @@ def _write(output: str | Path, read: _Read, table: LabelTable, quantum: float, b
     """Project the sources' objects block by block into a streaming map writer, which holds a bounded number
     of them, and write the map: the objects written, the count per label, and what was skipped in all
     (merged duplicates included)."""
-    total = sum(len(p) for p in read.parts)
+    total = sum(len(spool) for spools in read.parts for spool in spools)
     say(f"projecting {total} objects to {read.target} ...")
     with MapWriter(output, quantum=quantum) as writer:
-        for block in _project(read.parts, read.lonlat, read.skipped, read.target, table):
+        for block in _project(read.parts, read.skipped, read.target, table):
             writer.add(block)
         say.advance()
         if writer.count == 0:
@@ -300,52 +342,43 @@ def _checked_arguments(sources: Sequence[str | Path], quantum: float, min_area_m
     return quantum, min_area_m2, bbox, target, load_label_table(labels)
 
 
-def _clip(parts: list[Objects], bbox: tuple[float, float, float, float] | None
-          ) -> tuple[list[Objects], list[tuple[np.ndarray, np.ndarray]]]:
-    """Each source's objects inside ``bbox`` (all without one), and their lon/lat.
-
-    A source wholly inside (an OSM reader clips to the box itself) is kept as it is, not copied.
-    """
-    lonlat = [_to_lonlat(p) if len(p) else (np.zeros(0), np.zeros(0)) for p in parts]
-    if bbox is not None:
-        keep = [in_bbox(bbox, lon, lat) for lon, lat in lonlat]
-        parts = [p if k.all() else p.take(k) for p, k in zip(parts, keep, strict=True)]
-        lonlat = [(lon, lat) if k.all() else (lon[k], lat[k]) for (lon, lat), k in zip(lonlat, keep, strict=True)]
-    return parts, lonlat
-
-
 def _auto_crs(lonlat: list[tuple[np.ndarray, np.ndarray]]) -> str:
-    """The UTM zone of the objects' median place."""
-    all_lon = np.concatenate([lon for lon, _ in lonlat])
-    all_lat = np.concatenate([lat for _, lat in lonlat])
-    # The median longitude taken around the globe's widest empty gap: data on both sides of the
-    # antimeridian (Fiji) get the zone at 180, not the one at 0.
-    return utm_crs_for(central_longitude(all_lon), float(np.median(all_lat)))
+    """The UTM zone of the objects' median place (``lonlat``: each set's longitudes and latitudes)."""
+    return _crs_of(lambda: (lon for lon, _ in lonlat), lambda: (lat for _, lat in lonlat))
+
+
+def _crs_of(lon: Blocks, lat: Blocks) -> str:
+    """The UTM zone of the median place of the objects whose longitudes and latitudes these blocks give.
+
+    The median longitude is taken around the globe's widest empty gap: data on both sides of the antimeridian
+    (Fiji) get the zone at 180, not the one at 0.  Read in passes over the blocks, in bounded memory, and
+    equal to the medians of all the values at once (:mod:`mapdb.blockstats`).
+    """
+    return utm_crs_for(central_longitude_of(lon), float(median_of(lat)))
 
 
 # Objects projected at once: the blocks handed to the map writer (about 20 MB of arrays a block).
 _PROJECT_BLOCK = 1 << 18
 
 
-def _project(parts: list[Objects], lonlat: list[tuple[np.ndarray, np.ndarray]], skipped: list[Counter[str]],
-             target: str, table: LabelTable) -> Iterator[Objects]:
-    """Every source's objects in ``target`` and in the label table, in blocks of :data:`_PROJECT_BLOCK`; those
-    the CRS cannot hold are dropped and counted.
+def _project(parts: list[list[ObjectSpool]], skipped: list[Counter[str]], target: str, table: LabelTable
+             ) -> Iterator[Objects]:
+    """Every source's objects (in lon/lat) in ``target`` and in the label table, in blocks of at most
+    :data:`_PROJECT_BLOCK`; those the CRS cannot hold are dropped and counted.
 
-    ``parts`` and ``lonlat`` are emptied as they are projected, so that a source is released once its last
-    block is written, and no merged copy of all the sources is ever made.
+    Each source's spools are discarded once projected (``parts`` is emptied), so that a source is released
+    once its last block is written, and no merged copy of all the sources is ever made.
     """
     to_target = Transformer.from_crs("EPSG:4326", target, always_xy=True)
     for counts in skipped:
-        p, (lon, lat) = parts.pop(0), lonlat.pop(0)
-        for start in range(0, len(p), _PROJECT_BLOCK):
-            block = slice(start, start + _PROJECT_BLOCK)
-            x, y = to_target.transform(lon[block], lat[block])
-            finite = np.isfinite(x) & np.isfinite(y)
-            counts["outside_crs"] += int((~finite).sum())
-            moved = Objects(x, y, p.label[block], p.area[block], p.labels, target)
-            yield (moved if finite.all() else moved.take(finite)).relabel(table.labels)
-        del p, lon, lat
+        for spool in parts.pop(0):
+            for block in spool.blocks(_PROJECT_BLOCK):
+                x, y = to_target.transform(block.x, block.y)
+                finite = np.isfinite(x) & np.isfinite(y)
+                counts["outside_crs"] += int((~finite).sum())
+                moved = Objects(x, y, block.label, block.area, block.labels, target)
+                yield (moved if finite.all() else moved.take(finite)).relabel(table.labels)
+            spool.discard()
 
 
 def _tally_skipped(described: list[dict[str, Any]], skipped: list[Counter[str]], say: Progress) -> Counter[str]:
@@ -367,7 +400,8 @@ def _label_map(path: str | Path | None, label: str | None, table: LabelTable) ->
 
 
 def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: _ReadOptions,
-                  client: Any) -> tuple[list[Objects], list[dict[str, Any]], list[Counter[str]], list[str]]:
+                  client: Any, scratch: str
+                  ) -> tuple[list[list[ObjectSpool]], list[dict[str, Any]], list[Counter[str]], list[str]]:
     """Read each source once: its objects, its metadata entry, what its reader skipped; and the warnings."""
     unique, warnings = [], []
     seen: dict[Any, Path] = {}
@@ -380,60 +414,84 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
             continue
         unique.append((path, fingerprint))
     read = _read_here if client is None else _read_on_cluster
-    results = read([path for path, _ in unique], table, options, say, client)
+    results = read([path for path, _ in unique], table, options, say, client if client is not None else scratch)
     described = [{"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
-                  "sha256": fingerprint[1] if fingerprint else file_sha256(path), "objects": len(objects)}
-                 for (path, fingerprint), (objects, _) in zip(unique, results, strict=True)]
-    return [objects for objects, _ in results], described, [counts for _, counts in results], warnings
+                  "sha256": fingerprint[1] if fingerprint else file_sha256(path),
+                  "objects": sum(len(spool) for spool in spools)}
+                 for (path, fingerprint), (spools, _) in zip(unique, results, strict=True)]
+    return [spools for spools, _ in results], described, [counts for _, counts in results], warnings
 
 
 # The options of read_source, and those only OSM sources take (node_index, index_dir).
 _ReadOptions = tuple[dict[str, Any], dict[str, Any]]
 
 
-def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None = None
-                    ) -> tuple[Objects, Counter[str]]:
-    """One source's objects (those not on Earth dropped and counted) and what its reader skipped.
+def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None = None,
+                    spool_dir: str | None = None) -> tuple[list[ObjectSpool], Counter[str]]:
+    """One source's objects in lon/lat (those not on Earth dropped and counted) and what its reader skipped.
 
-    A whole build's worth of one source: the unit of work of a parallel build (a Dask task).
+    A whole build's worth of one source: the unit of work of a parallel build (a Dask task).  The objects come
+    as spools of blocks (:class:`mapdb.spool.ObjectSpool`), in ``EPSG:4326``: an OSM source read with a
+    ``spool_dir`` is written there block by block as it is read (the caller removes the files), anything else
+    is held in memory.
     """
     counts: Counter[str] = Counter()
     read_options, osm_options = options
     if source_kind(path) == "osm":
-        objects = read_osm(path, table, bbox=read_options["bbox"], progress=say, counts=counts, **osm_options)
+        spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
+                                  spool_dir=spool_dir, **osm_options)
     else:
         objects = read_source(path, table, progress=say, counts=counts, **read_options)
-    if len(objects):
-        # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not
-        # finite or out of range (a projected layer outside its projection) is dropped and counted.
-        lon, lat = _to_lonlat(objects)
-        valid = np.isfinite(lon) & np.isfinite(lat) & (np.abs(lon) <= 180) & (np.abs(lat) <= 90)
-        counts["invalid_coordinates"] += int((~valid).sum())
-        objects = objects if valid.all() else objects.take(valid)
-    return objects, counts
+        lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
+        spools = [ObjectSpool(objects.labels, "EPSG:4326")]
+        spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
+        del objects
+    release_freed_memory()
+    # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
+    # range (a projected layer outside its projection) is dropped and counted.
+    spools, dropped = _kept(spools, _on_earth)
+    counts["invalid_coordinates"] += dropped
+    return spools, counts
 
 
-def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: None
-               ) -> list[tuple[Objects, Counter[str]]]:
+def _on_earth(block: Objects) -> np.ndarray:
+    lon, lat = block.x, block.y
+    return np.isfinite(lon) & np.isfinite(lat) & (np.abs(lon) <= 180) & (np.abs(lat) <= 90)
+
+
+@contextmanager
+def _scratch(index_dir: str | Path | None) -> Iterator[str]:
+    """A temporary directory for the objects read (under ``index_dir``, else the system's), removed at the end."""
+    try:
+        tmp = tempfile.TemporaryDirectory(prefix="mapdb-build-", dir=index_dir)
+    except OSError as exc:
+        raise MapdbIOError(f"{index_dir or tempfile.gettempdir()}: cannot hold the build's temporary files "
+                           f"({exc.strerror or exc})") from None
+    with tmp as name:
+        yield name
+
+
+def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, scratch: str
+               ) -> list[tuple[list[ObjectSpool], Counter[str]]]:
     results = []
     for path in paths:
         say(f"reading {path} ...")
-        results.append(read_one_source(path, table, options, say))
-        say(f"  {len(results[-1][0])} objects from {path.name}")
+        results.append(read_one_source(path, table, options, say, scratch))
+        say(f"  {sum(len(spool) for spool in results[-1][0])} objects from {path.name}")
         say.advance()
     return results
 
 
 def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: Any
-                     ) -> list[tuple[Objects, Counter[str]]]:
+                     ) -> list[tuple[list[ObjectSpool], Counter[str]]]:
     """The sources read as Dask tasks, one a source; the results in source order, whatever order they end in."""
     say(f"reading {len(paths)} sources on {worker_count(client)} Dask workers ...")
-    results: list[tuple[Objects, Counter[str]] | None] = [None] * len(paths)
+    results: list[tuple[list[ObjectSpool], Counter[str]] | None] = [None] * len(paths)
     tasks = [(path, table, options) for path in paths]
     try:
         for i, result in run_tasks(client, _read_task, tasks):
             results[i] = result
-            say(f"  {len(result[0])} objects from {paths[i].name}")
+            say(f"  {sum(len(spool) for spool in result[0])} objects from {paths[i].name}")
             say.advance()
     except MapdbError:
         raise
@@ -444,8 +502,9 @@ def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions
     return [result for result in results if result is not None]
 
 
-def _read_task(path: Path, table: LabelTable, options: _ReadOptions) -> tuple[Objects, Counter[str]]:
-    """:func:`read_one_source` on a worker: an unexpected error still names its source in one line."""
+def _read_task(path: Path, table: LabelTable, options: _ReadOptions) -> tuple[list[ObjectSpool], Counter[str]]:
+    """:func:`read_one_source` on a worker (its objects in memory): an unexpected error still names its source
+    in one line."""
     try:
         return read_one_source(path, table, options)
     except MapdbError:

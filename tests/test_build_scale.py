@@ -10,12 +10,13 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import osmium
 import pytest
 from osmxml import OsmXml, square
 
 import mapdb.sources.osm as osm
 from mapdb.build import build_map
-from mapdb.errors import MapdbIOError, SourceError
+from mapdb.errors import EmptyMapError, MapdbIOError, SourceError
 from mapdb.labels import default_label_table
 from mapdb.merge import content_digest
 from mapdb.objects import Objects
@@ -193,3 +194,108 @@ def test_the_cli_takes_the_scale_options(tmp_path: Path) -> None:
     both = subprocess.run([sys.executable, "-m", "mapdb_cli", "build", str(source), "-o", str(tmp_path / "b.mapdb"),
                            "--jobs", "2", "--scheduler", "tcp://127.0.0.1:1"], capture_output=True, text=True)
     assert both.returncode == 2 and "not both" in both.stderr
+
+
+# ------------------------------------------------------------------------------------------ spooled objects
+
+
+def test_block_medians_and_arcs_equal_those_of_all_values() -> None:
+    from mapdb import blockstats
+    from mapdb.geo import _lon_arc, central_longitude
+
+    rng = np.random.default_rng(11)
+    samples = [rng.uniform(-180, 180, 1001), rng.normal(179.99, 0.02, 500), np.round(rng.uniform(5, 9, 800), 2),
+               np.array([0.0, -0.0, 2.5, 2.5, -3.0, 1.0]), np.concatenate([rng.uniform(5, 9, 300), [-120.0, 150.0]])]
+    for values in samples:
+        pieces = np.array_split(values, 4)
+        blocks = lambda pieces=pieces: iter(pieces)  # noqa: E731
+        assert blockstats.median_of(blocks) == np.median(values)
+        assert blockstats.central_longitude_of(blocks) == central_longitude(values)
+        # Few bins: the widest gap is often inside a bin, and those bins' values are looked into.
+        for bins in (None, 3, 64):
+            assert blockstats.lon_arc_of(blocks, bins) == _lon_arc(values)
+
+
+def test_spooled_objects_come_back_in_order_and_leave_nothing(tmp_path: Path) -> None:
+    from mapdb.spool import ObjectSpool, joined
+
+    labels = ("a", "b")
+    blocks = [Objects(np.arange(n, dtype=float) + 10 * n, np.full(n, float(n)), np.arange(n) % 2, np.ones(n), labels,
+                      "EPSG:4326") for n in (5, 1, 7)]
+    on_disk, in_memory = ObjectSpool(labels, "EPSG:4326", tmp_path, "t-"), ObjectSpool(labels, "EPSG:4326")
+    for block in blocks:
+        on_disk.add(block)
+        in_memory.add(block)
+    assert len(on_disk) == len(in_memory) == 13 and [p.name[:2] for p in tmp_path.iterdir()] == ["t-"]
+    assert [len(b) for b in on_disk.blocks(3)] == [3, 3, 3, 3, 1] and max(len(b) for b in in_memory.blocks(4)) == 4
+    whole = joined([on_disk], labels, "EPSG:4326")
+    np.testing.assert_array_equal(whole.x, np.concatenate([b.x for b in blocks]))
+    np.testing.assert_array_equal(whole.label, np.concatenate([b.label for b in blocks]))
+    np.testing.assert_array_equal(joined([in_memory], labels, "EPSG:4326").y, whole.y)
+    assert list(tmp_path.iterdir()) == []  # joined discards what it copied
+
+
+def test_a_spooled_read_equals_read_osm_and_a_build_leaves_no_files(tmp_path: Path) -> None:
+    source = town().write(tmp_path / "town.osm")
+    spool_dir = tmp_path / "spools"
+    spool_dir.mkdir()
+    spools = osm.read_osm_spooled(source, TABLE, spool_dir=spool_dir)
+    assert sorted(p.name.split("-")[1] for p in spool_dir.iterdir()) == ["areas", "others", "points"]
+    from mapdb.spool import joined
+
+    for a, b in zip(arrays(joined(spools, TABLE.labels, "EPSG:4326")), arrays(osm.read_osm(source, TABLE)),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    work = tmp_path / "work"
+    work.mkdir()
+    build_map([source], tmp_path / "map.mapdb", index_dir=work)
+    assert list(work.iterdir()) == []
+    with pytest.raises(EmptyMapError):
+        build_map([source], tmp_path / "none.mapdb", index_dir=work, bbox=(100.0, 10.0, 100.1, 10.1))
+    assert list(work.iterdir()) == [] and not (tmp_path / "none.mapdb").exists()
+
+
+def test_dropped_objects_are_rewritten_and_the_old_file_removed(tmp_path: Path) -> None:
+    from mapdb.build import _kept
+    from mapdb.spool import ObjectSpool
+
+    spool = ObjectSpool(("a",), "EPSG:4326", tmp_path)
+    spool.add(Objects(np.array([1.0, 200.0, 3.0]), np.zeros(3), np.zeros(3, np.int32), np.zeros(3), ("a",),
+                      "EPSG:4326"))
+    same, dropped = _kept([spool], lambda b: np.ones(len(b), bool))
+    assert same == [spool] and dropped == 0
+    kept, dropped = _kept([spool], lambda b: np.abs(b.x) <= 180)
+    assert dropped == 1 and [b.x.tolist() for b in kept[0].blocks()] == [[1.0, 3.0]]
+    assert [p.name.split("-")[0] for p in tmp_path.iterdir()] == ["kept"]
+
+
+def test_relations_no_rule_labels_are_not_assembled(tmp_path: Path) -> None:
+    doc = town(size=3)
+    forest = doc.ring(square(500, 500, 40))
+    cape = doc.ring(square(900, 500, 40))
+    labelled = doc.relation([("w", forest, "outer")], {"type": "multipolygon", "landuse": "forest"})
+    unlabelled = doc.relation([("w", cape, "outer")], {"type": "multipolygon", "natural": "peninsula"})
+    source = doc.write(tmp_path / "town.osm")
+    table = TABLE
+    rules = {kind: osm._rules_for(table, kind) for kind in ("area", "node", "way")}
+    processor = osm._processor(str(source), osmium.index.create_map("flex_mem"), rules["area"], rules["node"],
+                               rules["way"], frozenset())
+    from_relations = {obj.orig_id() for obj in processor if obj.type_str() == "a" and not obj.from_way()}
+    assert from_relations == {labelled} and unlabelled not in from_relations
+    assert osm.read_osm(source, TABLE).counts()["forest"] == 1
+
+
+def test_hulls_in_slices_equal_hulls_at_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    doc = OsmXml()
+    for i in range(7):
+        ring = [doc.node(i * 300 + 20 * np.cos(a), 20 * np.sin(a)) for a in np.linspace(0, 2 * np.pi, 9)[:-1]]
+        half = 3 + i % 3
+        doc.way(ring[:half + 1], {"junction": "roundabout"})
+        doc.way(ring[half:] + ring[:1], {"junction": "roundabout"})
+    source = doc.write(tmp_path / "rings.osm")
+    whole = osm.read_osm(source, TABLE)
+    monkeypatch.setattr(osm, "_HULL_POINTS", 3)
+    sliced = osm.read_osm(source, TABLE)
+    assert whole.counts() == {"roundabout": 7} and (whole.area > 1000).all()
+    for a, b in zip(arrays(whole), arrays(sliced), strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -15,11 +15,14 @@ some rule of the label table may match ever reach Python:
 
 Per object, Python does only the tag test and asks osmium for WKB; geometry
 (areas, centroids) is computed in blocks of :data:`AREA_BLOCK` areas with shapely
-and numpy as the pass goes, and the geometries are dropped: what the pass keeps is
-compact arrays (position, label, area), the road network's node ids (spilled to
-temporary files past :data:`ROAD_REFS_IN_MEMORY`) and the node location index, which
-lives in a file for inputs from :data:`FILE_INDEX_BYTES` up (:func:`choose_node_index`).
-Coordinates stay in lon/lat (``EPSG:4326``); areas are in square metres.
+and numpy as the pass goes, and the geometries are dropped: the blocks of compact
+objects (position, label, area) go to spools (:func:`read_osm_spooled`: temporary
+files, 28 bytes an object), the road network's node ids to temporary files past
+:data:`ROAD_REFS_IN_MEMORY`, and the node location index lives in a file for inputs
+from :data:`FILE_INDEX_BYTES` up (:func:`choose_node_index`).  libosmium keeps the
+multipolygon relations of the first pass, with their members, until they are complete:
+only those some area rule labels are given to it.  Coordinates stay in lon/lat
+(``EPSG:4326``); areas are in square metres.
 
 Broken data is skipped or repaired and counted (``read_osm(counts=...)``), never
 silently moved and never a traceback: nodes whose coordinates are out of range
@@ -60,10 +63,11 @@ from ..errors import MapdbIOError, SourceError, reading
 from ..geo import check_bbox, in_bbox
 from ..labels import IntersectionRule, LabelTable, TagRule
 from ..objects import Objects
+from ..spool import ObjectSpool, joined, release_freed_memory
 
 __all__ = ["AREA_BLOCK", "DENSE_INDEX_BYTES", "FILE_INDEX_BYTES", "MAX_INFLATION", "MIN_INFLATED_BYTES",
-           "NODE_INDEXES", "OSM_SUFFIXES", "ROAD_REFS_IN_MEMORY", "choose_node_index", "inflation_limit",
-           "is_osm_path", "read_osm"]
+           "NODE_INDEXES", "OSM_SUFFIXES", "POINT_BLOCK", "ROAD_REFS_IN_MEMORY", "choose_node_index",
+           "inflation_limit", "is_osm_path", "read_osm", "read_osm_spooled"]
 
 OSM_SUFFIXES = (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz")
 _XML_SUFFIXES = (".osm", ".osm.bz2", ".osm.gz")
@@ -89,6 +93,8 @@ _PROGRESS_STRIDE = 4096
 # Areas whose centroid and area are computed together, after which their geometries are dropped: big
 # enough for shapely's vectorised calls to pay, small enough that the geometries cost a few megabytes.
 AREA_BLOCK = 4096
+# Labelled nodes handed on at once (1.2 MB of typed arrays).
+POINT_BLOCK = 1 << 16
 # Node ids of road ways kept in memory; past this many they go to a temporary file, in buckets by node
 # id, and the junctions are found one bucket at a time (8 bytes a node id; 32 bytes in the buckets).
 ROAD_REFS_IN_MEMORY = 1 << 19
@@ -209,42 +215,68 @@ def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, floa
     >>> objects.counts()["building"]  # doctest: +SKIP
     1205
     """
+    return joined(read_osm_spooled(path, table, bbox, progress, counts, node_index=node_index, index_dir=index_dir),
+                  table.labels, "EPSG:4326")
+
+
+def read_osm_spooled(path: str | Path, table: LabelTable, bbox: tuple[float, float, float, float] | None = None,
+                     progress: Progress | None = None, counts: Counter[str] | None = None, *,
+                     node_index: str = "auto", index_dir: str | Path | None = None,
+                     spool_dir: str | Path | None = None) -> list[ObjectSpool]:
+    """:func:`read_osm`'s objects, in order, as spools of blocks that are written to ``spool_dir`` as the pass
+    goes (kept in memory when it is None), so that a country's objects are never all in memory.
+
+    The spools are the points, the areas, then the ways and intersections; their files (``osm-*`` in
+    ``spool_dir``) are the caller's to remove (:meth:`mapdb.spool.ObjectSpool.discard`, or with the directory).
+    Parameters, errors and the objects read are those of :func:`read_osm`.
+    """
     path = Path(path)
     if node_index not in NODE_INDEXES:
         raise SourceError(f"node index {node_index!r}: not one of {', '.join(NODE_INDEXES)}")
     _check_readable(path)
     bbox = None if bbox is None else check_bbox(bbox)
     counts = counts if counts is not None else Counter()
-    with _Workspace(index_dir) as workspace:
-        return _read(path, table, bbox, progress or (lambda message: None), counts, workspace, node_index)
+    spools = [ObjectSpool(table.labels, "EPSG:4326", spool_dir, f"osm-{kind}-")
+              for kind in ("points", "areas", "others")]
+    try:
+        with _Workspace(index_dir) as workspace:
+            _read(path, table, bbox, progress or (lambda message: None), counts, workspace, node_index, spools)
+    except BaseException:
+        for spool in spools:
+            spool.discard()
+        raise
+    return spools
 
 
 def _read(path: Path, table: LabelTable, bbox: tuple[float, float, float, float] | None, report: Progress,
-          counts: Counter[str], workspace: _Workspace, node_index: str) -> Objects:
-    """:func:`read_osm` on checked arguments: collect, assemble, clip, and say what came of it."""
+          counts: Counter[str], workspace: _Workspace, node_index: str, spools: list[ObjectSpool]) -> None:
+    """:func:`read_osm` on checked arguments: collect and assemble into ``spools``, and say what came of it."""
     started = time.monotonic()
     report(f"{path}: reading OpenStreetMap data")
-    objects = _assemble(_collect(path, table, report, counts, workspace, node_index), table, counts, bbox)
-    summary = ", ".join(f"{n:,} {name}" for name, n in objects.counts().items()) or "nothing"
-    report(f"{path}: {len(objects):,} objects in {time.monotonic() - started:.1f} s ({summary})")
+    collected = _collect(path, table, report, counts, workspace, node_index, _Sink(spools, bbox, len(table.labels)))
+    report(f"{path}: file read in {time.monotonic() - started:.1f} s; joining roundabouts, finding intersections")
+    _assemble(collected, table, counts)
+    found = collected.sink.found
+    summary = ", ".join(f"{n:,} {name}" for name, n in zip(table.labels, found.tolist(), strict=True) if n) or "nothing"
+    report(f"{path}: {int(found.sum()):,} objects in {time.monotonic() - started:.1f} s ({summary})")
     skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
     if skipped:
         report(f"{path}: skipped or repaired: {skipped}")
-    return objects
 
 
 def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[str], workspace: _Workspace,
-             node_index: str) -> _Collected:
+             node_index: str, sink: _Sink) -> _Collected:
     """The single pass over the file (and the repair of areas osmium could not assemble)."""
     try:
         with _xml_input(path) if path.name.lower().endswith(_XML_SUFFIXES) else nullcontext(str(path)) as source:
             size = os.path.getsize(source)
-            collected = _Collected(table.labels, workspace, counts, size)
+            collected = _Collected(table.labels, workspace, counts, size, sink)
             collected.locations, collected.index_file = workspace.node_index(node_index, size, path)
             _scan(path, source, table, report, collected)
             if collected.failed_area_ways:
                 _repair_ways(source, collected, counts)
             collected.finish_areas()
+            collected.finish_points()
     except (RuntimeError, UnicodeDecodeError, osmium.InvalidLocationError) as exc:
         # libosmium reports bad input (XML syntax, PBF framing, unknown format) as RuntimeError.
         detail = " ".join(str(exc).split()) or exc.__class__.__name__
@@ -252,42 +284,30 @@ def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[st
     return collected
 
 
-def _assemble(collected: _Collected, table: LabelTable, counts: Counter[str],
-              bbox: tuple[float, float, float, float] | None) -> Objects:
-    """The objects of what the pass collected, inside ``bbox``: points, areas, ways and (when the table asks)
-    intersections."""
-    parts = [_point_objects(collected.node_lon, collected.node_lat, collected.node_code, table.labels),
-             *collected.areas, _way_objects(collected, table.labels)]
+def _assemble(collected: _Collected, table: LabelTable, counts: Counter[str]) -> None:
+    """The objects left after the pass, into the last spool: ways and (when the table asks) intersections."""
+    release_freed_memory()
+    collected.sink.add(2, _way_objects(collected, table.labels))
+    release_freed_memory()
     if table.intersections is not None:
-        parts.append(_intersection_objects(collected, table.intersections, table.labels, counts))
-    # The blocks and the node arrays are now only in ``parts``, which _joined empties as it copies them.
-    collected.areas = []
-    collected.node_lon, collected.node_lat, collected.node_code = array("d"), array("d"), array("i")
-    return _joined(parts, table.labels, bbox)
+        collected.sink.add(2, _intersection_objects(collected, table.intersections, table.labels, counts))
 
 
-def _joined(parts: list[Objects], labels: tuple[str, ...], bbox: tuple[float, float, float, float] | None) -> Objects:
-    """The objects of ``parts`` (lon/lat, in ``labels``) inside ``bbox``, in order, as one set.
+class _Sink:
+    """Where the pass puts its objects: the spools of points, areas and the rest, each block clipped to the
+    bbox first (clipping is per object, so blocks give what clipping the whole would)."""
 
-    Each part is released as soon as it is copied in (``parts`` is emptied), so that a country's objects are
-    held about once, not three times as blocks, their concatenation and a clipped copy.
-    """
-    keep = [None if bbox is None else in_bbox(bbox, p.x, p.y) for p in parts]
-    n = sum(len(p) if k is None else int(k.sum()) for p, k in zip(parts, keep, strict=True))
-    x, y, area = np.empty(n), np.empty(n), np.empty(n)
-    label = np.empty(n, np.int32)
-    at = 0
-    parts.reverse()
-    keep.reverse()
-    while parts:
-        part, inside = parts.pop().relabel(labels), keep.pop()
-        if inside is not None:
-            part = part.take(inside)
-        end = at + len(part)
-        x[at:end], y[at:end], label[at:end], area[at:end] = part.x, part.y, part.label, part.area
-        at = end
-        del part
-    return Objects(x, y, label, area, labels, "EPSG:4326")
+    def __init__(self, spools: list[ObjectSpool], bbox: tuple[float, float, float, float] | None,
+                 n_labels: int) -> None:
+        self.spools, self.bbox = spools, bbox
+        self.found = np.zeros(n_labels, np.int64)  # objects kept, per label code
+
+    def add(self, which: int, objects: Objects) -> None:
+        if self.bbox is not None and len(objects):
+            inside = in_bbox(self.bbox, objects.x, objects.y)
+            objects = objects if inside.all() else objects.take(inside)
+        self.found += np.bincount(objects.label, minlength=self.found.size)
+        self.spools[which].add(objects)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -389,17 +409,19 @@ def _has_odd_coordinate(path: Path) -> bool:
 class _Collected:
     """What the single pass over the file keeps: compact per-object values, the geometries of one block of areas."""
 
-    def __init__(self, labels: tuple[str, ...], workspace: _Workspace, counts: Counter[str], input_bytes: int) -> None:
+    def __init__(self, labels: tuple[str, ...], workspace: _Workspace, counts: Counter[str], input_bytes: int,
+                 sink: _Sink) -> None:
         self.labels = labels
         self.counts = counts
+        self.sink = sink
+        # The labelled nodes not yet handed to the sink (typed arrays, flushed every POINT_BLOCK nodes).
         self.node_lon = array("d")
         self.node_lat = array("d")
         self.node_code = array("i")
-        # The current block of assembled areas (WKB and label code); each full block becomes the centroids
-        # and areas of ``areas`` and its geometries are dropped.
+        # The current block of assembled areas (WKB and label code); each full block becomes centroids and
+        # areas handed to the sink, and its geometries are dropped.
         self.area_wkb: list[str] = []
         self.area_code: list[int] = []
-        self.areas: list[Objects] = []
         # Ways matched by a "way" rule: node ids and locations of all of them, one after the other, and the
         # number of nodes and label code of each (typed arrays: no long-lived Python numbers, which would
         # pin the allocator's arenas between the blocks of areas).
@@ -422,10 +444,23 @@ class _Collected:
             self.finish_areas()
 
     def finish_areas(self) -> None:
-        """Centroids and areas of the current block of areas; the geometries are dropped."""
+        """Centroids and areas of the current block of areas, to the sink; the geometries are dropped."""
         if self.area_wkb:
-            self.areas.append(_area_objects(self.area_wkb, self.area_code, self.labels, self.counts))
+            self.sink.add(1, _area_objects(self.area_wkb, self.area_code, self.labels, self.counts))
             self.area_wkb, self.area_code = [], []
+
+    def add_point(self, lon: float, lat: float, code: int) -> None:
+        self.node_lon.append(lon)
+        self.node_lat.append(lat)
+        self.node_code.append(code)
+        if len(self.node_code) >= POINT_BLOCK:
+            self.finish_points()
+
+    def finish_points(self) -> None:
+        """The labelled nodes collected so far, to the sink."""
+        if len(self.node_code):
+            self.sink.add(0, _point_objects(self.node_lon, self.node_lat, self.node_code, self.labels))
+            self.node_lon, self.node_lat, self.node_code = array("d"), array("d"), array("i")
 
 
 def _rules_for(table: LabelTable, geometry: str) -> list[tuple[int, TagRule]]:
@@ -490,8 +525,11 @@ def _processor(source: str, locations: Any, area_rules: list[tuple[int, TagRule]
     processor = osmium.FileProcessor(source).with_locations(locations)
     kinds = osmium.osm.NOTHING
     if area_filter is not None:
-        # The same filter picks the multipolygon relations worth assembling in the first pass.
-        processor.with_areas(_tag_prefilter([r for _, r in area_rules]))
+        # The same filter picks the multipolygon relations worth assembling in the first pass, and then the
+        # rules themselves: libosmium keeps every relation it is given, with its members, until it is
+        # complete, and a relation no rule labels (a peninsula or a mountain range of thousands of members,
+        # most of them outside the extract) never gives an object.
+        processor.with_areas(_tag_prefilter([r for _, r in area_rules]), _LabelledRelations(area_rules))
         processor.with_filter(area_filter.enable_for(osmium.osm.AREA))
         kinds |= osmium.osm.AREA
     if node_filter is not None:
@@ -503,6 +541,16 @@ def _processor(source: str, locations: Any, area_rules: list[tuple[int, TagRule]
     # Relations themselves (and changesets) are never objects: their areas come as Area objects.
     processor.with_filter(osmium.filter.EntityFilter(kinds))
     return processor
+
+
+class _LabelledRelations:
+    """A first-pass filter for osmium's area assembly: drops the relations no area rule labels."""
+
+    def __init__(self, area_rules: list[tuple[int, TagRule]]) -> None:
+        self.area_rules = area_rules
+
+    def relation(self, relation: Any) -> bool:
+        return _first_match(self.area_rules, relation.tags) < 0  # True: filtered out
 
 
 def _take_area(obj: Any, area_rules: list[tuple[int, TagRule]], wkb: Any, out: _Collected,
@@ -532,9 +580,7 @@ def _take_node(obj: Any, node_rules: list[tuple[int, TagRule]], out: _Collected,
         return
     location = obj.location
     if location.valid():
-        out.node_lon.append(location.lon)
-        out.node_lat.append(location.lat)
-        out.node_code.append(code)
+        out.add_point(location.lon, location.lat, code)
     elif _defined(location):
         counts["invalid_coordinates"] += 1
 
@@ -917,8 +963,7 @@ def _way_objects(c: _Collected, labels: tuple[str, ...]) -> Objects:
 
     # Ways join when they share a node and a label: components of the way--node bipartite graph,
     # nodes keyed by (id, label) so that differently labelled ways never merge.
-    _, node_index = np.unique(np.column_stack([refs, codes[way_of_node]]), axis=0, return_inverse=True)
-    node_index = node_index.reshape(-1)
+    node_index = _pair_index(refs, codes[way_of_node])
     n_ways = lengths.size
     group_of_way = _components(n_ways + int(node_index.max()) + 1, way_of_node, n_ways + node_index)[:n_ways]
     _, group_of_way = np.unique(group_of_way, return_inverse=True)
@@ -943,12 +988,51 @@ def _way_objects(c: _Collected, labels: tuple[str, ...]) -> Objects:
         cy = np.where(total > 0, np.bincount(seg_group, seg_len * seg_mid[:, 1], n_groups) / total, mean_y)
     out_lon, out_lat = _from_local(cx, cy, lon0, lat0)
 
-    order = np.argsort(group, kind="stable")
-    hulls = shapely.convex_hull(shapely.multipoints(xy[order], indices=group[order]))
-    area = shapely.area(hulls)
+    area = _hull_areas(xy, group, n_groups)
     group_code = np.zeros(n_groups, np.int32)
     group_code[group_of_way] = codes
     return Objects(out_lon, out_lat, group_code, area, labels, "EPSG:4326")
+
+
+def _pair_index(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The index of each pair (a[i], b[i]) among the distinct pairs in sorted order (``np.unique`` of the
+    rows' inverse, without its copies of the rows).
+
+    Examples
+    --------
+    >>> _pair_index(np.array([5, 3, 5, 5]), np.array([1, 2, 1, 0])).tolist()
+    [2, 0, 2, 1]
+    """
+    order = np.lexsort((b, a))
+    a_sorted, b_sorted = a[order], b[order]
+    new = np.ones(order.size, bool)
+    new[1:] = (a_sorted[1:] != a_sorted[:-1]) | (b_sorted[1:] != b_sorted[:-1])
+    del a_sorted, b_sorted
+    index = np.empty(order.size, np.int64)
+    index[order] = np.cumsum(new) - 1
+    return index
+
+
+# Points whose convex hulls GEOS builds at once (its geometries take some 200 bytes a point).
+_HULL_POINTS = 1 << 16
+
+
+def _hull_areas(xy: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """The area of the convex hull of each group's points, groups taken a slice at a time so that GEOS holds a
+    bounded number of points."""
+    order = np.argsort(group, kind="stable")
+    ends = np.cumsum(np.bincount(group, minlength=n_groups))
+    area = np.empty(n_groups)
+    first = 0
+    while first < n_groups:
+        start = ends[first - 1] if first else 0
+        # Whole groups up to about _HULL_POINTS points (at least one group).
+        last = max(first + 1, int(np.searchsorted(ends, start + _HULL_POINTS, side="right")))
+        take = order[start:ends[last - 1]]
+        points = shapely.multipoints(xy[take], indices=group[take] - first)
+        area[first:last] = shapely.area(shapely.convex_hull(points))
+        first = last
+    return area
 
 
 # --------------------------------------------------------------------------------------------------
