@@ -259,9 +259,11 @@ def _gather(sources: Sequence[str | Path], table: LabelTable, options: _ReadOpti
     parts, described, skipped, warnings = _read_sources(sources, table, say, options, client, scratch)
     bbox = options[0]["bbox"]
     if bbox is not None:
-        parts = [_kept(spools, lambda block: in_bbox(bbox, block.x, block.y))[0] for spools in parts]
+        # A box across the antimeridian is no plain box: those spools are always checked.
+        plain = bbox if bbox[0] <= bbox[2] else None
+        parts = [_kept(spools, lambda block: in_bbox(bbox, block.x, block.y), plain)[0] for spools in parts]
     names = ", ".join(str(s) for s in sources)
-    if sum(len(spool) for spools in parts for spool in spools) == 0:
+    if sum(map(_count, parts)) == 0:
         where = f" inside bbox {bbox_text(bbox)}" if bbox else ""
         raise EmptyMapError(f"{names}: no labelled objects{where}")
     if target is None:
@@ -273,18 +275,28 @@ def _gather(sources: Sequence[str | Path], table: LabelTable, options: _ReadOpti
     return _Read(parts, target, described, skipped, warnings, names)
 
 
+def _count(spools: list[ObjectSpool]) -> int:
+    """How many objects a source's spools hold."""
+    return sum(len(spool) for spool in spools)
+
+
 def _coordinate(spools: list[ObjectSpool], axis: str) -> Blocks:
     """One coordinate (``"x"``: longitude, ``"y"``: latitude) of a source's objects, block by block, afresh
     at each call."""
     return lambda: (getattr(block, axis) for spool in spools for block in spool.blocks())
 
 
-def _kept(spools: list[ObjectSpool], keep: Callable[[Objects], np.ndarray]) -> tuple[list[ObjectSpool], int]:
+def _kept(spools: list[ObjectSpool], keep: Callable[[Objects], np.ndarray],
+          box: Sequence[float] | None = None) -> tuple[list[ObjectSpool], int]:
     """A source's objects that ``keep`` keeps (a mask a block), and how many it dropped.
 
-    A pass over the blocks first: when nothing is dropped (a source already clipped or all valid) the spools
-    are kept as they are, not copied; else each is rewritten beside itself and the old one discarded.
+    ``keep`` keeps at least every finite object within ``box`` when one is given: spools whose objects all
+    are (:meth:`ObjectSpool.inside`, from what was added) are not read back.  Otherwise a pass over the blocks
+    first: when nothing is dropped (a source already clipped or all valid) the spools are kept as they are,
+    not copied; else each is rewritten beside itself and the old one discarded.
     """
+    if box is not None and all(spool.inside(box) for spool in spools):
+        return spools, 0
     dropped = sum(int((~keep(block)).sum()) for spool in spools for block in spool.blocks())
     if not dropped:
         return spools, 0
@@ -304,7 +316,7 @@ def _write(output: str | Path, read: _Read, table: LabelTable, quantum: float, b
     """Project the sources' objects block by block into a streaming map writer, which holds a bounded number
     of them, and write the map: the objects written, the count per label, and what was skipped in all
     (merged duplicates included)."""
-    total = sum(len(spool) for spools in read.parts for spool in spools)
+    total = sum(map(_count, read.parts))
     say(f"projecting {total} objects to {read.target} ...")
     with MapWriter(output, quantum=quantum) as writer:
         for block in _project(read.parts, read.skipped, read.target, table):
@@ -417,7 +429,7 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
     results = read([path for path, _ in unique], table, options, say, client if client is not None else scratch)
     described = [{"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
                   "sha256": fingerprint[1] if fingerprint else file_sha256(path),
-                  "objects": sum(len(spool) for spool in spools)}
+                  "objects": _count(spools)}
                  for (path, fingerprint), (spools, _) in zip(unique, results, strict=True)]
     return [spools for spools, _ in results], described, [counts for _, counts in results], warnings
 
@@ -449,9 +461,12 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     release_freed_memory()
     # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
     # range (a projected layer outside its projection) is dropped and counted.
-    spools, dropped = _kept(spools, _on_earth)
+    spools, dropped = _kept(spools, _on_earth, _EARTH)
     counts["invalid_coordinates"] += dropped
     return spools, counts
+
+
+_EARTH = (-180.0, -90.0, 180.0, 90.0)
 
 
 def _on_earth(block: Objects) -> np.ndarray:
@@ -477,7 +492,7 @@ def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say:
     for path in paths:
         say(f"reading {path} ...")
         results.append(read_one_source(path, table, options, say, scratch))
-        say(f"  {sum(len(spool) for spool in results[-1][0])} objects from {path.name}")
+        say(f"  {_count(results[-1][0])} objects from {path.name}")
         say.advance()
     return results
 
@@ -491,7 +506,7 @@ def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions
     try:
         for i, result in run_tasks(client, _read_task, tasks):
             results[i] = result
-            say(f"  {sum(len(spool) for spool in result[0])} objects from {paths[i].name}")
+            say(f"  {_count(result[0])} objects from {paths[i].name}")
             say.advance()
     except MapdbError:
         raise

@@ -47,6 +47,7 @@ from .images import ImageObjects, Prior, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from .match.hypotheses import PRIOR_SLACK
 from .match.paper import PaperOptions, match_paper
+from .match.quads import near_only
 from .match.stored_index import StoredQuadIndex
 from .store import MetaMap
 
@@ -162,11 +163,7 @@ class StoredQuads:
     def lookup(self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray, k: int,
                near: tuple[complex, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
         rows, ids = self.stored.lookup(invariants, labels, radius, k)
-        quad_z = self.stored.coordinates(ids)
-        if near is not None:  # after the k nearest: the stored index knows no positions
-            keep = np.abs(quad_z.mean(axis=1) - near[0]) <= near[1]
-            rows, quad_z = rows[keep], quad_z[keep]
-        return rows, quad_z
+        return near_only(rows, self.stored.coordinates(ids), near)  # the stored index knows no positions
 
 
 class NearQuads:

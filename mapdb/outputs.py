@@ -51,6 +51,7 @@ __all__ = [
     "pid_alive",
     "refuse_existing",
     "remove_stale_temporaries",
+    "temporary_prefix",
 ]
 
 PathLike = str | os.PathLike[str]
@@ -197,6 +198,12 @@ def refuse_existing(path: PathLike | None, overwrite: bool, what: str = "map") -
         raise OutputExistsError(f"{os.fspath(path)}: exists; pass --overwrite to replace this {what}")
 
 
+def temporary_prefix(target: Path) -> str:
+    """The start of the name of this process's temporaries of ``target`` (``.NAME.PID.``), which
+    :func:`remove_stale_temporaries` recognises once the process is gone."""
+    return f".{target.name[:_NAME_KEEP]}.{os.getpid()}."
+
+
 def _temp_pattern(target: Path) -> re.Pattern[str]:
     """Names of ``target``'s temporaries: files (``.NAME.PID.HEX.tmp[.ext]``) and the folders of records a
     streaming map writer spills (``.NAME.PID.XXXXXXXX.spill``, :class:`mapdb.store.MapWriter`)."""
@@ -317,7 +324,7 @@ def atomic_path(path: PathLike, *, keep_suffix: bool = False, parents: bool = Fa
             target.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(target)
         suffix = target.suffix if keep_suffix else ""
-        tmp = target.parent / f".{target.name[:_NAME_KEEP]}.{os.getpid()}.{secrets.token_hex(4)}.tmp{suffix}"
+        tmp = target.parent / f"{temporary_prefix(target)}{secrets.token_hex(4)}.tmp{suffix}"
         # O_EXCL reserves the name; mode 0o666 lets the kernel apply the umask (and default ACLs).
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
         mode = stat.S_IMODE(os.fstat(fd).st_mode)

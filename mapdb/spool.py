@@ -9,6 +9,7 @@ are exactly those appended, in the same order; only the cutting into blocks may 
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import tempfile
 from collections.abc import Iterable, Iterator, Sequence
@@ -59,6 +60,9 @@ class ObjectSpool:
         self.path: str | None = None  # the file, once made
         self._blocks: list[Objects] = []
         self._count = 0
+        # The objects' box (min x, min y, max x, max y), NaN once a coordinate is not finite: lets a caller
+        # see that a filter by place keeps everything without reading the objects back.
+        self.bounds = (math.inf, math.inf, -math.inf, -math.inf)
 
     def __len__(self) -> int:
         return self._count
@@ -68,6 +72,13 @@ class ObjectSpool:
         if not len(objects):
             return
         objects = objects.relabel(self.labels)
+        x, y = objects.x, objects.y
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            self.bounds = (math.nan,) * 4
+        elif not math.isnan(self.bounds[0]):
+            lo_x, lo_y, hi_x, hi_y = self.bounds
+            self.bounds = (min(lo_x, float(x.min())), min(lo_y, float(y.min())), max(hi_x, float(x.max())),
+                           max(hi_y, float(y.max())))
         if self.directory is None:
             self._blocks.append(objects)
             self._count += len(objects)
@@ -101,6 +112,11 @@ class ObjectSpool:
                 if not records.size:
                     return
                 yield Objects(records["x"], records["y"], records["label"], records["area"], self.labels, self.crs)
+
+    def inside(self, box: Sequence[float]) -> bool:
+        """Whether every object is finite and within ``box`` (min x, min y, max x, max y; edges included)."""
+        lo_x, lo_y, hi_x, hi_y = self.bounds
+        return lo_x >= box[0] and lo_y >= box[1] and hi_x <= box[2] and hi_y <= box[3]
 
     def discard(self) -> None:
         """Forget the objects and remove the file."""

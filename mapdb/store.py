@@ -53,7 +53,7 @@ from pyproj.exceptions import CRSError
 from . import __version__
 from .errors import EmptyMapError, MapdbError, MapdbIOError, MapFormatError, MapVersionError, reading
 from .objects import Objects
-from .outputs import atomic_open
+from .outputs import atomic_open, temporary_prefix
 
 __all__ = [
     "DEFAULT_MEMORY_OBJECTS",
@@ -494,7 +494,7 @@ class _Scratch:
     def new_file(self) -> Path:
         if self.dir is None:
             with self.writing():
-                self.dir = Path(tempfile.mkdtemp(prefix=f".{self.output.name[:180]}.{os.getpid()}.", suffix=".spill",
+                self.dir = Path(tempfile.mkdtemp(prefix=temporary_prefix(self.output), suffix=".spill",
                                                  dir=self.output.parent))
         self.files += 1
         return self.dir / f"{self.files}.bin"

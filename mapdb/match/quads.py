@@ -16,8 +16,8 @@ import numpy as np
 from .._scipy import cKDTree
 from ..objects import Objects
 
-__all__ = ["LABEL_GAP", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "nearest_others", "neighbour_quads",
-           "quad_frames"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "near_only",
+           "nearest_others", "neighbour_quads", "quad_frames"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -36,7 +36,6 @@ _PACKABLE = 55_000
 # the nearest to the prior come first, and a pattern repeated across a tile (a street grid, a lattice) does
 # not fill a lookup's hits with copies outside the prior's disc.
 POSITION_WEIGHT = 1e-5
-
 
 
 def neighbour_quads(
@@ -71,6 +70,23 @@ def neighbour_quads(
         return quads[np.sort(first_rows(quads, n))]
     return np.unique(quads, axis=0)
 
+
+def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] | None
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The hits (query rows, map points ``(h, 4)``) whose quad's centroid lies within ``near = (centre,
+    reach)``, all of them when ``near`` is None: a prior applied to an index that knows no positions, after
+    its nearest hits were taken.
+
+    Examples
+    --------
+    >>> rows, quad_z = near_only(np.array([0, 1]), np.array([[0, 2, 2j, 2 + 2j], [10, 12, 10j, 12 + 10j]]), (0j, 5.0))
+    >>> rows.tolist(), near_only(rows, quad_z, None)[0].tolist()
+    ([0], [0])
+    """
+    if near is None:
+        return rows, quad_z
+    keep = np.abs(quad_z.mean(axis=1) - near[0]) <= near[1]
+    return rows[keep], quad_z[keep]
 
 
 def first_rows(quads: np.ndarray, n: int) -> np.ndarray:
@@ -257,11 +273,7 @@ class QuadIndex:
         dist, hit = dist.reshape(len(invariants), k), hit.reshape(len(invariants), k)
         if not self.positions:
             rows, cols = np.nonzero(dist <= radius[:, None])
-            quad_z = self.quad_z[hit[rows, cols]]
-            if near is not None:
-                keep = np.abs(quad_z.mean(axis=1) - near[0]) <= near[1]
-                rows, quad_z = rows[keep], quad_z[keep]
-            return rows, quad_z
+            return near_only(rows, self.quad_z[hit[rows, cols]], near)
         rows, cols = np.nonzero(dist <= bound)
         hit = hit[rows, cols]
         # The tree's distance mixes the invariants' with the position's: split them to hold the radius
