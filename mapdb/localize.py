@@ -46,6 +46,7 @@ from .errors import ImageInputError
 from .images import ImageObjects, Prior, check_prior, parse_image
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from .match.hypotheses import PRIOR_SLACK
+from .match.paged_objects import WholeMapObjects
 from .match.paper import PaperOptions, match_paper
 from .match.quads import near_only
 from .match.stored_index import StoredQuadIndex
@@ -218,7 +219,7 @@ class Localizer:
         wanted = FastOptions if method == "fast" else PaperOptions
         self.options = options if isinstance(options, wanted) else wanted()
         self.prior = prior
-        self._whole_objects: ObjectIndex | None = None
+        self._whole_objects: WholeMapObjects | None = None
         self._whole_quads: QuadIndex | StoredQuads | None = None
         self._tiles = _Recent(MAX_CACHED_QUADS, size=lambda quads: max(quads.n_quads, 1))
         self._block_quads = _Recent(MAX_CACHED_BLOCKS)
@@ -242,16 +243,19 @@ class Localizer:
     # ------------------------------------------------------------------------------------ indexes
 
     def whole_map_indexes(self) -> tuple[ObjectIndex, QuadIndex | StoredQuads]:
-        """The whole map's object and quad indexes: the stored lost-in-space index beside the map file
-        when there is one (``mapdb index MAP``; opened in milliseconds, read as needed), else a quad
-        index built in memory on first use."""
+        """The whole map's object and quad indexes, for one answer.
+
+        Quads: the stored lost-in-space index beside the map file when there is one (``mapdb index MAP``;
+        opened in milliseconds, read as needed), else a quad index built in memory on first use.  Objects:
+        for a big map file, read page by page where the answers need them until the whole index, built in
+        the background from the second answer on, is ready (:class:`WholeMapObjects`); the same answers.
+        """
         if self._whole_objects is None or self._whole_quads is None:
-            objects = self.map.all()
-            self._whole_objects = ObjectIndex(objects, bounds=self.map.bounds)
             stored = self._stored_index()
             self._whole_quads = (StoredQuads(stored) if stored is not None
-                                 else QuadIndex(objects, self.fast_options.map_neighbours))
-        return self._whole_objects, self._whole_quads
+                                 else QuadIndex(self.map.all(), self.fast_options.map_neighbours))
+            self._whole_objects = WholeMapObjects(self.map)
+        return self._whole_objects.index(), self._whole_quads
 
     def _stored_index(self) -> StoredQuadIndex | None:
         """The map's stored quad index, if it has one built with the matcher's number of neighbours."""
@@ -479,7 +483,9 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         if outside:
             raise _RejectionError(outside)
         anchorable = None if im.border is None else ~im.border
-        pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable)
+        # A levelled image's pixel areas are not the level camera's: its areas are left out.
+        pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
+                      None if levelled else im.area_px)
     except _RejectionError as rejection:
         return _rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
     return _ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start)
@@ -553,12 +559,13 @@ def _scale_hints(im: ImageObjects, diag_px: float):
 
 def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: float,
            prior: tuple[float, float, float] | None, margin: float, scale_range: tuple[float, float] | None,
-           notes: list[str], skipped: dict[str, Any], anchorable: np.ndarray | None = None) -> _Pose:
+           notes: list[str], skipped: dict[str, Any], anchorable: np.ndarray | None = None,
+           area_px: np.ndarray | None = None) -> _Pose:
     """Run the localizer's method on the image plane; the pose, or a :class:`_RejectionError`."""
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
-                           scale_range=scale_range, anchorable=anchorable)
+                           scale_range=scale_range, anchorable=anchorable, area_px=area_px)
         candidates = [
             Candidate(x=_rounded(c.b.real, 3), y=_rounded(c.b.imag, 3), inliers=c.inliers,
                       score=_finite(c.score, 2), sigma_m=_finite(c.sigma_m, 3))

@@ -1635,6 +1635,22 @@ class MetaMap(MapBase):
 
     def _decode_batch(self, indices: list[int]) -> list[tuple[int, tuple[np.ndarray, ...]]]:
         records = self._table[indices]
+        x, y, label, area = self._read_batch(indices)
+        done = []
+        cuts = np.cumsum(records["count"].astype(np.int64))[:-1]
+        for i, page in zip(indices, zip(*(np.split(a, cuts) for a in (x, y, label, area)), strict=True),
+                           strict=True):
+            self._cache[i] = page
+            self._cached_objects += page[2].size
+            done.append((i, page))
+        while self._cached_objects > _CACHE_OBJECTS and len(self._cache) > 1:
+            _, old = self._cache.popitem(last=False)
+            self._cached_objects -= old[2].size
+        return done
+
+    def _read_batch(self, indices: list[int]) -> tuple[np.ndarray, ...]:
+        """(x, y, label code, area) of the pages' objects, read, checked and decoded; the cache untouched."""
+        records = self._table[indices]
         payloads = []
         for i, record in zip(indices, records, strict=True):
             length = int(record["length"])
@@ -1654,21 +1670,32 @@ class MetaMap(MapBase):
             # are still reported as what they are, bad pages, and not as a crash.
             raise MapFormatError(f"{self.path} pages {indices[0]} to {indices[-1]}: malformed page data "
                                  f"({_one_line(exc, 80)})") from None
-        x, y = qx * self.quantum, qy * self.quantum
-        done = []
-        cuts = np.cumsum(records["count"].astype(np.int64))[:-1]
-        for i, page in zip(indices, zip(*(np.split(a, cuts) for a in (x, y, label, area)), strict=True),
-                           strict=True):
-            self._cache[i] = page
-            self._cached_objects += page[2].size
-            done.append((i, page))
-        while self._cached_objects > _CACHE_OBJECTS and len(self._cache) > 1:
-            _, old = self._cache.popitem(last=False)
-            self._cached_objects -= old[2].size
-        return done
+        return qx * self.quantum, qy * self.quantum, label, area
+
+    def scan(self) -> Iterator[Objects]:
+        """Every page's objects in page order, in batches of about 64k objects, checked as every read is.
+
+        The page cache is not used (a whole-map scan would only evict what queries keep there), so a scan
+        may run in another thread beside queries on this map.
+        """
+        counts, lengths = self._table["count"].astype(np.int64), self._table["length"].astype(np.int64)
+        start = 0
+        while start < self.page_count:
+            stop, size, objects = start + 1, int(lengths[start]), int(counts[start])
+            while (stop < self.page_count and size + lengths[stop] <= _BATCH_BYTES
+                   and objects + counts[stop] <= _BATCH_OBJECTS):
+                size, objects, stop = size + int(lengths[stop]), objects + int(counts[stop]), stop + 1
+            x, y, label, area = self._read_batch(list(range(start, stop)))
+            yield Objects(x, y, label, area, self.labels, self.crs)
+            start = stop
 
     def _page(self, i: int) -> tuple[np.ndarray, ...]:
         return next(self._pages([i]))[1]
+
+    def read_pages(self, pages: Iterable[int]) -> Objects:
+        """The objects of the pages with these indices (directory order, see :meth:`pages_meeting`),
+        page after page, each page's objects as it decodes them; checked as every read is."""
+        return self._objects(pages)
 
     def _objects(self, pages: Iterable[int]) -> Objects:
         parts = [page for _, page in self._pages(pages)]

@@ -3,7 +3,9 @@
 * :mod:`mapdb.match.fast` - the default, :func:`match_fast`, a driver handing each stage the next:
   :mod:`~mapdb.match.quads` (quad invariants and the map's quad index), :mod:`~mapdb.match.hypotheses`
   (image quads looked up, similarity hypotheses), :mod:`~mapdb.match.verify` (projected objects against
-  the map's objects), :mod:`~mapdb.match.decision` (the number of false alarms) and
+  the map's objects, held by :mod:`~mapdb.match.object_index`, or for a big map file read page by page by
+  :mod:`~mapdb.match.paged_objects`; stored areas weighed by :mod:`~mapdb.match.areas`),
+  :mod:`~mapdb.match.decision` (the number of false alarms) and
   :mod:`~mapdb.match.refine` (one candidate per place, the final least-squares fit), with
   :mod:`~mapdb.match.relief` (the final fit for blobs from masks: cut blobs left out, relief weighed
   radially) and :mod:`~mapdb.match.ambiguity` (rival places looked for on purpose, where the map repeats

@@ -57,6 +57,7 @@ import numpy as np
 
 from .._scipy import cKDTree
 from .ambiguity import find_rivals
+from .areas import ImageAreas
 from .hypotheses import anchor_batches, prioritise, round_hypotheses
 from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct, merge_candidates, polish
@@ -171,6 +172,7 @@ def match_fast(
     prior: tuple[float, float, float] | None = None,
     scale_range: tuple[float, float] | None = None,
     anchorable: np.ndarray | None = None,
+    area_px: np.ndarray | None = None,
 ) -> MatchResult:
     """Match image objects against a map's indexes.
 
@@ -196,20 +198,26 @@ def match_fast(
     anchorable : bool array (n,), optional
         Objects that may build hypotheses (default all): objects cut by the image border are better left
         out (:func:`~mapdb.match.hypotheses.anchor_batches`).  Ignored when fewer than 4 are anchorable.
+    area_px : float array (n,), optional
+        Pixel area of each object (NaN where unknown): the decision then also asks each object's map object
+        for a compatible stored area (:mod:`mapdb.match.areas`; ``anchorable`` says which blobs are whole).
 
     Returns
     -------
     MatchResult
     """
     opts = options or FastOptions()
+    if area_px is not None:  # the same objects as _central_objects keeps: their indices pass as labels
+        area_px = np.asarray(area_px, np.float64)[_central_objects(z, np.arange(np.size(z)), opts.max_objects)[1]]
     z, img_label, anchorable = _central_objects(z, img_label, opts.max_objects, anchorable)
     reason = _unmatchable(z.size, objects, quads)
     if reason is not None:
         return MatchResult(None, [], reason, 0, 0)
+    areas = ImageAreas.of(area_px, anchorable, img_label, objects.labels)
     if anchorable is not None and anchorable.sum() < 4:
         anchorable = None
     pool, n_tests, done_rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
-                                         anchorable)
+                                         anchorable, areas)
     return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds, quads, diag_px, prior, scale_range,
                    whole=anchorable)
 
@@ -229,17 +237,19 @@ def _central_objects(z, img_label, max_objects: int, anchorable=None) -> tuple[n
 
 def _unmatchable(n: int, objects: ObjectIndex, quads: Sequence[QuadIndex]) -> str | None:
     """Why ``n`` image objects cannot be matched against these indexes at all, or None."""
+    # The counts, not len(): an index that reads pages as queries need them holds none before the first.
+    total = int(objects.counts.sum())
     if n < 4:
         return f"{n} objects: the fast matcher needs at least 4"
-    if len(objects) < 4:
-        return f"the map has only {len(objects)} objects here: at least 4 are needed"
+    if total < 4:
+        return f"the map has only {total} objects here: at least 4 are needed"
     if not any(q.n_quads for q in quads):
-        return f"the map's {len(objects)} objects here form no pattern to match"
+        return f"the map's {total} objects here form no pattern to match"
     return None
 
 
 def _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
-            anchorable=None) -> tuple[list[Candidate], int, int]:
+            anchorable=None, areas=None) -> tuple[list[Candidate], int, int]:
     """The lookup rounds (pixel sigma x anchor batch) until one accepts: candidates best first, tests, rounds."""
     n = z.size
     screen_of = cKDTree(np.column_stack([z.real, z.imag])).query(
@@ -257,13 +267,14 @@ def _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
         if not a.size:
             continue
         pool = merge_candidates(pool + _verify_round(a, b, img_ids, map_z, z, img_label, objects, screen_of, diag_px,
-                                                     math.log10(n_tests), opts), diag_px)
+                                                     math.log10(n_tests), opts, areas), diag_px)
         if pool and pool[0].log10_nfa < opts.log10_epsilon:
             break
     return pool, n_tests, done_rounds
 
 
-def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px, log10_tests, opts) -> list[Candidate]:
+def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px, log10_tests, opts,
+                  areas=None) -> list[Candidate]:
     """Screen, test, decide and refine one round's hypotheses; the refined candidates."""
     pick = prioritise(a, b, diag_px, opts.max_verified)
     a, b, img_ids, map_z = a[pick], b[pick], img_ids[pick], map_z[pick]
@@ -277,8 +288,10 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
     # ... and the decision is that test with the label densities around each place.  It is taken on the
     # hypotheses as they came from their quads (AC-RANSAC's rule: a model refitted to its own inliers looks
     # better than chance says); refinement then only improves the position.
-    density = index.local_density(b, opts.density_radius_factor * np.abs(a) * diag_px / 2.0)
-    nfa = decision_nfa(a, b, img_ids, map_z, z, img_label, index, density, log10_tests, opts.density_neighbours)
+    radius = opts.density_radius_factor * np.abs(a) * diag_px / 2.0
+    density = index.local_density(b, radius)
+    nfa = decision_nfa(a, b, img_ids, map_z, z, img_label, index, density, log10_tests, opts.density_neighbours,
+                       areas, radius)
     a, b, _, inlier, mid, dist = refine(a, b, z, img_label, index, density, log10_tests, 2)
     return candidates(a, b, nfa, inlier, mid, dist, z)
 
