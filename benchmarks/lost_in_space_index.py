@@ -18,7 +18,8 @@ from copies of the three extracts (``benchmarks/synthetic_world.py``):
   with the map's stored index: lookups, verification, decision, refinement): median per image the first
   time and in the steady state, images accepted and accepted wrongly, each map's median relative to
   Andorra's; and a fresh process's first answer (map and index dropped from the page cache, from
-  ``open_map`` to the answer, the whole map's object index built on the way);
+  ``open_map`` to the answer; a big map's objects read page by page where the answer needs them,
+  :mod:`mapdb.match.paged_objects`), median and max of ``FIRST_ANSWERS`` processes and images;
 * **QuadIndex** (the in-memory cKDTree index) on Andorra and, with ``--quadindex-world``, on the 1M
   world (about 250 s and 14 GB: run once): build time and memory, and the same lookups.
 
@@ -58,6 +59,7 @@ TOLERANCE = 2.0
 MAX_RADIUS = 0.3
 HITS = 16
 REPEATS = 3
+FIRST_ANSWERS = 5  # fresh processes, one image each, for the first answer
 IMAGE_NEIGHBOURS = 5
 
 
@@ -155,6 +157,7 @@ def _localize_times(map_path: Path, images: list[dict]) -> dict:
         loc = Localizer(m)
         start = time.perf_counter()
         _, quads = loc.whole_map_indexes()
+        loc.whole_map_ready()  # a big map's whole object index, built in the background, serves the timing
         index_s = time.perf_counter() - start
         if not isinstance(quads, StoredQuads):
             raise RuntimeError(f"{map_path}: the localizer does not use a stored index")
@@ -392,10 +395,12 @@ def main(argv: list[str] | None = None) -> int:
             build = _child(BUILD, str(path), str(args.workers))
         images = _images(path, args.images, args.seed)
         first = _child(OPEN, str(path), json.dumps(images[0]))
-        first_answer = _child(FIRST_ANSWER, str(path), json.dumps(images[0]))
+        first_answers = [_child(FIRST_ANSWER, str(path), json.dumps(image))["open_to_answer_s"]
+                         for image in images[:FIRST_ANSWERS]]
         look = _stored_lookups(path, images)
         located = _localize_times(path, images)
-        located["first_answer_s"] = first_answer["open_to_answer_s"]
+        located["first_answer_s"] = statistics.median(first_answers)
+        located["first_answer_max_s"] = max(first_answers)
         rows.append((name, n_objects, map_bytes, build, first, look))
         whole.append((name, located))
         print(f"{name}: {n_objects} objects, index {build['bytes'] / 2**20:.0f} MiB ({build['quads']} quads) built "
@@ -447,20 +452,22 @@ def main(argv: list[str] | None = None) -> int:
 
 def _whole_table(whole: list[tuple[str, dict]]) -> None:
     """The table of whole lost-in-space answers per image (``_localize_times``), with ratios to the first map's."""
-    print(f"\n{'map':<28} {'ok':>7} {'wrong':>5} {'indexes s':>9} {'1st answer s':>12} {'1st pass ms':>11}"
+    print(f"\n{'map':<28} {'ok':>7} {'wrong':>5} {'indexes s':>9} {'1st answer s (max)':>18} {'1st pass ms':>11}"
           f" {'localize ms':>11} {'p95 ms':>7} {'CPU ms':>7} {'x first map':>11} {'x (1st pass)':>12}")
     ref = whole[0][1] if whole else None
     for name, r in whole:
         ratio = statistics.median(r["ms"]) / statistics.median(ref["ms"])
         ratio_first = statistics.median(r["first_ms"]) / statistics.median(ref["first_ms"])
         print(f"{name:<28} {r['ok']:>3}/{r['images']:<3} {r['wrong']:>5} {r['index_s']:>9.2f}"
-              f" {r['first_answer_s']:>12.2f} {statistics.median(r['first_ms']):>11.2f}"
+              f" {r['first_answer_s']:>11.2f} ({r['first_answer_max_s']:4.2f})"
+              f" {statistics.median(r['first_ms']):>11.2f}"
               f" {statistics.median(r['ms']):>11.2f} {np.percentile(r['ms'], 95):>7.2f}"
               f" {statistics.median(r['cpu_ms']):>7.2f} {ratio:>10.2f}x {ratio_first:>11.2f}x")
     print("whole lost-in-space answers, Localizer.localize with no prior and the map's stored index: ok: images"
           " accepted, wrong: accepted more than 5 m from the truth; indexes s: opening the stored index and"
-          " building the whole map's object index (once per process, before the timing); 1st answer s: a fresh"
-          " process, map and index dropped from the page cache, open_map to the first image's answer; 1st pass:"
+          " building the whole map's object index (once per process, before the timing); 1st answer s: median"
+          f" (and max) of {FIRST_ANSWERS} fresh processes, each answering one image with the map and index"
+          " dropped from the page cache, open_map to the answer (a big map read page by page); 1st pass:"
           " median per image the first time each image is localized, localize ms and p95: the fastest of 3 more"
           " passes, CPU ms the same in CPU time; x first map: median localize time relative to the first map's"
           " (Andorra's)")

@@ -257,6 +257,15 @@ class Localizer:
             self._whole_objects = WholeMapObjects(self.map)
         return self._whole_objects.index(), self._whole_quads
 
+    def whole_map_ready(self, timeout: float | None = None) -> bool:
+        """Build the whole map's object index now (in the background for a big map file) and wait up to
+        ``timeout`` seconds for it: True once lost-in-space answers use it.  A long-running process that
+        expects many lost-in-space images calls it at start-up; the answers are the same either way."""
+        self.whole_map_indexes()
+        assert self._whole_objects is not None
+        self._whole_objects.start()
+        return self._whole_objects.wait(timeout)
+
     def _stored_index(self) -> StoredQuadIndex | None:
         """The map's stored quad index, if it has one built with the matcher's number of neighbours."""
         if not isinstance(self.map, MetaMap):

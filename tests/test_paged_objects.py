@@ -92,7 +92,7 @@ def test_answers_are_the_same_paged_and_whole_and_the_whole_index_takes_over(pag
         paged = [loc.localize(im) for im in images[:2]]
         served = loc._whole_objects
         assert served.paged  # the first answers read pages; the second request started the whole index
-        assert served.wait(60.0)
+        assert loc.whole_map_ready(60.0)
         paged += [loc.localize(im) for im in images[2:]]
         assert not served.paged and len(served.index()) == len(m)
     assert sum(a.status == "ok" for a in whole) >= 4

@@ -198,10 +198,15 @@ class WholeMapObjects:
         self._requests += 1
         if self._built is not None:
             self._index, self._built = self._built, None
-        elif self.paged and self._thread is None and self._requests > 1:
+        elif self._requests > 1:
+            self.start()
+        return self._index
+
+    def start(self) -> None:
+        """Start building the whole index in the background, if it is needed and not started."""
+        if self.paged and self._thread is None:
             self._thread = threading.Thread(target=self._build, name="mapdb-whole-map-objects", daemon=True)
             self._thread.start()
-        return self._index
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait for the background build (if one runs); True once the whole index serves the next request."""
