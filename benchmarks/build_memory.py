@@ -425,6 +425,12 @@ def bare_pass(path: Path, index: str) -> Run:
     return measure(f"bare pyosmium pass ({index})", [sys.executable, "-c", BARE, str(path), index])
 
 
+# The first statements of a child process that imports the baseline's package from PYTHONPATH (a tree made by
+# baseline_tree): the editable install's import hook would find the working tree first, so it is left out.
+BASELINE_FIRST = ("import sys; sys.meta_path = [f for f in sys.meta_path "
+                  "if '__editable__' not in type(f).__module__]; ")
+
+
 def mapdb_build(name: str, sources: list[Path], out: Path, extra: list[str] = (), pythonpath: Path | None = None
                 ) -> Run:
     env = dict(os.environ)
@@ -432,10 +438,7 @@ def mapdb_build(name: str, sources: list[Path], out: Path, extra: list[str] = ()
         env["PYTHONPATH"] = str(pythonpath)
     code = "import sys; from mapdb_cli.main import cli; sys.argv[0] = 'mapdb'; cli()"
     if pythonpath is not None:  # the baseline's package is not installed: put its cli under the name mapdb_cli
-        # The editable install's import hook would find the working tree first: leave it out.
-        code = ("import sys, importlib; sys.meta_path = [f for f in sys.meta_path "
-                "if '__editable__' not in type(f).__module__]; "
-                "sys.modules['mapdb_cli'] = importlib.import_module('cli'); "
+        code = (BASELINE_FIRST + "import importlib; sys.modules['mapdb_cli'] = importlib.import_module('cli'); "
                 "sys.argv[0] = 'mapdb'; from cli.main import cli; cli()")
     return measure(name, [sys.executable, "-c", code, "build", "-q", *map(str, sources), "-o", str(out),
                           "--overwrite", *extra], env)
@@ -558,7 +561,10 @@ def print_stages(breakdown: dict[str, tuple[float, list[tuple[str, float, float]
         cells = []
         for k in labels:
             found = [(peak, secs) for stage, peak, secs in breakdown[k][1] if stage == name]
-            cells.append(f"{found[0][0]:,.0f} MB, {found[0][1]:,.1f} s" if found else "-")
+            if found and not found[0][0]:  # over before the first sample (0.05 s)
+                cells.append(f"(not sampled), {found[0][1]:,.2f} s")
+            else:
+                cells.append(f"{found[0][0]:,.0f} MB, {found[0][1]:,.1f} s" if found else "-")
         print(f"| {name} | " + " | ".join(cells) + " |")
     print()
 

@@ -11,6 +11,9 @@ them a few times, holding a fixed amount of memory, and return exactly what :fun
 * the widest gap between longitudes from the lowest and highest value of each of :data:`ARC_BINS` bins (one
   pass); only when no gap between bins is wider than the spread inside some bin (data leaving no gap of
   360 / ARC_BINS degrees anywhere around the globe) are the values of those bins gathered.
+
+Values that number at most :data:`IN_MEMORY_VALUES` (a town's or a small country's objects) are gathered
+in one array and given to the in-memory functions themselves: the passes above would only cost more time.
 """
 
 from __future__ import annotations
@@ -19,7 +22,9 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-__all__ = ["ARC_BINS", "Blocks", "central_longitude_of", "lon_arc_of", "median_of"]
+from .geo import _lon_arc, central_longitude
+
+__all__ = ["ARC_BINS", "IN_MEMORY_VALUES", "Blocks", "central_longitude_of", "lon_arc_of", "median_of"]
 
 # A zero-argument function giving the values again, block by block (1-D float arrays).
 Blocks = Callable[[], Iterable[np.ndarray]]
@@ -28,6 +33,21 @@ Blocks = Callable[[], Iterable[np.ndarray]]
 ARC_BINS = 1 << 16
 _DIGIT = 16
 _SIGN = np.uint64(1 << 63)
+# Values gathered in memory, when there are no more (8 MB, a few times that while sorted): below it the
+# blocks are read once; from it in the passes above, the first of which stops reading here.
+IN_MEMORY_VALUES = 1 << 20
+
+
+def _gathered(blocks: Blocks, most: int) -> np.ndarray | None:
+    """All the values in one array when they number at most ``most``, else None."""
+    parts, n = [], 0
+    for block in blocks():
+        block = np.asarray(block, np.float64).ravel()
+        n += block.size
+        if n > most:
+            return None
+        parts.append(block)
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _keys(values: np.ndarray) -> np.ndarray:
@@ -62,14 +82,20 @@ def _select(blocks: Blocks, ranks: list[int]) -> list[np.float64]:
     return [_value(prefix) for prefix in prefixes]
 
 
-def median_of(blocks: Blocks) -> np.float64:
-    """``np.median`` of all the values (the mean of the two middle ones for an even count).
+def median_of(blocks: Blocks, in_memory: int = IN_MEMORY_VALUES) -> np.float64:
+    """``np.median`` of all the values (the mean of the two middle ones for an even count); up to
+    ``in_memory`` values are gathered and given to it.
 
     Examples
     --------
     >>> float(median_of(lambda: [np.array([3.0, -1.0]), np.array([7.0, 2.0])]))
     2.5
+    >>> float(median_of(lambda: [np.array([3.0, -1.0]), np.array([7.0, 2.0])], in_memory=0))
+    2.5
     """
+    values = _gathered(blocks, in_memory)
+    if values is not None and values.size:
+        return np.median(values)
     n = sum(np.asarray(block).size for block in blocks())
     if n == 0:
         raise ValueError("the median of no values")
@@ -88,14 +114,20 @@ def _bin_of(values: np.ndarray, bins: int) -> np.ndarray:
     return np.clip(((values + 180.0) * (bins / 360.0)).astype(np.int64), 0, bins - 1)
 
 
-def lon_arc_of(blocks: Blocks, bins: int | None = None) -> tuple[float, float]:
-    """The shortest eastward arc (start, width in degrees) holding every longitude, as ``geo._lon_arc``.
+def lon_arc_of(blocks: Blocks, bins: int | None = None, in_memory: int = IN_MEMORY_VALUES) -> tuple[float, float]:
+    """The shortest eastward arc (start, width in degrees) holding every longitude, as ``geo._lon_arc`` (which
+    is given up to ``in_memory`` values gathered).
 
     Examples
     --------
     >>> lon_arc_of(lambda: [np.array([179.0, -179.8]), np.array([179.5])])
     (179.0, 1.1999999999999886)
+    >>> lon_arc_of(lambda: [np.array([179.0, -179.8]), np.array([179.5])], in_memory=0)
+    (179.0, 1.1999999999999886)
     """
+    values = _gathered(blocks, in_memory)
+    if values is not None and values.size:
+        return _lon_arc(values)
     bins = bins or ARC_BINS
     low, high = np.full(bins, np.inf), np.full(bins, -np.inf)
     for block in blocks():
@@ -138,18 +170,24 @@ def _gaps_with_insides(blocks: Blocks, bins: int, used: np.ndarray, gaps: np.nda
     return np.concatenate([inner_gap, gaps])[order], np.concatenate([inner_after, after])[order]
 
 
-def central_longitude_of(blocks: Blocks) -> float:
-    """The median longitude counted from the widest gap, as :func:`mapdb.geo.central_longitude`.
+def central_longitude_of(blocks: Blocks, in_memory: int = IN_MEMORY_VALUES) -> float:
+    """The median longitude counted from the widest gap, as :func:`mapdb.geo.central_longitude` (which is given
+    up to ``in_memory`` values gathered).
 
     Examples
     --------
     >>> central_longitude_of(lambda: [np.array([179.0, 179.5]), np.array([-179.8])])
     179.5
+    >>> central_longitude_of(lambda: [np.array([179.0, 179.5]), np.array([-179.8])], in_memory=0)
+    179.5
     """
-    start, _ = lon_arc_of(blocks)
+    values = _gathered(blocks, in_memory)
+    if values is not None and values.size:
+        return central_longitude(values)
+    start, _ = lon_arc_of(blocks, in_memory=0)
 
     def unwrapped() -> Iterable[np.ndarray]:
         for lon in blocks():
             yield np.mod(np.asarray(lon, np.float64) - start, 360.0) + start
 
-    return float((median_of(unwrapped) + 180.0) % 360.0 - 180.0)
+    return float((median_of(unwrapped, in_memory=0) + 180.0) % 360.0 - 180.0)

@@ -27,11 +27,12 @@ from .labels import LabelTable, load_label_table
 from .objects import Objects
 from .outputs import Progress, ProgressLike, as_progress
 from .sources import SKIPPED_KINDS, read_source, source_kind
-from .sources.osm import NODE_INDEXES, read_osm_spooled
+from .sources.osm import FILE_INDEX_BYTES, NODE_INDEXES, TRIM_INPUT_BYTES, read_osm_spooled
 from .spool import ObjectSpool, release_freed_memory
 from .store import MapWriter
 
-__all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "read_one_source", "utm_crs_for"]
+__all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
+           "utm_crs_for"]
 
 # With ``crs="auto"`` the map is projected in one UTM zone (6 degrees of longitude wide).  Sources whose
 # objects span more longitude than two zones put some of them about 6 degrees or more from the zone's
@@ -39,6 +40,14 @@ __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "build_map", "read_one_source", "utm_crs_for
 # its grid north turns from true north by up to 6 degrees (towards the poles): the build warns and suggests
 # an explicit CRS or one map per area.
 MAX_AUTO_CRS_SPAN_DEG = 12.0
+
+# Where the objects read from OSM sources wait for the map writer (``build_map(spool=...)``): in memory, or in
+# temporary files (28 bytes an object, read back in blocks).  "auto" keeps them in memory while the OSM inputs
+# so read add up to less than SPOOL_INPUT_BYTES, the size from which libosmium's node index is a file too (about
+# 6,000 objects a MB of PBF: some 11 MB of objects at most); files cost little, but a town's build would spend
+# a few percent of its time writing and reading them back.
+SPOOL_CHOICES = ("auto", "memory", "file")
+SPOOL_INPUT_BYTES = FILE_INDEX_BYTES
 
 
 def utm_crs_for(lon: float, lat: float) -> str:
@@ -51,16 +60,26 @@ def utm_crs_for(lon: float, lat: float) -> str:
     >>> utm_crs_for(-70.0, -33.0)
     'EPSG:32719'
     """
+    finite = math.isfinite(lon) and math.isfinite(lat)
+    # Several zones touch on a zone edge; the formula's zone is the conventional choice.
+    zone = int((lon + 180) // 6) % 60 + 1 if finite else 0
+    wanted = f"{326 if lat >= 0 else 327}{zone:02d}"
+    if finite and _strictly_inside(wanted, lon, lat):
+        return f"EPSG:{wanted}"  # the zone the query below would find first, without it (60 ms)
     found = query_utm_crs_info(
         datum_name="WGS 84", area_of_interest=AreaOfInterest(lon, lat, lon, lat)
     )
     if not found:
         raise ValueError(f"no UTM zone for lon {lon}, lat {lat}")
-    # Several zones touch on a zone edge; the formula's zone is the conventional choice.
-    zone = int((lon + 180) // 6) % 60 + 1
-    wanted = f"{326 if lat >= 0 else 327}{zone:02d}"
     codes = [c.code for c in found]
     return f"EPSG:{wanted if wanted in codes else codes[0]}"
+
+
+def _strictly_inside(code: str, lon: float, lat: float) -> bool:
+    """Whether a point lies inside the area of use of the CRS ``EPSG:code``, off its edges (where the database's
+    query of the zones that hold a point, which takes tens of milliseconds, surely finds it)."""
+    area = CRS.from_epsg(int(code)).area_of_use
+    return area is not None and area.west < lon < area.east and area.south < lat < area.north
 
 
 def file_sha256(path: Path) -> str:
@@ -153,8 +172,8 @@ def build_map(
     bbox: tuple[float, float, float, float] | None = None, quantum: float = 0.1, raster_classes: str | None = None,
     min_area_m2: float = 10_000.0, label_column: str = "label", layer_crs: str | None = None,
     label: str | None = None, label_map: str | Path | None = None, node_index: str = "auto",
-    index_dir: str | Path | None = None, jobs: int | None = None, scheduler: str | None = None,
-    progress: ProgressLike = None,
+    index_dir: str | Path | None = None, spool: str = "auto", jobs: int | None = None,
+    scheduler: str | None = None, progress: ProgressLike = None,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -186,6 +205,10 @@ def build_map(
         Where OSM node locations are kept (:func:`mapdb.sources.osm.read_osm`: ``"auto"`` chooses memory or a
         temporary file by the input's size) and the directory of such temporary files, and of the objects
         read from OSM sources (28 bytes an object, read back in blocks; all removed at the end).
+    spool : str
+        Where the objects read from OSM sources are kept until they are written: ``"memory"``, ``"file"``
+        (in ``index_dir``) or ``"auto"``, in memory while the OSM sources so read add up to less than
+        :data:`SPOOL_INPUT_BYTES` (64 MiB) and in files from there.  The map is the same.
     jobs, scheduler : int, str, optional
         Read the sources in parallel, one Dask task a source, on a local cluster of ``jobs`` worker
         processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
@@ -207,7 +230,7 @@ def build_map(
     ------
     SourceError
         A bad source, or an argument out of range (``quantum``, ``min_area_m2``, ``bbox``, ``node_index``,
-        both ``jobs`` and ``scheduler``).
+        ``spool``, both ``jobs`` and ``scheduler``).
     MapdbIOError
         ``index_dir`` cannot hold an OSM source's temporary files; a Dask scheduler that does not answer.
     EmptyMapError
@@ -222,8 +245,10 @@ def build_map(
     osm_options = {"node_index": _checked_node_index(node_index), "index_dir": index_dir}
     if jobs is not None and scheduler is not None:
         raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")
-    with open_client(jobs, scheduler) as client, _scratch(index_dir) as scratch:
-        read = _gather(sources, table, (read_options, osm_options), target, say, client, scratch)
+    if spool not in SPOOL_CHOICES:
+        raise SourceError(f"spool {spool!r}: not one of {', '.join(SPOOL_CHOICES)}")
+    with open_client(jobs, scheduler) as client, _scratch(index_dir) as directory:
+        read = _gather(sources, table, (read_options, osm_options), target, say, client, _Spooling(directory, spool))
         return _built(output, read, table, quantum, say, {
             "crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
             "labels_file": Path(labels).name if labels else None,
@@ -254,9 +279,9 @@ class _Read(NamedTuple):
 
 
 def _gather(sources: Sequence[str | Path], table: LabelTable, options: _ReadOptions, target: str | None,
-            say: Progress, client: Any, scratch: str) -> _Read:
+            say: Progress, client: Any, spooling: _Spooling) -> _Read:
     """Read and clip every source, and choose the CRS when ``target`` is None (from every object's lon/lat)."""
-    parts, described, skipped, warnings = _read_sources(sources, table, say, options, client, scratch)
+    parts, described, skipped, warnings = _read_sources(sources, table, say, options, client, spooling)
     bbox = options[0]["bbox"]
     if bbox is not None:
         # A box across the antimeridian is no plain box: those spools are always checked.
@@ -412,7 +437,7 @@ def _label_map(path: str | Path | None, label: str | None, table: LabelTable) ->
 
 
 def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: _ReadOptions,
-                  client: Any, scratch: str
+                  client: Any, spooling: _Spooling
                   ) -> tuple[list[list[ObjectSpool]], list[dict[str, Any]], list[Counter[str]], list[str]]:
     """Read each source once: its objects, its metadata entry, what its reader skipped; and the warnings."""
     unique, warnings = [], []
@@ -426,7 +451,7 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
             continue
         unique.append((path, fingerprint))
     read = _read_here if client is None else _read_on_cluster
-    results = read([path for path, _ in unique], table, options, say, client if client is not None else scratch)
+    results = read([path for path, _ in unique], table, options, say, client if client is not None else spooling)
     described = [{"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
                   "sha256": fingerprint[1] if fingerprint else file_sha256(path),
                   "objects": _count(spools)}
@@ -452,13 +477,16 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     if source_kind(path) == "osm":
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
                                   spool_dir=spool_dir, **osm_options)
+        small = path.stat().st_size < TRIM_INPUT_BYTES
     else:
         objects = read_source(path, table, progress=say, counts=counts, **read_options)
         lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
         spools = [ObjectSpool(objects.labels, "EPSG:4326")]
         spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
         del objects
-    release_freed_memory()
+        small = False  # a raster's windows or a layer's features may have taken much more than the file
+    if not small:
+        release_freed_memory()
     # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
     # range (a projected layer outside its projection) is dropped and counted.
     spools, dropped = _kept(spools, _on_earth, _EARTH)
@@ -486,12 +514,32 @@ def _scratch(index_dir: str | Path | None) -> Iterator[str]:
         yield name
 
 
-def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, scratch: str
+class _Spooling(NamedTuple):
+    """The build's temporary directory, and where OSM sources' objects go (one of :data:`SPOOL_CHOICES`)."""
+
+    directory: str
+    spool: str
+
+    def spool_dirs(self, paths: list[Path]) -> list[str | None]:
+        """The ``spool_dir`` of each source read in this process: the directory, or None (in memory)."""
+        held, dirs = 0, []
+        for path in paths:
+            try:
+                size = path.stat().st_size if source_kind(path) == "osm" else 0
+            except OSError:  # the reader says what is wrong with it
+                size = 0
+            memory = self.spool == "memory" or (self.spool == "auto" and held + size < SPOOL_INPUT_BYTES)
+            held += size if memory else 0
+            dirs.append(None if memory else self.directory)
+        return dirs
+
+
+def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, spooling: _Spooling
                ) -> list[tuple[list[ObjectSpool], Counter[str]]]:
     results = []
-    for path in paths:
+    for path, spool_dir in zip(paths, spooling.spool_dirs(paths), strict=True):
         say(f"reading {path} ...")
-        results.append(read_one_source(path, table, options, say, scratch))
+        results.append(read_one_source(path, table, options, say, spool_dir))
         say(f"  {_count(results[-1][0])} objects from {path.name}")
         say.advance()
     return results

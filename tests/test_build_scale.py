@@ -209,11 +209,13 @@ def test_block_medians_and_arcs_equal_those_of_all_values() -> None:
     for values in samples:
         pieces = np.array_split(values, 4)
         blocks = lambda pieces=pieces: iter(pieces)  # noqa: E731
-        assert blockstats.median_of(blocks) == np.median(values)
-        assert blockstats.central_longitude_of(blocks) == central_longitude(values)
-        # Few bins: the widest gap is often inside a bin, and those bins' values are looked into.
-        for bins in (None, 3, 64):
-            assert blockstats.lon_arc_of(blocks, bins) == _lon_arc(values)
+        # in_memory: 0 reads in passes, the default gathers these few values, one less than them stops early.
+        for in_memory in (0, blockstats.IN_MEMORY_VALUES, values.size - 1):
+            assert blockstats.median_of(blocks, in_memory) == np.median(values)
+            assert blockstats.central_longitude_of(blocks, in_memory) == central_longitude(values)
+            # Few bins: the widest gap is often inside a bin, and those bins' values are looked into.
+            for bins in (None, 3, 64):
+                assert blockstats.lon_arc_of(blocks, bins, in_memory) == _lon_arc(values)
 
 
 def test_spooled_objects_come_back_in_order_and_leave_nothing(tmp_path: Path) -> None:

@@ -66,8 +66,8 @@ from ..objects import Objects
 from ..spool import ObjectSpool, joined, release_freed_memory
 
 __all__ = ["AREA_BLOCK", "DENSE_INDEX_BYTES", "FILE_INDEX_BYTES", "MAX_INFLATION", "MIN_INFLATED_BYTES",
-           "NODE_INDEXES", "OSM_SUFFIXES", "POINT_BLOCK", "ROAD_REFS_IN_MEMORY", "choose_node_index",
-           "inflation_limit", "is_osm_path", "read_osm", "read_osm_spooled"]
+           "NODE_INDEXES", "OSM_SUFFIXES", "POINT_BLOCK", "ROAD_REFS_IN_MEMORY", "TRIM_INPUT_BYTES",
+           "choose_node_index", "inflation_limit", "is_osm_path", "read_osm", "read_osm_spooled"]
 
 OSM_SUFFIXES = (".osm.pbf", ".pbf", ".osm", ".osm.bz2", ".osm.gz")
 _XML_SUFFIXES = (".osm", ".osm.bz2", ".osm.gz")
@@ -109,6 +109,10 @@ _MAX_EDGE_BUCKETS = 1024
 # DENSE_INDEX_BYTES, a continent or the planet, whose node ids are dense, a dense file array.
 FILE_INDEX_BYTES = 64 << 20
 DENSE_INDEX_BYTES = 16 << 30
+# From this much input the freed C heap is handed back to the system between the stages of a read (see
+# mapdb.spool.release_freed_memory), so that one stage's leftovers do not add to the next one's peak; below it
+# the heap is small, and handing it back would only make the next stage fault the same pages in again.
+TRIM_INPUT_BYTES = FILE_INDEX_BYTES
 NODE_INDEXES = ("auto", "flex_mem", "sparse_mem_array", "dense_mem_array", "sparse_file_array", "dense_file_array")
 # Disk a file index needs, per byte of input, as checked before the pass (a full disk would make libosmium's
 # mapped file fault): sparse 16 bytes a node at up to ~0.15 nodes a PBF byte, dense 8 bytes an id.
@@ -286,9 +290,10 @@ def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[st
 
 def _assemble(collected: _Collected, table: LabelTable, counts: Counter[str]) -> None:
     """The objects left after the pass, into the last spool: ways and (when the table asks) intersections."""
-    release_freed_memory()
+    trim = release_freed_memory if collected.input_bytes >= TRIM_INPUT_BYTES else lambda: None
+    trim()
     collected.sink.add(2, _way_objects(collected, table.labels))
-    release_freed_memory()
+    trim()
     if table.intersections is not None:
         collected.sink.add(2, _intersection_objects(collected, table.intersections, table.labels, counts))
 
@@ -414,6 +419,7 @@ class _Collected:
         self.labels = labels
         self.counts = counts
         self.sink = sink
+        self.input_bytes = input_bytes
         # The labelled nodes not yet handed to the sink (typed arrays, flushed every POINT_BLOCK nodes).
         self.node_lon = array("d")
         self.node_lat = array("d")
