@@ -69,7 +69,8 @@ class PagedObjectIndex(ObjectIndex):
         self._loaded = np.zeros(map_.page_count, bool)
         self._parts: list[Objects] = []
         self._checked = np.zeros(0, np.int64)
-        self._whole_counts = np.array([d["count"] for d in map_.metadata["labels"]], np.int64)
+        counts = map_.label_counts
+        self._whole_counts = np.array([counts.get(name, 0) for name in map_.labels], np.int64)
         self._rebuild()
 
     @property
@@ -182,7 +183,6 @@ class WholeMapObjects:
         self._requests = 0
         self._thread: threading.Thread | None = None
         self._built: ObjectIndex | None = None
-        self._stop = threading.Event()
         if hasattr(map_, "scan") and len(map_) >= paged_from:
             self._index: ObjectIndex = PagedObjectIndex(map_)
         else:
@@ -214,21 +214,10 @@ class WholeMapObjects:
             self._thread.join(timeout)
         return self._built is not None or not self.paged
 
-    def close(self) -> None:
-        """Ask a background build to stop at its next batch of pages."""
-        self._stop.set()
-
     def _build(self) -> None:
-        parts = []
         try:
-            for part in self._map.scan():
-                if self._stop.is_set():
-                    return
-                parts.append(part)
-            objects = concat(parts, self._map.labels)
-            counts = [d["count"] for d in self._map.metadata["labels"]]
-            if np.bincount(objects.label, minlength=len(self._map.labels)).tolist() != counts:
-                return  # the paged index reports the map's damage where a query meets it
+            objects = concat(list(self._map.scan()), self._map.labels)
+            self._map._check_label_counts(np.bincount(objects.label, minlength=len(self._map.labels)))
             self._built = ObjectIndex(objects, bounds=self._map.bounds)
         except Exception:  # a closed or damaged map: the paged index keeps serving, and says what is wrong
             return
