@@ -28,6 +28,7 @@ def import_baseline(rev: str, workdir: Path, module: str = "localize") -> Module
                                  capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", str(pkg_dir)], input=archive, check=True)
         (pkg_dir / "mapdb").rename(pkg_dir / "mapdb_baseline")
+    if str(pkg_dir) not in sys.path:
         sys.path.insert(0, str(pkg_dir))
     return importlib.import_module(f"mapdb_baseline.{module}")
 

@@ -188,8 +188,8 @@ class Localizer:
     the first image without a prior), the quad index of each map tile a prior reached (at most
     ``MAX_CACHED_QUADS`` quads in all, the least recently used dropped first), and the merged quad
     index of the last ``MAX_CACHED_BLOCKS`` blocks of tiles.  A flight's images fall in the same block
-    and cost no index building; each reads only the objects around its prior (from the map's page
-    cache) into a small object index.
+    and cost no index building.  Every answer verifies against the whole map's object index (for a big
+    map file, only the pages its queries reach), so a pose scores the same with a prior as without.
 
     Parameters
     ----------
@@ -250,12 +250,22 @@ class Localizer:
         for a big map file, read page by page where the answers need them until the whole index, built in
         the background from the second answer on, is ready (:class:`WholeMapObjects`); the same answers.
         """
-        if self._whole_objects is None or self._whole_quads is None:
+        if self._whole_quads is None:
             stored = self._stored_index()
             self._whole_quads = (StoredQuads(stored) if stored is not None
                                  else QuadIndex(self.map.all(), self.fast_options.map_neighbours))
+        return self._objects(lost_in_space=True), self._whole_quads
+
+    def _objects(self, lost_in_space: bool) -> ObjectIndex:
+        """The whole map's object index (read page by page for a big map file), for one answer.
+
+        Answers with a prior verify against it too, not against the objects around the prior alone: a
+        k-th-nearest label density cut at the edge of a read box would make the same pose score differently
+        with a prior than without (a lone house of its label in the box looked like a dense town).
+        """
+        if self._whole_objects is None:
             self._whole_objects = WholeMapObjects(self.map)
-        return self._whole_objects.index(), self._whole_quads
+        return self._whole_objects.index(lost_in_space)
 
     def whole_map_ready(self, timeout: float | None = None) -> bool:
         """Build the whole map's object index now (in the background for a big map file) and wait up to
@@ -279,28 +289,26 @@ class Localizer:
     def fast_indexes(self, prior: tuple[float, float, float] | None, margin: float):
         """Objects to verify against and quad indexes to look hypotheses up in.
 
-        Without a prior: the whole map's.  With one, the prior is applied before anything is read: the
-        objects within ``1.1 radius + 1.5 margin`` of its centre, and the quads anchored in the map tiles
-        that disc reaches.  Tiles are cached; a flight's consecutive images fall in the same block
-        of tiles, whose quads are then merged into one index (one lookup instead of one per tile).  The
-        whole map's quad index, when already in memory, serves every prior instead of the tiles'.
+        Without a prior: the whole map's.  With one, the prior is applied before any quad is read: the
+        quads anchored in the map tiles that ``1.1 radius + margin`` around its centre reaches; the objects
+        are the whole map's object index (for a big map file, only the pages its queries reach are read).
+        Tiles are cached; a flight's consecutive images fall in the same block of tiles, whose quads are
+        then merged into one index (one lookup instead of one per tile).  The whole map's quad index, when
+        already in memory, serves every prior instead of the tiles'.
         """
         if prior is None:
             objects, quads = self.whole_map_indexes()
             return objects, [quads]
         x, y, r = prior
         # Hypotheses may put the image centre 1.1 radius away; its objects, and so the anchors of the map
-        # quads that can match, reach ``margin`` beyond; the decision counts label densities up to half as
-        # far again.
+        # quads that can match, reach ``margin`` beyond.
         anchor_reach = PRIOR_SLACK * r + margin
-        reach = anchor_reach + 0.5 * margin
         t = TILE_SIZE_M
         k = max(1, math.ceil(anchor_reach / t))
         if (2 * k + 1) ** 2 > MAX_PRIOR_TILES:
             # A prior this wide covers much of the map: the whole map's indexes serve it (and later images).
             return self.fast_indexes(None, 0.0)
-        box = (x - reach, y - reach, x + reach, y + reach)
-        objects = ObjectIndex(self.map.query_bbox(*box), bounds=box)
+        objects = self._objects(lost_in_space=False)
         centre = complex(x, y)
         if self._whole_quads is not None:
             return objects, [NearQuads(self._whole_quads, centre, anchor_reach)]

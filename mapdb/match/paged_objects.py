@@ -193,9 +193,13 @@ class WholeMapObjects:
         """Whether requests are still served page by page."""
         return isinstance(self._index, PagedObjectIndex)
 
-    def index(self) -> ObjectIndex:
-        """The index to answer one image with."""
-        self._requests += 1
+    def index(self, lost_in_space: bool = True) -> ObjectIndex:
+        """The index to answer one image with.
+
+        Only lost-in-space answers (``lost_in_space``) count towards building the whole index: an answer
+        with a prior reads the few pages around it, and a flight's stay near its path.
+        """
+        self._requests += lost_in_space
         if self._built is not None:
             self._index, self._built = self._built, None
         elif self._requests > 1:
