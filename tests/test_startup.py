@@ -191,3 +191,13 @@ def test_quick_schema_says_valid_only_when_jsonschema_agrees(paper_setup) -> Non
     valid = sum(v for _, v in verdicts)
     assert 0 < quick_yes <= valid < len(verdicts)  # the mutations reach both sides of the schema
     assert valid - quick_yes < 0.2 * valid  # and only odd values (numpy numbers, 3.0 as an id) fall through
+
+
+def test_a_build_of_osm_extracts_imports_no_raster_reader() -> None:
+    """rasterio and scipy.ndimage (0.3-0.6 s) load only when a build reads a raster."""
+    out = _python("""
+        import sys
+        import mapdb.build, mapdb.sources
+        print(mapdb.sources.source_kind("clc.tif"), "rasterio" in sys.modules, "scipy.ndimage" in sys.modules)
+    """)
+    assert out.split() == ["landcover", "False", "False"]

@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING
 from ..errors import SourceError
 from ..labels import LabelTable
 from ..objects import Objects
-from .landcover import RASTER_SUFFIXES, read_landcover
 from .layers import LAYER_SUFFIXES, read_layer
 from .osm import OSM_SUFFIXES, read_osm
+from .suffixes import RASTER_SUFFIXES
 
 if TYPE_CHECKING:
     from ..classmap import ClassTable
@@ -79,6 +79,8 @@ def read_source(
     if kind == "osm":
         return read_osm(path, table, bbox=bbox, progress=progress, counts=counts)
     if kind == "landcover":
+        from .landcover import read_landcover  # rasterio and scipy.ndimage: only a build with rasters pays
+
         return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
                               progress=progress)
     return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox, counts=counts,

@@ -57,10 +57,9 @@ from ..errors import MapdbIOError, SourceError
 from ..geo import check_bbox, in_bbox, projected_window
 from ..labels import LabelTable
 from ..objects import Objects
+from .suffixes import RASTER_SUFFIXES
 
 __all__ = ["RASTER_SUFFIXES", "is_raster_path", "read_landcover", "raster_class_table_name"]
-
-RASTER_SUFFIXES = (".tif", ".tiff", ".gtiff")
 
 # Pixels per tile: big enough that per-tile overheads vanish, small enough that the tile, its
 # per-label label image (int32) and temporaries stay in the low hundreds of MB.
