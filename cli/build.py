@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from mapdb.build import build_map
+from mapdb.build import SPOOL_CHOICES, build_map
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 from mapdb.sources import DEFAULT_MIN_AREA_M2
 from mapdb.sources.osm import NODE_INDEXES
@@ -44,6 +44,9 @@ from .options import (
                    "64 MiB), or a libosmium index.")
 @click.option("--index-dir", type=click.Path(file_okay=False), metavar="DIR",
               help="Directory of the temporary files of large OSM extracts (default: the system's temp dir).")
+@click.option("--spool", type=click.Choice(SPOOL_CHOICES), default="auto", show_default=True,
+              help="Where objects read from OSM wait for the writer: auto (memory below 64 MiB of OSM input, "
+                   "temporary files in --index-dir from there), memory, or file.  The map is the same.")
 @click.option("--jobs", type=click.IntRange(1, 1024), default=None, metavar="N",
               help="Read the sources in parallel on a local Dask cluster of N processes.")
 @click.option("--scheduler", metavar="tcp://HOST:PORT",
@@ -54,7 +57,8 @@ from .options import (
 @debug_option
 @handle_errors
 def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_area, label_column, layer_crs,
-          layer_label, label_map, node_index, index_dir, jobs, scheduler, overwrite, parents, quiet, debug):
+          layer_label, label_map, node_index, index_dir, spool, jobs, scheduler, overwrite, parents, quiet,
+          debug):
     """Build a map from OSM extracts, land-cover rasters and point/polygon layers.
 
     Prints a JSON summary (object counts per label, and "warnings") on stdout.  An existing OUTPUT is
@@ -81,7 +85,8 @@ def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_
     summary = build_map(sources, output, labels=labels_file, crs=crs, bbox=bbox, quantum=quantum,
                         raster_classes=raster_classes, min_area_m2=min_area, label_column=label_column,
                         layer_crs=layer_crs, label=layer_label, label_map=label_map, node_index=node_index,
-                        index_dir=index_dir, jobs=jobs, scheduler=scheduler, progress=progress_printer(quiet))
+                        index_dir=index_dir, spool=spool, jobs=jobs, scheduler=scheduler,
+                        progress=progress_printer(quiet))
     for warning in summary["warnings"]:
         click.echo(f"mapdb: warning: {warning}", err=True)
     click.echo(dumps_strict(summary))

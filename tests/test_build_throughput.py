@@ -82,3 +82,26 @@ def _zone_by_query(lon: float, lat: float) -> str:
 def test_the_utm_zone_is_the_one_the_database_query_gives(lon: float, lat: float) -> None:
     # Inside a zone it comes without the query; on a zone's edge (the last three) from it, as before.
     assert utm_crs_for(lon, lat) == _zone_by_query(lon, lat)
+
+
+def test_the_cli_spool_option_forces_files_and_refuses_other_words(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    from click.testing import CliRunner
+
+    from mapdb_cli.main import cli
+
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    source = village().write(tmp_path / "village.osm")
+    work = tmp_path / "work"
+    work.mkdir()
+    maps = {}
+    for choice in ("auto", "file"):
+        maps[choice] = tmp_path / f"{choice}.mapdb"
+        done = CliRunner().invoke(cli, ["build", str(source), "-o", str(maps[choice]), "--spool", choice,
+                                        "--index-dir", str(work), "-q"])
+        assert done.exit_code == 0, done.output
+    assert maps["auto"].read_bytes() == maps["file"].read_bytes()
+    assert list(work.iterdir()) == []
+    refused = CliRunner().invoke(cli, ["build", str(source), "-o", str(tmp_path / "x.mapdb"), "--spool", "disk"])
+    assert refused.exit_code == 2 and "disk" in refused.output
+    assert not (tmp_path / "x.mapdb").exists()
