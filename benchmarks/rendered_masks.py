@@ -11,6 +11,7 @@ Run from the repository root::
 
     python benchmarks/rendered_masks.py --n 150                     # 150 images per row
     python benchmarks/rendered_masks.py --n 150 --baseline REV      # also the matcher of git revision REV
+    python benchmarks/rendered_masks.py --n 40 --altitudes 120 --kinds yes   # one row per extract, quick
 
 Prints one row per extract, altitude and heights (and the two extracts together), with beside them the
 ideal simulator's images at the same altitude (``heights`` "ideal": each map object at its projected
@@ -121,6 +122,9 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=150, help="images per extract, altitude and heights")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--baseline", metavar="REV", help="also run the matcher of this git revision")
+    parser.add_argument("--altitudes", type=float, nargs="+", default=list(ALTITUDES), help="altitudes (m) to run")
+    parser.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS,
+                        help="rendered with heights (yes), flat (no), ideal centroids (ideal)")
     args = parser.parse_args()
     missing = [p for p in EXTRACTS.values() if not (DATA / p).exists()]
     if missing:
@@ -135,11 +139,12 @@ def main() -> None:
         if args.baseline:
             matchers[f"baseline {args.baseline}"] = (import_baseline(args.baseline, Path(tmp)).localize,
                                                      import_baseline(args.baseline, Path(tmp), "store"))
-        results = run(build_maps(), matchers, args.n, args.seed)
-    report(results, args.n)
+        results = run(build_maps(), matchers, args.n, args.seed, tuple(args.altitudes), tuple(args.kinds))
+    report(results, args.n, tuple(args.altitudes), tuple(args.kinds))
 
 
-def run(maps: dict[str, Path], matchers: dict[str, Any], n: int, seed: int) -> dict[str, list[tuple]]:
+def run(maps: dict[str, Path], matchers: dict[str, Any], n: int, seed: int, altitudes: tuple[float, ...] = ALTITUDES,
+        kinds: tuple[str, ...] = KINDS) -> dict[str, list[tuple]]:
     """Render every row's images once (with this tree) and localize them with every matcher."""
     from mapdb.render_source import read_scene
     from mapdb.store import open_map
@@ -149,8 +154,8 @@ def run(maps: dict[str, Path], matchers: dict[str, Any], n: int, seed: int) -> d
         with open_map(path) as m:
             scene = read_scene(DATA / EXTRACTS[name], m.all(), seed=seed)
             rows = []
-            for altitude in ALTITUDES:
-                for heights in KINDS:
+            for altitude in altitudes:
+                for heights in kinds:
                     rows.append((altitude, heights, *render(m, scene, n, altitude, heights, seed)))
         for label, (localize, store) in matchers.items():
             with store.open_map(path) as m:
@@ -159,7 +164,8 @@ def run(maps: dict[str, Path], matchers: dict[str, Any], n: int, seed: int) -> d
     return results
 
 
-def report(results: dict[str, list[tuple]], n: int) -> None:
+def report(results: dict[str, list[tuple]], n: int, altitudes: tuple[float, ...] = ALTITUDES,
+           kinds: tuple[str, ...] = KINDS) -> None:
     """Print one table per matcher: a row per extract, altitude and heights, then both extracts together."""
     from mapdb.evaluate import summarize
 
@@ -168,8 +174,8 @@ def report(results: dict[str, list[tuple]], n: int) -> None:
         print(HEADER)
         for name, altitude, heights, images, s, render_ms in rows:
             print(row(name, altitude, heights, images, s, render_ms))
-        for altitude in ALTITUDES:
-            for heights in KINDS:
+        for altitude in altitudes:
+            for heights in kinds:
                 picked = [r for r in rows if r[1] == altitude and r[2] == heights]
                 images = [im for r in picked for im in r[3]]
                 both = summarize([o for r in picked for o in r[4]["outcomes"]])

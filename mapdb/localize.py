@@ -44,6 +44,7 @@ from .answers import Answer, Candidate
 from .camera import Camera, image_plane, level_pixels
 from .errors import ImageInputError
 from .images import ImageObjects, Prior, check_prior, parse_image
+from .match.blobs import outward_normals
 from .match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from .match.hypotheses import PRIOR_SLACK
 from .match.paged_objects import WholeMapObjects
@@ -500,9 +501,10 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         if outside:
             raise _RejectionError(outside)
         anchorable = None if im.border is None else ~im.border
-        # A levelled image's pixel areas are not the level camera's: its areas are left out.
+        # A levelled image's pixel areas and boxes are not the level camera's: they are left out.
+        outward = None if im.bbox is None or levelled else outward_normals(im.bbox, im.width, im.height)
         pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
-                      None if levelled else im.area_px)
+                      None if levelled else im.area_px, outward)
     except _RejectionError as rejection:
         return _rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
     return _ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start)
@@ -577,12 +579,12 @@ def _scale_hints(im: ImageObjects, diag_px: float):
 def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: float,
            prior: tuple[float, float, float] | None, margin: float, scale_range: tuple[float, float] | None,
            notes: list[str], skipped: dict[str, Any], anchorable: np.ndarray | None = None,
-           area_px: np.ndarray | None = None) -> _Pose:
+           area_px: np.ndarray | None = None, outward: np.ndarray | None = None) -> _Pose:
     """Run the localizer's method on the image plane; the pose, or a :class:`_RejectionError`."""
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
-                           scale_range=scale_range, anchorable=anchorable, area_px=area_px)
+                           scale_range=scale_range, anchorable=anchorable, area_px=area_px, outward=outward)
         candidates = [
             Candidate(x=_rounded(c.b.real, 3), y=_rounded(c.b.imag, 3), inliers=c.inliers,
                       score=_finite(c.score, 2), sigma_m=_finite(c.sigma_m, 3))

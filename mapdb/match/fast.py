@@ -41,6 +41,11 @@ The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC, one 
    one-to-one assignment (minimum-weight bipartite matching) and fit: with the true
    correspondences found, the position is the least-squares bound.
 
+Objects extracted from masks bring what they know of their errors (``anchorable``, ``area_px``,
+``outward``): blobs cut by the border anchor no quad of the first rounds, are verified in an ellipse along
+their border's normal (:mod:`mapdb.match.blobs`), and join quads only in the last rounds
+(:mod:`mapdb.match.cut_quads`).
+
 Lookup tolerances are tried in passes (``pixel_sigmas``): a tight one first,
 a wider one only when the first finds nothing certain, so the usual image costs
 the tight pass.  Every hypothesis of every round counts as a test.
@@ -58,6 +63,8 @@ import numpy as np
 from .._scipy import cKDTree
 from .ambiguity import find_rivals
 from .areas import ImageAreas
+from .blobs import BlobErrors
+from .cut_quads import cut_batches, cut_round_hypotheses
 from .hypotheses import anchor_batches, prioritise, round_hypotheses
 from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct, merge_candidates, polish
@@ -173,6 +180,7 @@ def match_fast(
     scale_range: tuple[float, float] | None = None,
     anchorable: np.ndarray | None = None,
     area_px: np.ndarray | None = None,
+    outward: np.ndarray | None = None,
 ) -> MatchResult:
     """Match image objects against a map's indexes.
 
@@ -201,23 +209,34 @@ def match_fast(
     area_px : float array (n,), optional
         Pixel area of each object (NaN where unknown): the decision then also asks each object's map object
         for a compatible stored area (:mod:`mapdb.match.areas`; ``anchorable`` says which blobs are whole).
+    outward : complex array (n,), optional
+        Unit outward normal (y up) of the image border each object touches, 0 for whole ones
+        (:func:`mapdb.match.blobs.outward_normals` of the objects' boxes).  With it and ``anchorable`` the
+        decision measures each cut blob in an ellipse along that normal (:mod:`mapdb.match.blobs`) and, when
+        the whole blobs' quads find nothing, quads holding cut blobs are looked up
+        (:mod:`mapdb.match.cut_quads`).
 
     Returns
     -------
     MatchResult
     """
     opts = options or FastOptions()
-    if area_px is not None:  # the same objects as _central_objects keeps: their indices pass as labels
-        area_px = np.asarray(area_px, np.float64)[_central_objects(z, np.arange(np.size(z)), opts.max_objects)[1]]
+    kept = _central_objects(z, np.arange(np.size(z)), opts.max_objects)[1]  # their indices pass as labels
+    if area_px is not None:
+        area_px = np.asarray(area_px, np.float64)[kept]
+    if outward is not None:
+        outward = np.asarray(outward, np.complex128)[kept]
     z, img_label, anchorable = _central_objects(z, img_label, opts.max_objects, anchorable)
     reason = _unmatchable(z.size, objects, quads)
     if reason is not None:
         return MatchResult(None, [], reason, 0, 0)
     areas = ImageAreas.of(area_px, anchorable, img_label, objects.labels)
+    errors = BlobErrors.of(z, outward)
+    whole = anchorable
     if anchorable is not None and anchorable.sum() < 4:
         anchorable = None
     pool, n_tests, done_rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
-                                         anchorable, areas)
+                                         anchorable, areas, errors, whole)
     return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds, quads, diag_px, prior, scale_range,
                    whole=anchorable)
 
@@ -249,32 +268,38 @@ def _unmatchable(n: int, objects: ObjectIndex, quads: Sequence[QuadIndex]) -> st
 
 
 def _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
-            anchorable=None, areas=None) -> tuple[list[Candidate], int, int]:
+            anchorable=None, areas=None, errors=None, whole=None) -> tuple[list[Candidate], int, int]:
     """The lookup rounds (pixel sigma x anchor batch) until one accepts: candidates best first, tests, rounds."""
     n = z.size
     screen_of = cKDTree(np.column_stack([z.real, z.imag])).query(
         np.column_stack([z.real, z.imag]), k=min(opts.screen_objects, n)
     )[1].reshape(n, -1)
     batches = anchor_batches(z, opts, anchorable)
-    rounds = [(sigma_px, batch) for sigma_px in opts.pixel_sigmas for batch in batches]
+    rounds = [(sigma_px, batch, False) for sigma_px in opts.pixel_sigmas for batch in batches]
+    if errors is not None and whole is not None:
+        rounds += [(opts.pixel_sigmas[-1], batch, True) for batch in cut_batches(z, whole, opts)]
     n_tests = 0
     pool: list[Candidate] = []
     done_rounds = 0
-    for sigma_px, batch in rounds:
+    for sigma_px, batch, with_cut in rounds:
         done_rounds += 1
-        a, b, img_ids, map_z = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
+        if with_cut:
+            a, b, img_ids, map_z = cut_round_hypotheses(z, img_label, batch, quads, opts, sigma_px, errors, whole,
+                                                        prior, scale_range)
+        else:
+            a, b, img_ids, map_z = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
         n_tests += a.size
         if not a.size:
             continue
         pool = merge_candidates(pool + _verify_round(a, b, img_ids, map_z, z, img_label, objects, screen_of, diag_px,
-                                                     math.log10(n_tests), opts, areas), diag_px)
+                                                     math.log10(n_tests), opts, areas, errors), diag_px)
         if pool and pool[0].log10_nfa < opts.log10_epsilon:
             break
     return pool, n_tests, done_rounds
 
 
 def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px, log10_tests, opts,
-                  areas=None) -> list[Candidate]:
+                  areas=None, errors=None) -> list[Candidate]:
     """Screen, test, decide and refine one round's hypotheses; the refined candidates."""
     pick = prioritise(a, b, diag_px, opts.max_verified)
     a, b, img_ids, map_z = a[pick], b[pick], img_ids[pick], map_z[pick]
@@ -291,7 +316,7 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
     radius = opts.density_radius_factor * np.abs(a) * diag_px / 2.0
     density = index.local_density(b, radius)
     nfa = decision_nfa(a, b, img_ids, map_z, z, img_label, index, density, log10_tests, opts.density_neighbours,
-                       areas, radius)
+                       areas, radius, errors)
     a, b, _, inlier, mid, dist = refine(a, b, z, img_label, index, density, log10_tests, 2)
     return candidates(a, b, nfa, inlier, mid, dist, z)
 

@@ -101,14 +101,17 @@ def lookup_hypotheses(
     quads: np.ndarray,
     indexes: Sequence[QuadIndex],
     opts: FastOptions,
-    sigma_px: float,
+    sigma_px: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex)."""
+    """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex).
+
+    ``sigma_px``: the pixel error of every point, or of each quad's points ``(m, 4)``."""
     empty = np.zeros((0, 4), np.int64), np.zeros((0, 4), np.complex128)
     indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:
         return empty
-    keys = _quad_keys(z[quads], opts, sigma_px)
+    sigma = np.asarray(sigma_px, np.float64)
+    keys = _quad_keys(z[quads], opts, sigma if sigma.ndim == 0 else np.broadcast_to(sigma, quads.shape))
     if keys is None:
         return empty
     row, order, inv, radius = keys
@@ -121,30 +124,33 @@ def lookup_hypotheses(
     return np.concatenate(found_img), np.concatenate(found_map)
 
 
-def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float) -> tuple[np.ndarray, ...] | None:
+def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) -> tuple[np.ndarray, ...] | None:
     """Every frame and ordering of the quads ``zq`` (m, 4) worth looking up: quad rows, orderings (k, 4),
     invariants (k, 4) and lookup radii (k,); None when there is none.
 
+    ``sigma_px`` is one pixel error for every point, or one per point ``(m, 4)`` (a cut blob's is wider).
     Rows come frame by frame (the longest pair's, then the second longest's), each ordering in turn
     (A, B swapped or not, C, D swapped or not), in quad order within: all of it in a few array operations,
     since an image has a few hundred quads and per-block calls would cost more than the arithmetic.
     """
     m = len(zq)
+    sigma = np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape)
     d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
     by_length = np.argsort(-d, axis=1)
     length = np.take_along_axis(d, by_length[:, :2], axis=1)  # (m, 2): longest, second longest
     # The longest pair decides the frame; when the second longest is within noise of it, a noisy image can
     # pick either, so both frames are looked up.
-    tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * sigma_px
+    tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * sigma.max(axis=1)
     use = np.column_stack([np.ones(m, bool), length[:, 0] - length[:, 1] < tie]) & (length > 0.0)
     rank, sel = np.nonzero(use.T)  # frame-major: every quad's first frame, then the ties' second
     if not sel.size:
         return None
     order0, t0 = quad_frames(zq[sel], by_length[sel, rank])
-    # Predicted standard error of the four invariants (see the module docs of decision): per point
-    # sigma^2 (1 + |1 - t|^2 + |t|^2) / |AB|^2 per axis.
-    spread = (1.0 + np.abs(1.0 - t0) ** 2 + np.abs(t0) ** 2).sum(axis=1)
-    radius = opts.tolerance_factor * sigma_px * np.sqrt(spread) / length[sel, rank]
+    # Predicted standard error of the four invariants (see the module docs of decision): per point P of C, D
+    # sigma_P^2 + sigma_A^2 |1 - t|^2 + sigma_B^2 |t|^2, over |AB|^2, per axis.
+    s2 = np.take_along_axis(sigma[sel], order0, axis=1) ** 2
+    spread = (s2[:, 2:] + s2[:, :1] * np.abs(1.0 - t0) ** 2 + s2[:, 1:2] * np.abs(t0) ** 2).sum(axis=1)
+    radius = opts.tolerance_factor * np.sqrt(spread) / length[sel, rank]
     order, t, ok = _orderings(order0, t0, radius, opts.max_invariant_radius)  # (4, k, ...)
     # Output order: frame, then ordering, then quad.
     block = int(np.searchsorted(rank, 1))

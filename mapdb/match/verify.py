@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from .areas import ImageAreas, bands, compatible, disc_chances, sample_evidence
+from .blobs import BlobErrors
 from .decision import log10_nfa_curve
 from .geometry import fit_similarity_complex
 from .object_index import U_MAX, ObjectIndex
@@ -60,6 +61,7 @@ def decision_nfa(
     local_neighbours: int = 0,
     areas: ImageAreas | None = None,
     area_radius: np.ndarray | None = None,
+    errors: BlobErrors | None = None,
 ) -> np.ndarray:
     """log10 NFA of quad hypotheses over all image objects, tolerances shaped by each quad's geometry.
 
@@ -69,16 +71,19 @@ def decision_nfa(
 
     With ``areas`` and ``area_radius`` (the density disc's radius per hypothesis), an object's evidence is
     its nearest map object of a compatible area, at the density of those (:mod:`mapdb.match.areas`).
+    With ``errors``, each object's map object is looked for from where its blob says it lies and its residual
+    measured in its error ellipse (:mod:`mapdb.match.blobs`: blobs cut by the image border).
     """
     h, n = len(a), z.size
     w = a[:, None] * z[None, :] + b[:, None]
+    expected = w if errors is None else errors.expected(a, b, z)
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
     share: np.ndarray | float = 1.0  # of the map objects compatible with each object's area
     from_sample = np.zeros(h)  # log10 factor from the areas of each quad's own objects
     if areas is not None and area_radius is not None:
         lo, hi = bands(areas, a)
-        dist, _ = index.nearest_compatible(w, img_label, density, map_z, lo, hi)
+        dist, mid = index.nearest_compatible(expected, img_label, density, map_z, lo, hi)
         share = disc_chances(index.log_area, index.disc_members(b, area_radius, img_label), img_label, lo, hi)
         rows = np.arange(h)[:, None]
         at = index.at(map_z, img_label[img_ids])
@@ -86,14 +91,15 @@ def decision_nfa(
                           hi[rows, img_ids])
         from_sample = sample_evidence(fits, share[rows, img_ids])
     else:
-        dist, _ = index.nearest(w, img_label, density, exclude=map_z)
+        dist, mid = index.nearest(expected, img_label, density, exclude=map_z)
+    r2 = dist**2 if errors is None else np.where(mid >= 0, errors.r2(a, b, z, index.z[np.maximum(mid, 0)]), np.inf)
     lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
     if local_neighbours:
         # The larger of the two densities: neither a dense old town beside empty slopes (the footprint's
         # mean density is too low there) nor an isolated object on a slope (its neighbours' distances
         # say the map is emptier than it is around the footprint) makes a chance alignment look rarer.
         lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours))
-    u = lam * share * math.pi * dist**2
+    u = lam * share * math.pi * r2
     zq = z[img_ids]
     mean = zq.mean(axis=1)
     spread = (np.abs(zq - mean[:, None]) ** 2).sum(axis=1)
