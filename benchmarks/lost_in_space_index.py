@@ -19,7 +19,8 @@ from copies of the three extracts (``benchmarks/synthetic_world.py``):
   time and in the steady state, images accepted and accepted wrongly, each map's median relative to
   Andorra's; and a fresh process's first answer (map and index dropped from the page cache, from
   ``open_map`` to the answer; a big map's objects read page by page where the answer needs them,
-  :mod:`mapdb.match.paged_objects`), median and max of ``FIRST_ANSWERS`` processes and images;
+  :mod:`mapdb.match.paged_objects`), median and max of ``--first-answers`` processes and images
+  (with ``--baseline REV``, that revision's first answers too, in processes alternating with this tree's);
 * **QuadIndex** (the in-memory cKDTree index) on Andorra and, with ``--quadindex-world``, on the 1M
   world (about 250 s and 14 GB: run once): build time and memory, and the same lookups.
 
@@ -329,16 +330,24 @@ print(json.dumps({"imports_s": t1 - t0, "open_s": t2 - t1, "lookup_s": t3 - t2, 
 FIRST_ANSWER = """
 import time
 t0 = time.perf_counter()
-import json, os, sys
-from mapdb.localize import Localizer
-from mapdb.match.stored_index import index_path
-from mapdb.store import open_map
+import importlib, json, os, sys
+from pathlib import Path
+sys.path.insert(0, "benchmarks")
+package = "mapdb"
+if sys.argv[3]:  # a baseline revision, imported as mapdb_baseline
+    from _baseline import import_baseline
+    import_baseline(sys.argv[3], Path(sys.argv[4]))
+    package = "mapdb_baseline"
+Localizer = importlib.import_module(package + ".localize").Localizer
+index_path = importlib.import_module(package + ".match.stored_index").index_path
+open_map = importlib.import_module(package + ".store").open_map
 image = json.loads(sys.argv[2])
 """ + DROP_CACHE + """t1 = time.perf_counter()
 m = open_map(sys.argv[1])
 answer = Localizer(m).localize(image)
 t2 = time.perf_counter()
-print(json.dumps({"open_to_answer_s": t2 - t1, "start_to_answer_s": t2 - t0, "status": answer.status}))
+status = answer.status if hasattr(answer, "status") else answer["status"]
+print(json.dumps({"open_to_answer_s": t2 - t1, "start_to_answer_s": t2 - t0, "status": status}))
 """
 
 QUADINDEX = """
@@ -365,6 +374,10 @@ def main(argv: list[str] | None = None) -> int:
                         help="reuse the indexes already built (no builds, no QuadIndex): re-measure lookups")
     parser.add_argument("--jitter", type=float, default=0.0,
                         help="worlds of copies with every object displaced by this (m, 1 sigma): distinct places")
+    parser.add_argument("--baseline", metavar="REV",
+                        help="also time this git revision's first answers (processes alternating with this tree's)")
+    parser.add_argument("--first-answers", type=int, default=FIRST_ANSWERS,
+                        help="fresh processes (one image each) timed for the first answer")
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         print(f"no shared data at {DATA}: nothing to measure", file=sys.stderr)
@@ -395,12 +408,23 @@ def main(argv: list[str] | None = None) -> int:
             build = _child(BUILD, str(path), str(args.workers))
         images = _images(path, args.images, args.seed)
         first = _child(OPEN, str(path), json.dumps(images[0]))
-        first_answers = [_child(FIRST_ANSWER, str(path), json.dumps(image))["open_to_answer_s"]
-                         for image in images[:FIRST_ANSWERS]]
+        # With a baseline, the two versions' processes alternate image by image (the same load on both).
+        first_answers, first_baseline = [], []
+        for image in images[:args.first_answers]:
+            first_answers.append(_child(FIRST_ANSWER, str(path), json.dumps(image), "", "")["open_to_answer_s"])
+            if args.baseline:
+                first_baseline.append(_child(FIRST_ANSWER, str(path), json.dumps(image), args.baseline,
+                                             str(args.workdir))["open_to_answer_s"])
         look = _stored_lookups(path, images)
         located = _localize_times(path, images)
         located["first_answer_s"] = statistics.median(first_answers)
         located["first_answer_max_s"] = max(first_answers)
+        located["first_answers_s"] = first_answers
+        if first_baseline:
+            print(f"{name}: first answers (s), this tree {[round(t, 2) for t in first_answers]} median "
+                  f"{statistics.median(first_answers):.2f} max {max(first_answers):.2f}; baseline {args.baseline} "
+                  f"{[round(t, 2) for t in first_baseline]} median {statistics.median(first_baseline):.2f} max "
+                  f"{max(first_baseline):.2f}", flush=True)
         rows.append((name, n_objects, map_bytes, build, first, look))
         whole.append((name, located))
         print(f"{name}: {n_objects} objects, index {build['bytes'] / 2**20:.0f} MiB ({build['quads']} quads) built "
@@ -466,7 +490,8 @@ def _whole_table(whole: list[tuple[str, dict]]) -> None:
     print("whole lost-in-space answers, Localizer.localize with no prior and the map's stored index: ok: images"
           " accepted, wrong: accepted more than 5 m from the truth; indexes s: opening the stored index and"
           " building the whole map's object index (once per process, before the timing); 1st answer s: median"
-          f" (and max) of {FIRST_ANSWERS} fresh processes, each answering one image with the map and index"
+          f" (and max) of --first-answers (default {FIRST_ANSWERS}) fresh processes, each answering one image with"
+          " the map and index"
           " dropped from the page cache, open_map to the answer (a big map read page by page); 1st pass:"
           " median per image the first time each image is localized, localize ms and p95: the fastest of 3 more"
           " passes, CPU ms the same in CPU time; x first map: median localize time relative to the first map's"

@@ -87,7 +87,6 @@ def test_the_utm_zone_is_the_one_the_database_query_gives(lon: float, lat: float
 def test_the_cli_spool_option_forces_files_and_refuses_other_words(tmp_path: Path,
                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     from click.testing import CliRunner
-
     from mapdb_cli.main import cli
 
     monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")

@@ -6,8 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mapdb._scipy import cKDTree
 from mapdb.localize import Localizer
 from mapdb.match import paged_objects
+from mapdb.match.kd_forest import MAX_TREES, Forest
 from mapdb.match.paged_objects import PagedObjectIndex, WholeMapObjects
 from mapdb.match.stored_index import build_index
 from mapdb.match.verify import ObjectIndex
@@ -104,3 +106,43 @@ def test_a_small_or_in_memory_map_is_indexed_whole_at_once(paged_map) -> None:
         served = WholeMapObjects(m)
         assert not served.paged and len(served.index()) == len(m)
         assert not WholeMapObjects(m, paged_from=10**9).paged and WholeMapObjects(m, paged_from=1).paged
+
+
+def test_a_forest_answers_as_one_tree_over_all_its_points() -> None:
+    rng = np.random.default_rng(5)
+    points = np.column_stack([rng.uniform(0, 1000, (3000, 2)), rng.integers(0, 3, 3000) * 1e6])
+    forest = Forest()
+    # Seven runs, more than MAX_TREES: the smallest neighbours are merged as runs come.
+    cuts = [0, 900, 1000, 1010, 1500, 1600, 2999, 3000]
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        forest.add(points[a:b])
+    assert 1 < len(forest.trees) <= MAX_TREES and forest.n == 3000
+    whole = cKDTree(points)
+    x = np.column_stack([rng.uniform(-50, 1050, (400, 2)), rng.integers(0, 3, 400) * 1e6])
+    for k in (1, 5):
+        d_f, i_f = forest.query(x, k=k, distance_upper_bound=40.0)
+        d_w, i_w = whole.query(x, k=k, distance_upper_bound=40.0)
+        assert d_f.shape == d_w.shape and np.array_equal(d_f, d_w) and np.array_equal(i_f, i_w)
+        assert np.isinf(d_f).any() and (i_f[np.isinf(d_f)] == 3000).all()  # missing: inf and n, as cKDTree
+    r = rng.uniform(0, 60, 400)
+    assert np.array_equal(forest.query_ball_point(x, r, return_length=True),
+                          whole.query_ball_point(x, r, return_length=True))
+    assert [list(h) for h in forest.query_ball_point(x, r)] == [sorted(h) for h in whole.query_ball_point(x, r)]
+
+
+def test_the_paged_index_grows_by_new_trees_and_finds_nearest_objects_beyond_its_first_reach(paged_map) -> None:
+    m, paged, whole = _both(paged_map)
+    trees, pages = [], []
+    for end in (np.argmin(whole.z.real), np.argmax(whole.z.real)):  # objects at the two ends of the map
+        paged.nearest(whole.z[end] + np.zeros((1, 3)), np.array([0, 1, 2]), whole.density)
+        trees.append(paged.trees)
+        pages.append(paged.loaded_pages)
+    assert 1 <= trees[0] < trees[1] <= MAX_TREES and 0 < pages[0] < pages[1] < m.page_count
+    # Stadiums: a few, kilometres apart, so points near one find it beyond the first reach.
+    labels = np.array([3, 0, 2, 3])
+    density = whole.local_density(np.array([501_000.0 + 4_651_000j]), np.array([400.0]))
+    w = whole.z[whole.label == 3][:, None] + np.array([30.0, 120.0 + 40j, 250.0, 600.0])
+    d_p, i_p = paged.nearest(w, labels, density)
+    d_w, i_w = whole.nearest(w, labels, density)
+    assert np.array_equal(d_p, d_w) and np.isfinite(d_w[:, 0]).all() and (d_w > paged_objects.FIRST_REACH_M).any()
+    _same(paged, whole, i_p, i_w)
