@@ -25,8 +25,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .geometry import fit_similarity_complex
-from .hypotheses import allowed_poses, lookup_hypotheses
+from .hypotheses import round_hypotheses
 from .quads import QuadIndex
 
 if TYPE_CHECKING:
@@ -89,9 +88,5 @@ def cut_round_hypotheses(
     expected place (``errors``' shift along its border's normal) with a pixel error ``CUT_SIGMA_PX``, and the
     similarity fitted mostly to the whole blobs.  Returns ``a``, ``b``, image ids ``(H, 4)``, map points."""
     looked = z + errors.shift_px * errors.direction * ~whole
-    sigma = np.where(whole[batch], sigma_px, CUT_SIGMA_PX)
-    img_ids, map_z = lookup_hypotheses(looked, img_label, batch, quads, opts, sigma)
-    weights = np.where(whole[img_ids], 1.0, CUT_FIT_WEIGHT)
-    a, b = fit_similarity_complex(looked[img_ids], map_z, weights)
-    ok = allowed_poses(a, b, prior, scale_range)
-    return a[ok], b[ok], img_ids[ok], map_z[ok]
+    return round_hypotheses(looked, img_label, batch, quads, opts, np.where(whole[batch], sigma_px, CUT_SIGMA_PX),
+                            prior, scale_range, weight=np.where(whole, 1.0, CUT_FIT_WEIGHT))

@@ -221,11 +221,10 @@ def match_fast(
     MatchResult
     """
     opts = options or FastOptions()
-    kept = _central_objects(z, np.arange(np.size(z)), opts.max_objects)[1]  # their indices pass as labels
-    if area_px is not None:
-        area_px = np.asarray(area_px, np.float64)[kept]
-    if outward is not None:
-        outward = np.asarray(outward, np.complex128)[kept]
+    if area_px is not None or outward is not None:  # the objects _central_objects keeps: indices pass as labels
+        kept = _central_objects(z, np.arange(np.size(z)), opts.max_objects)[1]
+        area_px = None if area_px is None else np.asarray(area_px, np.float64)[kept]
+        outward = None if outward is None else np.asarray(outward, np.complex128)[kept]
     z, img_label, anchorable = _central_objects(z, img_label, opts.max_objects, anchorable)
     reason = _unmatchable(z.size, objects, quads)
     if reason is not None:

@@ -56,17 +56,20 @@ def round_hypotheses(
     batch: np.ndarray,
     quads: Sequence[QuadIndex],
     opts: FastOptions,
-    sigma_px: float,
+    sigma_px: float | np.ndarray,
     prior: tuple[float, float, float] | None,
     scale_range: tuple[float, float] | None,
+    weight: np.ndarray | None = None,
 ) -> tuple[np.ndarray, ...]:
     """One round's hypotheses: ``a``, ``b`` (complex), image ids ``(H, 4)`` and map points ``(H, 4)``.
 
     Hypotheses whose image centre falls outside the prior (with a little slack: a quad's estimate of the
     centre is noisier than the final answer) or whose scale is outside ``scale_range`` are dropped.
+    ``sigma_px`` is one pixel error for every point or one per point of ``batch`` (see
+    :func:`lookup_hypotheses`); ``weight`` (per image object), the points' weights in the fit (default equal).
     """
     img_ids, map_z = lookup_hypotheses(z, img_label, batch, quads, opts, sigma_px)
-    a, b = fit_similarity_complex(z[img_ids], map_z)
+    a, b = fit_similarity_complex(z[img_ids], map_z, None if weight is None else weight[img_ids])
     ok = allowed_poses(a, b, prior, scale_range)
     return a[ok], b[ok], img_ids[ok], map_z[ok]
 
@@ -110,8 +113,7 @@ def lookup_hypotheses(
     indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:
         return empty
-    sigma = np.asarray(sigma_px, np.float64)
-    keys = _quad_keys(z[quads], opts, sigma if sigma.ndim == 0 else np.broadcast_to(sigma, quads.shape))
+    keys = _quad_keys(z[quads], opts, sigma_px)
     if keys is None:
         return empty
     row, order, inv, radius = keys

@@ -132,6 +132,10 @@ class PagedObjectIndex(ObjectIndex):
         self.tree = self._forest if len(self) else None
         return True
 
+    def _reaches(self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray) -> np.ndarray:
+        """The reach :meth:`ObjectIndex.nearest` gives each projected object ``w`` (same shape)."""
+        return self._reach(density, np.broadcast_to(img_label, np.shape(w)).ravel()).reshape(np.shape(w))
+
     def local_density(self, centres: np.ndarray, radius: np.ndarray) -> np.ndarray:
         self._cover(centres, radius)
         return super().local_density(centres, radius)
@@ -143,7 +147,7 @@ class PagedObjectIndex(ObjectIndex):
         # than what is loaded all round is the whole map's (anything nearer would be loaded too).  Only the
         # others are searched to their whole reach, a few hundred metres (a map of many similar places has
         # hypotheses all over it: reading their whole reaches read a fifth of a 5M-object map).
-        reach = self._reach(density, np.broadcast_to(img_label, np.shape(w)).ravel()).reshape(np.shape(w))
+        reach = self._reaches(w, img_label, density)
         first = np.minimum(reach, FIRST_REACH_M)
         self._cover(w, first)
         dist, which = super().nearest(w, img_label, density, exclude)
@@ -155,7 +159,7 @@ class PagedObjectIndex(ObjectIndex):
     def nearest_compatible(self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray,
                            exclude: np.ndarray | None, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         # Its neighbours beyond the nearest are searched to the whole reach.
-        self._cover(w, self._reach(density, np.broadcast_to(img_label, np.shape(w)).ravel()).reshape(np.shape(w)))
+        self._cover(w, self._reaches(w, img_label, density))
         return super().nearest_compatible(w, img_label, density, exclude, lo, hi)
 
     def disc_members(self, centres: np.ndarray, radius: np.ndarray, codes: np.ndarray) -> list[list[np.ndarray]]:
