@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from .._scipy import cKDTree
+from .._scipy import quick_tree
 from ..objects import Objects
 from .areas import compatible
 
@@ -78,7 +78,7 @@ class ObjectIndex:
         # Far beyond any search bound (those stay below the region's size, see ``_bound``), so a bounded
         # search never crosses from one label to another.
         self.gap = 1e3 * (math.sqrt(self.area) + 1e4)
-        self.tree = cKDTree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
+        self.tree = quick_tree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
         self._area = objects.area
         self._log_area: np.ndarray | None = None  # made on first use: only images with areas need it
 

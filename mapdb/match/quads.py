@@ -13,7 +13,7 @@ from itertools import combinations
 
 import numpy as np
 
-from .._scipy import cKDTree
+from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
 
 __all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "near_only",
@@ -59,7 +59,7 @@ def neighbour_quads(
     if k < 3 or not anchor_ids.size:
         empty = np.zeros((0, 4), dtype=np.int64)
         return (empty, np.zeros(0, np.int64)) if with_anchor else empty
-    nn = nearest_others(cKDTree(xy), xy, anchor_ids, k)
+    nn = nearest_others(quick_tree(xy), xy, anchor_ids, k)
     triples = np.array(list(combinations(range(k), 3)))
     anchor = np.repeat(anchor_ids, len(triples))
     quads = np.concatenate([anchor[:, None], nn[:, triples].reshape(-1, 3)], axis=1)
@@ -221,7 +221,7 @@ class QuadIndex:
             if positions:
                 centroid = z[quads].mean(axis=1)
                 columns += [POSITION_WEIGHT * centroid.real, POSITION_WEIGHT * centroid.imag]
-            self.tree: cKDTree | None = cKDTree(np.column_stack(columns), balanced_tree=False, compact_nodes=False)
+            self.tree: cKDTree | None = quick_tree(np.column_stack(columns))
         else:
             self.tree = None
         self.quad_z = z[quads]
@@ -305,8 +305,6 @@ class QuadIndex:
             merged.tree = None
             merged.quad_z = np.zeros((0, 4), np.complex128)
             return merged
-        merged.tree = cKDTree(
-            np.concatenate([q.tree.data for q in parts if q.tree is not None]), balanced_tree=False, compact_nodes=False
-        )
+        merged.tree = quick_tree(np.concatenate([q.tree.data for q in parts if q.tree is not None]))
         merged.quad_z = np.concatenate([q.quad_z for q in parts])
         return merged
