@@ -24,53 +24,22 @@ so for small ``u`` the chance is ``u`` again and for larger ``u`` at most ``1 - 
 more evidence than chance gives (``tests/test_blob_errors.py`` checks it on random maps).  The ellipse's
 centre and shape come from the blob's box alone, fixed before the map is looked at.
 
-**Cut buildings placed by their map objects' areas.** A fixed shift cannot follow how much of a blob is hidden,
-but once a hypothesis names a candidate map object, its stored area does: at the hypothesis's scale the hidden
-part is ``A / |a|^2 - visible_px`` pixels, and the map object lies about ``AREA_SHIFT = 0.5`` times its square
-root outward of the visible centroid (the hidden part's extent, halved, for a roughly square building). On the
-same renders (323 cut buildings with one map object under them, 80 images, 120 m with heights; residual along
-the normal / equivalent radius, medians): the fixed 15 px ellipse 20 / 25 px, this shift in a disc 8 / 16 px
-(coefficient 0.3: 11 / 19; 0.7: 15 / 22; the visible walls counted as 1.27 of the footprint: worse; the hidden
-area over the box's width along the border: 7 / 16; other labels, often drawn only in part, 64 -> 46 px at the
-median but hundreds beyond it: they keep the ellipse). :func:`cut_area_residuals` measures each candidate from
-its own place: the regions all have the disc's area, and under the null areas are independent of places, so the
-count of map objects within ``r`` of their own places is Poisson of mean ``lambda pi r^2`` as for one disc
-(checked on random maps in ``tests/test_cut_area_shift.py``). Measured (``python benchmarks/rendered_masks.py
---n 100 --altitudes 120 --kinds yes --baseline HEAD``, 200 images a row): 120 m with heights 49.0 -> 55.0 %
-(seed 1, with 200 m and flat: 47.0 -> 53.5 %, flat 64.5 -> 65.5 %, 200 m 73.0 -> 74.0 % and 85.5 -> 86.5 %; one
-new answer 2.6 m off at 200 m flat, the right place whose fit rests on 3 whole blobs and its cut ones' pulled
-centroids); 80 images a row, seed 0: 49.4 -> 56.2 % with heights, 68.1 -> 71.9 % flat. Wrong places (80 and 100
-images per extract, seeds 0 and 1, 120 and 200 m, with and without heights): each extract against the other's
-map, none accepted (best wrong score 2.59, HEAD 3.11); mirrored images against their own map, one accepted that
-HEAD rejected (Monaco 120 m flat, a regular block of large buildings whose mirror image matches 50 m away, score
-5.09 against 3.30), and HEAD's own mirror acceptances (43 m and 6 m away) stay or move (one 2 m off); images
-with a mirror score above 3: 11 against 10.
-
-**Measured before it** (120 m, 60 degrees, 640x480, Andorra and Monaco, 80 images each, seeds 0 and 1;
-localized, with cut rounds of :mod:`mapdb.match.cut_quads` too): with heights 40.0 -> 49.4 % (seed 0) and 39.4
--> 46.9 % (seed 1, one answer 2.2 m off: the right place, its whole-blob relief fit off); flat 63.1 -> 67.5 %;
-200 m with heights 73.8 -> 75.6 %. Wrong places: each extract's images against the other's map (160 a row, 120 m
-with and without heights, 200 m): none accepted, best wrong score 0.99 / 2.19 / 1.59 (1.76 / 1.24 / 1.59
-before); the same images mirrored (no place matches a mirror image) against their own map: none accepted, best
-2.37 / 1.90 / 3.30 (1.42 / 3.60 / 2.59 before).
+**Measured** (120 m, 60 degrees, 640x480, Andorra and Monaco, 80 images each, seeds 0 and 1; localized, with
+cut rounds of :mod:`mapdb.match.cut_quads` too): with heights 40.0 -> 49.4 % (seed 0) and 39.4 -> 46.9 %
+(seed 1, one answer 2.2 m off: the right place, its whole-blob relief fit off); flat 63.1 -> 67.5 %; 200 m
+with heights 73.8 -> 75.6 %.  Wrong places: each extract's images
+against the other's map (160 a row, 120 m with and without heights, 200 m): none accepted, best wrong
+score 0.99 / 2.19 / 1.59 (1.76 / 1.24 / 1.59 before); the same images mirrored (no place matches a
+mirror image) against their own map: none accepted, best 2.37 / 1.90 / 3.30 (1.42 / 3.60 / 2.59 before).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .areas import compatible
-
-if TYPE_CHECKING:
-    from .object_index import ObjectIndex
-
-__all__ = [
-    "AREA_SHIFT", "CUT_SHIFT_PX", "CUT_STRETCH", "RELIEF_STRETCH", "BlobErrors", "cut_area_residuals",
-    "outward_normals",
-]
+__all__ = ["CUT_SHIFT_PX", "CUT_STRETCH", "RELIEF_STRETCH", "BlobErrors", "outward_normals"]
 
 # The cut blob's ellipse: its centre this many pixels outward along the border's normal (below the median
 # 20-25 px: a shift too far costs the slightly cut blobs more than it gains on the deeply cut), its axis
@@ -78,12 +47,6 @@ __all__ = [
 CUT_SHIFT_PX = 15.0
 CUT_STRETCH = 3.0
 RELIEF_STRETCH = 1.0
-# A cut solid blob's map object of area A (pixels at the hypothesis's scale) lies AREA_SHIFT * sqrt(A - visible)
-# outward of the visible centroid (the hidden part's extent, halved), in a disc.
-AREA_SHIFT = 0.5
-# Candidates per cut blob (nearest its ellipse's centre) and how far from it (pixels) they are looked for.
-AREA_CANDIDATES = 24
-AREA_GATE_PX = 250.0
 
 
 def outward_normals(bbox: np.ndarray, width: float, height: float) -> np.ndarray:
@@ -113,26 +76,18 @@ class BlobErrors:
     direction: np.ndarray
     shift_px: np.ndarray
     stretch: np.ndarray
-    visible_px: np.ndarray | None = None
 
     @classmethod
-    def of(cls, z: np.ndarray, outward: np.ndarray | None, solid_px: np.ndarray | None = None) -> BlobErrors | None:
+    def of(cls, z: np.ndarray, outward: np.ndarray | None) -> BlobErrors | None:
         """Cut blobs (``outward`` non-zero) along their border's normal, whole ones radially; None when
-        nothing is known of the image's borders.  ``solid_px``: each object's pixel area where its label is
-        solid (:data:`mapdb.match.areas.SOLID_LABELS`), NaN elsewhere; the cut ones become ``visible_px``,
-        which :func:`cut_area_residuals` places by their map objects' areas."""
+        nothing is known of the image's borders."""
         if outward is None:
             return None
         outward = np.asarray(outward, np.complex128)
         cut = outward != 0
         radial = np.where(np.abs(z) > 0, z / np.where(np.abs(z) > 0, np.abs(z), 1.0), 1.0)
-        visible = None
-        if solid_px is not None:
-            visible = np.where(cut, np.asarray(solid_px, np.float64), np.nan)
-            with np.errstate(invalid="ignore"):
-                visible = visible if (visible > 0).any() else None
         return cls(np.where(cut, outward, radial), np.where(cut, CUT_SHIFT_PX, 0.0),
-                   np.where(cut, CUT_STRETCH, RELIEF_STRETCH), visible)
+                   np.where(cut, CUT_STRETCH, RELIEF_STRETCH))
 
     def expected(self, a: np.ndarray, b: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Where each object's map object is expected under each similarity ``z -> a z + b``: its ellipse's
@@ -146,40 +101,3 @@ class BlobErrors:
         d = (target - self.expected(a, b, z)) * np.conj(rot[:, None] * self.direction[None, :])
         k = self.stretch[None, :]
         return d.real**2 / k + d.imag**2 * k
-
-
-def cut_area_residuals(errors: BlobErrors, a: np.ndarray, b: np.ndarray, z: np.ndarray, cols: np.ndarray,
-                       index: ObjectIndex, img_label: np.ndarray, exclude: np.ndarray, lo: np.ndarray,
-                       hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Squared residuals (map metres) and map ids ``(H, m)`` of the cut solid blobs ``cols``, each placed by
-    its candidate map object's area: ``AREA_SHIFT * sqrt(A / |a|^2 - visible_px)`` outward, a disc.
-
-    Each map object near the blob's ellipse centre (``AREA_CANDIDATES`` within ``AREA_GATE_PX``) is measured
-    from where a blob of its own area would put it; the blob's residual is the smallest, among those not at
-    the hypothesis's own map points (``exclude``, ``(H, s)``) and within the blob's area band (``lo``,
-    ``hi``, ``(H, n)``).  The regions all have the area of a disc of radius ``r``, and under the null the
-    map objects' areas are independent of their places, so the count within ``r`` is still Poisson of mean
-    ``lambda pi r^2``: the residual keeps the calibration of a nearest-object distance.  A candidate missed
-    by the search only makes the residual larger.  No candidate: ``inf`` and -1.
-    """
-    h, m = a.size, cols.size
-    visible = errors.visible_px if errors.visible_px is not None else np.full(z.size, np.nan)
-    centre = errors.expected(a, b, z)[:, cols].ravel()
-    labels = np.broadcast_to(img_label[cols], (h, m)).ravel()
-    rows, ids, _ = index.within(centre, labels, AREA_GATE_PX * float(np.abs(a).max()), AREA_CANDIDATES)
-    r2 = np.full(h * m, np.inf)
-    mid = np.full(h * m, -1, np.int64)
-    if rows.size:
-        hyp, col = rows // m, cols[rows % m]
-        with np.errstate(invalid="ignore"):
-            hidden = np.maximum(np.exp(index.log_area[ids]) / np.abs(a[hyp]) ** 2 - visible[col], 0.0)
-        shift = np.where(np.isfinite(hidden), AREA_SHIFT * np.sqrt(hidden), errors.shift_px[col])
-        at = a[hyp] * (z[col] + shift * errors.direction[col]) + b[hyp]
-        d2 = np.abs(index.z[ids] - at) ** 2
-        own = (np.abs(index.z[ids][:, None] - exclude[hyp]) < 1e-6).any(axis=1)
-        ok = compatible(index.log_area[ids], lo[hyp, col], hi[hyp, col]) & ~own
-        order = np.lexsort((np.where(ok, d2, np.inf), rows))
-        first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]
-        first = first[ok[first]]
-        r2[rows[first]], mid[rows[first]] = d2[first], ids[first]
-    return r2.reshape(h, m), mid.reshape(h, m)
