@@ -387,34 +387,3 @@ def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path
             assert math.hypot(a.x - im["truth"]["x"], a.y - im["truth"]["y"]) < 1.0
         assert isinstance(stored.whole_map_indexes()[1], StoredQuads)
         assert isinstance(memory.whole_map_indexes()[1], QuadIndex)
-
-
-def test_screen_does_not_look_up_a_quads_own_objects() -> None:
-    """A hypothesis's own quad objects are its sample: the screen ranks on the others alone, and a screen
-    holding only the quad's objects (a 4-object image) still ranks without a lookup."""
-    from mapdb.match.verify import screen
-
-    class Counting(ObjectIndex):
-        queried = 0
-
-        def nearest(self, w, img_label, density, exclude=None):
-            Counting.queried += np.size(w)
-            return super().nearest(w, img_label, density, exclude)
-
-    rng = np.random.default_rng(5)
-    map_z = rng.uniform(0, 300, 40) + 1j * rng.uniform(0, 300, 40)
-    index = Counting(Objects.from_names(map_z.real, map_z.imag, ["building"] * 40))
-    z = (map_z[:8] - 150 - 150j) / 0.5  # the image: eight map objects at 0.5 m a pixel, no noise
-    label = np.zeros(8, np.int64)
-    screen_of = np.argsort(np.abs(z[:, None] - z[None, :]), axis=1)
-    right = np.array([[0, 1, 2, 3]])
-    wrong = np.array([[0, 1, 2, 3]])
-    a = np.array([0.5 + 0j, 0.5 * np.exp(1j)])
-    b = np.array([150 + 150j, 150 + 150j])
-    ranked = screen(a, b, np.vstack([right, wrong]), screen_of, z, label, index, 1.0, 2)
-    assert ranked.tolist() == [0, 1]  # the true pose predicts the four other objects
-    assert Counting.queried == 2 * 4  # each row's four other objects, not its quad's own
-    Counting.queried = 0
-    own_only = np.argsort(np.abs(z[:4, None] - z[None, :4]), axis=1)
-    four = screen(a[:1], b[:1], right, own_only, z[:4], label[:4], index, 1.0, 1)
-    assert four.tolist() == [0] and Counting.queried == 0

@@ -42,16 +42,8 @@ def screen(
     image objects around each hypothesis's quad (``screen_of[first quad point]``), where a right
     hypothesis predicts positions best."""
     objects = screen_of[img_ids[:, 0]]
-    # The quad's own objects are its sample, not evidence: they are not looked up (a third of the queries)
-    # but given u = 0, so that the curve counts exactly them as the sample wherever they are screened.
-    own = (objects[:, :, None] == img_ids[:, None, :]).any(axis=2)
-    look = ~own
-    u = np.zeros(objects.shape)
-    if look.any():
-        labels = img_label[objects[look]]
-        w = (a[:, None] * z[objects] + b[:, None])[look]
-        dist, _ = index.nearest(w[None, :], labels[None, :], index.density)
-        u[look] = index.density[labels] * math.pi * dist[0] ** 2
+    dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], img_label[objects], index.density)
+    u = index.density[img_label[objects]] * math.pi * dist**2
     nfa, _ = log10_nfa_curve(u, 4, log10_tests)
     return np.argsort(nfa, kind="stable")[:keep]
 
