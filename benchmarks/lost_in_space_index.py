@@ -50,6 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
 
+from mapdb.camera import image_plane  # noqa: E402
 from mapdb.match.fast import FastOptions  # noqa: E402
 from mapdb.match.hypotheses import _quad_keys  # noqa: E402
 from mapdb.match.quads import LABEL_GAP, label_keys, neighbour_quads  # noqa: E402
@@ -102,7 +103,7 @@ def _images(map_path: Path, n: int, seed: int) -> list[dict]:
 def _image_arrays(image: dict, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     code = {name: i for i, name in enumerate(labels)}
     objs = image["objects"]
-    z = np.array([(o["x"] - image["width"] / 2) + 1j * (image["height"] / 2 - o["y"]) for o in objs])
+    z = image_plane([o["x"] for o in objs], [o["y"] for o in objs], image["width"], image["height"])
     label = np.array([code[o["label"]] for o in objs], np.int64)
     return z, label, np.array(image["truth"]["map_index"], np.int64)
 

@@ -21,6 +21,7 @@ import time
 
 import numpy as np
 
+from mapdb.camera import image_plane
 from mapdb.match.paper import PaperOptions, PaperResult, match_paper
 from mapdb.simulate import paper_map, simulate_images
 
@@ -28,7 +29,7 @@ from mapdb.simulate import paper_map, simulate_images
 def _image_input(image: dict, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Objects of an image document as :func:`mapdb.localize.localize` hands them to the matcher (no attitude)."""
     objs = image["objects"]
-    z = np.array([complex(o["x"] - image["width"] / 2.0, image["height"] / 2.0 - o["y"]) for o in objs])
+    z = image_plane([o["x"] for o in objs], [o["y"] for o in objs], image["width"], image["height"])
     codes = np.array([labels.index(o["label"]) for o in objs], dtype=np.int64)
     return z, codes
 

@@ -100,6 +100,7 @@ def ceiling(images: list[dict], m: Any) -> list[bool]:
     """Per image: whether the whole blobs' least-squares fit to their true map objects lands within 2 m."""
     import numpy as np
 
+    from mapdb.camera import image_plane
     from mapdb.match.geometry import fit_similarity_complex
 
     objects = m.all()
@@ -111,7 +112,8 @@ def ceiling(images: list[dict], m: Any) -> list[bool]:
         if pick.sum() < 2:
             out.append(False)
             continue
-        z = np.array([o["x"] - im["width"] / 2 + 1j * (im["height"] / 2 - o["y"]) for o in im["objects"]])[pick]
+        z = image_plane([o["x"] for o in im["objects"]], [o["y"] for o in im["objects"]], im["width"],
+                        im["height"])[pick]
         _, b = fit_similarity_complex(z[None, :], map_z[index[pick]][None, :], np.ones((1, z.size), bool))
         out.append(bool(abs(b[0] - complex(im["truth"]["x"], im["truth"]["y"])) <= 2.0))
     return out

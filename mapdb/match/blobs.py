@@ -44,11 +44,7 @@ heights 2, 3 and 4 m off (none before): right places whose final fit rests on 3-
 ones' pulled centroids) with estimated sigmas of 0.47-1.0 m.  It needs a final fit that places the cut blobs
 the same way and an honest sigma for fits on few whole blobs before the decision may count on it; a mirrored
 image was also accepted 50 m away (Monaco 120 m flat, a regular block of large buildings, score 5.09).  A
-screen that did not look up each hypothesis's own quad objects (a third fewer queries; 15 % faster on a
-5M-object map) was taken out for the same reason: its different shortlist gave Andorra's sim-000056 at 300 m
-with heights a pose scoring 4.46 (accepted, estimated sigma 0.996 m, 3.3 m off) that the screen's usual
-shortlist misses (-3.7, rejected).  Such answers are the precision gate's weakness on few whole blobs, which
-any change in the search can bring to the surface.
+change of :func:`~mapdb.match.verify.screen` was taken out for the same reason (see there).
 """
 
 from __future__ import annotations
