@@ -12,7 +12,10 @@ from mapdb.localize import localize
 from mapdb.match.fast import FastOptions
 from mapdb.match.geometry import fit_similarity_complex
 from mapdb.match.hypotheses import anchor_batches
-from mapdb.match.relief import fit_with_relief, radial_excess
+from mapdb.match.object_index import ObjectIndex
+from mapdb.match.refine import Candidate, polish
+from mapdb.match.relief import ReliefFit, _whitened, fit_with_relief, leave_one_out_sigma, radial_excess
+from mapdb.objects import Objects
 from mapdb.simulate import paper_map, simulate_images
 from mapdb.store import MemoryMap
 
@@ -103,3 +106,49 @@ def test_isotropic_errors_keep_the_plain_least_squares_fit() -> None:
 def test_radial_excess_needs_more_than_four_points() -> None:
     src = np.array([1 + 0j, -1, 1j, -1j])
     assert radial_excess(src, src * 1.5, 1.0, 0j)[2] is False
+
+
+def _jackknife_by_refits(src: np.ndarray, dst: np.ndarray, fit: ReliefFit) -> float:
+    """The jackknife sigma of ``b`` the slow way: one weighted least squares per point left out."""
+    radial = np.exp(1j * np.angle(fit.a * src))
+    sigma_r = np.sqrt(fit.sigma_axis**2 + fit.kappa**2 * np.abs(fit.a * src) ** 2)
+    b = []
+    for i in range(src.size):
+        keep = np.arange(src.size) != i
+        design, target = _whitened(src[keep], dst[keep], radial[keep], sigma_r[keep], fit.sigma_axis)
+        p = np.linalg.lstsq(design, target, rcond=None)[0]
+        b.append(complex(p[2], p[3]))
+    b = np.array(b)
+    return math.sqrt((src.size - 1) / src.size * np.sum(np.abs(b - b.mean()) ** 2) / 2.0)
+
+
+@pytest.mark.parametrize("kappa", [0.0, 0.02])
+def test_leave_one_out_sigma_equals_refitting_without_each_point(kappa: float) -> None:
+    src, seen = _relief_image(3, 0.06)
+    src, seen = src[:9], seen[:9]
+    plain = fit_with_relief(src, seen)
+    fit = plain if kappa == 0.0 else ReliefFit(plain.a, plain.b, plain.sigma_axis, 1.0, kappa)
+    assert leave_one_out_sigma(src, seen, fit) == pytest.approx(_jackknife_by_refits(src, seen, fit), rel=1e-9)
+
+
+def test_one_far_point_among_few_makes_the_answer_imprecise() -> None:
+    # Six points, one at the edge carrying a 1.5 m error: the model's sigma trusts the small residuals,
+    # the jackknife feels the lever of the far point.
+    src = np.array([-300 + 200j, -250 - 150j, -200 + 20j, -150 + 180j, -100 - 60j, 300 + 0j])
+    truth = 0.3 * src + (500 + 500j)
+    rng = np.random.default_rng(0)
+    seen = truth + 0.05 * (rng.standard_normal(6) + 1j * rng.standard_normal(6))
+    seen[-1] += 1.5
+    fit = fit_with_relief(src, seen)
+    model = fit.sigma_axis * math.sqrt(fit.variance_factor)
+    error = abs(fit.b - (500 + 500j))
+    assert model < error / 3  # the model calls the answer far better than it is
+    assert leave_one_out_sigma(src, seen, fit) > error / 3
+    assert leave_one_out_sigma(src[:2], seen[:2], fit) == math.inf
+    # The final fit reports the larger of the two, so max_sigma_m withholds such an answer.
+    index = ObjectIndex(Objects.from_names(seen.real, seen.imag, ["building"] * 6))
+    cand = Candidate(a=0.3, b=500 + 500j, log10_nfa=-9.0, inliers=6, sigma_axis_m=0.6, variance_factor=0.2,
+                     pairs=np.column_stack([np.arange(6), np.arange(6)]))
+    final = polish(cand, src, np.zeros(6, np.int64), index)
+    assert final.inliers == 6 and abs(final.b - fit.b) < 1e-6
+    assert final.sigma_m == pytest.approx(leave_one_out_sigma(src, seen, fit)) and final.sigma_m > model

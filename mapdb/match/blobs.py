@@ -50,10 +50,19 @@ change of :func:`~mapdb.match.verify.screen` was taken out for the same reason (
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-__all__ = ["CUT_SHIFT_PX", "CUT_STRETCH", "RELIEF_STRETCH", "BlobErrors", "outward_normals"]
+from .areas import compatible
+
+if TYPE_CHECKING:
+    from .object_index import ObjectIndex
+
+__all__ = [
+    "AREA_SHIFT", "CUT_SHIFT_PX", "CUT_STRETCH", "RELIEF_STRETCH", "BlobErrors", "cut_area_residuals",
+    "outward_normals",
+]
 
 # The cut blob's ellipse: its centre this many pixels outward along the border's normal (below the median
 # 20-25 px: a shift too far costs the slightly cut blobs more than it gains on the deeply cut), its axis
@@ -61,6 +70,12 @@ __all__ = ["CUT_SHIFT_PX", "CUT_STRETCH", "RELIEF_STRETCH", "BlobErrors", "outwa
 CUT_SHIFT_PX = 15.0
 CUT_STRETCH = 3.0
 RELIEF_STRETCH = 1.0
+# A cut solid blob's map object of area A (pixels at the hypothesis's scale) lies AREA_SHIFT * sqrt(A - visible)
+# outward of the visible centroid (the hidden part's extent, halved), in a disc.
+AREA_SHIFT = 0.5
+# Candidates per cut blob (nearest its ellipse's centre) and how far from it (pixels) they are looked for.
+AREA_CANDIDATES = 24
+AREA_GATE_PX = 250.0
 
 
 def outward_normals(bbox: np.ndarray, width: float, height: float) -> np.ndarray:
@@ -90,18 +105,26 @@ class BlobErrors:
     direction: np.ndarray
     shift_px: np.ndarray
     stretch: np.ndarray
+    visible_px: np.ndarray | None = None
 
     @classmethod
-    def of(cls, z: np.ndarray, outward: np.ndarray | None) -> BlobErrors | None:
+    def of(cls, z: np.ndarray, outward: np.ndarray | None, solid_px: np.ndarray | None = None) -> BlobErrors | None:
         """Cut blobs (``outward`` non-zero) along their border's normal, whole ones radially; None when
-        nothing is known of the image's borders."""
+        nothing is known of the image's borders.  ``solid_px``: each object's pixel area where its label is
+        solid (:data:`mapdb.match.areas.SOLID_LABELS`), NaN elsewhere; the cut ones become ``visible_px``,
+        which :func:`cut_area_residuals` places by their map objects' areas."""
         if outward is None:
             return None
         outward = np.asarray(outward, np.complex128)
         cut = outward != 0
         radial = np.where(np.abs(z) > 0, z / np.where(np.abs(z) > 0, np.abs(z), 1.0), 1.0)
+        visible = None
+        if solid_px is not None:
+            visible = np.where(cut, np.asarray(solid_px, np.float64), np.nan)
+            with np.errstate(invalid="ignore"):
+                visible = visible if (visible > 0).any() else None
         return cls(np.where(cut, outward, radial), np.where(cut, CUT_SHIFT_PX, 0.0),
-                   np.where(cut, CUT_STRETCH, RELIEF_STRETCH))
+                   np.where(cut, CUT_STRETCH, RELIEF_STRETCH), visible)
 
     def expected(self, a: np.ndarray, b: np.ndarray, z: np.ndarray) -> np.ndarray:
         """Where each object's map object is expected under each similarity ``z -> a z + b``: its ellipse's
@@ -115,3 +138,40 @@ class BlobErrors:
         d = (target - self.expected(a, b, z)) * np.conj(rot[:, None] * self.direction[None, :])
         k = self.stretch[None, :]
         return d.real**2 / k + d.imag**2 * k
+
+
+def cut_area_residuals(errors: BlobErrors, a: np.ndarray, b: np.ndarray, z: np.ndarray, cols: np.ndarray,
+                       index: ObjectIndex, img_label: np.ndarray, exclude: np.ndarray, lo: np.ndarray,
+                       hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Squared residuals (map metres) and map ids ``(H, m)`` of the cut solid blobs ``cols``, each placed by
+    its candidate map object's area: ``AREA_SHIFT * sqrt(A / |a|^2 - visible_px)`` outward, a disc.
+
+    Each map object near the blob's ellipse centre (``AREA_CANDIDATES`` within ``AREA_GATE_PX``) is measured
+    from where a blob of its own area would put it; the blob's residual is the smallest, among those not at
+    the hypothesis's own map points (``exclude``, ``(H, s)``) and within the blob's area band (``lo``,
+    ``hi``, ``(H, n)``).  The regions all have the area of a disc of radius ``r``, and under the null the
+    map objects' areas are independent of their places, so the count within ``r`` is still Poisson of mean
+    ``lambda pi r^2``: the residual keeps the calibration of a nearest-object distance.  A candidate missed
+    by the search only makes the residual larger.  No candidate: ``inf`` and -1.
+    """
+    h, m = a.size, cols.size
+    visible = errors.visible_px if errors.visible_px is not None else np.full(z.size, np.nan)
+    centre = errors.expected(a, b, z)[:, cols].ravel()
+    labels = np.broadcast_to(img_label[cols], (h, m)).ravel()
+    rows, ids, _ = index.within(centre, labels, AREA_GATE_PX * float(np.abs(a).max()), AREA_CANDIDATES)
+    r2 = np.full(h * m, np.inf)
+    mid = np.full(h * m, -1, np.int64)
+    if rows.size:
+        hyp, col = rows // m, cols[rows % m]
+        with np.errstate(invalid="ignore"):
+            hidden = np.maximum(np.exp(index.log_area[ids]) / np.abs(a[hyp]) ** 2 - visible[col], 0.0)
+        shift = np.where(np.isfinite(hidden), AREA_SHIFT * np.sqrt(hidden), errors.shift_px[col])
+        at = a[hyp] * (z[col] + shift * errors.direction[col]) + b[hyp]
+        d2 = np.abs(index.z[ids] - at) ** 2
+        own = (np.abs(index.z[ids][:, None] - exclude[hyp]) < 1e-6).any(axis=1)
+        ok = compatible(index.log_area[ids], lo[hyp, col], hi[hyp, col]) & ~own
+        order = np.lexsort((np.where(ok, d2, np.inf), rows))
+        first = order[np.r_[True, rows[order][1:] != rows[order][:-1]]]
+        first = first[ok[first]]
+        r2[rows[first]], mid[rows[first]] = d2[first], ids[first]
+    return r2.reshape(h, m), mid.reshape(h, m)

@@ -43,8 +43,8 @@ The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC, one 
 
 Objects extracted from masks bring what they know of their errors (``anchorable``, ``area_px``,
 ``outward``): blobs cut by the border anchor no quad of the first rounds, are verified in an ellipse along
-their border's normal (:mod:`mapdb.match.blobs`), and join quads only in the last rounds
-(:mod:`mapdb.match.cut_quads`).
+their border's normal (:mod:`mapdb.match.blobs`; cut buildings with an area, from where each candidate map
+object's own area puts it), and join quads only in the last rounds (:mod:`mapdb.match.cut_quads`).
 
 Lookup tolerances are tried in passes (``pixel_sigmas``): a tight one first,
 a wider one only when the first finds nothing certain, so the usual image costs
@@ -62,7 +62,7 @@ import numpy as np
 
 from .._scipy import cKDTree
 from .ambiguity import find_rivals
-from .areas import ImageAreas
+from .areas import SOLID_LABELS, ImageAreas
 from .blobs import BlobErrors
 from .cut_quads import cut_batches, cut_round_hypotheses
 from .hypotheses import anchor_batches, prioritise, round_hypotheses
@@ -230,7 +230,8 @@ def match_fast(
     if reason is not None:
         return MatchResult(None, [], reason, 0, 0)
     areas = ImageAreas.of(area_px, anchorable, img_label, objects.labels)
-    errors = BlobErrors.of(z, outward)
+    solid = np.isin(img_label, [code for code, name in enumerate(objects.labels) if name in SOLID_LABELS])
+    errors = BlobErrors.of(z, outward, None if area_px is None else np.where(solid, area_px, np.nan))
     whole = anchorable
     if anchorable is not None and anchorable.sum() < 4:
         anchorable = None

@@ -14,7 +14,7 @@ import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
 from .geometry import prediction_variance_factor
-from .relief import ReliefFit, fit_with_relief
+from .relief import ReliefFit, fit_with_relief, leave_one_out_sigma
 from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
 
 __all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "polish", "pose_shift"]
@@ -96,6 +96,15 @@ def polish(
     The fit is :func:`~mapdb.match.relief.fit_with_relief` over the pairs whose image object is ``whole``
     (bool, ``(n,)``: not cut by the image border) when at least four are, else over all pairs; every pair
     still counts as an inlier.
+
+    The answer's error (``sigma_m``) is the larger of the fit's model, ``sigma_axis * sqrt(variance_factor)``,
+    and the jackknife's (:func:`~mapdb.match.relief.leave_one_out_sigma`; folded into ``variance_factor``).
+    The model trusts the residuals to be independent and alike, which a handful of blobs, one of them a
+    partly hidden park or a merged pair of buildings, are not.  Measured on masks rendered from the real
+    outlines (``python benchmarks/rendered_masks.py --n 80``, 960 images at 120-300 m, with and without
+    heights): every answer more than 2 m off (five, 2.1-4.1 m, with model sigmas of 0.47-1.0 m, so under
+    ``max_sigma_m``) had a jackknife sigma of 1.3-2.0 m; on the correct answers the error over the jackknife
+    sigma had median 1.11 and 90th percentile 2.22, where a calibrated 2-D Gaussian sigma gives 1.18 and 2.15.
     """
     a, b = cand.a, cand.b
     farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
@@ -141,15 +150,24 @@ def polish(
         a, b = fit.a, fit.b
     if fit is None:
         return cand
-    return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=fit.sigma_axis,
-                     variance_factor=fit.variance_factor, pairs=pairs)
+    used = _fitted(pairs, whole)
+    jackknife = leave_one_out_sigma(z[used[:, 0]], index.z[used[:, 1]], fit)
+    sigma_axis = max(fit.sigma_axis, 1e-12)
+    return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
+                     variance_factor=max(fit.variance_factor, (jackknife / sigma_axis) ** 2), pairs=pairs)
+
+
+def _fitted(pairs: np.ndarray, whole: np.ndarray | None) -> np.ndarray:
+    """The pairs the final fit uses: those of whole objects when at least four are, else all."""
+    if whole is not None and np.count_nonzero(whole[pairs[:, 0]]) >= 4:
+        return pairs[whole[pairs[:, 0]]]
+    return pairs
 
 
 def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, whole: np.ndarray | None) -> ReliefFit | None:
     """The similarity fitted to ``pairs`` (image id, map id), whole objects only when four are, or None when
     they cannot fix one."""
-    if whole is not None and np.count_nonzero(whole[pairs[:, 0]]) >= 4:
-        pairs = pairs[whole[pairs[:, 0]]]
+    pairs = _fitted(pairs, whole)
     if len(pairs) < 3:
         return None
     return fit_with_relief(z[pairs[:, 0]], index.z[pairs[:, 1]])

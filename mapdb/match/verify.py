@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from .areas import ImageAreas, bands, compatible, disc_chances, sample_evidence
-from .blobs import BlobErrors
+from .blobs import BlobErrors, cut_area_residuals
 from .decision import log10_nfa_curve
 from .geometry import fit_similarity_complex
 from .object_index import U_MAX, ObjectIndex
@@ -78,7 +78,9 @@ def decision_nfa(
     With ``areas`` and ``area_radius`` (the density disc's radius per hypothesis), an object's evidence is
     its nearest map object of a compatible area, at the density of those (:mod:`mapdb.match.areas`).
     With ``errors``, each object's map object is looked for from where its blob says it lies and its residual
-    measured in its error ellipse (:mod:`mapdb.match.blobs`: blobs cut by the image border).
+    measured in its error ellipse (:mod:`mapdb.match.blobs`: blobs cut by the image border); with both, a cut
+    blob of a solid label is measured from where each candidate map object's own area puts it
+    (:func:`~mapdb.match.blobs.cut_area_residuals`).
     """
     h, n = len(a), z.size
     w = a[:, None] * z[None, :] + b[:, None]
@@ -99,6 +101,10 @@ def decision_nfa(
     else:
         dist, mid = index.nearest(expected, img_label, density, exclude=map_z)
     r2 = dist**2 if errors is None else np.where(mid >= 0, errors.r2(a, b, z, index.z[np.maximum(mid, 0)]), np.inf)
+    if errors is not None and errors.visible_px is not None and areas is not None and area_radius is not None:
+        # Cut solid blobs: each map object measured from where a blob of its own area would put it.
+        cut = np.flatnonzero(np.isfinite(errors.visible_px))
+        r2[:, cut] = cut_area_residuals(errors, a, b, z, cut, index, img_label, map_z, lo, hi)[0]
     lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
     if local_neighbours:
         # The larger of the two densities: neither a dense old town beside empty slopes (the footprint's
