@@ -100,11 +100,14 @@ def polish(
     The answer's error (``sigma_m``) is the larger of the fit's model, ``sigma_axis * sqrt(variance_factor)``,
     and the jackknife's (:func:`~mapdb.match.relief.leave_one_out_sigma`; folded into ``variance_factor``).
     The model trusts the residuals to be independent and alike, which a handful of blobs, one of them a
-    partly hidden park or a merged pair of buildings, are not.  Measured on masks rendered from the real
-    outlines (``python benchmarks/rendered_masks.py --n 80``, 960 images at 120-300 m, with and without
-    heights): every answer more than 2 m off (five, 2.1-4.1 m, with model sigmas of 0.47-1.0 m, so under
-    ``max_sigma_m``) had a jackknife sigma of 1.3-2.0 m; on the correct answers the error over the jackknife
-    sigma had median 1.11 and 90th percentile 2.22, where a calibrated 2-D Gaussian sigma gives 1.18 and 2.15.
+    partly hidden park or a merged pair of buildings, are not.  Measured on the images of ``python
+    benchmarks/rendered_masks.py --n 80`` (960 masks at 120-300 m, with and without heights; a ``/tmp`` script
+    recording each final fit): every answer more than 2 m off (five, 2.1-4.1 m, with model sigmas of 0.47-1.0 m,
+    so under ``max_sigma_m``) had a jackknife sigma of 1.3-2.0 m; on the correct answers the error over the
+    jackknife sigma had median 1.11 and 90th percentile 2.22, where a calibrated 2-D Gaussian sigma gives 1.18
+    and 2.15.  With ``--seed 1`` three answers 2.2-2.4 m off remain, with sigmas of 0.93-0.98 m: honest sigmas
+    just under ``max_sigma_m = 1``, which lets an answer 2 m off through about one time in eight
+    (``exp(-2)``); ``FastOptions(max_sigma_m=0.9)`` withholds them, at 0-1.9 points of localized a row.
     """
     a, b = cand.a, cand.b
     farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))

@@ -45,8 +45,10 @@ def screen(
     Tried and taken out: not looking up the quad's own objects (its sample; a third fewer queries, 15 % less
     time an image on a 5M-object map).  Its different shortlist gave Andorra's rendered sim-000056 at 300 m
     with heights a pose scoring 4.46, accepted with an estimated sigma of 0.996 m but 3.3 m off, that this
-    screen's shortlist misses (-3.7, rejected): the precision gate's weakness on fits of few whole blobs
-    (:mod:`mapdb.match.blobs`), which any change of the shortlist can bring to the surface."""
+    screen's shortlist misses (-3.7, rejected): the precision gate's weakness on fits of few whole blobs,
+    which any change of the shortlist can bring to the surface.  The final fit's sigma now includes the
+    jackknife's (:func:`mapdb.match.refine.polish`), which guards against such fits; the change has not been
+    measured again since."""
     objects = screen_of[img_ids[:, 0]]
     dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], img_label[objects], index.density)
     u = index.density[img_label[objects]] * math.pi * dist**2
