@@ -83,7 +83,7 @@ def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: in
 
 def polish(
     cand: Candidate, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, iterations: int = 2,
-    whole: np.ndarray | None = None,
+    whole: np.ndarray | None = None, jackknife: bool = False,
 ) -> Candidate:
     """Final association by optimal assignment, then the least-squares fit over it.
 
@@ -97,10 +97,11 @@ def polish(
     (bool, ``(n,)``: not cut by the image border) when at least four are, else over all pairs; every pair
     still counts as an inlier.
 
-    The answer's error (``sigma_m``) is the larger of the fit's model, ``sigma_axis * sqrt(variance_factor)``,
-    and the jackknife's (:func:`~mapdb.match.relief.leave_one_out_sigma`; folded into ``variance_factor``).
-    The model trusts the residuals to be independent and alike, which a handful of blobs, one of them a
-    partly hidden park or a merged pair of buildings, are not.  Measured on the images of ``python
+    With ``jackknife`` (objects extracted from masks: blobs, whose errors are not alike), the answer's error
+    (``sigma_m``) is the larger of the fit's model, ``sigma_axis * sqrt(variance_factor)``, and the
+    jackknife's (:func:`~mapdb.match.relief.leave_one_out_sigma`; folded into ``variance_factor``).  The model
+    trusts the residuals to be independent and alike, which a handful of blobs, one of them a partly hidden
+    park or a merged pair of buildings, are not.  Measured on the images of ``python
     benchmarks/rendered_masks.py --n 80`` (960 masks at 120-300 m, with and without heights; a ``/tmp`` script
     recording each final fit): every answer more than 2 m off (five, 2.1-4.1 m, with model sigmas of 0.47-1.0 m,
     so under ``max_sigma_m``) had a jackknife sigma of 1.3-2.0 m; on the correct answers the error over the
@@ -108,6 +109,9 @@ def polish(
     and 2.15.  With ``--seed 1`` three answers 2.2-2.4 m off remain, with sigmas of 0.93-0.98 m: honest sigmas
     just under ``max_sigma_m = 1``, which lets an answer 2 m off through about one time in eight
     (``exp(-2)``); ``FastOptions(max_sigma_m=0.9)`` withholds them, at 0-1.9 points of localized a row.
+    Points with like errors (ideal centroids plus Gaussian noise) keep the model's sigma, the right estimate
+    for them: the jackknife's is noisier, and on ``benchmarks/matcher_core.py``'s 300 Andorra images (6-8
+    objects in the ones it changed) it withheld 3 more answers, 0.5-1.7 m off.
     """
     a, b = cand.a, cand.b
     farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
@@ -153,11 +157,13 @@ def polish(
         a, b = fit.a, fit.b
     if fit is None:
         return cand
-    used = _fitted(pairs, whole)
-    jackknife = leave_one_out_sigma(z[used[:, 0]], index.z[used[:, 1]], fit)
+    variance = fit.variance_factor
     sigma_axis = max(fit.sigma_axis, 1e-12)
+    if jackknife:
+        used = _fitted(pairs, whole)
+        variance = max(variance, (leave_one_out_sigma(z[used[:, 0]], index.z[used[:, 1]], fit) / sigma_axis) ** 2)
     return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
-                     variance_factor=max(fit.variance_factor, (jackknife / sigma_axis) ** 2), pairs=pairs)
+                     variance_factor=variance, pairs=pairs)
 
 
 def _fitted(pairs: np.ndarray, whole: np.ndarray | None) -> np.ndarray:
