@@ -13,6 +13,15 @@ from mapdb.match.hypotheses import _quad_keys
 from mapdb.objects import Objects
 
 
+def random_poses(rng: np.random.Generator, h: int, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``h`` random similarities (0.3 m per pixel, any heading) over the middle of a 2 km map, and ``n`` image
+    objects anywhere in a 640x480 image: places a null test of a residual looks at."""
+    a = 0.3 * np.exp(1j * rng.uniform(0, 2 * math.pi, h))
+    b = rng.uniform(400, 1600, h) + 1j * rng.uniform(400, 1600, h)
+    z = rng.uniform(-320, 320, n) + 1j * rng.uniform(-240, 240, n)
+    return a, b, z
+
+
 def _random_map(rng: np.random.Generator, n: int, size: float) -> Objects:
     return Objects.from_names(rng.uniform(0, size, n), rng.uniform(0, size, n), ["building"] * n)
 
@@ -25,9 +34,7 @@ def test_ellipse_residual_is_calibrated_under_the_null() -> None:
     index = ObjectIndex(objects)
     lam = 4000 / 2000.0**2
     h, n = 400, 8
-    a = 0.3 * np.exp(1j * rng.uniform(0, 2 * math.pi, h))
-    b = rng.uniform(400, 1600, h) + 1j * rng.uniform(400, 1600, h)
-    z = rng.uniform(-320, 320, n) + 1j * rng.uniform(-240, 240, n)
+    a, b, z = random_poses(rng, h, n)
     outward = np.exp(1j * rng.uniform(0, 2 * math.pi, n))
     errors = BlobErrors.of(z, outward)
     assert errors is not None

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from test_blob_errors import random_poses
 
 from mapdb.match.areas import ImageAreas
 from mapdb.match.blobs import AREA_SHIFT, BlobErrors, cut_area_residuals
@@ -28,9 +29,7 @@ def test_area_placed_residual_is_calibrated_under_the_null() -> None:
     index = ObjectIndex(objects)
     lam = 4000 / 2000.0**2
     h, n = 400, 8
-    a = 0.3 * np.exp(1j * rng.uniform(0, 2 * math.pi, h))
-    b = rng.uniform(400, 1600, h) + 1j * rng.uniform(400, 1600, h)
-    z = rng.uniform(-HALF_W, HALF_W, n) + 1j * rng.uniform(-HALF_H, HALF_H, n)
+    a, b, z = random_poses(rng, h, n)
     errors = BlobErrors.of(z, np.exp(1j * rng.uniform(0, 2 * math.pi, n)), np.exp(rng.normal(7.0, 1.0, n)))
     assert errors is not None and errors.visible_px is not None
     unbounded = np.full((h, n), np.inf)
