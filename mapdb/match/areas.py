@@ -68,7 +68,7 @@ import numpy as np
 
 __all__ = [
     "CUT_RATIO_HIGH", "RATIO_HIGH", "RATIO_LOW", "SOLID_LABELS", "ImageAreas", "bands", "compatible", "disc_chances",
-    "sample_evidence",
+    "sample_evidence", "solid_objects",
 ]
 
 # Blob area (at the hypothesis's scale) over its map object's area: the bands of the module docs.  A whole
@@ -112,9 +112,22 @@ class ImageAreas:
             log_px = np.where(area > 0, np.log(area), np.nan)
         if not np.isfinite(log_px).any():
             return None
-        solid = np.array([name in SOLID_LABELS for name in labels], bool)
         whole_mask = np.zeros(area.size, bool) if whole is None else np.asarray(whole, bool)
-        return cls(log_px, whole_mask & solid[np.asarray(img_label)] & np.isfinite(log_px))
+        return cls(log_px, whole_mask & solid_objects(img_label, labels) & np.isfinite(log_px))
+
+
+def solid_objects(img_label: np.ndarray, labels: tuple[str, ...]) -> np.ndarray:
+    """Which image objects (label codes into ``labels``) are of a solid label (:data:`SOLID_LABELS`).
+
+    Examples
+    --------
+    >>> solid_objects(np.array([1, 0, 1]), ("park", "building")).tolist()
+    [True, False, True]
+    >>> solid_objects(np.zeros(0, np.int64), ("building",)).tolist()
+    []
+    """
+    solid = np.array([name in SOLID_LABELS for name in labels], bool)
+    return solid[np.asarray(img_label, np.int64)]
 
 
 def bands(areas: ImageAreas, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -62,7 +62,7 @@ import numpy as np
 
 from .._scipy import cKDTree
 from .ambiguity import find_rivals
-from .areas import SOLID_LABELS, ImageAreas
+from .areas import ImageAreas, solid_objects
 from .blobs import BlobErrors
 from .cut_quads import cut_batches, cut_round_hypotheses
 from .hypotheses import anchor_batches, prioritise, round_hypotheses
@@ -230,8 +230,8 @@ def match_fast(
     if reason is not None:
         return MatchResult(None, [], reason, 0, 0)
     areas = ImageAreas.of(area_px, anchorable, img_label, objects.labels)
-    solid = np.isin(img_label, [code for code, name in enumerate(objects.labels) if name in SOLID_LABELS])
-    errors = BlobErrors.of(z, outward, None if area_px is None else np.where(solid, area_px, np.nan))
+    solid_px = None if area_px is None else np.where(solid_objects(img_label, objects.labels), area_px, np.nan)
+    errors = BlobErrors.of(z, outward, solid_px)
     whole = anchorable
     if anchorable is not None and anchorable.sum() < 4:
         anchorable = None

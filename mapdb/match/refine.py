@@ -157,10 +157,10 @@ def polish(
         a, b = fit.a, fit.b
     if fit is None:
         return cand
-    variance = fit.variance_factor
-    sigma_axis = max(fit.sigma_axis, 1e-12)
+    sigma_axis, variance = fit.sigma_axis, fit.variance_factor
     if jackknife:
         used = _fitted(pairs, whole)
+        sigma_axis = max(sigma_axis, 1e-12)  # an exact fit (no residual) must not hide an infinite jackknife
         variance = max(variance, (leave_one_out_sigma(z[used[:, 0]], index.z[used[:, 1]], fit) / sigma_axis) ** 2)
     return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
                      variance_factor=variance, pairs=pairs)
