@@ -7,6 +7,7 @@ importing both into one process lets a benchmark alternate between them image by
 from __future__ import annotations
 
 import importlib
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -19,15 +20,23 @@ ROOT = Path(__file__).resolve().parents[1]
 def import_baseline(rev: str, workdir: Path, module: str = "localize") -> ModuleType:
     """``mapdb.<module>`` as of git revision ``rev``, imported as package ``mapdb_baseline``.
 
+    The revision's ``mapdb/`` is extracted under ``workdir/baseline`` (once per revision).
+
     mapdb's modules import each other relatively, so the old package works under another name.
     """
     pkg_dir = workdir / "baseline"
-    if not (pkg_dir / "mapdb_baseline").is_dir():
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", f"{rev}^{{commit}}"], check=True,
+                            capture_output=True, text=True).stdout.strip()
+    stamp = pkg_dir / "COMMIT"
+    # A workdir kept between runs may hold another revision's copy: extracted again unless it is this one.
+    if not (pkg_dir / "mapdb_baseline").is_dir() or not stamp.is_file() or stamp.read_text() != commit:
+        shutil.rmtree(pkg_dir, ignore_errors=True)
         pkg_dir.mkdir(parents=True, exist_ok=True)
         archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb"], check=True,
                                  capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", str(pkg_dir)], input=archive, check=True)
         (pkg_dir / "mapdb").rename(pkg_dir / "mapdb_baseline")
+        stamp.write_text(commit)
     if str(pkg_dir) not in sys.path:
         sys.path.insert(0, str(pkg_dir))
     return importlib.import_module(f"mapdb_baseline.{module}")

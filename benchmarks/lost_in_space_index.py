@@ -48,6 +48,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _baseline import as_json  # noqa: E402
 from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
 
 from mapdb.camera import image_plane  # noqa: E402
@@ -143,7 +144,7 @@ def _stored_lookups(map_path: Path, images: list[dict]) -> dict:
     return result
 
 
-def _localize_times(map_path: Path, images: list[dict]) -> dict:
+def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Path] | None = None) -> dict:
     """Whole lost-in-space answers (``Localizer.localize``, no prior) with the map's stored index, per image.
 
     What a user meets, lookups, verification, decision and refinement together.  The map's whole-map
@@ -151,36 +152,61 @@ def _localize_times(map_path: Path, images: list[dict]) -> dict:
     once, before the timing (``index_s``); then each image is localized once (``first_ms``: the index
     blocks it needs read and checksummed the first time), and ``REPEATS`` more passes of which each
     image keeps its fastest (``ms``, the steady state of a long-running process).  ``ok``: images
-    accepted; ``wrong``: accepted more than 5 m from the truth.
+    accepted; ``wrong``: accepted more than 5 m from the truth.  With ``baseline`` (a revision and the
+    work directory :func:`_baseline.import_baseline` extracts it into), that revision's localizer answers
+    each image right after this tree's, with its own indexes: ``baseline_cpu_ms``, ``baseline_ok`` and
+    ``baseline_wrong``, and ``same``, the images both answered alike.
     """
     from mapdb.localize import Localizer, StoredQuads
 
-    with open_map(map_path) as m:
-        loc = Localizer(m)
+    versions = {"tree": (Localizer, open_map)}
+    if baseline is not None:
+        from _baseline import import_baseline
+
+        versions["baseline"] = (import_baseline(*baseline).Localizer, import_baseline(*baseline, "store").open_map)
+    maps = {name: open_map_(map_path) for name, (_, open_map_) in versions.items()}
+    try:
+        locs = {name: make(maps[name]) for name, (make, _) in versions.items()}
         start = time.perf_counter()
-        _, quads = loc.whole_map_indexes()
-        loc.whole_map_ready()  # a big map's whole object index, built in the background, serves the timing
+        _, quads = locs["tree"].whole_map_indexes()
+        locs["tree"].whole_map_ready()  # a big map's whole object index, built in the background, serves the timing
         index_s = time.perf_counter() - start
         if not isinstance(quads, StoredQuads):
             raise RuntimeError(f"{map_path}: the localizer does not use a stored index")
-        passes, cpu, answers = [], [], []
+        for name in list(locs)[1:]:
+            locs[name].whole_map_indexes()
+            getattr(locs[name], "whole_map_ready", lambda: None)()
+        passes = {name: [] for name in locs}
+        cpu = {name: [] for name in locs}
+        answers: dict[str, list] = {name: [] for name in locs}
         for run in range(1 + REPEATS):
-            times, cpu_times = [], []
+            for name in locs:
+                passes[name].append([])
+                cpu[name].append([])
             for image in images:
-                start, start_cpu = time.perf_counter(), time.process_time()
-                answer = loc.localize(image)
-                times.append((time.perf_counter() - start) * 1000.0)
-                cpu_times.append((time.process_time() - start_cpu) * 1000.0)
-                if run == 0:
-                    answers.append(answer)
-            passes.append(times)
-            cpu.append(cpu_times)
-    error = [math.hypot(a.x - im["truth"]["x"], a.y - im["truth"]["y"])
-             for a, im in zip(answers, images) if a.status == "ok"]
-    return {"first_ms": passes[0], "ms": np.min(passes[1:], axis=0).tolist(),
-            "cpu_ms": np.min(cpu[1:], axis=0).tolist(), "index_s": index_s, "ok": len(error),
-            "wrong": sum(e > 5.0 for e in error), "images": len(images),
-            "answers": [[a.status, a.x, a.y] for a in answers]}
+                for name, loc in locs.items():  # image by image in turn: the same load on both versions
+                    start, start_cpu = time.perf_counter(), time.process_time()
+                    answer = as_json(loc.localize(image))
+                    passes[name][-1].append((time.perf_counter() - start) * 1000.0)
+                    cpu[name][-1].append((time.process_time() - start_cpu) * 1000.0)
+                    if run == 0:
+                        answers[name].append(answer)
+    finally:
+        for m in maps.values():
+            m.close()
+    result = {"first_ms": passes["tree"][0], "ms": np.min(passes["tree"][1:], axis=0).tolist(),
+              "index_s": index_s, "images": len(images)}
+    for name in locs:
+        prefix = "" if name == "tree" else "baseline_"
+        error = [math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"])
+                 for a, im in zip(answers[name], images) if a["status"] == "ok"]
+        result.update({prefix + "cpu_ms": np.min(cpu[name][1:], axis=0).tolist(), prefix + "ok": len(error),
+                       prefix + "wrong": sum(e > 5.0 for e in error)})
+    result["answers"] = [[a["status"], a.get("x"), a.get("y")] for a in answers["tree"]]
+    if "baseline" in answers:
+        result["same"] = sum(a["status"] == b["status"] and a.get("x") == b.get("x") and a.get("y") == b.get("y")
+                             for a, b in zip(answers["tree"], answers["baseline"]))
+    return result
 
 
 def _true_found(ids: np.ndarray, truth: np.ndarray, row: np.ndarray, hit_ids: np.ndarray) -> tuple[int, int]:
@@ -417,7 +443,7 @@ def main(argv: list[str] | None = None) -> int:
                 first_baseline.append(_child(FIRST_ANSWER, str(path), json.dumps(image), args.baseline,
                                              str(args.workdir))["open_to_answer_s"])
         look = _stored_lookups(path, images)
-        located = _localize_times(path, images)
+        located = _localize_times(path, images, (args.baseline, args.workdir) if args.baseline else None)
         located["first_answer_s"] = statistics.median(first_answers)
         located["first_answer_max_s"] = max(first_answers)
         located["first_answers_s"] = first_answers
@@ -488,6 +514,16 @@ def _whole_table(whole: list[tuple[str, dict]]) -> None:
               f" {statistics.median(r['first_ms']):>11.2f}"
               f" {statistics.median(r['ms']):>11.2f} {np.percentile(r['ms'], 95):>7.2f}"
               f" {statistics.median(r['cpu_ms']):>7.2f} {ratio:>10.2f}x {ratio_first:>11.2f}x")
+        if "baseline_cpu_ms" in r:
+            print(f"{'  baseline, same images':<28} {r['baseline_ok']:>3}/{r['images']:<3} {r['baseline_wrong']:>5}"
+                  f" {'':>31} {'':>11} {'':>7} {statistics.median(r['baseline_cpu_ms']):>7.2f}"
+                  f"   this tree: {statistics.median(r['cpu_ms']) / statistics.median(r['baseline_cpu_ms']):.2f}x"
+                  f" the baseline's CPU time, {r['same']}/{r['images']} answers the same")
+    if ref is not None and len(whole) > 1:
+        print("CPU time per image relative to the first map's: " + ", ".join(
+            f"{name} {statistics.median(r['cpu_ms']) / statistics.median(ref['cpu_ms']):.2f}x"
+            + (f" (baseline {statistics.median(r['baseline_cpu_ms']) / statistics.median(ref['baseline_cpu_ms']):.2f}x)"
+               if "baseline_cpu_ms" in r else "") for name, r in whole[1:]))
     print("whole lost-in-space answers, Localizer.localize with no prior and the map's stored index: ok: images"
           " accepted, wrong: accepted more than 5 m from the truth; indexes s: opening the stored index and"
           " building the whole map's object index (once per process, before the timing); 1st answer s: median"

@@ -387,3 +387,20 @@ def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path
             assert math.hypot(a.x - im["truth"]["x"], a.y - im["truth"]["y"]) < 1.0
         assert isinstance(stored.whole_map_indexes()[1], StoredQuads)
         assert isinstance(memory.whole_map_indexes()[1], QuadIndex)
+
+
+def test_prioritise_screens_the_most_shared_pose_first_and_at_most_the_limit() -> None:
+    from mapdb.match.hypotheses import prioritise
+
+    rng = np.random.default_rng(3)
+    # 40 hypotheses of one pose (a right place, found by many image quads) among 400 scattered lookalikes.
+    shared_a = 0.3 * np.exp(0.7j) * (1 + 0.002 * rng.standard_normal(40))
+    shared_b = 5000 + 5000j + rng.standard_normal(40)
+    other_a = 0.3 * np.exp(1j * rng.uniform(-np.pi, np.pi, 400))
+    other_b = rng.uniform(0, 1e6, 400) + 1j * rng.uniform(0, 1e6, 400)
+    a, b = np.concatenate([other_a, shared_a]), np.concatenate([other_b, shared_b])
+    kept = prioritise(a, b, 800.0, 64)
+    assert kept.size == 64 and np.unique(kept).size == 64
+    # Most of the shared pose's hypotheses land in one pose bin and come first.
+    assert np.count_nonzero(kept[:30] >= 400) == 30
+    assert prioritise(a[:50], b[:50], 800.0, 64).tolist() == list(range(50))  # under the limit: all, in order

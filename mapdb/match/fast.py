@@ -91,7 +91,14 @@ class FastOptions:
     max_hits_per_quad : int
         At most this many nearest map quads per lookup.
     max_verified : int
-        Hypotheses screened per round (the best-supported ones when there are more).
+        Hypotheses screened per round, those whose pose most others share first
+        (:func:`~mapdb.match.hypotheses.prioritise`).  Andorra's images bring 57-134 a round, so 256 rarely
+        binds there; a map that repeats its places (a world of 245 jittered copies of three towns) brings
+        500-830, most of them lookalikes of the right place, and the screen's KD-tree queries grew with them.
+        At 256 (3,000 before) that world's lost-in-space answers cost 0.85x the CPU time, 99 of 100 answers
+        the same (``python benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2
+        --baseline HEAD``); Andorra's, the rendered masks' and the paper bench's answers stayed the same but two
+        (which were improved).  128 answered one world image wrongly.
     screen_objects : int
         Image objects (around each hypothesis's quad) used to screen hypotheses; the shortlist is
         tested on all objects.
@@ -140,7 +147,7 @@ class FastOptions:
     tolerance_factor: float = 2.0
     max_invariant_radius: float = 0.3
     max_hits_per_quad: int = 16
-    max_verified: int = 3000
+    max_verified: int = 256
     screen_objects: int = 12
     anchors_per_batch: int = 6
     shortlist: int = 16
