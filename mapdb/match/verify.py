@@ -46,9 +46,11 @@ def screen(
     time an image on a 5M-object map).  Its different shortlist gave Andorra's rendered sim-000056 at 300 m
     with heights a pose scoring 4.46, accepted with an estimated sigma of 0.996 m but 3.3 m off, that this
     screen's shortlist misses (-3.7, rejected): the precision gate's weakness on fits of few whole blobs,
-    which any change of the shortlist can bring to the surface.  The final fit's sigma now includes the
-    jackknife's (:func:`mapdb.match.refine.polish`), which guards against such fits; the change has not been
-    measured again since."""
+    which any change of the shortlist can bring to the surface.  Tried again once the final fit's sigma had
+    the jackknife's (:func:`mapdb.match.refine.polish`) and a round screened at most 256 hypotheses: that image
+    was withheld, but the saving had shrunk to 3 % (0.97x the CPU time an image on the 5M world, ``python
+    benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2 --baseline 2731d67``) and
+    Monaco's rendered sim-000073 (300 m, heights) moved from 0.08 to 1.66 m off: left out."""
     objects = screen_of[img_ids[:, 0]]
     dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], img_label[objects], index.density)
     u = index.density[img_label[objects]] * math.pi * dist**2
