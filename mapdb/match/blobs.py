@@ -76,7 +76,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "AREA_SHIFT", "CUT_SHIFT_PX", "CUT_STRETCH", "RELIEF_STRETCH", "BlobErrors", "cut_area_residuals",
-    "outward_normals",
+    "outward_normals", "placed_sources",
 ]
 
 # The cut blob's ellipse: its centre this many pixels outward along the border's normal (below the median
@@ -178,10 +178,7 @@ def cut_area_residuals(errors: BlobErrors, a: np.ndarray, b: np.ndarray, z: np.n
     mid = np.full(h * m, -1, np.int64)
     if rows.size:
         hyp, col = rows // m, cols[rows % m]
-        with np.errstate(invalid="ignore"):
-            hidden = np.maximum(np.exp(index.log_area[ids]) / np.abs(a[hyp]) ** 2 - visible[col], 0.0)
-        shift = np.where(np.isfinite(hidden), AREA_SHIFT * np.sqrt(hidden), errors.shift_px[col])
-        at = a[hyp] * (z[col] + shift * errors.direction[col]) + b[hyp]
+        at = a[hyp] * _placed(errors, visible, z, col, index.log_area[ids], np.abs(a[hyp])) + b[hyp]
         d2 = np.abs(index.z[ids] - at) ** 2
         own = (np.abs(index.z[ids][:, None] - exclude[hyp]) < 1e-6).any(axis=1)
         ok = compatible(index.log_area[ids], lo[hyp, col], hi[hyp, col]) & ~own
@@ -190,3 +187,31 @@ def cut_area_residuals(errors: BlobErrors, a: np.ndarray, b: np.ndarray, z: np.n
         first = first[ok[first]]
         r2[rows[first]], mid[rows[first]] = d2[first], ids[first]
     return r2.reshape(h, m), mid.reshape(h, m)
+
+
+def _placed(errors: BlobErrors, visible: np.ndarray, z: np.ndarray, col: np.ndarray, log_area: np.ndarray,
+            scale: np.ndarray | float) -> np.ndarray:
+    """Image positions (pixels) where the blobs ``col`` put map objects of stored ``log_area`` at ``scale``
+    metres per pixel: a cut solid blob ``AREA_SHIFT * sqrt(A / scale^2 - visible_px)`` outward, any other cut
+    blob ``shift_px`` outward, a whole blob at its centroid."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        hidden = np.maximum(np.exp(log_area) / np.square(scale) - visible[col], 0.0)
+    shift = np.where(np.isfinite(hidden), AREA_SHIFT * np.sqrt(hidden), errors.shift_px[col])
+    return z[col] + shift * errors.direction[col]
+
+
+def placed_sources(errors: BlobErrors, z: np.ndarray, pairs: np.ndarray, log_area: np.ndarray,
+                   scale: float) -> np.ndarray:
+    """Image positions (pixels, complex) where each pair's (image object, map object) map object lies by its
+    blob: a whole blob's centroid; a cut blob's moved outward along its border's normal, by the map object's
+    stored area (``log_area``, natural log square metres per map object) at ``scale`` metres per pixel for a
+    solid label, else by ``shift_px``.  What the final fit uses when it must fit cut blobs.
+
+    Examples
+    --------
+    >>> errors = BlobErrors.of(np.array([0j, 100 + 0j]), np.array([0j, 1 + 0j]), np.array([np.nan, 300.0]))
+    >>> placed_sources(errors, np.array([0j, 100 + 0j]), np.array([[0, 0], [1, 1]]), np.log([50.0, 49.0]), 0.25)
+    array([  0.+0.j, 111.+0.j])
+    """
+    visible = errors.visible_px if errors.visible_px is not None else np.full(z.size, np.nan)
+    return _placed(errors, visible, z, pairs[:, 0], log_area[pairs[:, 1]], scale)

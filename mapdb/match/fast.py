@@ -245,7 +245,7 @@ def match_fast(
     pool, n_tests, done_rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
                                          anchorable, areas, errors, whole)
     return _decide(pool, z, img_label, objects, opts, n_tests, done_rounds, quads, diag_px, prior, scale_range,
-                   whole=anchorable, blobs=errors is not None or areas is not None)
+                   whole=anchorable, blobs=errors is not None or areas is not None, errors=errors)
 
 
 def _central_objects(z, img_label, max_objects: int, anchorable=None) -> tuple[np.ndarray, ...]:
@@ -331,7 +331,7 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
 def _decide(pool: list[Candidate], z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, opts: FastOptions,
             n_tests: int, rounds: int, quads: Sequence[QuadIndex], diag_px: float,
             prior: tuple[float, float, float] | None, scale_range: tuple[float, float] | None,
-            whole: np.ndarray | None = None, blobs: bool = False) -> MatchResult:
+            whole: np.ndarray | None = None, blobs: bool = False, errors: BlobErrors | None = None) -> MatchResult:
     """Accept the best candidate, or say why not: none, not certain enough, ambiguous, imprecise.
 
     Ambiguous: a distinct place comes within ``ambiguity_margin`` of the winner's score, either one of the
@@ -354,7 +354,7 @@ def _decide(pool: list[Candidate], z: np.ndarray, img_label: np.ndarray, index: 
     if close:
         reason = f"ambiguous: two places match about equally well (scores {best.score:.1f} and {close[0].score:.1f})"
         return MatchResult(None, [best, *rest][: opts.max_candidates], reason, n_tests, rounds)
-    best = polish(best, z, img_label, index, whole=whole, jackknife=blobs)
+    best = polish(best, z, img_label, index, whole=whole, jackknife=blobs, errors=errors)
     if opts.max_sigma_m is not None and best.sigma_m > opts.max_sigma_m:
         reason = (f"imprecise: estimated 1-sigma error {best.sigma_m:.2f} m exceeds {opts.max_sigma_m:g} m "
                   f"({best.inliers} inliers)")

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
+from .blobs import BlobErrors, placed_sources
 from .geometry import prediction_variance_factor
 from .relief import ReliefFit, fit_with_relief, leave_one_out_sigma
 from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
@@ -83,7 +84,7 @@ def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: in
 
 def polish(
     cand: Candidate, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, iterations: int = 2,
-    whole: np.ndarray | None = None, jackknife: bool = False,
+    whole: np.ndarray | None = None, jackknife: bool = False, errors: BlobErrors | None = None,
 ) -> Candidate:
     """Final association by optimal assignment, then the least-squares fit over it.
 
@@ -95,7 +96,9 @@ def polish(
 
     The fit is :func:`~mapdb.match.relief.fit_with_relief` over the pairs whose image object is ``whole``
     (bool, ``(n,)``: not cut by the image border) when at least four are, else over all pairs; every pair
-    still counts as an inlier.
+    still counts as an inlier.  With ``errors`` (:class:`~mapdb.match.blobs.BlobErrors`), a fit that must use
+    cut blobs places each where its blob puts its map object (:func:`~mapdb.match.blobs.placed_sources`: a cut
+    building by the map object's stored area), not at the visible part's centroid, pulled inward.
 
     With ``jackknife`` (objects extracted from masks: blobs, whose errors are not alike), the answer's error
     (``sigma_m``) is the larger of the fit's model, ``sigma_axis * sqrt(variance_factor)``, and the
@@ -118,6 +121,7 @@ def polish(
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
     fit: ReliefFit | None = None
+    scale = abs(a)
     for _ in range(iterations):
         w = a * z + b
         rows, cols, costs = index.within(w, img_label, gate, 3)
@@ -127,7 +131,8 @@ def polish(
             if fit is not None and np.array_equal(pairs, np.column_stack([rows, cols])):
                 break  # the pairs of the last fit: fitting them again gives it again
             pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign
-            fit = _fit_pairs(z, index, pairs, whole)
+            scale = abs(a)  # the scale cut blobs are placed at, the jackknife's too
+            fit = _fit_pairs(z, index, pairs, whole, errors, scale)
             if fit is None:
                 return cand
             a, b = fit.a, fit.b
@@ -151,7 +156,8 @@ def polish(
         if fit is not None and np.array_equal(pairs, assigned):
             break
         pairs = assigned
-        fit = _fit_pairs(z, index, pairs, whole)
+        scale = abs(a)
+        fit = _fit_pairs(z, index, pairs, whole, errors, scale)
         if fit is None:
             return cand
         a, b = fit.a, fit.b
@@ -161,7 +167,8 @@ def polish(
     if jackknife:
         used = _fitted(pairs, whole)
         sigma_axis = max(sigma_axis, 1e-12)  # an exact fit (no residual) must not hide an infinite jackknife
-        variance = max(variance, (leave_one_out_sigma(z[used[:, 0]], index.z[used[:, 1]], fit) / sigma_axis) ** 2)
+        src = _sources(z, index, used, errors, scale)
+        variance = max(variance, (leave_one_out_sigma(src, index.z[used[:, 1]], fit) / sigma_axis) ** 2)
     return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
                      variance_factor=variance, pairs=pairs)
 
@@ -173,13 +180,20 @@ def _fitted(pairs: np.ndarray, whole: np.ndarray | None) -> np.ndarray:
     return pairs
 
 
-def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, whole: np.ndarray | None) -> ReliefFit | None:
+def _sources(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, errors: BlobErrors | None,
+             scale: float) -> np.ndarray:
+    """The image positions the fit takes the ``pairs`` from: blobs placed by their errors when known."""
+    return z[pairs[:, 0]] if errors is None else placed_sources(errors, z, pairs, index.log_area, scale)
+
+
+def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, whole: np.ndarray | None,
+               errors: BlobErrors | None = None, scale: float = 1.0) -> ReliefFit | None:
     """The similarity fitted to ``pairs`` (image id, map id), whole objects only when four are, or None when
-    they cannot fix one."""
+    they cannot fix one; ``scale`` (metres per pixel) places cut blobs by their map objects' areas."""
     pairs = _fitted(pairs, whole)
     if len(pairs) < 3:
         return None
-    return fit_with_relief(z[pairs[:, 0]], index.z[pairs[:, 1]])
+    return fit_with_relief(_sources(z, index, pairs, errors, scale), index.z[pairs[:, 1]])
 
 
 def pose_shift(a: Any, b: Any, a0: complex, b0: complex, diag_px: float) -> Any:
