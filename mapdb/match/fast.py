@@ -97,8 +97,8 @@ class FastOptions:
         500-830, most of them lookalikes of the right place, and the screen's KD-tree queries grew with them.
         At 256 (3,000 before) that world's lost-in-space answers cost 0.85x the CPU time, 99 of 100 answers
         the same (``python benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2
-        --baseline HEAD``); Andorra's, the rendered masks' and the paper bench's answers stayed the same but two
-        (which were improved).  128 answered one world image wrongly.
+        --baseline 0ef3d71``); Andorra's, the rendered masks' and the paper bench's answers were kept, bar two
+        rendered images it improved.  128 answered one world image wrongly.
     screen_objects : int
         Image objects (around each hypothesis's quad) used to screen hypotheses; the shortlist is
         tested on all objects.
