@@ -48,7 +48,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _baseline import as_json  # noqa: E402
+from _baseline import as_json, import_baseline  # noqa: E402
 from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
 
 from mapdb.camera import image_plane  # noqa: E402
@@ -161,8 +161,6 @@ def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Pat
 
     versions = {"tree": (Localizer, open_map)}
     if baseline is not None:
-        from _baseline import import_baseline
-
         versions["baseline"] = (import_baseline(*baseline).Localizer, import_baseline(*baseline, "store").open_map)
     maps = {name: open_map_(map_path) for name, (_, open_map_) in versions.items()}
     try:

@@ -9,6 +9,7 @@ from test_blob_errors import random_poses
 
 from mapdb.match.areas import ImageAreas
 from mapdb.match.blobs import AREA_SHIFT, BlobErrors, cut_area_residuals
+from mapdb.match.refine import Candidate, polish
 from mapdb.match.verify import ObjectIndex, decision_nfa
 from mapdb.objects import Objects
 
@@ -99,8 +100,6 @@ def test_cut_buildings_placed_by_area_give_more_evidence_at_the_true_pose() -> N
 def test_the_final_fit_places_cut_buildings_by_their_map_objects_areas() -> None:
     """Two whole blobs and five cut ones, each cut blob's visible centroid pulled inward as the area model says:
     the final fit (too few whole blobs to fit them alone) lands on the truth only when it places the cut blobs."""
-    from mapdb.match.refine import Candidate, polish
-
     rng = np.random.default_rng(11)
     w = np.array([0, 60, 120, 180, 30, 90, 150]) + 1j * np.array([0, 40, -30, 20, 110, -90, 80]) + (1000 + 2000j)
     area = rng.uniform(150.0, 500.0, w.size)

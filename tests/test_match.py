@@ -13,6 +13,7 @@ from mapdb.localize import localize
 from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
 from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
+from mapdb.match.hypotheses import prioritise
 from mapdb.match.paper import match_paper
 from mapdb.match.quads import canonical_quads, neighbour_quads
 from mapdb.objects import Objects
@@ -390,8 +391,6 @@ def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path
 
 
 def test_prioritise_screens_the_most_shared_pose_first_and_at_most_the_limit() -> None:
-    from mapdb.match.hypotheses import prioritise
-
     rng = np.random.default_rng(3)
     # 40 hypotheses of one pose (a right place, found by many image quads) among 400 scattered lookalikes.
     shared_a = 0.3 * np.exp(0.7j) * (1 + 0.002 * rng.standard_normal(40))

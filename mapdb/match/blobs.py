@@ -206,18 +206,23 @@ def _placed(errors: BlobErrors, visible: np.ndarray, z: np.ndarray, col: np.ndar
     return z[col] + shift * errors.direction[col]
 
 
-def placed_sources(errors: BlobErrors, z: np.ndarray, pairs: np.ndarray, log_area: np.ndarray,
+def placed_sources(errors: BlobErrors, z: np.ndarray, pairs: np.ndarray, index: ObjectIndex,
                    scale: float) -> np.ndarray:
-    """Image positions (pixels, complex) where each pair's (image object, map object) map object lies by its
-    blob: a whole blob's centroid; a cut blob's moved outward along its border's normal, by the map object's
-    stored area (``log_area``, natural log square metres per map object) at ``scale`` metres per pixel for a
-    solid label, else by ``shift_px``.  What the final fit uses when it must fit cut blobs.
+    """Image positions (pixels, complex) where each pair's (image object, ``index`` map object) map object lies
+    by its blob: a whole blob's centroid; a cut blob's moved outward along its border's normal, by the map
+    object's stored area at ``scale`` metres per pixel for a solid label, else by ``shift_px``.  What the final
+    fit uses when it must fit cut blobs.
 
     Examples
     --------
+    >>> from mapdb.match.object_index import ObjectIndex
+    >>> from mapdb.objects import Objects
+    >>> index = ObjectIndex(Objects.from_names([0.0, 25.0], [0.0, 0.0], ["building"] * 2, area=[50.0, 49.0]))
     >>> errors = BlobErrors.of(np.array([0j, 100 + 0j]), np.array([0j, 1 + 0j]), np.array([np.nan, 300.0]))
-    >>> placed_sources(errors, np.array([0j, 100 + 0j]), np.array([[0, 0], [1, 1]]), np.log([50.0, 49.0]), 0.25)
+    >>> placed_sources(errors, np.array([0j, 100 + 0j]), np.array([[0, 0], [1, 1]]), index, 0.25)
     array([  0.+0.j, 111.+0.j])
     """
-    visible = errors.visible_px if errors.visible_px is not None else np.full(z.size, np.nan)
-    return _placed(errors, visible, z, pairs[:, 0], log_area[pairs[:, 1]], scale)
+    ids = pairs[:, 1]
+    if errors.visible_px is None:  # no cut blob of a solid label: the stored areas (made on first use) not needed
+        return _placed(errors, np.full(z.size, np.nan), z, pairs[:, 0], np.full(ids.size, np.nan), scale)
+    return _placed(errors, errors.visible_px, z, pairs[:, 0], index.log_area[ids], scale)

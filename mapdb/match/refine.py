@@ -183,7 +183,7 @@ def _fitted(pairs: np.ndarray, whole: np.ndarray | None) -> np.ndarray:
 def _sources(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, errors: BlobErrors | None,
              scale: float) -> np.ndarray:
     """The image positions the fit takes the ``pairs`` from: blobs placed by their errors when known."""
-    return z[pairs[:, 0]] if errors is None else placed_sources(errors, z, pairs, index.log_area, scale)
+    return z[pairs[:, 0]] if errors is None else placed_sources(errors, z, pairs, index, scale)
 
 
 def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, whole: np.ndarray | None,
