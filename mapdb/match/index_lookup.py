@@ -20,13 +20,34 @@ from ..errors import MapFormatError
 from .index_layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, pread
 
 __all__ = ["LOOKUP_CANDIDATES", "Best", "Section", "bound_candidates", "find_cells", "map_sections", "pieces",
-           "query_cells"]
+           "query_cells", "take_rows"]
 
 LOOKUP_CANDIDATES = 1 << 20  # candidates handled at once by a lookup: bounds its memory
 _BOUND_MARGIN = 0.05  # in 1/256ths of a cell: far above float32 rounding of positions below 2^16
 _PREFETCH_GAP = 8  # blocks: runs of wanted blocks closer than this are prefetched together
 _CELL_SLACK = 1e-6  # in cells: far above float64 rounding, so no cell holding a quad within the radius is left out
+_ONES = np.ones(4, np.float32)
 _STEPS = np.array(np.meshgrid(*[[-1, 0, 1]] * 4, indexing="ij")).reshape(4, -1).T  # the 81 neighbour cells
+
+
+def take_rows(array: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``array[index]`` for a 2-D array whose rows are contiguous: each row gathered as one opaque element.
+
+    numpy gathers the rows of a narrow 2-D array element by element; one ``void`` element per row is
+    about ten times faster (30,000 rows of 4 bytes: 42 against 420 microseconds).
+
+    Examples
+    --------
+    >>> a = np.arange(12, dtype=np.uint8).reshape(4, 3)
+    >>> take_rows(a, np.array([3, 0, 3])).tolist()
+    [[9, 10, 11], [0, 1, 2], [9, 10, 11]]
+    >>> take_rows(a, np.zeros(0, np.int64)).shape
+    (0, 3)
+    """
+    if array.ndim != 2 or not array.flags.c_contiguous or not array.size:
+        return array[index]
+    rows = array.view(np.dtype((np.void, array.shape[1] * array.itemsize))).reshape(-1)
+    return rows[index].view(array.dtype).reshape(-1, array.shape[1])
 
 
 class Section:
@@ -80,7 +101,7 @@ class Section:
             self._check(first)
             if BLOCK % self.row_bytes:
                 self._check(((index.astype(np.int64) + 1) * self.row_bytes - 1) >> BLOCK_BITS)
-        return self.array[index]
+        return take_rows(self.array, index)
 
     def check_ranges(self, start: np.ndarray, stop: np.ndarray) -> None:
         """Check the blocks of the rows ``start[i] .. stop[i] - 1`` (non-empty ranges, already known in range).
@@ -194,32 +215,39 @@ def bound_candidates(which: np.ndarray, idx: np.ndarray, rel: np.ndarray, sub: n
     query's position ``rel`` relative to that cell (both in 1/256ths of the cell, :func:`query_cells`),
     those farther than the radius and those that cannot be among their query's ``k`` nearest.
     """
-    # The candidate lies in [sub, sub + 1) per invariant.  Float32 (half the memory traffic; all of a
-    # lookup's time is here where cells are crowded) with a margin far above its rounding keeps the
-    # bounds safe.
+    # The candidate lies in [sub, sub + 1) per invariant: its gap to the query is max(d, -1 - d, 0) with
+    # d = sub - rel, which is |d + 1/2| - 1/2 clipped at 0 (one shift and an absolute value instead of two
+    # maxima: a quarter of the time).  Float32 (half the memory traffic; all of a lookup's time is here where
+    # cells are crowded) with a margin far above its rounding keeps the bounds safe.
     d = sub.astype(np.float32)
-    d -= rel
-    gap = np.maximum(d, -1.0 - d)
-    np.maximum(gap, 0.0, out=gap)
-    gap *= gap
-    lower = gap.sum(axis=1)
+    d -= rel - np.float32(0.5)
+    np.abs(d, out=d)
+    d -= np.float32(0.5)
+    np.maximum(d, 0.0, out=d)
+    d *= d
+    lower = d @ _ONES  # a product with ones sums the four columns several times faster than sum(axis=1)
     reach = (r * (SUB_CELLS / cell) + _BOUND_MARGIN).astype(np.float32)
-    near = lower <= (reach * reach)[which]
-    which, idx, lower, d = which[near], idx[near], lower[near], d[near]
+    sel = np.flatnonzero(lower <= (reach * reach)[which])
+    which, idx, lower = which[sel], idx[sel], lower[sel]
     if not idx.size or np.bincount(which).max() <= k:
         return which, idx
     # Only candidates that may be among the k nearest: the k-th smallest upper bound of a query's
     # candidates bounds its k-th nearest distance.  (Where many quads crowd a cell, this spares
-    # reading and measuring most of them.)
+    # reading and measuring most of them.)  The far corner lies max(d + 1, -d) = |d + 1/2| + 1/2 away.
+    far = take_rows(sub, sel).astype(np.float32)
+    far -= take_rows(rel, sel) - np.float32(0.5)
+    np.abs(far, out=far)
+    far += np.float32(0.5)
+    far *= far
     # Upper bounds rounded up to 1/16ths in one exact integer sort key with the (ascending) row.
-    upper = np.ceil(np.sqrt((np.maximum(d + 1.0, -d) ** 2).sum(axis=1)) * 16.0).astype(np.int64)
+    upper = np.ceil(np.sqrt(far @ _ONES) * 16.0).astype(np.int64)
     key = (which << 24) | np.minimum(upper, (1 << 24) - 1)
     order = np.argsort(key)
     rank = np.arange(which.size) - np.searchsorted(which[order], which[order])
     kth = np.full(reach.size, np.inf, np.float32)
     kth[which[order[rank == k - 1]]] = upper[order[rank == k - 1]] / 16.0 + _BOUND_MARGIN
-    near = lower <= np.minimum(kth, reach)[which] ** 2
-    return which[near], idx[near]
+    sel = np.flatnonzero(lower <= np.minimum(kth, reach)[which] ** 2)
+    return which[sel], idx[sel]
 
 
 def pieces(start: np.ndarray, length: np.ndarray, limit: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:

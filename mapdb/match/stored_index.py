@@ -82,6 +82,7 @@ from .index_lookup import (
     map_sections,
     pieces,
     query_cells,
+    take_rows,
 )
 from .quads import canonical_quads, label_keys
 
@@ -279,7 +280,7 @@ class StoredQuadIndex:
         which, start, length, rel = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
         best = Best(k)
         for piece, idx in pieces(start, length, LOOKUP_CANDIDATES):
-            self._candidates(which[piece], idx, rel[piece], q, r, cell, k, best)
+            self._candidates(which[piece], idx, take_rows(rel, piece), q, r, cell, k, best)
         row, ids, dist = best.result()
         row = rows[row]
         return (row, ids, dist) if return_distance else (row, ids)
@@ -313,7 +314,7 @@ class StoredQuadIndex:
 
         ``which`` (the query row of each candidate) is ascending.
         """
-        sub = self._sections["sub"].array[idx]  # its blocks checked by _cell_ranges
+        sub = take_rows(self._sections["sub"].array, idx)  # its blocks checked by _cell_ranges
         which, idx = bound_candidates(which, idx, rel, sub, r, cell, k)
         if not idx.size:
             return
