@@ -194,17 +194,17 @@ def find_cells(fence: np.ndarray, dir_key: Section, n_cells: int, keys: np.ndarr
     page = np.searchsorted(fence, keys, side="right") - 1
     ok = page >= 0
     lo = np.maximum(page, 0) * FENCE
-    hi = np.minimum(lo + FENCE, d)
-    dir_key.check_ranges(lo[ok], hi[ok])
-    for _ in range(FENCE.bit_length()):  # leftmost position in [lo, hi) whose key is >= the key
-        mid = (lo + hi) // 2
-        active = lo < hi
-        go = active & (dir_key.array[np.minimum(mid, d - 1)] < keys)
-        lo = np.where(go, mid + 1, lo)
-        hi = np.where(active & ~go, mid, hi)
-    found = ok & (lo < d)
-    found[found] = dir_key.array[lo[found]] == keys[found]
-    return np.where(found, lo, -1)
+    dir_key.check_ranges(lo[ok], np.minimum(lo + FENCE, d)[ok])
+    # Branchless: the position moves up by each power of two in turn while the key just below the new position
+    # is smaller (three array operations a step), then by one if the key at it still is.  Every probe stays on
+    # the page; one past the directory's end reads its last key instead, the largest (a key above it is absent).
+    at = lo
+    for step in (FENCE >> 1) >> np.arange((FENCE >> 1).bit_length()):
+        at = at + step * (dir_key.array[np.minimum(at + (step - 1), d - 1)] < keys)
+    at = at + (dir_key.array[np.minimum(at, d - 1)] < keys)
+    found = ok & (at < d)
+    found[found] = dir_key.array[at[found]] == keys[found]
+    return np.where(found, at, -1)
 
 
 def bound_candidates(which: np.ndarray, idx: np.ndarray, rel: np.ndarray, sub: np.ndarray,
