@@ -196,12 +196,11 @@ def find_cells(fence: np.ndarray, dir_key: Section, n_cells: int, keys: np.ndarr
     lo = np.maximum(page, 0) * FENCE
     dir_key.check_ranges(lo[ok], np.minimum(lo + FENCE, d)[ok])
     # Branchless: the position moves up by each power of two in turn while the key just below the new position
-    # is smaller (three array operations a step), then by one if the key at it still is.  Every probe stays on
-    # the page; one past the directory's end reads its last key instead, the largest (a key above it is absent).
+    # is smaller (three array operations a step): it ends at the key's place if the page holds it.  Every probe
+    # stays on the page; one past the directory's end reads its last key instead, the largest.
     at = lo
     for step in (FENCE >> 1) >> np.arange((FENCE >> 1).bit_length()):
         at = at + step * (dir_key.array[np.minimum(at + (step - 1), d - 1)] < keys)
-    at = at + (dir_key.array[np.minimum(at, d - 1)] < keys)
     found = ok & (at < d)
     found[found] = dir_key.array[at[found]] == keys[found]
     return np.where(found, at, -1)
