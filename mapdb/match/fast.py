@@ -57,6 +57,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -228,11 +229,8 @@ def match_fast(
     MatchResult
     """
     opts = options or FastOptions()
-    if area_px is not None or outward is not None:  # the objects _central_objects keeps: indices pass as labels
-        kept = _central_objects(z, np.arange(np.size(z)), opts.max_objects)[1]
-        area_px = None if area_px is None else np.asarray(area_px, np.float64)[kept]
-        outward = None if outward is None else np.asarray(outward, np.complex128)[kept]
-    z, img_label, anchorable = _central_objects(z, img_label, opts.max_objects, anchorable)
+    z, img_label, anchorable, area_px, outward = _central_objects(z, img_label, opts.max_objects, anchorable,
+                                                                  area_px, outward)
     reason = _unmatchable(z.size, objects, quads)
     if reason is not None:
         return MatchResult(None, [], reason, 0, 0)
@@ -248,17 +246,20 @@ def match_fast(
                    whole=anchorable, blobs=errors is not None or areas is not None, errors=errors)
 
 
-def _central_objects(z, img_label, max_objects: int, anchorable=None) -> tuple[np.ndarray, ...]:
-    """The image objects as arrays, at most ``max_objects`` of them nearest the centre (input order kept)."""
+def _central_objects(z, img_label, max_objects: int, anchorable=None, area_px=None,
+                     outward=None) -> tuple[Any, ...]:
+    """The image objects as arrays, at most ``max_objects`` of them nearest the centre (input order kept):
+    ``z``, ``img_label`` and the per-object arrays given (None stays None), cut alike."""
     z = np.asarray(z, dtype=np.complex128)
-    img_label = np.asarray(img_label, dtype=np.int64)
-    if anchorable is not None:
-        anchorable = np.asarray(anchorable, dtype=bool)
+    arrays = [np.asarray(img_label, dtype=np.int64)] + [
+        None if v is None else np.asarray(v, dtype=t)
+        for v, t in ((anchorable, bool), (area_px, np.float64), (outward, np.complex128))
+    ]
     if z.size > max_objects:
         central = np.sort(np.argsort(np.abs(z), kind="stable")[:max_objects])
-        z, img_label = z[central], img_label[central]
-        anchorable = None if anchorable is None else anchorable[central]
-    return z, img_label, anchorable
+        z = z[central]
+        arrays = [None if v is None else v[central] for v in arrays]
+    return (z, *arrays)
 
 
 def _unmatchable(n: int, objects: ObjectIndex, quads: Sequence[QuadIndex]) -> str | None:

@@ -330,7 +330,7 @@ class StoredQuadIndex:
         triple = read["triple"].rows(positions).astype(np.int64)
         if anchor.size and (anchor.max() >= self.n_objects or triple.max() >= len(self._triples)):
             raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
-        nb = self._sections["neighbours"].rows(anchor).astype(np.int64)
+        nb = read["neighbours"].rows(anchor).astype(np.int64)
         members = np.empty((positions.size, 4), np.int64)
         members[:, 0] = anchor
         members[:, 1:] = np.take_along_axis(nb, self._triples[triple], axis=1)
