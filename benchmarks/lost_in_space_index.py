@@ -28,6 +28,11 @@ Run from the repository root (about 15 minutes with the 1M QuadIndex)::
 
     nice python benchmarks/lost_in_space_index.py
     nice python benchmarks/lost_in_space_index.py --worlds 1000000 --images 50   # quicker
+    nice python benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2 10   # two worlds
+
+``--jitter 2`` keeps each copy close enough to its original that a lookup of a place also finds its copies
+(near-copies); ``--jitter 10`` leaves no near-copies, so the two side by side tell what a world's size costs
+from what its repeats cost.
 """
 
 from __future__ import annotations
@@ -397,8 +402,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--lookups-only", action="store_true",
                         help="reuse the indexes already built (no builds, no QuadIndex): re-measure lookups")
-    parser.add_argument("--jitter", type=float, default=0.0,
-                        help="worlds of copies with every object displaced by this (m, 1 sigma): distinct places")
+    parser.add_argument("--jitter", type=float, nargs="+", default=[0.0],
+                        help="worlds of copies with every object displaced by this (m, 1 sigma): distinct places;"
+                             " several values: a world of each size for each, measured side by side")
     parser.add_argument("--baseline", metavar="REV",
                         help="also time this git revision's first answers (processes alternating with this tree's)")
     parser.add_argument("--first-answers", type=int, default=FIRST_ANSWERS,
@@ -412,13 +418,14 @@ def main(argv: list[str] | None = None) -> int:
     maps = {"Andorra": extracts[0]}
     world_path = {}
     for n in args.worlds:
-        path = args.workdir / (f"world-{n}.mapdb" if not args.jitter else f"world-{n}-jitter{args.jitter:g}.mapdb")
-        if not path.exists():
-            start = time.perf_counter()
-            write_map(path, synthetic_world(extracts, n, seed=0, jitter_m=args.jitter))
-            print(f"{path.name}: assembled and written in {time.perf_counter() - start:.0f} s", flush=True)
-        maps[f"world {n / 1e6:g}M" + (f" jitter {args.jitter:g} m" if args.jitter else "")] = path
-        world_path[n] = path
+        for jitter in args.jitter:
+            path = args.workdir / (f"world-{n}.mapdb" if not jitter else f"world-{n}-jitter{jitter:g}.mapdb")
+            if not path.exists():
+                start = time.perf_counter()
+                write_map(path, synthetic_world(extracts, n, seed=0, jitter_m=jitter))
+                print(f"{path.name}: assembled and written in {time.perf_counter() - start:.0f} s", flush=True)
+            maps[f"world {n / 1e6:g}M" + (f" jitter {jitter:g} m" if jitter else "")] = path
+            world_path.setdefault(n, path)
 
     rows, whole = [], []
     for name, path in maps.items():
