@@ -94,8 +94,9 @@ class FastOptions:
     max_verified : int
         Hypotheses screened per round, those whose pose most others share first
         (:func:`~mapdb.match.hypotheses.prioritise`).  Andorra's images bring 57-134 a round, so 256 rarely
-        binds there; a map that repeats its places (a world of 245 jittered copies of three towns) brings
-        500-830, most of them lookalikes of the right place, and the screen's KD-tree queries grew with them.
+        binds there; a 5M-object world (245 jittered copies of three towns) brings
+        500-830 (chance hits of a key space of 183 million quads: a world without near-copies brings as
+        many), and the screen's KD-tree queries grew with them.
         At 256 (3,000 before) that world's lost-in-space answers cost 0.85x the CPU time, 99 of 100 answers
         the same (``python benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2
         --baseline 0ef3d71``); Andorra's, the rendered masks' and the paper bench's answers were kept, bar two
