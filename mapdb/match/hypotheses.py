@@ -21,7 +21,7 @@ from .quads import PAIRS, QuadIndex, first_rows, neighbour_quads, quad_frames
 if TYPE_CHECKING:
     from .fast import FastOptions
 
-__all__ = ["allowed_poses", "anchor_batches", "lookup_hypotheses", "prioritise", "round_hypotheses"]
+__all__ = ["allowed_poses", "anchor_batches", "lookup_hypotheses", "pose_votes", "prioritise", "round_hypotheses"]
 
 
 def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | None = None) -> list[np.ndarray]:
@@ -181,24 +181,41 @@ def _orderings(order0: np.ndarray, t0: np.ndarray, radius: np.ndarray, max_radiu
     return order, t, ok
 
 
-def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int) -> np.ndarray:
-    """Indices of at most ``limit`` hypotheses, those whose pose most others share first.
+def pose_votes(a: np.ndarray, b: np.ndarray, diag_px: float) -> np.ndarray:
+    """How many of the hypotheses share each one's coarse pose (itself included).
 
     Poses are binned coarsely (10 degrees of rotation, 10% of scale, a twentieth of the footprint
-    diagonal in position) and each hypothesis counts the hypotheses in its bin.
+    diagonal in position).  The position cell follows the scale *bin*, not each hypothesis's own scale:
+    map coordinates are large (UTM northings near 5,000 km), and a cell that moved with a 0.2 % difference
+    of scale moved the bin of one place by hundreds of cells, so that no two hypotheses shared one.
+
+    Examples
+    --------
+    >>> a = np.array([0.41 + 0j, 0.4109 + 0j, 0.41j])
+    >>> pose_votes(a, np.array([4714878 + 0j, 4714878.3 + 0j, 4714878 + 0j]), 800.0).tolist()
+    [2, 2, 1]
+    >>> pose_votes(np.zeros(0, complex), np.zeros(0, complex), 800.0).tolist()
+    []
     """
-    if len(a) <= limit:
-        return np.arange(len(a))
-    scale = np.abs(a)
-    cell = scale * diag_px * POSE_BIN_FRACTION
+    if not len(a):
+        return np.zeros(0, np.int64)
+    scale_bin = np.floor(np.log(np.abs(a)) / POSE_BIN_LOG_SCALE)
+    cell = np.exp((scale_bin + 0.5) * POSE_BIN_LOG_SCALE) * diag_px * POSE_BIN_FRACTION
     key = np.column_stack(
         [
-            np.floor(np.log(scale) / POSE_BIN_LOG_SCALE),
+            scale_bin,
             np.floor(np.angle(a) / math.radians(POSE_BIN_DEGREES)),
             np.floor(b.real / cell),
             np.floor(b.imag / cell),
         ]
     ).astype(np.int64)
     _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    votes = counts[inverse.reshape(-1)]
-    return np.argsort(-votes, kind="stable")[:limit]
+    return counts[inverse.reshape(-1)]
+
+
+def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int) -> np.ndarray:
+    """Indices of at most ``limit`` hypotheses, those whose pose most others share first
+    (:func:`pose_votes`)."""
+    if len(a) <= limit:
+        return np.arange(len(a))
+    return np.argsort(-pose_votes(a, b, diag_px), kind="stable")[:limit]
