@@ -13,7 +13,7 @@ from mapdb.localize import localize
 from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
 from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
-from mapdb.match.hypotheses import prioritise
+from mapdb.match.hypotheses import pose_votes, prioritise
 from mapdb.match.paper import match_paper
 from mapdb.match.quads import canonical_quads, neighbour_quads
 from mapdb.objects import Objects
@@ -403,3 +403,16 @@ def test_prioritise_screens_the_most_shared_pose_first_and_at_most_the_limit() -
     # Most of the shared pose's hypotheses land in one pose bin and come first.
     assert np.count_nonzero(kept[:30] >= 400) == 30
     assert prioritise(a[:50], b[:50], 800.0, 64).tolist() == list(range(50))  # under the limit: all, in order
+
+
+def test_pose_votes_group_one_place_at_utm_coordinates() -> None:
+    # A right place found by 40 image quads, its poses 0.2 % apart in scale and 0.3 m in position, at a UTM
+    # northing of 4,714 km: a position cell that followed each hypothesis's own scale split them all.
+    rng = np.random.default_rng(5)
+    a = 0.41 * np.exp(0.7j) * (1 + 0.002 * rng.standard_normal(40))
+    b = 387532 + 4714878j + 0.3 * (rng.standard_normal(40) + 1j * rng.standard_normal(40))
+    chance_a = 0.41 * np.exp(1j * rng.uniform(-np.pi, np.pi, 200)) * np.exp(rng.uniform(-1, 1, 200))
+    chance_b = 387532 + 4714878j + rng.uniform(-5e4, 5e4, 200) + 1j * rng.uniform(-5e4, 5e4, 200)
+    votes = pose_votes(np.concatenate([a, chance_a]), np.concatenate([b, chance_b]), 800.0)
+    assert np.median(votes[:40]) >= 20  # most of the place's hypotheses share a bin (bins may split it in a few)
+    assert np.count_nonzero(votes[40:] >= 2) <= 4  # chance hits rarely share one

@@ -177,14 +177,21 @@ class PagedObjectIndex(ObjectIndex):
     def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int) -> np.ndarray:
         labels = np.broadcast_to(img_label, np.shape(w))
         kk = np.minimum(k, self.counts[labels])
+        grow = FIRST_REACH_M
         while True:
             density = super().knn_density(w, img_label, k)
             # The k-th distance behind each density (inf where the loaded pages hold fewer than k): the true
-            # one is no larger, so once that far is loaded the answer is the whole map's.
+            # one is no larger, so once that far is loaded all round the answer is the whole map's.  Read out to
+            # it in growing steps (FIRST_REACH_M, then fourfold): from the few pages around a place, a rare
+            # label's k-th distance can be kilometres too long, and covering it at once read 3,700 of a
+            # 5M-object world's 8,192 pages for one first answer (0.8 s).
             with np.errstate(divide="ignore"):
                 reach = np.where(kk > 0, np.sqrt(np.maximum(kk - 1, 1) / (math.pi * density)), 0.0)
-            if not self._cover(w, reach * (1.0 + 1e-9) + 1e-6):
+            if self._cover(w, np.minimum(reach, grow) * (1.0 + 1e-9) + 1e-6):
+                continue  # more is loaded: the distances can only shrink
+            if (reach <= grow).all() or self._loaded.all():
                 return density
+            grow *= 4.0
 
 
 class WholeMapObjects:
