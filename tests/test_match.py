@@ -416,3 +416,36 @@ def test_pose_votes_group_one_place_at_utm_coordinates() -> None:
     votes = pose_votes(np.concatenate([a, chance_a]), np.concatenate([b, chance_b]), 800.0)
     assert np.median(votes[:40]) >= 20  # most of the place's hypotheses share a bin (bins may split it in a few)
     assert np.count_nonzero(votes[40:] >= 2) <= 4  # chance hits rarely share one
+
+
+def test_a_round_screens_shared_poses_first_and_the_whole_round_when_they_fail() -> None:
+    """A right place found by one image quad alone, among chance hits whose poses come in pairs, is still
+    answered: the shared poses are screened first, and when they give nothing the whole round is."""
+    from scipy.spatial import cKDTree
+
+    from mapdb.match.fast import FastOptions, _verify_round
+
+    m = _random_map()
+    objs = m.all()
+    w = objs.x + 1j * objs.y
+    centre, a_true = complex(X0 + 250.0, Y0 + 240.0), 0.2 * np.exp(-0.6j)
+    z_all = (w - centre) / a_true
+    seen = np.flatnonzero((np.abs(z_all.real) <= W / 2) & (np.abs(z_all.imag) <= H / 2))
+    z, label = z_all[seen], objs.label[seen].astype(np.int64)
+    quad = np.argsort(np.abs(z))[:4]
+    rng = np.random.default_rng(8)
+    # 20 wrong places, each found twice (the same pose): their quads' map points where the pose puts them.
+    wrong_a = np.repeat(0.2 * np.exp(1j * rng.uniform(-np.pi, np.pi, 20)), 2)
+    wrong_b = np.repeat(complex(X0, Y0) + rng.uniform(0, 500, 20) + 1j * rng.uniform(0, 500, 20), 2)
+    a, b = np.concatenate([wrong_a, [a_true]]), np.concatenate([wrong_b, [centre]])
+    img_ids = np.tile(quad, (a.size, 1))
+    map_z = a[:, None] * z[img_ids] + b[:, None]
+    map_z[-1] = w[seen[quad]]
+    pts = np.column_stack([z.real, z.imag])
+    screen_of = cKDTree(pts).query(pts, k=min(12, z.size))[1]
+    opts = FastOptions()
+    found = _verify_round(a, b, img_ids, map_z, z, label, ObjectIndex(objs), screen_of, math.hypot(W, H),
+                          math.log10(a.size), opts)
+    best = min(found, key=lambda c: c.log10_nfa)
+    assert best.log10_nfa < opts.log10_epsilon
+    assert abs(best.b - centre) < 1e-6

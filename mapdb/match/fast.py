@@ -66,7 +66,7 @@ from .ambiguity import find_rivals
 from .areas import ImageAreas, solid_objects
 from .blobs import BlobErrors
 from .cut_quads import cut_batches, cut_round_hypotheses
-from .hypotheses import anchor_batches, pose_votes, round_hypotheses
+from .hypotheses import anchor_batches, pose_votes, prioritise, round_hypotheses
 from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct, merge_candidates, polish
 from .verify import ObjectIndex, decision_nfa, refine, screen
@@ -333,7 +333,7 @@ def _screened(a, b, img_ids, map_z, votes, z, img_label, index, screen_of, diag_
               areas=None, errors=None) -> list[Candidate]:
     """:func:`_verify_round` on the hypotheses given: at most ``opts.max_verified``, the most shared poses first."""
     if len(a) > opts.max_verified:
-        pick = np.argsort(-votes, kind="stable")[: opts.max_verified]
+        pick = prioritise(a, b, diag_px, opts.max_verified, votes)
         a, b, img_ids, map_z = a[pick], b[pick], img_ids[pick], map_z[pick]
     top = screen(a, b, img_ids, screen_of, z, img_label, index, log10_tests, opts.shortlist)
     a, b, img_ids, map_z = a[top], b[top], img_ids[top], map_z[top]

@@ -213,9 +213,10 @@ def pose_votes(a: np.ndarray, b: np.ndarray, diag_px: float) -> np.ndarray:
     return counts[inverse.reshape(-1)]
 
 
-def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int) -> np.ndarray:
+def prioritise(a: np.ndarray, b: np.ndarray, diag_px: float, limit: int,
+               votes: np.ndarray | None = None) -> np.ndarray:
     """Indices of at most ``limit`` hypotheses, those whose pose most others share first
-    (:func:`pose_votes`)."""
+    (``votes``, :func:`pose_votes` if not given)."""
     if len(a) <= limit:
         return np.arange(len(a))
-    return np.argsort(-pose_votes(a, b, diag_px), kind="stable")[:limit]
+    return np.argsort(-(pose_votes(a, b, diag_px) if votes is None else votes), kind="stable")[:limit]
