@@ -39,26 +39,31 @@ from _baseline import ROOT, as_json, import_baseline  # noqa: E402
 ANDORRA = ROOT.parent / "shared" / "data" / "osm" / "andorra-2021-06-22.osm.pbf"
 
 def time_images(versions: dict, map_path: Path, images: list[dict]) -> dict:
-    """Median ms per image of each version's ``localize``, alternating versions image by image."""
+    """Median ms per image of each version's ``localize``, alternating versions image by image; localized
+    images, and answers (status and position) identical to the first version's."""
     result = {}
     for case in ("prior", "no prior"):
         subset = images if case == "prior" else [{k: v for k, v in im.items() if k != "prior"} for im in images]
         maps = {label: store.open_map(map_path) for label, (localize, store) in versions.items()}
         times = {label: [] for label in versions}
         good = dict.fromkeys(versions, 0)
+        answers: dict[str, list] = {label: [] for label in versions}
         for label, (localize, _) in versions.items():
             localize(subset[0], maps[label])  # the whole map's index built once, outside the timing
         for im in subset:
             for label, (localize, _) in versions.items():
                 start = time.perf_counter()
                 answer = as_json(localize(im, maps[label]))
+                answers[label].append((answer["status"], answer.get("x"), answer.get("y")))
                 times[label].append((time.perf_counter() - start) * 1000.0)
                 good[label] += answer["status"] == "ok" and math.hypot(
                     answer["x"] - im["truth"]["x"], answer["y"] - im["truth"]["y"]) <= 2.0
+        first = answers[next(iter(versions))]
         for label in versions:
             maps[label].close()
             result.setdefault(label, {})[case] = {"median_ms": statistics.median(times[label]),
-                                                  "localized": good[label], "images": len(subset)}
+                                                  "localized": good[label], "images": len(subset),
+                                                  "same": sum(a == b for a, b in zip(answers[label], first))}
     return result
 
 
@@ -113,10 +118,11 @@ def per_image_table(args: argparse.Namespace, map_path: Path, images: list[dict]
     results = time_images(versions, map_path, images)
     print(f"Andorra, {args.n} images: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects "
           f"({statistics.mean(len(im['objects']) for im in images):.1f} objects per image)")
-    print(f"  {'code':<24} {'case':<9} {'median ms':>9} {'localized':>10}")
+    print(f"  {'code':<24} {'case':<9} {'median ms':>9} {'localized':>10} {'same answers':>13}")
     for label, res in results.items():
         for case, r in res.items():
-            print(f"  {label:<24} {case:<9} {r['median_ms']:9.2f} {r['localized']:6d}/{r['images']}")
+            print(f"  {label:<24} {case:<9} {r['median_ms']:9.2f} {r['localized']:6d}/{r['images']}"
+                  f" {r['same']:>9d}/{r['images']}")
     if args.baseline:
         base = results[f"baseline {args.baseline}"]
         for case in ("prior", "no prior"):
