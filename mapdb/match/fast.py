@@ -319,7 +319,9 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
     """
     votes = pose_votes(a, b, diag_px)
     shared = votes >= 2
-    if shared.any() and not shared.all():
+    # A round a few times the shortlist is screened whole: a first pass would save little there, and when it
+    # fails (a right place found once) the round is screened twice.
+    if len(a) > _SHARED_FIRST_FROM * opts.shortlist and shared.any() and not shared.all():
         first = np.flatnonzero(shared)
         found = _screened(a[first], b[first], img_ids[first], map_z[first], votes[first], z, img_label, index,
                           screen_of, diag_px, log10_tests, opts, areas, errors)
@@ -327,6 +329,9 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
             return found
     return _screened(a, b, img_ids, map_z, votes, z, img_label, index, screen_of, diag_px, log10_tests, opts, areas,
                      errors)
+
+
+_SHARED_FIRST_FROM = 4  # shortlists: rounds with more hypotheses screen the shared poses first
 
 
 def _screened(a, b, img_ids, map_z, votes, z, img_label, index, screen_of, diag_px, log10_tests, opts,
