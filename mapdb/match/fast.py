@@ -317,16 +317,17 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
     the round is a test either way).  A big map's lookups are mostly chance hits (a world of 5M objects:
     242 hypotheses a round against Andorra's 95), so the usual image screens a few dozen.
     """
-    votes = pose_votes(a, b, diag_px)
-    shared = votes >= 2
+    votes = None
     # A round a few times the shortlist is screened whole: a first pass would save little there, and when it
     # fails (a right place found once) the round is screened twice.
-    if len(a) > _SHARED_FIRST_FROM * opts.shortlist and shared.any() and not shared.all():
-        first = np.flatnonzero(shared)
-        found = _screened(a[first], b[first], img_ids[first], map_z[first], votes[first], z, img_label, index,
-                          screen_of, diag_px, log10_tests, opts, areas, errors)
-        if found and min(c.log10_nfa for c in found) < opts.log10_epsilon:
-            return found
+    if len(a) > _SHARED_FIRST_FROM * opts.shortlist:
+        votes = pose_votes(a, b, diag_px)
+        first = np.flatnonzero(votes >= 2)
+        if 0 < first.size < len(a):
+            found = _screened(a[first], b[first], img_ids[first], map_z[first], votes[first], z, img_label, index,
+                              screen_of, diag_px, log10_tests, opts, areas, errors)
+            if found and min(c.log10_nfa for c in found) < opts.log10_epsilon:
+                return found
     return _screened(a, b, img_ids, map_z, votes, z, img_label, index, screen_of, diag_px, log10_tests, opts, areas,
                      errors)
 
@@ -336,7 +337,8 @@ _SHARED_FIRST_FROM = 4  # shortlists: rounds with more hypotheses screen the sha
 
 def _screened(a, b, img_ids, map_z, votes, z, img_label, index, screen_of, diag_px, log10_tests, opts,
               areas=None, errors=None) -> list[Candidate]:
-    """:func:`_verify_round` on the hypotheses given: at most ``opts.max_verified``, the most shared poses first."""
+    """:func:`_verify_round` on the hypotheses given: at most ``opts.max_verified``, the most shared poses first
+    (``votes``: :func:`pose_votes`, computed here if None and needed)."""
     if len(a) > opts.max_verified:
         pick = prioritise(a, b, diag_px, opts.max_verified, votes)
         a, b, img_ids, map_z = a[pick], b[pick], img_ids[pick], map_z[pick]
