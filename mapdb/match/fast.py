@@ -27,7 +27,10 @@ The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC, one 
 3. **Verification**, all hypotheses at once: project image objects into the map
    and find each one's nearest map object of its label (a cKDTree per label).
    A cheap screen (the objects around each quad, the region's mean densities)
-   ranks the hypotheses; the best are tested on every image object.
+   ranks the hypotheses; the best are tested on every image object.  Hypotheses
+   whose coarse pose another one shares (a right place is found by several
+   image quads, a chance hit of a big map's index by one) are screened first,
+   and the whole round only when they give nothing accepted.
 4. **Decision** (:mod:`mapdb.match.decision`): the number of false alarms of a
    hypothesis *as it came from its quad* (refitting a model to its own inliers
    makes it look better than chance says), with tolerance discs shaped by how
