@@ -146,3 +146,15 @@ def test_the_paged_index_grows_by_new_trees_and_finds_nearest_objects_beyond_its
     d_w, i_w = whole.nearest(w, labels, density)
     assert np.array_equal(d_p, d_w) and np.isfinite(d_w[:, 0]).all() and (d_w > paged_objects.FIRST_REACH_M).any()
     _same(paged, whole, i_p, i_w)
+
+
+def test_a_k_th_nearest_density_reads_only_as_far_as_it_must(paged_map) -> None:
+    """From pages that hold too few of a label, the k-th distance is an overestimate (nothing loaded: the whole
+    map's extent): the paged index reads outward in steps from the point, not everything that estimate covers."""
+    m, paged, whole = _both(paged_map)
+    rng = np.random.default_rng(5)
+    w = whole.z[whole.label == 0][rng.integers(0, 4000, 3)][:, None]
+    labels = np.array([0])
+    assert paged.loaded_pages == 0
+    assert np.array_equal(paged.knn_density(w, labels, 6), whole.knn_density(w, labels, 6))
+    assert 0 < paged.loaded_pages < m.page_count // 4
