@@ -310,6 +310,9 @@ def _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range,
     return pool, n_tests, done_rounds
 
 
+_SHARED_FIRST_FROM = 4  # shortlists: rounds with more hypotheses screen the shared poses first
+
+
 def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px, log10_tests, opts,
                   areas=None, errors=None) -> list[Candidate]:
     """Screen, test, decide and refine one round's hypotheses; the refined candidates.
@@ -333,9 +336,6 @@ def _verify_round(a, b, img_ids, map_z, z, img_label, index, screen_of, diag_px,
                 return found
     return _screened(a, b, img_ids, map_z, votes, z, img_label, index, screen_of, diag_px, log10_tests, opts, areas,
                      errors)
-
-
-_SHARED_FIRST_FROM = 4  # shortlists: rounds with more hypotheses screen the shared poses first
 
 
 def _screened(a, b, img_ids, map_z, votes, z, img_label, index, screen_of, diag_px, log10_tests, opts,
