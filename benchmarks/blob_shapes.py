@@ -3,8 +3,9 @@
 Masks rendered as ``mapdb simulate --render masks`` renders them (``../shared/data/osm`` Andorra and Monaco,
 640x480, 60 degree field of view, random heading, at least 8 blobs, buildings extruded to their heights or
 flat).  For each building blob that covers exactly one map object, the orientation of the blob's pixels
-(the major axis of their second moments) is compared with that of the object's footprint outline (the
-extract's polygon, the same moments), turned into the image by the truth's similarity (the least-squares fit
+(``orientation_deg``, the major axis of their second moments, as ``mapdb objects`` writes it) is compared
+with that of the object's footprint outline (the extract's polygon, the same moments), turned into the image
+by the truth's similarity (the least-squares fit
 of the image's whole blobs to their true map objects).  Rows by the footprint's elongation (the square root
 of the ratio of its moments' eigenvalues: 1 a square or a disc, 2 a 2:1 rectangle), whole blobs and blobs cut
 by the image border apart: how many, and the percentiles of the absolute angle between the two axes
@@ -34,37 +35,22 @@ ELONGATION_ROWS = ((1.0, 1.3), (1.3, 1.6), (1.6, 2.5), (2.5, math.inf))
 GRID = 60  # footprint moments from a grid of about GRID x GRID points over its box
 
 
-def axis(dx: np.ndarray, dy: np.ndarray) -> tuple[float, float]:
-    """Orientation (radians, of the major axis, y up) and elongation of points' second moments about their mean."""
-    dx, dy = dx - dx.mean(), dy - dy.mean()
-    sxx, syy, sxy = float((dx * dx).mean()), float((dy * dy).mean()), float((dx * dy).mean())
-    half, det = (sxx + syy) / 2.0, sxx * syy - sxy * sxy
-    root = math.sqrt(max(half * half - det, 0.0))
-    return 0.5 * math.atan2(2.0 * sxy, sxx - syy), math.sqrt((half + root) / max(half - root, 1e-12))
-
-
 def footprint_axis(polygon) -> tuple[float, float]:
-    """:func:`axis` of a polygon's area, from the grid points inside it."""
+    """Major axis (degrees, y up) and elongation of a polygon's area, from the grid points inside it."""
     import shapely
+
+    from mapdb.masks import major_axes
 
     minx, miny, maxx, maxy = polygon.bounds
     step = max(maxx - minx, maxy - miny) / GRID
     xs, ys = np.meshgrid(np.arange(minx, maxx, step) + step / 2, np.arange(miny, maxy, step) + step / 2)
     inside = shapely.contains_xy(polygon, xs.ravel(), ys.ravel())
-    return axis(xs.ravel()[inside], ys.ravel()[inside])
-
-
-def blob_axis(mask: np.ndarray, code: int, obj: dict) -> tuple[float, float] | None:
-    """:func:`axis` of the blob of ``obj`` (its 8-connected region of ``code`` in its box, y up), or None."""
-    from scipy import ndimage
-
-    x0, y0, x1, y1 = obj["bbox"]
-    regions, count = ndimage.label(mask[y0:y1, x0:x1] == code, structure=np.ones((3, 3)))
-    for region in range(1, count + 1):
-        yy, xx = np.nonzero(regions == region)
-        if abs(xx.mean() + x0 - obj["x"]) < 0.6 and abs(yy.mean() + y0 - obj["y"]) < 0.6:
-            return axis(xx.astype(float), -yy.astype(float))
-    return None
+    dx, dy = xs.ravel()[inside], ys.ravel()[inside]
+    dx, dy = dx - dx.mean(), dy - dy.mean()
+    # major_axes takes moments with y down, as pixel rows count: map y is up, so the cross moment flips.
+    turn, stretch = major_axes(np.array([(dx * dx).mean()]), np.array([(dy * dy).mean()]),
+                               np.array([-(dx * dy).mean()]))
+    return float(turn[0]), float(stretch[0])
 
 
 def measure(altitude: float, heights: bool, n: int, seed: int) -> np.ndarray:
@@ -81,8 +67,7 @@ def measure(altitude: float, heights: bool, n: int, seed: int) -> np.ndarray:
             at = objects.x + 1j * objects.y
             scene = read_scene(DATA / EXTRACTS[name], objects, seed=seed)
             outline = {int(i): g for i, g in zip(scene.map_index, scene.geometry, strict=True) if i >= 0}
-            code = objects.labels.index("building") + 1
-            for doc, mask in simulate_masks(m, scene, n, altitude=altitude, fov_deg=60.0, size=(640, 480),
+            for doc, _mask in simulate_masks(m, scene, n, altitude=altitude, fov_deg=60.0, size=(640, 480),
                                             yaw="random", min_objects=8, seed=seed, heights=heights):
                 truth, blobs = doc["truth"], doc["objects"]
                 mapped = np.array(truth["map_index"])
@@ -95,12 +80,9 @@ def measure(altitude: float, heights: bool, n: int, seed: int) -> np.ndarray:
                 for blob, covers in zip(blobs, truth["covers"], strict=True):
                     if blob["label"] != "building" or len(covers) != 1 or int(covers[0]) not in outline:
                         continue
-                    seen = blob_axis(mask, code, blob)
-                    if seen is None:
-                        continue
                     ground = footprint_axis(outline[int(covers[0])])
-                    angle = (ground[0] - turn - seen[0] + math.pi / 2) % math.pi - math.pi / 2
-                    rows.append((bool(blob.get("border")), ground[1], seen[1], abs(math.degrees(angle))))
+                    angle = (ground[0] - math.degrees(turn) - blob["orientation_deg"] + 90.0) % 180.0 - 90.0
+                    rows.append((bool(blob.get("border")), ground[1], blob["elongation"], abs(angle)))
     return np.array(rows, float).reshape(-1, 4)
 
 

@@ -31,6 +31,8 @@ objects[].x, objects[].y    0 <= v <= width (height)
 objects[].area_px           optional, 0 <= v <= 1e12 (pixels)
 objects[].border            optional, boolean (the region touches the image border)
 objects[].bbox              optional, [x0, y0, x1, y1], each 0 <= v <= 1,000,000
+objects[].orientation_deg   optional, 0 <= v < 180 (the region's major axis)
+objects[].elongation        optional, 1 <= v <= ``MAX_ELONGATION`` (1e6)
 prior.radius                0 < r <= ``MAX_PRIOR_RADIUS_M`` (20,000 km)
 prior.x, prior.y            abs(v) <= ``MAX_MAP_COORDINATE_M`` (1e8 m)
 prior.lon, prior.lat        [-180, 180], [-90, 90]
@@ -67,6 +69,7 @@ __all__ = [
     "MAX_ALTITUDE_M",
     "MAX_ATTITUDE_DEG",
     "MAX_DOCUMENT_BYTES",
+    "MAX_ELONGATION",
     "MAX_IMAGE_SIDE_PX",
     "MAX_MAP_COORDINATE_M",
     "MAX_OBJECTS",
@@ -89,6 +92,8 @@ MAX_OBJECTS = 20_000
 MAX_IMAGE_SIDE_PX = 1_000_000
 # An object's area in pixels: at most a whole image of the largest size.
 MAX_AREA_PX = 1e12
+# A region's elongation: a one-pixel line across the largest image.
+MAX_ELONGATION = 1e6
 # Narrower than any lens; a denormal field of view made the focal length infinite.
 MIN_FOV_DEG = 0.001
 # Half the Earth's circumference: a wider prior excludes nothing, and a finite bound keeps the prior's
@@ -222,11 +227,16 @@ def _plain_object_ok(obj: Any) -> bool:
 
 
 def _region_fields_ok(obj: dict[str, Any]) -> bool:
-    """The schema's rules for an object's optional ``area_px``, ``border``, ``bbox`` and ``box``."""
+    """The schema's rules for an object's optional ``area_px``, ``border``, ``bbox``, ``box``, ``orientation_deg``
+    and ``elongation``."""
     area: Any = obj.get("area_px", 0)
     box: Any = obj.get("bbox", (0, 0, 0, 0))
+    turn: Any = obj.get("orientation_deg", 0)
+    stretch: Any = obj.get("elongation", 1)
     return (
         type(area) in (int, float) and 0 <= area <= MAX_AREA_PX
+        and type(turn) in (int, float) and 0 <= turn < 180
+        and type(stretch) in (int, float) and 1 <= stretch <= MAX_ELONGATION
         and type(obj.get("border", False)) is bool and type(obj.get("box", False)) is bool
         and type(box) in (list, tuple) and len(box) == 4
         and all(type(v) in (int, float) and 0 <= v <= MAX_IMAGE_SIDE_PX for v in box)

@@ -6,8 +6,12 @@ at the centroid of its pixels, labelled through a class table.  Pixels follow th
 right, y down, (0, 0) the top-left corner of the top-left pixel, so the centroid of the single pixel
 at column ``c``, row ``r`` is ``(c + 0.5, r + 0.5)``.  Each object also carries what a matcher can use
 beyond its position: ``area_px`` (its pixel count), ``border`` (whether it touches the image's edge,
-so that part of it may lie outside and its centroid is pulled inward) and ``bbox`` ``[x0, y0, x1, y1]``
-(pixel edges: the region covers columns ``x0 .. x1 - 1`` and rows ``y0 .. y1 - 1``).
+so that part of it may lie outside and its centroid is pulled inward), ``bbox`` ``[x0, y0, x1, y1]``
+(pixel edges: the region covers columns ``x0 .. x1 - 1`` and rows ``y0 .. y1 - 1``), and the major axis of
+its pixels' second moments (each pixel a unit square): ``orientation_deg``, counter-clockwise from the x axis
+with y up, in [0, 180), and ``elongation``, the square root of the larger over the smaller moment.  A whole
+building's blob keeps its footprint's axis within a few degrees, relief and all
+(``python benchmarks/blob_shapes.py``): evidence for a map that stores footprints' axes.
 
 Regions of different classes are found separately, so two touching objects of different classes stay
 two objects; touching objects of one class are one region, as a segmentation model sees them.  Code 0
@@ -37,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from .errors import ImageInputError, MapdbIOError
-from .images import MAX_IMAGE_SIDE_PX, MAX_OBJECTS, parse_image
+from .images import MAX_ELONGATION, MAX_IMAGE_SIDE_PX, MAX_OBJECTS, parse_image
 
 __all__ = [
     "DEFAULT_MIN_AREA_PX",
@@ -45,6 +49,7 @@ __all__ = [
     "Mask",
     "camera_fields",
     "from_mask",
+    "major_axes",
     "mask_document",
     "read_mask",
 ]
@@ -115,14 +120,43 @@ def _regions(binary: np.ndarray, structure: np.ndarray, min_area: int) -> dict[s
     ids = labelled.ravel()[where]
     rows, cols = np.divmod(where, width)
     area = np.bincount(ids, minlength=n + 1)[1:]
+
+    def mean(weights: np.ndarray) -> np.ndarray:
+        return np.bincount(ids, weights=weights, minlength=n + 1)[1:] / area
+
     with np.errstate(invalid="ignore", divide="ignore"):
-        x = np.bincount(ids, weights=cols, minlength=n + 1)[1:] / area + 0.5
-        y = np.bincount(ids, weights=rows, minlength=n + 1)[1:] / area + 0.5
+        cx, cy = mean(cols), mean(rows)
+        # Second moments about the centroid, each pixel a unit square (its own 1/12 added): a one-pixel line
+        # has a finite elongation.
+        sxx = mean(cols * cols) - cx * cx + 1.0 / 12.0
+        syy = mean(rows * rows) - cy * cy + 1.0 / 12.0
+        sxy = mean(cols * rows) - cx * cy
+        orientation, elongation = major_axes(sxx, syy, sxy)
     # find_objects scans the labels once in C: cheaper than reducing over the pixels when objects are large.
     bbox = np.array([(b[1].start, b[0].start, b[1].stop, b[0].stop) for b in ndimage.find_objects(labelled)],
                     dtype=np.int64).reshape(-1, 4)
     keep = area >= max(min_area, 1)
-    return {"x": x[keep], "y": y[keep], "area": area[keep], "bbox": bbox[keep]}
+    return {"x": cx[keep] + 0.5, "y": cy[keep] + 0.5, "area": area[keep], "bbox": bbox[keep],
+            "orientation": orientation[keep], "elongation": elongation[keep]}
+
+
+def major_axes(sxx: np.ndarray, syy: np.ndarray, sxy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Major axis (degrees in [0, 180), counter-clockwise from the image's x axis with y *up*) and elongation
+    (square root of the larger over the smaller eigenvalue, >= 1) of second moments given with y *down*,
+    as pixel rows count.
+
+    Examples
+    --------
+    >>> major_axes(np.array([4.0, 1.0, 2.5]), np.array([1.0, 4.0, 2.5]), np.array([0.0, 0.0, 1.5]))
+    (array([  0.,  90., 135.]), array([2., 2., 2.]))
+    """
+    half_trace = (sxx + syy) / 2.0
+    root = np.sqrt(np.maximum(((sxx - syy) / 2.0) ** 2 + sxy * sxy, 0.0))
+    # Rows grow downward, so an axis turning toward larger rows turns clockwise as seen: the angle's sign flips.
+    orientation = np.degrees(0.5 * np.arctan2(-2.0 * sxy, sxx - syy)) % 180.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        elongation = np.sqrt((half_trace + root) / (half_trace - root))
+    return orientation, elongation
 
 
 def camera_fields(fov_deg: float | None = None, attitude: tuple[float, float] | None = None,
@@ -146,14 +180,23 @@ def camera_fields(fov_deg: float | None = None, attitude: tuple[float, float] | 
 
 
 def object_records(labels: list[str], x: np.ndarray, y: np.ndarray, area: np.ndarray, bbox: np.ndarray,
-                   width: int, height: int) -> list[dict[str, Any]]:
-    """The documents' ``objects`` entries; ``border`` when the box reaches an edge of the image."""
+                   width: int, height: int, orientation: np.ndarray | None = None,
+                   elongation: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """The documents' ``objects`` entries; ``border`` when the box reaches an edge of the image, and the major
+    axis (``orientation_deg``, ``elongation``) when given."""
     border = (bbox[:, 0] <= 0) | (bbox[:, 1] <= 0) | (bbox[:, 2] >= width) | (bbox[:, 3] >= height)
-    return [
+    records = [
         {"label": label, "x": xi, "y": yi, "area_px": a, "border": b, "bbox": box}
         for label, xi, yi, a, b, box in zip(labels, np.round(x, 3).tolist(), np.round(y, 3).tolist(),
                                             area.tolist(), border.tolist(), bbox.tolist(), strict=True)
     ]
+    if orientation is not None and elongation is not None:
+        # Rounding may carry 179.96 to 180.0, outside [0, 180): the same axis as 0.
+        turned = np.round(orientation, 1) % 180.0
+        stretched = np.clip(np.round(elongation, 3), 1.0, MAX_ELONGATION)
+        for record, o, e in zip(records, turned.tolist(), stretched.tolist(), strict=True):
+            record["orientation_deg"], record["elongation"] = o, e
+    return records
 
 
 def finish_document(doc: dict[str, Any], source: str) -> dict[str, Any]:
@@ -223,11 +266,12 @@ def from_mask(mask: np.ndarray, classes: Mapping[int, str], *, connectivity: int
             labels += [classes[code]] * regions["x"].size
         elif code != 0:
             skipped[str(code)] = count
-    x, y, area, bbox = (np.concatenate([r[k] for r in found]) if found else np.zeros((0, 4) if k == "bbox" else 0)
-                        for k in ("x", "y", "area", "bbox"))
+    x, y, area, bbox, orientation, elongation = (
+        np.concatenate([r[k] for r in found]) if found else np.zeros((0, 4) if k == "bbox" else 0)
+        for k in ("x", "y", "area", "bbox", "orientation", "elongation"))
     doc: dict[str, Any] = {"id": image_id, "width": width, "height": height,
                            "objects": object_records(labels, x, y, area.astype(np.int64), bbox.astype(np.int64),
-                                                     width, height),
+                                                     width, height, orientation, elongation),
                            **camera_fields(fov_deg, attitude, altitude), "skipped_classes": skipped}
     return finish_document(doc, source)
 

@@ -276,6 +276,15 @@ def test_the_fast_object_check_agrees_with_the_schema() -> None:
         {"x": 1, "y": 1},
         ["b", 1, 1],
         None,
+        # A region's major axis: [0, 180) degrees, elongation in [1, 1e6].
+        {"label": "b", "x": 1, "y": 1, "orientation_deg": 0, "elongation": 1},
+        {"label": "b", "x": 1, "y": 1, "orientation_deg": 179.9, "elongation": 1e6},
+        {"label": "b", "x": 1, "y": 1, "orientation_deg": 180},
+        {"label": "b", "x": 1, "y": 1, "orientation_deg": -0.1},
+        {"label": "b", "x": 1, "y": 1, "orientation_deg": "north"},
+        {"label": "b", "x": 1, "y": 1, "elongation": 0.99},
+        {"label": "b", "x": 1, "y": 1, "elongation": 1e6 + 1},
+        {"label": "b", "x": 1, "y": 1, "elongation": True},
     ]
     for entry in entries:
         assert _plain_object_ok(entry) == validator.is_valid(entry), entry

@@ -66,6 +66,28 @@ def test_random_regions_agree_with_scipy_center_of_mass() -> None:
         assert obj["area_px"] == area
 
 
+@pytest.mark.parametrize("turn_deg", [0.0, 30.0, 90.0, 135.0, 179.0])
+def test_major_axis_and_elongation_of_a_turned_rectangle(turn_deg: float) -> None:
+    """A 90 x 30 px rectangle turned counter-clockwise (y up) by ``turn_deg``: its blob's major axis is that
+    angle and its elongation 3 (sqrt of the moments' ratio, 90^2 / 30^2); a square's is 1 and a one-pixel line
+    of 50 pixels is 50 long."""
+    rows, cols = np.mgrid[0:300, 0:300] + 0.5
+    along = np.array([np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))])
+    dx, dy = cols - 150.0, -(rows - 150.0)  # y up
+    u, v = dx * along[0] + dy * along[1], -dx * along[1] + dy * along[0]
+    mask = ((np.abs(u) <= 45) & (np.abs(v) <= 15)).astype(np.uint8)
+    mask[5:25, 5:25] = 2  # a square, away from the rectangle
+    mask[240:290, 290] = 3  # a vertical line one pixel wide
+    doc = from_mask(mask, {1: "building", 2: "park", 3: "water"})
+    rect, square, line = (next(o for o in doc["objects"] if o["label"] == name)
+                          for name in ("building", "park", "water"))
+    assert abs((rect["orientation_deg"] - turn_deg + 90) % 180 - 90) < 0.5
+    assert rect["elongation"] == pytest.approx(3.0, rel=0.02)
+    assert square["elongation"] == pytest.approx(1.0, abs=1e-3)
+    assert line["orientation_deg"] == 90.0 and line["elongation"] == pytest.approx(50.0, rel=1e-3)
+    assert all(0 <= o["orientation_deg"] < 180 for o in doc["objects"])
+
+
 def test_four_and_eight_connectivity() -> None:
     mask = np.zeros((6, 6), np.uint8)
     mask[1, 1] = mask[2, 2] = mask[3, 3] = 1  # a diagonal line: one region by corners, three by edges
