@@ -5,13 +5,6 @@ Every stage of mapdb passes objects around as :class:`Objects`: centroids
 object indexing into ``labels`` (the names), and ``area`` in square metres
 (0 for point objects).  Arrays, not per-object Python values, so that sources,
 the store and the matcher stay vectorised.
-
-An object may also carry the major axis of its footprint: ``orientation`` (degrees counter-clockwise from
-the CRS's x axis, in [0, 180)) and ``elongation`` (the square root of the ratio of its area's second
-moments: 1 for a square or a disc, 3 for a 3:1 rectangle).  A building blob keeps its footprint's
-orientation, which a map of centroids and areas cannot check (``benchmarks/blob_shapes.py``).  An object
-without an axis (a point, a road intersection, a land-cover cell, a source that gave none) has orientation
-NaN and elongation 1.
 """
 
 from __future__ import annotations
@@ -44,11 +37,6 @@ class Objects:
         Label names; ``labels[label[i]]`` is the name of object ``i``.
     crs : str or None
         Anything pyproj understands (``"EPSG:32631"``, WKT), or None if unknown.
-    orientation : array_like of float, optional
-        Footprint major axis, degrees counter-clockwise from the x axis in [0, 180); NaN where an object has
-        no axis.  None: no object has one.
-    elongation : array_like of float, optional
-        Footprint elongation (>= 1); 1 where an object has no axis.  None: no object has one.
 
     Examples
     --------
@@ -57,13 +45,6 @@ class Objects:
     (2, ['building', 'park'])
     >>> len(Objects.empty())
     0
-
-    An axis travels with its object; objects without one read NaN and 1:
-
-    >>> b = Objects.from_names([0.0, 1.0], [0.0, 0.0], ["building"] * 2, orientation=[30.0, np.nan],
-    ...                        elongation=[2.0, 1.0])
-    >>> b.take(np.array([1, 0])).orientation.tolist(), o.elongation.tolist(), o.has_axes, b.has_axes
-    ([nan, 30.0], [1.0, 1.0], False, True)
     """
 
     x: np.ndarray
@@ -72,9 +53,6 @@ class Objects:
     area: np.ndarray
     labels: tuple[str, ...] = ()
     crs: str | None = None
-    # None (no object has an axis) becomes NaN and 1 in __post_init__: the attributes are always arrays.
-    orientation: np.ndarray = None  # type: ignore[assignment]
-    elongation: np.ndarray = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
         x = np.ascontiguousarray(self.x, dtype=np.float64).reshape(-1)
@@ -91,30 +69,11 @@ class Objects:
         object.__setattr__(self, "label", label)
         object.__setattr__(self, "area", area)
         object.__setattr__(self, "labels", tuple(self.labels))
-        orientation = np.full(n, np.nan) if self.orientation is None else np.ascontiguousarray(
-            self.orientation, dtype=np.float64).reshape(-1)
-        elongation = np.ones(n) if self.elongation is None else np.ascontiguousarray(
-            self.elongation, dtype=np.float64).reshape(-1)
-        if not orientation.size == elongation.size == n:
-            raise ValueError(f"orientation and elongation must have one value per object ({n}), not "
-                             f"{orientation.size} and {elongation.size}")
-        object.__setattr__(self, "orientation", orientation)
-        object.__setattr__(self, "elongation", elongation)
 
     @classmethod
     def empty(cls, labels: Sequence[str] = (), crs: str | None = None) -> Objects:
         z = np.zeros(0)
         return cls(z, z, np.zeros(0, np.int32), z, tuple(labels), crs)
-
-    @property
-    def has_axes(self) -> bool:
-        """Whether any object carries a footprint axis."""
-        return bool(np.isfinite(self.orientation).any())
-
-    def moved(self, x: np.ndarray, y: np.ndarray, crs: str | None, orientation: np.ndarray | None = None) -> Objects:
-        """The same objects at new coordinates in ``crs`` (with their axes turned to ``orientation`` when given)."""
-        return Objects(x, y, self.label, self.area, self.labels, crs,
-                       self.orientation if orientation is None else orientation, self.elongation)
 
     @classmethod
     def from_names(
@@ -125,8 +84,6 @@ class Objects:
         area: Sequence[float] | np.ndarray | None = None,
         crs: str | None = None,
         labels: Sequence[str] | None = None,
-        orientation: Sequence[float] | np.ndarray | None = None,
-        elongation: Sequence[float] | np.ndarray | None = None,
     ) -> Objects:
         """Build from label names; ``labels`` fixes the code order (default: sorted unique names)."""
         names = np.asarray(names, dtype=object)
@@ -139,9 +96,7 @@ class Objects:
             raise ValueError(f"label {exc.args[0]!r} is not among {list(labels)}") from None
         xs = np.asarray(x, dtype=np.float64)
         areas = np.zeros(xs.size) if area is None else np.asarray(area, dtype=np.float64)
-        return cls(xs, np.asarray(y, dtype=np.float64), codes, areas, tuple(labels), crs,
-                   np.full(xs.size, np.nan) if orientation is None else np.asarray(orientation, np.float64),
-                   np.ones(xs.size) if elongation is None else np.asarray(elongation, np.float64))
+        return cls(xs, np.asarray(y, dtype=np.float64), codes, areas, tuple(labels), crs)
 
     def __len__(self) -> int:
         return int(self.x.size)
@@ -152,8 +107,7 @@ class Objects:
 
     def take(self, index: np.ndarray) -> Objects:
         """The subset selected by an integer or boolean index."""
-        return Objects(self.x[index], self.y[index], self.label[index], self.area[index], self.labels, self.crs,
-                       self.orientation[index], self.elongation[index])
+        return Objects(self.x[index], self.y[index], self.label[index], self.area[index], self.labels, self.crs)
 
     def relabel(self, labels: Sequence[str]) -> Objects:
         """The same objects with codes into another label table that contains all names used here."""
@@ -166,8 +120,7 @@ class Objects:
         if missing:
             raise ValueError(f"labels {missing} are not in the target table")
         lut = np.array([index.get(name, -1) for name in self.labels] or [0], dtype=np.int32)
-        return Objects(self.x, self.y, lut[self.label], self.area, labels, self.crs, self.orientation,
-                       self.elongation)
+        return Objects(self.x, self.y, lut[self.label], self.area, labels, self.crs)
 
     def to_geodataframe(self) -> geopandas.GeoDataFrame:
         """The objects as a GeoDataFrame of points in their CRS, one row an object.
@@ -237,6 +190,4 @@ def concat(parts: Sequence[Objects], labels: Sequence[str] | None = None) -> Obj
         np.concatenate([p.area for p in parts]),
         tuple(labels),
         crs.pop() if crs else parts[0].crs,
-        np.concatenate([p.orientation for p in parts]),
-        np.concatenate([p.elongation for p in parts]),
     )
