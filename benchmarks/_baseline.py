@@ -50,7 +50,7 @@ def as_json(answer: Any) -> dict:
 def cached_maps(extracts: dict[str, str], data: Path, cache: Path) -> dict[str, Path]:
     """Each extract's map (``name -> file name`` under ``data``), built once into ``cache``, outside the
     repository."""
-    from mapdb.build import build_map
+    from mapdb.build.pipeline import build_map
 
     cache.mkdir(exist_ok=True)
     paths = {}

@@ -1,7 +1,7 @@
 """Peak memory and time of ``mapdb query`` over long batches: memory stays flat as the input grows.
 
 For each size (default 10,000 and 1,000,000 lines) a JSON Lines images file is generated over a
-small paper-style map (:func:`mapdb.simulate.paper_map`), and ``mapdb query MAP FILE`` runs on it in
+small paper-style map (:func:`mapdb.simulation.simulate.paper_map`), and ``mapdb query MAP FILE`` runs on it in
 a child process whose answers are read from its stdout as they come.  Reported per run:
 
 * lines in the file, non-blank lines, answers (must equal the non-blank lines), ok and rejected;
@@ -125,9 +125,9 @@ def main() -> None:
                         help="skip the rows of one line at and over the line limit")
     args = parser.parse_args()
 
-    from mapdb.images import MAX_DOCUMENT_BYTES
-    from mapdb.simulate import paper_map, simulate_images
-    from mapdb.store import MemoryMap, write_map
+    from mapdb.detections.images import MAX_DOCUMENT_BYTES
+    from mapdb.mapfile.store import MemoryMap, write_map
+    from mapdb.simulation.simulate import paper_map, simulate_images
 
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:
         root = Path(tmp)

@@ -24,12 +24,12 @@ ANDORRA = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm" / "and
 CHILD = r"""
 import json, resource, sys, time
 import numpy as np
-from mapdb.localize import localize
-from mapdb.store import open_map
+from mapdb.localize.localizer import localize
+from mapdb.mapfile.store import open_map
 n, map_path = int(sys.argv[1]), sys.argv[2]
 with open_map(map_path) as m:
     if n == 20:
-        from mapdb.simulate import simulate_images
+        from mapdb.simulation.simulate import simulate_images
         image = simulate_images(m, 1, altitude=300.0, fov_deg=60.0, yaw="random", pixel_std=1.0, min_objects=15,
                                 seed=1)[0]
     else:
@@ -51,7 +51,7 @@ print(json.dumps({"objects": n, "status": answer.status, "seconds": seconds,
 def main() -> None:
     if not ANDORRA.exists():
         sys.exit(f"skipped: {ANDORRA} not found")
-    from mapdb.build import build_map
+    from mapdb.build.pipeline import build_map
 
     with tempfile.TemporaryDirectory() as tmp:
         map_path = Path(tmp) / "andorra.mapdb"

@@ -41,7 +41,7 @@ def footprint_axis(polygon) -> tuple[float, float]:
     """Major axis (degrees, y up) and elongation of a polygon's area, from the grid points inside it."""
     import shapely
 
-    from mapdb.masks import major_axes
+    from mapdb.detections.masks import major_axes
 
     minx, miny, maxx, maxy = polygon.bounds
     step = max(maxx - minx, maxy - miny) / GRID
@@ -57,10 +57,10 @@ def footprint_axis(polygon) -> tuple[float, float]:
 
 def measure(altitude: float, heights: bool, n: int, seed: int) -> np.ndarray:
     """Rows ``(cut, footprint elongation, blob elongation, angle in degrees)`` of both extracts' building blobs."""
+    from mapdb.mapfile.store import open_map
     from mapdb.match.geometry import fit_similarity_complex
-    from mapdb.render_source import read_scene
-    from mapdb.simulate_masks import simulate_masks
-    from mapdb.store import open_map
+    from mapdb.simulation.outlines import read_scene
+    from mapdb.simulation.rendered import simulate_masks
 
     rows = []
     for name, path in build_maps().items():

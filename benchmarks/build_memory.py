@@ -378,7 +378,7 @@ print("objects", n)
 # cut into stages by the build's own progress messages; prints the peak of each stage as JSON.
 STAGES = """
 import json, sys, threading, time
-from mapdb.build import build_map
+from mapdb.build.pipeline import build_map
 MARKS = [("reading OpenStreetMap data", "the OSM pass (libosmium's reading and area assembly)"),
          ("file read in", "roundabouts and road intersections after the pass"),
          ("objects from", "checks and the automatic CRS (passes over the spooled objects)"),
@@ -457,7 +457,7 @@ def baseline_tree(commit: str, where: Path) -> Path | None:
 
 
 def digest(path: Path) -> str:
-    from mapdb.merge import content_digest
+    from mapdb.build.merge import content_digest
     return content_digest(path)[:12] if path.exists() else "-"
 
 

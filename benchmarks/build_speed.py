@@ -6,7 +6,7 @@ Side by side in one run, each repeated (default 3 times, median reported):
   object and doing nothing: the floor set by locating nodes and assembling areas;
 * the same pass with every object dropped in C++ before Python sees it (for reference only);
 * ``read_osm``: :func:`mapdb.sources.osm.read_osm` with the default label table;
-* ``mapdb build``: :func:`mapdb.build.build_map` to a temporary file (if the module exists).
+* ``mapdb build``: :func:`mapdb.build.pipeline.build_map` to a temporary file (if the module exists).
 
 The goal is a whole build at most 2.5x the bare pass.  Run::
 
@@ -103,9 +103,9 @@ def in_this_process(path: Path, repeat: int) -> None:
     ]
     tmp = tempfile.TemporaryDirectory()
     try:
-        from mapdb.build import build_map
+        from mapdb.build.pipeline import build_map
     except ImportError as exc:
-        print(f"(no full build: mapdb.build.build_map not importable: {exc})")
+        print(f"(no full build: mapdb.build.pipeline.build_map not importable: {exc})")
     else:
         output = Path(tmp.name) / "bench.mapdb"
         cases.append(("mapdb build (build_map)", lambda: build_map([path], output)))
@@ -134,7 +134,7 @@ def serve(kind: str) -> None:
         def run(source: str, output: str) -> object:
             return bare_pass(Path(source))
     else:
-        from mapdb.build import build_map
+        from mapdb.build.pipeline import build_map
 
         def run(source: str, output: str) -> object:
             return build_map([source], output)

@@ -49,7 +49,7 @@ def build_maps() -> dict[str, Path]:
 
 
 def _objects(path: Path):
-    from mapdb.store import open_map
+    from mapdb.mapfile.store import open_map
 
     with open_map(path) as m:
         # One nominal CRS: the extracts lie in UTM 31 and 32 but far apart; only patterns matter here.
@@ -58,9 +58,9 @@ def _objects(path: Path):
 
 def write_cases(maps: dict[str, Path], n: int, seed: int, world: int, workdir: Path) -> list[dict]:
     """Maps (own, the other two, optionally a world) and images, written for the worker processes."""
+    from mapdb.mapfile.store import MemoryMap, write_map
     from mapdb.objects import concat
-    from mapdb.simulate import simulate_images
-    from mapdb.store import MemoryMap, write_map
+    from mapdb.simulation.simulate import simulate_images
 
     objects = {name: _objects(path) for name, path in maps.items()}
     cases = []
@@ -78,7 +78,7 @@ def write_cases(maps: dict[str, Path], n: int, seed: int, world: int, workdir: P
         if world:
             from synthetic_world import synthetic_world
 
-            from mapdb.match.stored_index import build_index
+            from mapdb.match.index.stored import build_index
 
             world_path = workdir / f"world-not-{name}.mapdb"
             write_map(world_path, dataclasses.replace(
@@ -140,8 +140,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp)
         cases = write_cases(build_maps(), args.n, args.seed, args.world, workdir)
-        from mapdb import localize as tree_localize
-        from mapdb import store as tree_store
+        from mapdb.localize import localizer as tree_localize
+        from mapdb.mapfile import store as tree_store
 
         table(localize_all(tree_localize.localize, tree_store, cases), "this tree")
         if args.baseline:

@@ -3,7 +3,7 @@
 For Andorra (built from ``../shared/data/osm``) and synthetic worlds of 1M and 5M objects assembled
 from copies of the three extracts (``benchmarks/synthetic_world.py``):
 
-* **build**: ``mapdb.match.stored_index.build_index`` in a child process: wall time, peak memory (the sum of
+* **build**: ``mapdb.match.index.stored.build_index`` in a child process: wall time, peak memory (the sum of
   the resident sets of the process and its workers, sampled every 0.1 s, and the largest single
   resident set from ``getrusage``), file size;
 * **open**: a fresh process opens the map and its index and answers the lookups of one image, with
@@ -19,7 +19,7 @@ from copies of the three extracts (``benchmarks/synthetic_world.py``):
   time and in the steady state, images accepted and accepted wrongly, each map's median relative to
   Andorra's; and a fresh process's first answer (map and index dropped from the page cache, from
   ``open_map`` to the answer; a big map's objects read page by page where the answer needs them,
-  :mod:`mapdb.match.paged_objects`), median and max of ``--first-answers`` processes and images
+  :mod:`mapdb.match.mapobjects.paged_objects`), median and max of ``--first-answers`` processes and images
   (with ``--baseline REV``, that revision's first answers too, in processes alternating with this tree's);
 * **QuadIndex** (the in-memory cKDTree index) on Andorra and, with ``--quadindex-world``, on the 1M
   world (about 250 s and 14 GB: run once): build time and memory, and the same lookups.
@@ -57,10 +57,10 @@ from _baseline import as_json, import_baseline  # noqa: E402
 from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
 
 from mapdb.camera import image_plane  # noqa: E402
+from mapdb.mapfile.store import open_map, write_map  # noqa: E402
 from mapdb.match.fast import FastOptions  # noqa: E402
 from mapdb.match.hypotheses import _quad_keys  # noqa: E402
 from mapdb.match.quads import LABEL_GAP, label_keys, neighbour_quads  # noqa: E402
-from mapdb.store import open_map, write_map  # noqa: E402
 
 SIGMA_PX = 1.5
 TOLERANCE = 2.0
@@ -99,7 +99,7 @@ def image_queries(z: np.ndarray, label: np.ndarray, neighbours: int = IMAGE_NEIG
 
 
 def _images(map_path: Path, n: int, seed: int) -> list[dict]:
-    from mapdb.simulate import simulate_images
+    from mapdb.simulation.simulate import simulate_images
 
     with open_map(map_path) as m:
         return simulate_images(m, n, altitude=(60.0, 400.0), fov_deg=(35.0, 60.0), yaw="random",
@@ -121,7 +121,7 @@ def _stored_lookups(map_path: Path, images: list[dict]) -> dict:
     so they are in the page cache); then ``REPEATS`` passes, the steady state of a long-running matcher,
     of which each image keeps its fastest (the machine is shared: the least disturbed measurement).
     """
-    from mapdb.match.stored_index import StoredQuadIndex
+    from mapdb.match.index.stored import StoredQuadIndex
 
     with open_map(map_path) as m, StoredQuadIndex.for_map(m) as ix:
         labels = tuple(m.labels)
@@ -162,7 +162,7 @@ def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Pat
     each image right after this tree's, with its own indexes: ``baseline_cpu_ms``, ``baseline_ok`` and
     ``baseline_wrong``, and ``same``, the images both answered alike.
     """
-    from mapdb.localize import Localizer, StoredQuads
+    from mapdb.localize.localizer import Localizer, StoredQuads
 
     versions = {"tree": (Localizer, open_map)}
     if baseline is not None:
@@ -322,7 +322,7 @@ def _child(code: str, *args: str) -> dict:
 
 BUILD = """
 import json, sys
-from mapdb.match.stored_index import build_index
+from mapdb.match.index.stored import build_index
 print(json.dumps(build_index(sys.argv[1], workers=int(sys.argv[2]))))
 """
 
@@ -341,8 +341,8 @@ import json, os, sys
 sys.path.insert(0, "benchmarks")
 import numpy as np
 from lost_in_space_index import _image_arrays, image_queries
-from mapdb.match.stored_index import StoredQuadIndex, index_path
-from mapdb.store import open_map
+from mapdb.match.index.stored import StoredQuadIndex, index_path
+from mapdb.mapfile.store import open_map
 image = json.loads(sys.argv[2])
 """ + DROP_CACHE + """t1 = time.perf_counter()
 m = open_map(sys.argv[1])
@@ -432,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
         with open_map(path) as m:
             n_objects, map_bytes = len(m), path.stat().st_size
         if args.lookups_only:
-            from mapdb.match.stored_index import index_path, open_index
+            from mapdb.match.index.stored import index_path, open_index
 
             with open_index(index_path(path)) as ix:
                 build = {"quads": ix.n_quads, "bytes": index_path(path).stat().st_size}

@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from mapdb.build import build_map
-from mapdb.localize import localize
-from mapdb.match.paper import PaperOptions
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import MemoryMap, open_map, write_map
+from mapdb.build.pipeline import build_map
+from mapdb.localize.localizer import localize
+from mapdb.mapfile.store import MemoryMap, open_map, write_map
+from mapdb.match.paper.algorithm import PaperOptions
+from mapdb.simulation.simulate import paper_map, simulate_images
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _baseline import as_json  # noqa: E402

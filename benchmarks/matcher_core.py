@@ -111,8 +111,8 @@ def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int) -> 
 
 def per_image_table(args: argparse.Namespace, map_path: Path, images: list[dict], work: Path) -> None:
     """Print part 1: median ms per image of this tree (and the baseline), with and without a prior."""
-    from mapdb import localize as tree_localize
-    from mapdb import store as tree_store
+    from mapdb.localize import localizer as tree_localize
+    from mapdb.mapfile import store as tree_store
 
     versions = {"this tree": (tree_localize.localize, tree_store)}
     if args.baseline:
@@ -143,9 +143,9 @@ def main() -> None:
     args = parser.parse_args()
     if not ANDORRA.exists():
         sys.exit(f"skipped: {ANDORRA} not found")
-    from mapdb.build import build_map
-    from mapdb.simulate import simulate_images
-    from mapdb.store import open_map
+    from mapdb.build.pipeline import build_map
+    from mapdb.mapfile.store import open_map
+    from mapdb.simulation.simulate import simulate_images
 
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

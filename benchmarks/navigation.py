@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mapdb.mapfile.store import open_map
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.navigator import Navigator
 from mapdb.navigation.track import plot_track
-from mapdb.store import open_map
 
 OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm"
 MAPS = {"Andorra": "andorra-2021-06-22.osm.pbf", "Monaco": "monaco-2021-12-03.osm.pbf"}

@@ -52,7 +52,7 @@ def generated_mask(n: int, seed: int = 0) -> np.ndarray:
 def time_from_mask(mask: np.ndarray, classes: dict[int, str] = CLASSES, **options
                    ) -> tuple[float, float, float, int]:
     """Median wall and CPU seconds of 5 runs, traced peak MB, objects found."""
-    from mapdb.masks import from_mask
+    from mapdb.detections.masks import from_mask
 
     from_mask(mask, classes, **options)  # warm-up: imports and first-touch allocations
     times, cpu = [], []

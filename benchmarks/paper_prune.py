@@ -1,7 +1,7 @@
 """The paper's Algorithm 1 with and without its exact bound, side by side on the same images.
 
 The paper's set-up (250 x 150 m map of ~214 objects of one label, 640x480 images from 100 m at 35 degrees,
-1 px and 0.05 degree errors).  Each image runs through :func:`mapdb.match.paper.match_paper` twice, with
+1 px and 0.05 degree errors).  Each image runs through :func:`mapdb.match.paper.algorithm.match_paper` twice, with
 ``PaperOptions(prune=False)`` (the algorithm as written: every candidate through the full test) and with the
 default ``prune=True``; the table gives the time of each, the ratio, and whether the two results are identical
 (bit for bit: the map point, the similarity, ``N_matched``, ``std`` and the count of candidates).
@@ -22,8 +22,8 @@ import time
 import numpy as np
 
 from mapdb.camera import image_plane
-from mapdb.match.paper import PaperOptions, PaperResult, match_paper
-from mapdb.simulate import paper_map, simulate_images
+from mapdb.match.paper.algorithm import PaperOptions, PaperResult, match_paper
+from mapdb.simulation.simulate import paper_map, simulate_images
 
 
 def _image_input(image: dict, labels: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:

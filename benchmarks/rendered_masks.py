@@ -4,7 +4,7 @@ Images of ``../shared/data/osm`` Andorra and Monaco: 640x480, 60 degree field of
 level camera (no attitude error, no hints), masks rendered from the extract's outlines with buildings
 extruded to their heights (``heights``) or flat, no mask noise, objects extracted as ``mapdb objects``
 does (8-connected, at least 4 px), at least 8 blobs per image (``--min-objects``).  Each image is
-localized with no prior by :func:`mapdb.localize.localize` and scored by :mod:`mapdb.evaluate`
+localized with no prior by :func:`mapdb.localize.localize` and scored by :mod:`mapdb.evaluation.evaluate`
 (an accepted answer more than 2 m from the truth is a false positive).
 
 Run from the repository root::
@@ -60,8 +60,8 @@ def build_maps() -> dict[str, Path]:
 def render(m: Any, scene: Any, n: int, altitude: float, kind: str, seed: int) -> tuple[list[dict], float]:
     """``n`` images and the median time to make one (ms): rendered with heights ("yes") or flat ("no"), or
     the ideal simulator's projected centroids ("ideal", at least 8 in view)."""
-    from mapdb.simulate import simulate_images
-    from mapdb.simulate_masks import simulate_masks
+    from mapdb.simulation.rendered import simulate_masks
+    from mapdb.simulation.simulate import simulate_images
 
     camera = {"altitude": altitude, "fov_deg": 60.0, "size": (640, 480), "yaw": "random",
               "min_objects": MIN_BLOBS, "seed": seed}
@@ -82,7 +82,7 @@ def render(m: Any, scene: Any, n: int, altitude: float, kind: str, seed: int) ->
 def score(images: list[dict], m: Any, localize: Any) -> dict[str, Any]:
     """Localize every image; the evaluation summary, the false positives' errors and the median time."""
     from mapdb.answers import Answer
-    from mapdb.evaluate import outcome, summarize
+    from mapdb.evaluation.evaluate import outcome, summarize
 
     localize(images[0], m)  # builds the map's index once, outside the timing
     outcomes = []
@@ -161,8 +161,8 @@ def main() -> None:
     if missing:
         sys.exit(f"real data not found in {DATA}: {', '.join(missing)}")
 
-    from mapdb import localize as tree_localize
-    from mapdb import store as tree_store
+    from mapdb.localize import localizer as tree_localize
+    from mapdb.mapfile import store as tree_store
 
     with tempfile.TemporaryDirectory() as tmp:
         # Each matcher opens the maps with its own revision's store.
@@ -177,8 +177,8 @@ def main() -> None:
 def run(maps: dict[str, Path], matchers: dict[str, Any], n: int, seed: int, altitudes: tuple[float, ...] = ALTITUDES,
         kinds: tuple[str, ...] = KINDS) -> dict[str, list[tuple]]:
     """Render every row's images once (with this tree) and localize them with every matcher."""
-    from mapdb.render_source import read_scene
-    from mapdb.store import open_map
+    from mapdb.mapfile.store import open_map
+    from mapdb.simulation.outlines import read_scene
 
     results: dict[str, list[tuple]] = {k: [] for k in matchers}
     for name, path in maps.items():
@@ -200,7 +200,7 @@ def run(maps: dict[str, Path], matchers: dict[str, Any], n: int, seed: int, alti
 def report(results: dict[str, list[tuple]], n: int, altitudes: tuple[float, ...] = ALTITUDES,
            kinds: tuple[str, ...] = KINDS) -> None:
     """Print one table per matcher: a row per extract, altitude and heights, then both extracts together."""
-    from mapdb.evaluate import summarize
+    from mapdb.evaluation.evaluate import summarize
 
     for label, rows in results.items():
         print(f"\n{label} matcher: {n} images per row, 640x480, 60 deg, random heading, >= {MIN_BLOBS} blobs")

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mapdb.build import build_map
+from mapdb.build.pipeline import build_map
+from mapdb.mapfile.store import open_map, write_map
 from mapdb.objects import Objects, concat
-from mapdb.store import open_map, write_map
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "osm"
 EXTRACTS = ("andorra-2021-06-22.osm.pbf", "liechtenstein-2013-08-03.osm.pbf", "monaco-2021-12-03.osm.pbf")

@@ -9,7 +9,7 @@ from mapdb.analysis.grid import AnalysisError
 from mapdb.analysis.outputs import output_folder, write_outputs
 from mapdb.analysis.run import execute, plan
 from mapdb.cluster import DEFAULT_TIMEOUT_S, open_client
-from mapdb.match.stored_index import index_path
+from mapdb.match.index.stored import index_path
 
 from .options import (
     camera_options,

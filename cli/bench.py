@@ -7,11 +7,11 @@ import sys
 
 import click
 
-from mapdb.bench import bench_paper, format_bench
+from mapdb.evaluation.paper_bench import bench_paper, format_bench
+from mapdb.evaluation.storage import DEFAULT_GSD_M, DEFAULT_JPEG_BPP, format_storage, storage_reports
+from mapdb.mapfile.store import write_map
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
-from mapdb.simulate import paper_map
-from mapdb.storage import DEFAULT_GSD_M, DEFAULT_JPEG_BPP, format_storage, storage_reports
-from mapdb.store import write_map
+from mapdb.simulation.simulate import paper_map
 
 from .options import (
     TerminalProgress,

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import click
 
+from mapdb.mapfile.store import open_map
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.path import read_linestring
 from mapdb.outputs import check_outputs
-from mapdb.simulate import write_images
-from mapdb.store import open_map
+from mapdb.simulation.simulate import write_images
 
 from .options import debug_option, finite, finite_float, handle_errors, parents_option, progress_printer, quiet_option
 from .simulate import MAX_ATTITUDE_STD, MAX_PIXEL_STD, MAX_SPURIOUS_RATE, parse_fov, parse_size, rate

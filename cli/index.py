@@ -24,7 +24,7 @@ def index(map_file, output, neighbours, workers, as_json, quiet, debug):
     building one in memory.  The index records which map it was built from and is refused for any
     other, or for the map once rewritten: rebuild it then.  An existing index is replaced.
     """
-    from mapdb.match.stored_index import build_index, index_path
+    from mapdb.match.index.stored import build_index, index_path
     from mapdb.outputs import dumps_strict
 
     summary = build_index(map_file, output, neighbours=neighbours, workers=workers,

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import click
 
-from mapdb.export import map_info
+from mapdb.mapfile.export import map_info
+from mapdb.mapfile.store import open_map
 from mapdb.outputs import dumps_strict
-from mapdb.store import open_map
 
 from .options import debug_option, handle_errors, json_option
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from mapdb.merge import merge_maps
+from mapdb.build.merge import merge_maps
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 
 from .options import debug_option, handle_errors, overwrite_option, parents_option, progress_printer, quiet_option

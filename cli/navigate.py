@@ -7,11 +7,11 @@ import sys
 
 import click
 
-from mapdb.images import read_image_documents
+from mapdb.detections.images import read_image_documents
+from mapdb.mapfile.store import open_map
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
 from mapdb.navigation.track import plot_track, track_geojson
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
-from mapdb.store import open_map
 
 from .evaluate import parse_plot
 from .options import debug_option, finite_float, handle_errors, parents_option, quiet_option
@@ -27,7 +27,7 @@ def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float
         return (checked.x, checked.y, checked.radius)
     if not map_crs:
         raise click.BadParameter("the map has no CRS to place a lon/lat position in", param_hint="'--initial'")
-    from mapdb.localize import _transformer
+    from mapdb.localize.localizer import _transformer
 
     x, y = _transformer("EPSG:4326", map_crs).transform(checked.x, checked.y)
     return (float(x), float(y), checked.radius)

@@ -8,8 +8,8 @@ from typing import Any
 
 import click
 
+from mapdb.detections.masks import DEFAULT_MIN_AREA_PX
 from mapdb.errors import MapdbError
-from mapdb.masks import DEFAULT_MIN_AREA_PX
 from mapdb.outputs import atomic_open, check_outputs
 
 from .options import debug_option, finite, finite_float, handle_errors, parents_option, quiet_option
@@ -123,7 +123,7 @@ def objects(masks, output, classes_file, label, labels_file, connectivity, min_a
 
 def _mask(path: str, classes: Any, label: str | None, connectivity: int, min_area: int,
           camera: dict[str, Any]) -> dict[str, Any]:
-    from mapdb.masks import mask_document
+    from mapdb.detections.masks import mask_document
 
     codes = None if classes is None else classes.codes
     if codes is not None and not codes:
@@ -133,6 +133,6 @@ def _mask(path: str, classes: Any, label: str | None, connectivity: int, min_are
 
 def _coco(path: str, classes: dict[str, str], images: str | None, min_area: int, min_score: float,
           camera: dict[str, Any]) -> list[dict[str, Any]]:
-    from mapdb.coco import from_coco
+    from mapdb.detections.coco import from_coco
 
     return from_coco(path, classes, images=images, min_area=min_area, min_score=min_score, **camera)

@@ -7,13 +7,13 @@ from typing import Any
 import click
 
 from mapdb.answers import Answer
+from mapdb.detections.images import parse_image, read_image_documents
 from mapdb.errors import ImageInputError
-from mapdb.images import parse_image, read_image_documents
-from mapdb.localize import METHODS, localize
+from mapdb.evaluation.plot import plot_match
+from mapdb.localize.localizer import METHODS, localize
+from mapdb.mapfile.store import open_map
 from mapdb.match.fast import FastOptions
 from mapdb.outputs import atomic_path, check_outputs
-from mapdb.plot import plot_match
-from mapdb.store import open_map
 
 from .evaluate import parse_plot
 from .options import debug_option, finite_float, handle_errors, parents_option

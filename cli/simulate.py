@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import click
 
+from mapdb.mapfile.store import open_map
 from mapdb.outputs import check_outputs
-from mapdb.simulate import map_bbox_from_lonlat, simulate_images, write_images
-from mapdb.store import open_map
+from mapdb.simulation.simulate import map_bbox_from_lonlat, simulate_images, write_images
 
 from .options import (
     bbox_option,
@@ -168,8 +168,8 @@ def _simulate_masks(map_file, output, n_images, source_file, masks_dir, parents,
     from pathlib import Path
 
     from mapdb.errors import MapdbIOError
-    from mapdb.render_source import read_scene
-    from mapdb.simulate_masks import png_bytes, simulate_masks, write_masks
+    from mapdb.simulation.outlines import read_scene
+    from mapdb.simulation.rendered import png_bytes, simulate_masks, write_masks
 
     directory = Path(masks_dir)
     if directory.exists() and not directory.is_dir():

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import MemoryMap, write_map
+from mapdb.mapfile.store import MemoryMap, write_map
+from mapdb.simulation.simulate import paper_map, simulate_images
 
 
 @pytest.fixture(scope="module")

@@ -22,8 +22,8 @@ from mapdb_cli.main import cli
 from mapdb.analysis import SampleConfig
 from mapdb.analysis.measures import measure_cells
 from mapdb.analysis.run import analyze
+from mapdb.mapfile.store import write_map
 from mapdb.objects import Objects
-from mapdb.store import write_map
 
 X0, Y0 = 500_000.0, 5_000_000.0
 SIDE, GAP, SPACING = 400.0, 300.0, 25.0

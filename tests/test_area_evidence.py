@@ -1,4 +1,4 @@
-"""Area evidence in the fast matcher's decision (mapdb.match.areas): calibrated, and inert without areas."""
+"""Area evidence in the fast matcher's decision (mapdb.match.evidence.areas): calibrated, and inert without areas."""
 
 from __future__ import annotations
 
@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 
-from mapdb.localize import localize
-from mapdb.match.areas import ImageAreas, bands, disc_chances
+from mapdb.localize.localizer import localize
+from mapdb.mapfile.store import MemoryMap
+from mapdb.match.evidence.areas import ImageAreas, bands, disc_chances
 from mapdb.match.fast import match_fast
 from mapdb.match.quads import QuadIndex
 from mapdb.match.verify import ObjectIndex
 from mapdb.objects import Objects
-from mapdb.store import MemoryMap
 
 
 def _town(seed: int = 0, n: int = 400, side: float = 1000.0) -> Objects:

@@ -1,4 +1,4 @@
-"""Blob errors (mapdb.match.blobs) and quads with cut blobs (mapdb.match.cut_quads)."""
+"""Blob errors (mapdb.match.evidence.blobs) and quads with cut blobs (mapdb.match.cut_quads)."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from mapdb.match.blobs import BlobErrors, outward_normals
 from mapdb.match.cut_quads import cut_batches
+from mapdb.match.evidence.blobs import BlobErrors, outward_normals
 from mapdb.match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from mapdb.match.hypotheses import _quad_keys
 from mapdb.objects import Objects

@@ -15,10 +15,10 @@ import pytest
 from osmxml import OsmXml, square
 
 import mapdb.sources.osm as osm
-from mapdb.build import build_map
+from mapdb.build.merge import content_digest
+from mapdb.build.pipeline import build_map
 from mapdb.errors import EmptyMapError, MapdbIOError, SourceError
 from mapdb.labels import default_label_table
-from mapdb.merge import content_digest
 from mapdb.objects import Objects
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -200,7 +200,7 @@ def test_the_cli_takes_the_scale_options(tmp_path: Path) -> None:
 
 
 def test_block_medians_and_arcs_equal_those_of_all_values() -> None:
-    from mapdb import blockstats
+    from mapdb.build import blockstats
     from mapdb.geo import _lon_arc, central_longitude
 
     rng = np.random.default_rng(11)
@@ -219,7 +219,7 @@ def test_block_medians_and_arcs_equal_those_of_all_values() -> None:
 
 
 def test_spooled_objects_come_back_in_order_and_leave_nothing(tmp_path: Path) -> None:
-    from mapdb.spool import ObjectSpool, joined
+    from mapdb.sources.spool import ObjectSpool, joined
 
     labels = ("a", "b")
     blocks = [Objects(np.arange(n, dtype=float) + 10 * n, np.full(n, float(n)), np.arange(n) % 2, np.ones(n), labels,
@@ -243,7 +243,7 @@ def test_a_spooled_read_equals_read_osm_and_a_build_leaves_no_files(tmp_path: Pa
     spool_dir.mkdir()
     spools = osm.read_osm_spooled(source, TABLE, spool_dir=spool_dir)
     assert sorted(p.name.split("-")[1] for p in spool_dir.iterdir()) == ["areas", "others", "points"]
-    from mapdb.spool import joined
+    from mapdb.sources.spool import joined
 
     for a, b in zip(arrays(joined(spools, TABLE.labels, "EPSG:4326")), arrays(osm.read_osm(source, TABLE)),
                     strict=True):
@@ -258,8 +258,8 @@ def test_a_spooled_read_equals_read_osm_and_a_build_leaves_no_files(tmp_path: Pa
 
 
 def test_dropped_objects_are_rewritten_and_the_old_file_removed(tmp_path: Path) -> None:
-    from mapdb.build import _kept
-    from mapdb.spool import ObjectSpool
+    from mapdb.build.pipeline import _kept
+    from mapdb.sources.spool import ObjectSpool
 
     spool = ObjectSpool(("a",), "EPSG:4326", tmp_path)
     spool.add(Objects(np.array([1.0, 200.0, 3.0]), np.zeros(3), np.zeros(3, np.int32), np.zeros(3), ("a",),

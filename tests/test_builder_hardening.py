@@ -28,13 +28,13 @@ from rasterio.windows import Window
 
 import mapdb.sources.landcover as landcover
 import mapdb.sources.osm as osm
-from mapdb.build import build_map
+from mapdb.build.pipeline import build_map
 from mapdb.errors import LabelTableError, SourceError
 from mapdb.labels import default_label_table, load_label_table
+from mapdb.mapfile.store import open_map
 from mapdb.sources.landcover import read_landcover
 from mapdb.sources.layers import read_layer
 from mapdb.sources.osm import read_osm
-from mapdb.store import open_map
 
 TABLE = default_label_table()
 

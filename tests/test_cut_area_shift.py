@@ -1,4 +1,4 @@
-"""Cut solid blobs placed by their map objects' areas (mapdb.match.blobs.cut_area_residuals)."""
+"""Cut solid blobs placed by their map objects' areas (mapdb.match.evidence.blobs.cut_area_residuals)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import numpy as np
 from test_blob_errors import random_poses
 
-from mapdb.match.areas import ImageAreas
-from mapdb.match.blobs import AREA_SHIFT, BlobErrors, cut_area_residuals
+from mapdb.match.evidence.areas import ImageAreas
+from mapdb.match.evidence.blobs import AREA_SHIFT, BlobErrors, cut_area_residuals
 from mapdb.match.refine import Candidate, polish
 from mapdb.match.verify import ObjectIndex, decision_nfa
 from mapdb.objects import Objects

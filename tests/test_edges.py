@@ -19,9 +19,8 @@ from mapdb_cli.main import cli
 from osmxml import OsmXml
 from pyproj import Transformer
 
-from mapdb.build import build_map
+from mapdb.build.pipeline import build_map
 from mapdb.errors import EmptyMapError, SourceError
-from mapdb.export import select_lonlat
 from mapdb.geo import (
     WORLD,
     central_longitude,
@@ -32,8 +31,9 @@ from mapdb.geo import (
     projected_window,
     split_bbox,
 )
-from mapdb.simulate import map_bbox_from_lonlat, simulate_images
-from mapdb.store import open_map
+from mapdb.mapfile.export import select_lonlat
+from mapdb.mapfile.store import open_map
+from mapdb.simulation.simulate import map_bbox_from_lonlat, simulate_images
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_maps" / "helsinki.osm.pbf"

@@ -13,13 +13,13 @@ from click.testing import CliRunner
 from mapdb_cli.main import cli
 
 from mapdb.answers import Answer
-from mapdb.bench import bench_paper, format_bench
 from mapdb.errors import ImageInputError, MapdbIOError
-from mapdb.evaluate import evaluate_images, format_summary, load_images, outcome, plot_evaluation, summarize
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import MemoryMap, write_map
+from mapdb.evaluation.evaluate import evaluate_images, format_summary, load_images, outcome, plot_evaluation, summarize
+from mapdb.evaluation.paper_bench import bench_paper, format_bench
+from mapdb.mapfile.store import MemoryMap, write_map
+from mapdb.simulation.simulate import paper_map, simulate_images
 
-HAS_LOCALIZER = importlib.util.find_spec("mapdb.localize") is not None
+HAS_LOCALIZER = importlib.util.find_spec("mapdb.localize.localizer") is not None
 
 
 def _image(i: int, x: float, y: float, bound_error: float | None, n_true: int) -> dict:
@@ -103,7 +103,7 @@ def test_plot_is_written(tmp_path: Path) -> None:
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize is not written yet")
+@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize.localizer is not written yet")
 def test_evaluate_command_on_simulated_images(tmp_path: Path) -> None:
     map_path = tmp_path / "paper.mapdb"
     write_map(map_path, paper_map())
@@ -124,7 +124,7 @@ def test_evaluate_command_on_simulated_images(tmp_path: Path) -> None:
     assert result.exit_code == 1 and result.output.startswith("mapdb: error:")
 
 
-@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize is not written yet")
+@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize.localizer is not written yet")
 def test_evaluate_images_in_process_and_within_a_budget() -> None:
     m = MemoryMap(paper_map())
     images = simulate_images(m, 4, seed=5)
@@ -139,7 +139,7 @@ def test_evaluate_images_in_process_and_within_a_budget() -> None:
     assert [o["id"] for o in outcomes] == [im["id"] for im in images] and summary["accepted"] == 4
 
 
-@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize is not written yet")
+@pytest.mark.skipif(not HAS_LOCALIZER, reason="mapdb.localize.localizer is not written yet")
 def test_bench_paper_table_shape() -> None:
     result = bench_paper(n=4, methods=("fast",), cases=[1, 5], budget_s=None)
     assert [c["case"] for c in result["cases"]] == [1, 5]

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 from jsonschema import Draft202012Validator
 
-from mapdb.errors import ImageInputError, MapdbIOError
-from mapdb.images import (
+from mapdb.detections.images import (
     IMAGE_SCHEMA_PATH,
     MAX_OBJECTS,
     image_schema,
@@ -18,6 +17,7 @@ from mapdb.images import (
     read_image_documents,
     split_image_documents,
 )
+from mapdb.errors import ImageInputError, MapdbIOError
 
 
 def _doc(**extra):
@@ -225,7 +225,7 @@ def test_multi_line_documents_are_recognised_without_reading_json_lines_whole(tm
 
 
 def test_ranges_are_stated_once_and_the_schema_agrees() -> None:
-    from mapdb import images
+    from mapdb.detections import images
 
     props = image_schema()["properties"]
     prior = props["prior"]["properties"]
@@ -244,7 +244,7 @@ def test_ranges_are_stated_once_and_the_schema_agrees() -> None:
 
 
 def test_a_prior_given_apart_is_checked_like_an_image_prior() -> None:
-    from mapdb.images import check_prior
+    from mapdb.detections.images import check_prior
 
     assert check_prior(1.0, -2.0, 20_000_000.0).radius == 20_000_000.0
     for values, message in [((1.0, 1.0, 1e308), "prior.radius: 1e+308 is greater than the maximum"),
@@ -257,7 +257,7 @@ def test_a_prior_given_apart_is_checked_like_an_image_prior() -> None:
 
 
 def test_the_fast_object_check_agrees_with_the_schema() -> None:
-    from mapdb.images import _plain_object_ok
+    from mapdb.detections.images import _plain_object_ok
 
     item_schema = {**image_schema()["properties"]["objects"]["items"]}
     validator = Draft202012Validator(item_schema)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mapdb.errors import MapFormatError
-from mapdb.match.index_layout import BLOCK, FENCE, SUB_CELLS
-from mapdb.match.index_lookup import Section, bound_candidates, find_cells, take_rows
+from mapdb.match.index.layout import BLOCK, FENCE, SUB_CELLS
+from mapdb.match.index.lookup import Section, bound_candidates, find_cells, take_rows
 
 
 def _section(array: np.ndarray) -> Section:

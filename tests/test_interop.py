@@ -22,12 +22,12 @@ from click.testing import CliRunner
 from mapdb_cli.main import cli
 from pyproj import CRS, Geod, Transformer
 
-from mapdb.build import build_map
+from mapdb.build.pipeline import build_map
 from mapdb.errors import LabelTableError
-from mapdb.export import export_map
 from mapdb.geo import in_bbox
+from mapdb.mapfile.export import export_map
+from mapdb.mapfile.store import MemoryMap, open_map
 from mapdb.objects import Objects
-from mapdb.store import MemoryMap, open_map
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_maps" / "helsinki.osm.pbf"

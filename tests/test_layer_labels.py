@@ -15,8 +15,8 @@ from shapely.geometry import Point, box
 from mapdb.classmap import load_class_table
 from mapdb.errors import LabelTableError, SourceError
 from mapdb.labels import default_label_table
+from mapdb.mapfile.store import open_map
 from mapdb.sources.layers import read_layer
-from mapdb.store import open_map
 
 LABELS = default_label_table().labels
 X0, Y0 = 500_000.0, 5_000_000.0

@@ -14,11 +14,11 @@ from rasterio.transform import Affine
 from scipy import ndimage
 
 from mapdb.classmap import load_class_table
-from mapdb.coco import decode_rle, encode_rle, from_coco
+from mapdb.detections.coco import decode_rle, encode_rle, from_coco
+from mapdb.detections.images import parse_image
+from mapdb.detections.masks import from_mask, mask_document, read_mask
 from mapdb.errors import ImageInputError, LabelTableError, MapdbIOError
-from mapdb.images import parse_image
 from mapdb.labels import default_label_table
-from mapdb.masks import from_mask, mask_document, read_mask
 
 LABELS = default_label_table().labels
 

@@ -9,16 +9,16 @@ import pytest
 from scipy.stats import binom
 
 from mapdb.camera import Camera, Pose, project_to_image
-from mapdb.localize import localize
+from mapdb.localize.localizer import localize
+from mapdb.mapfile.store import MemoryMap
 from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
 from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
 from mapdb.match.hypotheses import pose_votes, prioritise
-from mapdb.match.paper import match_paper
+from mapdb.match.paper.algorithm import match_paper
 from mapdb.match.quads import canonical_quads, neighbour_quads
 from mapdb.objects import Objects
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import MemoryMap
+from mapdb.simulation.simulate import paper_map, simulate_images
 
 CRS = "EPSG:32631"
 X0, Y0 = 400_000.0, 4_700_000.0
@@ -280,8 +280,8 @@ def test_paper_bound_never_undercounts_a_candidate() -> None:
     # matcher's) must be within the bound, for thresholds from 3 to "every object".
     from itertools import combinations
 
-    from mapdb.match.paper import PaperOptions
-    from mapdb.match.paper_bound import NearestBound, wrap_angle
+    from mapdb.match.paper.algorithm import PaperOptions
+    from mapdb.match.paper.bound import NearestBound, wrap_angle
 
     opts = PaperOptions()
     for seed, n_labels in ((11, 1), (12, 2)):
@@ -323,7 +323,7 @@ def test_paper_bound_never_undercounts_a_candidate() -> None:
 
 
 def test_paper_pruning_gives_the_same_results_as_the_full_test() -> None:
-    from mapdb.match.paper import PaperOptions
+    from mapdb.match.paper.algorithm import PaperOptions
 
     outcomes = set()
     cases = [(21, 1, 9, 0), (22, 2, 9, 2), (23, 2, 8, 1), (24, 1, 9, 3), (25, 2, 5, 0), (26, 1, 2, 0)]
@@ -371,9 +371,9 @@ def test_an_image_with_thousands_of_objects_is_matched_on_its_central_ones() -> 
 def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path) -> None:
     """With ``MAP.qidx`` beside the map, lost-in-space lookups go to it (no quad index built in memory) and
     images are localized as with the in-memory index."""
-    from mapdb.localize import Localizer, StoredQuads
-    from mapdb.match.stored_index import build_index
-    from mapdb.store import open_map, write_map
+    from mapdb.localize.localizer import Localizer, StoredQuads
+    from mapdb.mapfile.store import open_map, write_map
+    from mapdb.match.index.stored import build_index
 
     path = tmp_path / "paper.mapdb"
     write_map(path, paper_map(seed=0))

@@ -17,7 +17,8 @@ from click.testing import CliRunner
 from mapdb_cli.main import cli
 
 from mapdb.camera import Camera
-from mapdb.images import parse_image
+from mapdb.detections.images import parse_image
+from mapdb.mapfile.store import MemoryMap, write_map
 from mapdb.navigation.filter import FixComponent, ParticleFilter
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.frames import read_frame
@@ -26,8 +27,7 @@ from mapdb.navigation.path import FlightPath, read_linestring, survey_pattern
 from mapdb.navigation.track import track_geojson
 from mapdb.navigation.velocity import frame_points, match_frames, velocity_from_motion
 from mapdb.objects import Objects
-from mapdb.simulate import PAPER_CRS, PAPER_ORIGIN
-from mapdb.store import MemoryMap, write_map
+from mapdb.simulation.simulate import PAPER_CRS, PAPER_ORIGIN
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm"
 ANSWER_TIMEOUT_S = 60.0
@@ -309,8 +309,8 @@ def test_a_long_flight_with_a_blackout_and_a_map_gap(world) -> None:
 @pytest.mark.slow
 @pytest.mark.skipif(not SHARED.exists(), reason="../shared/data/osm (the real extracts) is not present")
 def test_a_flight_over_monaco(tmp_path) -> None:
-    from mapdb.build import build_map
-    from mapdb.store import open_map
+    from mapdb.build.pipeline import build_map
+    from mapdb.mapfile.store import open_map
 
     map_path = tmp_path / "monaco.mapdb"
     build_map([SHARED / "monaco-2021-12-03.osm.pbf"], map_path)

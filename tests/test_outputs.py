@@ -22,9 +22,9 @@ from mapdb_cli.main import cli
 from osmxml import OsmXml, square
 
 from mapdb.errors import MapdbIOError
+from mapdb.mapfile.store import open_map, write_map
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, remove_stale_temporaries
-from mapdb.simulate import paper_map, write_images
-from mapdb.store import open_map, write_map
+from mapdb.simulation.simulate import paper_map, write_images
 
 
 def run(*args: object):

@@ -1,4 +1,4 @@
-"""The whole map's object index read page by page (mapdb.match.paged_objects): the same answers as the index
+"""The whole map's object index read page by page (mapdb.match.mapobjects.paged_objects): the same answers as the index
 over every object, from fewer pages; and the localizer's switch to the whole index built in the background."""
 
 from __future__ import annotations
@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 
 from mapdb._scipy import cKDTree
-from mapdb.localize import Localizer
-from mapdb.match import paged_objects
-from mapdb.match.kd_forest import MAX_TREES, Forest
-from mapdb.match.paged_objects import PagedObjectIndex, WholeMapObjects
-from mapdb.match.stored_index import build_index
+from mapdb.localize.localizer import Localizer
+from mapdb.mapfile.store import open_map, write_map
+from mapdb.match.index.stored import build_index
+from mapdb.match.mapobjects import paged_objects
+from mapdb.match.mapobjects.kd_forest import MAX_TREES, Forest
+from mapdb.match.mapobjects.paged_objects import PagedObjectIndex, WholeMapObjects
 from mapdb.match.verify import ObjectIndex
 from mapdb.objects import Objects
-from mapdb.simulate import simulate_images
-from mapdb.store import open_map, write_map
+from mapdb.simulation.simulate import simulate_images
 
 LABELS = ("building", "road_intersection", "park", "stadium")
 

@@ -18,12 +18,12 @@ from mapdb_cli.show import show
 from PIL import Image
 
 from mapdb.answers import Answer, Candidate
-from mapdb.evaluate import outcome
-from mapdb.localize import localize
+from mapdb.evaluation.evaluate import outcome
+from mapdb.evaluation.plot import crs_name, match_geometry, plot_evaluation, plot_match
+from mapdb.localize.localizer import localize
+from mapdb.mapfile.store import open_map, write_map
 from mapdb.objects import Objects
-from mapdb.plot import crs_name, match_geometry, plot_evaluation, plot_match
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import open_map, write_map
+from mapdb.simulation.simulate import paper_map, simulate_images
 
 matplotlib.use("Agg")
 
@@ -257,6 +257,6 @@ def test_crs_is_named_for_people() -> None:
 
 
 def test_importing_the_pictures_module_does_not_import_matplotlib() -> None:
-    code = "import sys, mapdb.plot, mapdb.evaluate; print('matplotlib' in sys.modules)"
+    code = "import sys, mapdb.evaluation.plot, mapdb.evaluation.evaluate; print('matplotlib' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"

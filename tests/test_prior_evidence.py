@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from mapdb.localize import Localizer
+from mapdb.localize.localizer import Localizer
+from mapdb.mapfile.store import MemoryMap
 from mapdb.match.fast import FastOptions
-from mapdb.match.object_index import ObjectIndex
+from mapdb.match.mapobjects.object_index import ObjectIndex
 from mapdb.objects import Objects
-from mapdb.store import MemoryMap
 
 
 def world() -> MemoryMap:

@@ -8,16 +8,16 @@ import math
 import numpy as np
 import pytest
 
-from mapdb.localize import localize
+from mapdb.localize.localizer import localize
+from mapdb.mapfile.store import MemoryMap
+from mapdb.match.evidence.relief import ReliefFit, _whitened, fit_with_relief, leave_one_out_sigma, radial_excess
 from mapdb.match.fast import FastOptions
 from mapdb.match.geometry import fit_similarity_complex
 from mapdb.match.hypotheses import anchor_batches
-from mapdb.match.object_index import ObjectIndex
+from mapdb.match.mapobjects.object_index import ObjectIndex
 from mapdb.match.refine import Candidate, polish
-from mapdb.match.relief import ReliefFit, _whitened, fit_with_relief, leave_one_out_sigma, radial_excess
 from mapdb.objects import Objects
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import MemoryMap
+from mapdb.simulation.simulate import paper_map, simulate_images
 
 
 @pytest.fixture(scope="module")

@@ -14,14 +14,14 @@ from click.testing import CliRunner
 from mapdb_cli.main import cli
 from osmxml import X0, Y0, OsmXml, square
 
-from mapdb.build import build_map
+from mapdb.build.pipeline import build_map
 from mapdb.camera import Camera, Pose, project_points, project_to_image
+from mapdb.detections.masks import from_mask, read_mask
 from mapdb.errors import SourceError
-from mapdb.masks import from_mask, read_mask
-from mapdb.render import blob_sources, render_mask
-from mapdb.render_source import FROM_HEIGHT, FROM_LEVELS, FROM_TYPE, Scene, read_scene
-from mapdb.simulate_masks import simulate_masks
-from mapdb.store import open_map
+from mapdb.mapfile.store import open_map
+from mapdb.simulation.outlines import FROM_HEIGHT, FROM_LEVELS, FROM_TYPE, Scene, read_scene
+from mapdb.simulation.render import blob_sources, render_mask
+from mapdb.simulation.rendered import simulate_masks
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CAM = Camera(640, 480, 60.0)

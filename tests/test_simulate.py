@@ -13,10 +13,10 @@ from mapdb_cli.main import cli
 
 from mapdb.camera import Camera, Pose, image_to_ground, level_pixels, nadir_pixel, project_to_image
 from mapdb.errors import EmptyMapError
+from mapdb.mapfile.store import MemoryMap, open_map, write_map
 from mapdb.match.geometry import apply_similarity, fit_similarity
 from mapdb.objects import Objects
-from mapdb.simulate import paper_map, simulate_images
-from mapdb.store import MemoryMap, open_map, write_map
+from mapdb.simulation.simulate import paper_map, simulate_images
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
@@ -200,7 +200,7 @@ def test_simulator_over_a_real_map(tmp_path: Path) -> None:
     source = DATA / "osm" / "monaco-2021-12-03.osm.pbf"
     if not source.exists():
         pytest.skip(f"real data not found: {source}")
-    from mapdb.build import build_map
+    from mapdb.build.pipeline import build_map
 
     path = tmp_path / "monaco.mapdb"
     build_map([source], path)

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from jsonschema import Draft202012Validator
 
-from mapdb._quick_schema import surely_valid
 from mapdb._scipy import StandIn
-from mapdb.images import image_schema
+from mapdb.detections._quick_schema import surely_valid
+from mapdb.detections.images import image_schema
 
 # Imported by the packages the matcher avoids (scipy.spatial's __init__ loads scipy.sparse, linalg, special;
 # scipy's array-API layer imports numpy.f2py and numpy.testing).
@@ -39,7 +39,7 @@ def _python(code: str, *args: str, cwd: Path | None = None) -> str:
 def test_the_matcher_imports_no_heavy_scipy_package() -> None:
     out = _python(f"""
         import json, sys
-        import mapdb.localize
+        import mapdb.localize.localizer
         print(json.dumps([[m for m in {HEAVY!r} if m in sys.modules],
                           [m for m in ("scipy.spatial._ckdtree", "scipy.special._ufuncs") if m in sys.modules]]))
     """)
@@ -197,7 +197,7 @@ def test_a_build_of_osm_extracts_imports_no_raster_reader() -> None:
     """rasterio and scipy.ndimage (0.3-0.6 s) load only when a build reads a raster."""
     out = _python("""
         import sys
-        import mapdb.build, mapdb.sources
+        import mapdb.build.pipeline, mapdb.sources
         print(mapdb.sources.source_kind("clc.tif"), "rasterio" in sys.modules, "scipy.ndimage" in sys.modules)
     """)
     assert out.split() == ["landcover", "False", "False"]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from mapdb import EmptyMapError, MapdbIOError, Objects
-from mapdb.store import MapWriter, open_map, write_map, write_map_from_chunks
+from mapdb.mapfile.store import MapWriter, open_map, write_map, write_map_from_chunks
 
 LABELS = ("building", "road_intersection", "park", "water")
 CRS = "EPSG:32635"

@@ -13,11 +13,13 @@ from click.testing import CliRunner
 from mapdb_cli.index import index as index_command
 
 from mapdb.errors import MapdbIOError, MapFormatError
-from mapdb.match import index_build, index_generate, index_lookup
+from mapdb.mapfile.store import MemoryMap, open_map, write_map
+from mapdb.match.index import build as index_build
+from mapdb.match.index import generate as index_generate
+from mapdb.match.index import lookup as index_lookup
+from mapdb.match.index.stored import StoredQuadIndex, build_index, index_path, open_index
 from mapdb.match.quads import QuadIndex, canonical_quads, label_keys, neighbour_quads
-from mapdb.match.stored_index import StoredQuadIndex, build_index, index_path, open_index
 from mapdb.objects import Objects
-from mapdb.store import MemoryMap, open_map, write_map
 
 LABELS = ("building", "road_intersection", "park")
 

@@ -24,9 +24,9 @@ from clichecks import answered_one_by_one
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 
-from mapdb.images import MAX_OBJECTS, split_image_documents
-from mapdb.localize import localize_documents
-from mapdb.store import open_map
+from mapdb.detections.images import MAX_OBJECTS, split_image_documents
+from mapdb.localize.localizer import localize_documents
+from mapdb.mapfile.store import open_map
 
 # A generous bound for one answer (the first one builds the map's index); a reader that waited for the
 # end of its input would never answer at all, so this only has to be finite.

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..answers import Answer
 from ..camera import Camera, Pose, project_to_image
-from ..evaluate import DEFAULT_FP_THRESHOLD_M
+from ..evaluation.evaluate import DEFAULT_FP_THRESHOLD_M
 
 __all__ = ["MIN_VISIBLE", "CellMeasures", "SampleConfig", "ambiguity", "measure_cells"]
 
@@ -158,8 +158,8 @@ _OPEN: dict[tuple[str, int, int], tuple[Any, Any]] = {}
 
 def _opened(map_path: str) -> tuple[Any, Any]:
     """This process's open map and localizer for a path (opened once; reopened if the file changed)."""
-    from ..localize import Localizer
-    from ..store import open_map
+    from ..localize.localizer import Localizer
+    from ..mapfile.store import open_map
 
     st = os.stat(map_path)
     key = (os.path.realpath(map_path), st.st_mtime_ns, st.st_size)
@@ -271,7 +271,7 @@ def _localize(ctx: _Context, local: Any, pose: Pose, rng: np.random.Generator,
               image_id: str) -> tuple[float | None, Answer]:
     """Simulate the image, localize it: the error of an accepted answer (None if rejected), and the answer
     of the search without a prior (the one ambiguity is read from)."""
-    from ..simulate import simulate_image_at
+    from ..simulation.simulate import simulate_image_at
 
     cfg = ctx.config
     image = simulate_image_at(local, pose, cfg.camera, rng, pixel_std=cfg.pixel_std, miss_rate=cfg.miss_rate,

@@ -5,12 +5,12 @@ of 160 rendered images (Andorra and Monaco, with heights) 3 or fewer were, and n
 the whole blobs alone form no quad, and quads of cut blobs at their centroids (pulled inward by a median 30
 px) miss the map's.  These rounds come after every whole-blob round has failed.  Their quads hold as many
 whole blobs as the image has, up to three, and at least one cut blob, anchored at whole blobs nearest the
-centre.  Each cut blob is looked up at its expected place (:data:`~mapdb.match.blobs.CUT_SHIFT_PX` outward
+centre.  Each cut blob is looked up at its expected place (:data:`~mapdb.match.evidence.blobs.CUT_SHIFT_PX` outward
 along its border's normal) with a wider pixel error, ``CUT_SIGMA_PX``, in the lookup radius; the
 similarity is fitted with the cut blobs weighted ``CUT_FIT_WEIGHT``.  Every hypothesis counts as a test,
 as in every round.
 
-Measured (the images of :mod:`mapdb.match.blobs`' figures: 160, 120 m with heights): 47.5 %
+Measured (the images of :mod:`mapdb.match.evidence.blobs`' figures: 160, 120 m with heights): 47.5 %
 localized with the blob ellipses alone, 49.4 % with these rounds too (with quads from each whole blob's
 nearest neighbours instead: CUT_SIGMA_PX 8, 12, 20 px: 50.0, 50.0, 49.4 %; fit weight 0.1 or 0.3: 50.0,
 48.8 %).  Images with 3 or fewer whole blobs still rarely
@@ -29,7 +29,7 @@ from .hypotheses import round_hypotheses
 from .quads import QuadIndex
 
 if TYPE_CHECKING:
-    from .blobs import BlobErrors
+    from .evidence.blobs import BlobErrors
     from .fast import FastOptions
 
 __all__ = ["CUT_FIT_WEIGHT", "CUT_SIGMA_PX", "cut_batches", "cut_round_hypotheses"]

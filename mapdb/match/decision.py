@@ -17,7 +17,7 @@ choice of ``k`` (``n - s`` of them) - the tolerance is picked after looking,
 as in AC-RANSAC (Moisan and Stival 2004; Moisan, Moulon and Monasse 2012).
 An answer is accepted when the NFA is below a threshold ``10**log10_epsilon``.
 
-Objects extracted from masks also carry their pixel area: :mod:`mapdb.match.areas` thins the null's
+Objects extracted from masks also carry their pixel area: :mod:`mapdb.match.evidence.areas` thins the null's
 process to the map objects of a compatible area (``u`` computed with ``lambda q``), which leaves this
 model unchanged; objects without an area keep ``q = 1``.
 

@@ -46,7 +46,7 @@ The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC, one 
 
 Objects extracted from masks bring what they know of their errors (``anchorable``, ``area_px``,
 ``outward``): blobs cut by the border anchor no quad of the first rounds, are verified in an ellipse along
-their border's normal (:mod:`mapdb.match.blobs`; cut buildings with an area, from where each candidate map
+their border's normal (:mod:`mapdb.match.evidence.blobs`; cut buildings with an area, from where each candidate map
 object's own area puts it), and join quads only in the last rounds (:mod:`mapdb.match.cut_quads`).
 
 Lookup tolerances are tried in passes (``pixel_sigmas``): a tight one first,
@@ -66,9 +66,9 @@ import numpy as np
 
 from .._scipy import cKDTree
 from .ambiguity import find_rivals
-from .areas import ImageAreas, solid_objects
-from .blobs import BlobErrors
 from .cut_quads import cut_batches, cut_round_hypotheses
+from .evidence.areas import ImageAreas, solid_objects
+from .evidence.blobs import BlobErrors
 from .hypotheses import anchor_batches, pose_votes, prioritise, round_hypotheses
 from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct, merge_candidates, polish
@@ -220,11 +220,11 @@ def match_fast(
         out (:func:`~mapdb.match.hypotheses.anchor_batches`).  Ignored when fewer than 4 are anchorable.
     area_px : float array (n,), optional
         Pixel area of each object (NaN where unknown): the decision then also asks each object's map object
-        for a compatible stored area (:mod:`mapdb.match.areas`; ``anchorable`` says which blobs are whole).
+        for a compatible stored area (:mod:`mapdb.match.evidence.areas`; ``anchorable`` says which blobs are whole).
     outward : complex array (n,), optional
         Unit outward normal (y up) of the image border each object touches, 0 for whole ones
-        (:func:`mapdb.match.blobs.outward_normals` of the objects' boxes).  With it and ``anchorable`` the
-        decision measures each cut blob in an ellipse along that normal (:mod:`mapdb.match.blobs`) and, when
+        (:func:`mapdb.match.evidence.blobs.outward_normals` of the objects' boxes).  With it and ``anchorable`` the
+        decision measures each cut blob in an ellipse along that normal (:mod:`mapdb.match.evidence.blobs`) and, when
         the whole blobs' quads find nothing, quads holding cut blobs are looked up
         (:mod:`mapdb.match.cut_quads`).
 

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
-from .blobs import BlobErrors, placed_sources
+from .evidence.blobs import BlobErrors, placed_sources
+from .evidence.relief import ReliefFit, fit_with_relief, leave_one_out_sigma
 from .geometry import prediction_variance_factor
-from .relief import ReliefFit, fit_with_relief, leave_one_out_sigma
 from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
 
 __all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "polish", "pose_shift"]
@@ -94,15 +94,15 @@ def polish(
     current fit, and at least its farthest inlier), and the pairs minimising the total squared
     distance are kept (a minimum-weight full bipartite matching).
 
-    The fit is :func:`~mapdb.match.relief.fit_with_relief` over the pairs whose image object is ``whole``
+    The fit is :func:`~mapdb.match.evidence.relief.fit_with_relief` over the pairs whose image object is ``whole``
     (bool, ``(n,)``: not cut by the image border) when at least four are, else over all pairs; every pair
-    still counts as an inlier.  With ``errors`` (:class:`~mapdb.match.blobs.BlobErrors`), a fit that must use
-    cut blobs places each where its blob puts its map object (:func:`~mapdb.match.blobs.placed_sources`: a cut
+    still counts as an inlier.  With ``errors`` (:class:`~mapdb.match.evidence.blobs.BlobErrors`), a fit that must use
+    cut blobs places each where its blob puts its map object (:func:`~mapdb.match.evidence.blobs.placed_sources`: a cut
     building by the map object's stored area), not at the visible part's centroid, pulled inward.
 
     With ``jackknife`` (objects extracted from masks: blobs, whose errors are not alike), the answer's error
     (``sigma_m``) is the larger of the fit's model, ``sigma_axis * sqrt(variance_factor)``, and the
-    jackknife's (:func:`~mapdb.match.relief.leave_one_out_sigma`; folded into ``variance_factor``).  The model
+    jackknife's (:func:`~mapdb.match.evidence.relief.leave_one_out_sigma`; folded into ``variance_factor``).  The model
     trusts the residuals to be independent and alike, which a handful of blobs, one of them a partly hidden
     park or a merged pair of buildings, are not.  Measured on the images of ``python
     benchmarks/rendered_masks.py --n 80`` (960 masks at 120-300 m, with and without heights; a ``/tmp`` script

@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 
-from .areas import ImageAreas, bands, compatible, disc_chances, sample_evidence
-from .blobs import BlobErrors, cut_area_residuals
 from .decision import log10_nfa_curve
+from .evidence.areas import ImageAreas, bands, compatible, disc_chances, sample_evidence
+from .evidence.blobs import BlobErrors, cut_area_residuals
 from .geometry import fit_similarity_complex
-from .object_index import U_MAX, ObjectIndex
+from .mapobjects.object_index import U_MAX, ObjectIndex
 
 # Residual sigmas within which an association is kept (refinement's second net, the final assignment's gate).
 GATE_SIGMAS = 3.5
@@ -80,11 +80,11 @@ def decision_nfa(
     each object scales with that, so a near object must match tightly and a far one loosely.
 
     With ``areas`` and ``area_radius`` (the density disc's radius per hypothesis), an object's evidence is
-    its nearest map object of a compatible area, at the density of those (:mod:`mapdb.match.areas`).
+    its nearest map object of a compatible area, at the density of those (:mod:`mapdb.match.evidence.areas`).
     With ``errors``, each object's map object is looked for from where its blob says it lies and its residual
-    measured in its error ellipse (:mod:`mapdb.match.blobs`: blobs cut by the image border); with both, a cut
+    measured in its error ellipse (:mod:`mapdb.match.evidence.blobs`: blobs cut by the image border); with both, a cut
     blob of a solid label is measured from where each candidate map object's own area puts it
-    (:func:`~mapdb.match.blobs.cut_area_residuals`).
+    (:func:`~mapdb.match.evidence.blobs.cut_area_residuals`).
     """
     h, n = len(a), z.size
     w = a[:, None] * z[None, :] + b[:, None]

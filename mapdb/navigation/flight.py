@@ -3,7 +3,7 @@
 The aircraft flies a :class:`~mapdb.navigation.path.FlightPath` at constant speed, banking in turns as a
 coordinated turn needs (``roll = atan(v^2 / (g R))``), with a little turbulence on roll and pitch.  Each
 frame is the image a downward-looking camera takes at that pose, made by the single-image simulator's own
-steps (:mod:`mapdb.simulate`: its camera, detector errors, label confusion and truth), so that a frame is
+steps (:mod:`mapdb.simulation.simulate`: its camera, detector errors, label confusion and truth), so that a frame is
 also a valid ``mapdb query`` input.
 
 Frame document (one JSON line each; the image keys are the query schema's)::
@@ -44,7 +44,16 @@ from .._scipy import cKDTree
 from ..camera import Camera, project_to_image
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress
-from ..simulate import _detect, _Detector, _image_document, _label_mix, _map_objects, _placement_limits, _Shot, _truth
+from ..simulation.simulate import (
+    _detect,
+    _Detector,
+    _image_document,
+    _label_mix,
+    _map_objects,
+    _placement_limits,
+    _Shot,
+    _truth,
+)
 from .path import FlightPath, heading_deg, survey_pattern
 
 __all__ = ["DEFAULT_LENGTH_M", "FlightOptions", "in_windows", "simulate_flight"]

@@ -25,8 +25,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..detections.images import MAX_ALTITUDE_M, MAX_ATTITUDE_DEG, MIN_FOV_DEG, ImageObjects, parse_image
 from ..errors import ImageInputError
-from ..images import MAX_ALTITUDE_M, MAX_ATTITUDE_DEG, MIN_FOV_DEG, ImageObjects, parse_image
 
 __all__ = ["Frame", "read_frame"]
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..answers import Answer
 from ..camera import Camera
-from ..localize import Localizer, _to_lonlat
+from ..localize.localizer import Localizer, _to_lonlat
 from .filter import FixComponent, ParticleFilter
 from .frames import Frame, read_frame
 from .track import TrackRecord

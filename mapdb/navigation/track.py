@@ -212,7 +212,7 @@ def plot_track(records: Sequence[TrackRecord], map: Any, path: str | Path, *, ti
     """Draw a track over its map: map objects, the true track (when known), the estimate with its 3-sigma
     discs, fixes used and rejected; below, the stated 3-sigma and the true error against time.  Axes in
     metres of the map's CRS (named), with a scale bar."""
-    from ..plot import _metre_axes, _widened, pyplot, save_figure
+    from ..evaluation.plot import _metre_axes, _widened, pyplot, save_figure
 
     s = _series(records)
     plt = pyplot()

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera, image_plane, level_pixels
-from ..images import ImageObjects
+from ..detections.images import ImageObjects
 from ..match.fast import FastOptions, match_fast
 from ..match.quads import QuadIndex
 from ..match.refine import candidates, polish

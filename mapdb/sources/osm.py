@@ -63,7 +63,7 @@ from ..errors import MapdbIOError, SourceError, reading
 from ..geo import check_bbox, in_bbox
 from ..labels import IntersectionRule, LabelTable, TagRule
 from ..objects import Objects
-from ..spool import ObjectSpool, joined, release_freed_memory
+from .spool import ObjectSpool, joined, release_freed_memory
 
 __all__ = ["AREA_BLOCK", "DENSE_INDEX_BYTES", "FILE_INDEX_BYTES", "MAX_INFLATION", "MIN_INFLATED_BYTES",
            "NODE_INDEXES", "OSM_SUFFIXES", "POINT_BLOCK", "ROAD_REFS_IN_MEMORY", "TRIM_INPUT_BYTES",
@@ -110,7 +110,7 @@ _MAX_EDGE_BUCKETS = 1024
 FILE_INDEX_BYTES = 64 << 20
 DENSE_INDEX_BYTES = 16 << 30
 # From this much input the freed C heap is handed back to the system between the stages of a read (see
-# mapdb.spool.release_freed_memory), so that one stage's leftovers do not add to the next one's peak; below it
+# mapdb.sources.spool.release_freed_memory), so that one stage's leftovers do not add to the next one's peak; below it
 # the heap is small, and handing it back would only make the next stage fault the same pages in again.
 TRIM_INPUT_BYTES = FILE_INDEX_BYTES
 NODE_INDEXES = ("auto", "flex_mem", "sparse_mem_array", "dense_mem_array", "sparse_file_array", "dense_file_array")
@@ -231,7 +231,7 @@ def read_osm_spooled(path: str | Path, table: LabelTable, bbox: tuple[float, flo
     goes (kept in memory when it is None), so that a country's objects are never all in memory.
 
     The spools are the points, the areas, then the ways and intersections; their files (``osm-*`` in
-    ``spool_dir``) are the caller's to remove (:meth:`mapdb.spool.ObjectSpool.discard`, or with the directory).
+    ``spool_dir``) are the caller's to remove (:meth:`mapdb.sources.spool.ObjectSpool.discard`, or with the directory).
     Parameters, errors and the objects read are those of :func:`read_osm`.
     """
     path = Path(path)

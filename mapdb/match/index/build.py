@@ -1,0 +1,389 @@
+"""Building a stored quad index (:func:`build_index`): an external sort of every quad, in bounded memory.
+
+The map is read page by page; every object's neighbours are found in one cKDTree; a sample of quads
+chooses each label combination's cell and the key ranges of the sort buckets
+(:mod:`~mapdb.match.index.generate`); then all quads are generated in chunks of anchors (in ``workers``
+processes) and written to the bucket files by key range; each bucket is sorted in memory and written to
+its place in the final file, which is written beside the map under a temporary name and renamed at the end.
+The layout written is :mod:`~mapdb.match.index.layout`'s (``docs/index_format.md``).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import glob
+import math
+import multiprocessing
+import os
+import shutil
+import tempfile
+import time
+import zlib
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ... import __version__
+from ...errors import MapFormatError
+from ...mapfile.store import open_map
+from ...objects import Objects
+from ...outputs import atomic_path, check_outputs, pid_alive
+from .generate import RECORD, SHARED, cell_for, choose_cells, chunk_records, neighbour_table, sample_quads
+from .layout import (
+    BLOCK,
+    FENCE,
+    FORMAT_NAME,
+    INDEX_VERSION,
+    MAX_NEIGHBOURS,
+    SUB_CELLS,
+    SectionPlan,
+    cell_keys,
+    cells_of,
+    index_path,
+    key_layout,
+    map_identity,
+    pwrite_all,
+    start_dtype,
+    triples,
+    write_header,
+)
+
+__all__ = ["build_index"]
+
+_BUCKET_QUADS = 8_000_000  # quads sorted at once (about 40 bytes each while sorting)
+_CHUNK_ANCHORS = 16_384  # anchors per task of quad generation (~600k quads, 20 bytes each in the result)
+
+
+@dataclass
+class _Build:
+    """What the steps of one build share: the map's arrays, the key layout, where to write, how."""
+
+    n: int  # objects
+    k: int  # neighbours per anchor (below 3: no quads)
+    coords: np.ndarray  # (n, 2) int32 quanta relative to origin
+    table: np.ndarray  # (n, k) uint32 neighbour ids
+    identity: dict[str, Any]
+    origin: tuple[int, int]
+    label_bits: int
+    bits: int
+    target: float
+    workers: int
+    say: Callable[[str], None]
+    tmp: Path = Path()
+    workdir: Path = Path()
+    pool: concurrent.futures.Executor | None = None
+
+
+def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str] | None = None, *,
+                neighbours: int = 8, target_occupancy: float = 32.0, workers: int | None = None,
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Build the lost-in-space quad index of a map file and write it atomically.
+
+    Parameters
+    ----------
+    map_path : path
+        A ``.mapdb`` file.
+    output : path, optional
+        The index file; default :func:`~mapdb.match.index.layout.index_path` of the map (``MAP.qidx``).
+    neighbours : int
+        Neighbours per anchor (``FastOptions.map_neighbours``; 3 to 12).
+    target_occupancy : float
+        Other quads expected in a quad's cell: sets each label combination's cell size (the lookup
+        radius is clamped to it).  Larger: fewer clamped lookups, more candidates per lookup.
+    workers : int, optional
+        Processes generating quads (default: up to 2, the CPUs available).
+    progress : callable, optional
+        Receives one-line progress messages.
+
+    Returns
+    -------
+    dict
+        ``output``, ``objects``, ``quads``, ``cells``, ``bytes``, ``seconds``.
+
+    Raises
+    ------
+    MapFormatError, MapdbIOError
+        If the map cannot be read or the index cannot be written.
+    OutputClashError
+        If ``output`` is the map itself.
+    ValueError
+        If ``neighbours`` or ``target_occupancy`` is out of range.
+    """
+    if not 3 <= neighbours <= MAX_NEIGHBOURS:
+        raise ValueError(f"neighbours must be in [3, {MAX_NEIGHBOURS}], got {neighbours}")
+    if not target_occupancy > 0:
+        raise ValueError(f"target_occupancy must be > 0, got {target_occupancy}")
+    start = time.perf_counter()
+    say = _timed(progress, start)
+    workers = max(1, workers if workers is not None else min(2, len(os.sched_getaffinity(0))))
+    out = Path(index_path(map_path) if output is None else output)
+    check_outputs([out], [map_path])
+    build = _read_map(map_path, neighbours, target_occupancy, workers, say)
+    build.workdir = _work_directory(out)
+    try:
+        with atomic_path(out) as tmp:
+            build.tmp = tmp
+            summary = _write(build)
+    finally:
+        shutil.rmtree(build.workdir, ignore_errors=True)
+        SHARED.clear()
+    summary.update(output=str(out), objects=build.n, bytes=out.stat().st_size,
+                   seconds=round(time.perf_counter() - start, 3))
+    return summary
+
+
+def _timed(progress: Callable[[str], None] | None, start: float) -> Callable[[str], None]:
+    """``progress`` with the seconds since ``start`` before each message (nothing without ``progress``)."""
+
+    def say(message: str) -> None:
+        if progress is not None:
+            progress(f"[{time.perf_counter() - start:7.1f} s] {message}")
+
+    return say
+
+
+def _read_map(map_path: str | os.PathLike[str], neighbours: int, target: float, workers: int,
+              say: Callable[[str], None]) -> _Build:
+    """Read the map, quantize its positions, find every object's neighbours; share what workers need."""
+    map_ = open_map(os.fspath(map_path))
+    with map_:
+        identity = map_identity(map_)
+        objects = map_.all()
+        n_labels = len(map_.labels)
+        quantum = float(map_.quantum)
+    n = len(objects)
+    coords, origin = _quantize(objects, quantum, map_path)
+    k = min(neighbours, n - 1)
+    xy = np.column_stack([objects.x, objects.y])
+    z = objects.x + 1j * objects.y
+    label = objects.label.astype(np.int64)
+    del objects
+    label_bits, bits = key_layout(n_labels)
+    if k >= 3:
+        say(f"finding {k} neighbours of {n} objects ...")
+        table = neighbour_table(xy, k, workers)
+    else:
+        table = np.zeros((n, max(k, 0)), np.uint32)
+    del xy
+    SHARED.clear()
+    SHARED.update(neighbours=table, z=z, label=label, n_labels=n_labels, bits=bits)
+    return _Build(n, k, coords, table, identity, origin, label_bits, bits, target, workers, say)
+
+
+def _quantize(objects: Objects, quantum: float, map_path: str | os.PathLike[str]) -> tuple[np.ndarray,
+                                                                                             tuple[int, int]]:
+    """Positions in quanta relative to the smallest (int32 ``(n, 2)``), and that origin."""
+    n = len(objects)
+    qx = np.rint(objects.x / quantum).astype(np.int64)
+    qy = np.rint(objects.y / quantum).astype(np.int64)
+    origin = (int(qx.min()), int(qy.min())) if n else (0, 0)
+    if n and max(int(qx.max()) - origin[0], int(qy.max()) - origin[1]) >= 2**31:
+        raise MapFormatError(f"{map_path}: the map spans more than 2^31 quanta: too wide for an index")
+    if n >= 2**32:
+        raise MapFormatError(f"{map_path}: {n} objects: an index holds fewer than 2^32")
+    return np.column_stack([qx - origin[0], qy - origin[1]]).astype(np.int32), origin
+
+
+def _work_directory(output: Path) -> Path:
+    """A new directory beside the output for the sort buckets (17 bytes a quad), after removing the ones
+    that builds of this output killed before they could clean up (named with their process id)."""
+    parent = Path(os.path.realpath(output)).parent
+    parent.mkdir(parents=True, exist_ok=True)
+    prefix = f".{output.name[:100]}."
+    for old in parent.glob(f"{glob.escape(prefix)}*.build"):
+        pid = old.name[len(prefix) :].split(".")[0]
+        if pid.isdigit() and not pid_alive(int(pid)):
+            shutil.rmtree(old, ignore_errors=True)
+    return Path(tempfile.mkdtemp(prefix=f"{prefix}{os.getpid()}.", suffix=".build", dir=parent))
+
+
+def _pool(workers: int) -> concurrent.futures.Executor | None:
+    if workers <= 1:
+        return None
+    return concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
+
+
+def _map_chunks(pool: concurrent.futures.Executor | None, workers: int, fn: Callable[..., Any],
+                ranges: Sequence[tuple[Any, int]]) -> Iterator[Any]:
+    """``fn(lo, hi)`` over ranges, in order, in the pool's processes (at most a few chunks in flight)."""
+    if pool is None:
+        for lo, hi in ranges:
+            yield fn(lo, hi)
+        return
+    ahead = 2 * workers  # bounded look-ahead keeps finished chunks from piling up in memory
+    futures: list[concurrent.futures.Future[Any]] = []
+    for lo, hi in ranges:
+        futures.append(pool.submit(fn, lo, hi))
+        if len(futures) > ahead:
+            yield futures.pop(0).result()
+    for f in futures:
+        yield f.result()
+
+
+def _write(b: _Build) -> dict[str, Any]:
+    """Choose cells and buckets from a sample, generate every quad into its bucket, then write the file."""
+    n_triples = len(triples(b.k)) if b.k >= 3 else 0
+    ranges = [(lo, min(b.n, lo + _CHUNK_ANCHORS)) for lo in range(0, b.n, _CHUNK_ANCHORS)] if n_triples else []
+
+    # 1. A sample of anchors chooses each label combination's cell and the sort buckets.
+    s_inv, s_lk, rate = sample_quads(b.n, n_triples)
+    combo_keys, combo_cell = choose_cells(s_inv, s_lk, rate, b.target)
+    b.say(f"sampled {s_lk.size} quads ({rate:.3g} of the anchors): {combo_keys.size} label combinations, "
+          f"cells {combo_cell.min(initial=1):.3g}..{combo_cell.max(initial=0):.3g}")
+    splitters = _splitters(s_inv, s_lk, rate, combo_keys, combo_cell, b.bits)
+    del s_inv, s_lk
+    SHARED.update(combo_keys=combo_keys, combo_cell=combo_cell, splitters=splitters)
+
+    # 2. Every quad, generated chunk by chunk, goes to the bucket file of its key range.
+    b.say(f"generating quads of {b.n} anchors in {len(ranges)} chunks ({b.workers} processes) ...")
+    b.pool = _pool(b.workers)  # forked now that SHARED holds everything the workers read
+    try:
+        sizes, present = _scatter(b, ranges, splitters.size + 1)
+        return _write_sorted(b, combo_keys, combo_cell, sizes, present)
+    finally:
+        if b.pool is not None:
+            b.pool.shutdown(cancel_futures=True)
+
+
+def _splitters(s_inv: np.ndarray, s_lk: np.ndarray, rate: float, combo_keys: np.ndarray, combo_cell: np.ndarray,
+               bits: int) -> np.ndarray:
+    """Keys that cut the quads into buckets of about ``_BUCKET_QUADS``: quantiles of the sample's keys."""
+    estimate = s_lk.size / rate
+    n_buckets = max(1, math.ceil(estimate / _BUCKET_QUADS))
+    if not s_lk.size:
+        return np.zeros(0, np.uint64)
+    s_cells, _ = cells_of(s_inv, cell_for(s_lk, combo_keys, combo_cell))
+    s_keys = np.sort(cell_keys(s_lk, s_cells, bits))
+    return s_keys[(np.arange(1, n_buckets) * s_keys.size) // n_buckets]
+
+
+def _scatter(b: _Build, ranges: list[tuple[int, int]], n_buckets: int) -> tuple[np.ndarray, set[int]]:
+    """Generate every quad into the bucket file of its key range; the buckets' sizes, the label keys seen."""
+    files = [open(b.workdir / f"bucket{i:04d}", "wb") for i in range(n_buckets)]  # noqa: SIM115
+    sizes = np.zeros(len(files), np.int64)
+    present: set[int] = set()
+    try:
+        for rec, counts, lks in _map_chunks(b.pool, b.workers, chunk_records, ranges):
+            ends = np.cumsum(counts)
+            for i in np.flatnonzero(counts):
+                files[i].write(rec[ends[i] - counts[i] : ends[i]].tobytes())
+            sizes += counts
+            present.update(lks.tolist())
+    finally:
+        for f in files:
+            f.close()
+    return sizes, present
+
+
+def _sort_bucket(path: str, _: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """A bucket file's quads sorted by key (then deleted): anchors, triples, positions in cells, and its cells'
+    keys, first quads (relative to the bucket) and largest size."""
+    rec = np.fromfile(path, dtype=RECORD)
+    os.unlink(path)
+    if not rec.size:
+        empty = np.zeros(0, np.int64)
+        return np.zeros(0, "<u4"), np.zeros(0, "u1"), np.zeros((0, 4), "u1"), np.zeros(0, "<u8"), empty, 0
+    rec = rec[np.argsort(rec["key"])]  # deterministic: the chunks came in anchor order
+    key = rec["key"]
+    first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
+    longest = int(np.diff(np.append(first, key.size)).max())
+    return (np.ascontiguousarray(rec["anchor"]), np.ascontiguousarray(rec["triple"]), np.ascontiguousarray(rec["sub"]),
+            key[first], first, longest)
+
+
+def _write_sorted(b: _Build, combo_keys: np.ndarray, combo_cell: np.ndarray, sizes: np.ndarray,
+                  present: set[int]) -> dict[str, Any]:
+    """Sort the bucket files (in the pool's processes), then write every section, the checksums, the header."""
+    q = int(sizes.sum())
+    # 3. Sections at fixed offsets: quads sorted bucket by bucket, the cell directory after them.
+    layout = SectionPlan()
+    layout.place("coords", "<i4", (b.n, 2))
+    layout.place("neighbours", "<u4", (b.n, b.k if b.k >= 3 else 0))
+    layout.place("anchor", "<u4", (q,))
+    layout.place("triple", "u1", (q,))
+    layout.place("sub", "u1", (q, 4))
+    b.say(f"sorting {q} quads in {sizes.size} buckets ...")
+    n_cells, max_cell = _write_quads(b, layout, q, sizes.size)
+    _write_directory(b, layout, q, n_cells)
+
+    # 4. Checksums of every 4 KiB block, the header at the end, the prefix last.
+    b.say("checksumming ...")
+    crc_table = layout.checksums(b.tmp)
+    layout.place("crc", "<u4", (crc_table.size,))
+    used = np.array(sorted(present), np.int64)
+    counts = {"objects": b.n, "neighbours": b.k if b.k >= 3 else 0, "quads": q, "cells": n_cells,
+              "max_cell": max_cell}
+    header = _header(b, counts, list(zip(used.tolist(), cell_for(used, combo_keys, combo_cell).tolist(),
+                                         strict=True)), layout, crc_table)
+    with open(b.tmp, "r+b") as out:
+        pwrite_all(out.fileno(), crc_table.tobytes(), layout["crc"]["offset"])
+        write_header(out.fileno(), header, layout.offset)
+    return {"quads": q, "cells": n_cells, "max_cell": max_cell, "neighbours": counts["neighbours"]}
+
+
+def _write_quads(b: _Build, layout: SectionPlan, q: int, n_buckets: int) -> tuple[int, int]:
+    """Write the coordinates, the neighbours and the buckets' sorted quads; the cell directory to work files.
+
+    Returns the number of cells and the most quads in one.
+    """
+    max_cell = 0
+    n_cells = 0
+    workdir = b.workdir
+    with open(b.tmp, "r+b") as out, open(workdir / "dir_key", "wb") as dk, open(workdir / "dir_start", "wb") as ds:
+        fd = out.fileno()
+        pwrite_all(fd, b.coords.tobytes(), layout["coords"]["offset"])
+        pwrite_all(fd, np.ascontiguousarray(b.table[:, : layout["neighbours"]["shape"][1]]).tobytes(),
+                   layout["neighbours"]["offset"])
+        done = 0
+        paths = [str(workdir / f"bucket{i:04d}") for i in range(n_buckets)]
+        for anchor, triple, sub, keys, first, longest in _map_chunks(b.pool, b.workers, _sort_bucket,
+                                                                     [(p, 0) for p in paths]):
+            for name, data, itemsize in (("anchor", anchor, 4), ("triple", triple, 1), ("sub", sub, 4)):
+                pwrite_all(fd, data.tobytes(), layout[name]["offset"] + done * itemsize)
+            max_cell = max(max_cell, longest)
+            n_cells += first.size
+            dk.write(keys.tobytes())
+            ds.write((first + done).astype(start_dtype(q)).tobytes())
+            done += anchor.size
+        ds.write(np.array([q], start_dtype(q)).tobytes())
+    return n_cells, max_cell
+
+
+def _write_directory(b: _Build, layout: SectionPlan, q: int, n_cells: int) -> None:
+    """Place and copy the cell directory (``dir_key``, ``dir_start``) and write its fence."""
+    layout.place("dir_key", "<u8", (n_cells,))
+    layout.place("dir_start", start_dtype(q), (n_cells + 1,))
+    fence = np.array(np.memmap(b.workdir / "dir_key", "<u8", "r")[::FENCE]) if n_cells else np.zeros(0, "<u8")
+    layout.place("fence", "<u8", (fence.size,))
+    with open(b.tmp, "r+b") as out:
+        for name in ("dir_key", "dir_start"):
+            out.seek(layout[name]["offset"])
+            with open(b.workdir / name, "rb") as src:
+                shutil.copyfileobj(src, out, 16 << 20)
+        pwrite_all(out.fileno(), fence.tobytes(), layout["fence"]["offset"])
+
+
+def _header(b: _Build, counts: dict[str, int], combos: list[tuple[int, float]], layout: SectionPlan,
+            crc_table: np.ndarray) -> dict[str, Any]:
+    """The JSON header (``docs/index_format.md``), its keys in the order written."""
+    return {
+        "format": FORMAT_NAME,
+        "format_version": INDEX_VERSION,
+        "map": b.identity,
+        "origin": list(b.origin),
+        **counts,
+        "key_label_bits": b.label_bits,
+        "key_cell_bits": b.bits,
+        "sub_cells": SUB_CELLS,
+        "block_size": BLOCK,
+        "target_occupancy": b.target,
+        "combos": [[int(c), float(s)] for c, s in combos],
+        "sections": layout.sections,
+        "crc_crc32": zlib.crc32(crc_table.tobytes()),
+        "software": f"mapdb {__version__}",
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+    }

@@ -1,0 +1,345 @@
+"""The quad index file's layout (``docs/index_format.md``): constants, cell keys, the prefix and header, sections.
+
+Shared by the writer (:mod:`~mapdb.match.index.build`) and the reader (:mod:`~mapdb.match.index.stored`), so
+that both follow one definition of the format: what the prefix holds, how a quad's invariants become a cell
+key and a position inside its cell, which sections there are with which dtypes and shapes, and how they are
+checksummed in blocks.  Nothing here is executed from a file: a header is JSON, sections are fixed-size
+little-endian arrays, and every count and extent is checked before a section is mapped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+import zlib
+from itertools import combinations
+from pathlib import Path
+from typing import IO, Any, NamedTuple
+
+import numpy as np
+
+from ... import __version__
+from ...errors import MapdbIOError, MapFormatError, MapVersionError, reading
+from ...mapfile.store import MAGIC as MAP_MAGIC
+from ...mapfile.store import MetaMap
+
+__all__ = [
+    "BLOCK",
+    "BLOCK_BITS",
+    "CELL_LADDER",
+    "Counts",
+    "FENCE",
+    "FORMAT_NAME",
+    "INDEX_MAGIC",
+    "INDEX_SUFFIX",
+    "INDEX_VERSION",
+    "MAX_NEIGHBOURS",
+    "PREFIX_SIZE",
+    "SECTIONS",
+    "SectionPlan",
+    "SUB_CELLS",
+    "cell_keys",
+    "cells_of",
+    "check_sections",
+    "header_combos",
+    "header_counts",
+    "index_path",
+    "key_layout",
+    "map_identity",
+    "pread",
+    "pwrite_all",
+    "read_header",
+    "section_shapes",
+    "start_dtype",
+    "triples",
+    "write_header",
+]
+
+FORMAT_NAME = "mapdb-quad-index"
+INDEX_MAGIC = b"\x89MAPDBQX"
+INDEX_VERSION = 1
+INDEX_SUFFIX = ".qidx"
+# magic | u16 version | u16 flags | u64 header offset | u32 header length | u32 header CRC-32 | u32 CRC-32 of
+# the 28 bytes before it.  The JSON header is written last, at the end of the file, since it holds the
+# section sizes and checksums.
+_PREFIX = struct.Struct("<8sHHQII")
+PREFIX_SIZE = _PREFIX.size + 4
+_MAP_PREFIX = struct.Struct("<8sHHI")  # the map file's own prefix (mapdb.mapfile.store), for its header CRC
+_MAX_HEADER = 16 << 20
+ALIGN = 4096  # sections start at multiples of a page
+BLOCK_BITS = 12
+BLOCK = 1 << BLOCK_BITS  # checksum block of every section: a page, what a lookup's first read of it costs
+SUB_CELLS = 256  # positions inside a cell, per invariant
+CELL_LADDER = 0.5 * 2.0 ** (-np.arange(12) / 2.0)  # 0.5 .. 0.011: cell sides tried per label combination
+MAX_NEIGHBOURS = 12  # C(12, 3) = 220 triples fit in one byte
+SECTIONS: dict[str, str | None] = {  # name: dtype, in the order of the checksum table
+    "coords": "<i4",
+    "neighbours": "<u4",
+    "anchor": "<u4",
+    "triple": "u1",
+    "sub": "u1",
+    "dir_key": "<u8",
+    "dir_start": None,  # start_dtype: 4 bytes while quads number fewer than 2^32
+    "fence": "<u8",  # every FENCE-th cell key: the page of dir_key to search, read once when opening
+}
+FENCE = BLOCK // 8  # cell keys per page of dir_key
+
+
+def start_dtype(quads: int) -> str:
+    """The dtype of ``dir_start`` for an index of ``quads`` quads."""
+    return "<u4" if quads < 2**32 else "<u8"
+
+
+def index_path(map_path: str | os.PathLike[str]) -> Path:
+    """The sidecar index of a map file: ``MAP`` + ``.qidx`` (``andorra.mapdb`` -> ``andorra.mapdb.qidx``)."""
+    return Path(os.fspath(map_path) + INDEX_SUFFIX)
+
+
+def map_identity(map_: MetaMap) -> dict[str, Any]:
+    """What an index records of its map: header CRC-32, file size, object count, quantum, labels.
+
+    The header CRC-32 covers the header and, through its ``directory_crc32``, every page's CRC-32, so a
+    rewritten map (or another map of the same size) does not pass for the indexed one.
+    """
+    where = str(map_.path)
+    with reading(where, "map file"), open(map_.path, "rb") as f:
+        head = f.read(_MAP_PREFIX.size)
+        if len(head) < _MAP_PREFIX.size or not head.startswith(MAP_MAGIC):
+            raise MapFormatError(f"{where}: not a mapdb map (bad magic number)")
+        header_len = _MAP_PREFIX.unpack(head)[3]
+        f.seek(_MAP_PREFIX.size + header_len)
+        tail = f.read(4)
+        size = os.fstat(f.fileno()).st_size
+    if len(tail) < 4:
+        raise MapFormatError(f"{where}: truncated map file (header runs past the end)")
+    return {
+        "header_crc32": struct.unpack("<I", tail)[0],
+        "file_size": size,
+        "count": len(map_),
+        "quantum": float(map_.quantum),
+        "labels": list(map_.labels),
+    }
+
+
+# ------------------------------------------------------------------------------------------ cell keys
+
+
+def triples(k: int) -> np.ndarray:
+    """The triples ``(i, j, k)`` of ``k`` neighbours, ``(C(k, 3), 3)``, numbered as the ``triple`` section does."""
+    return np.array(list(combinations(range(k), 3)), dtype=np.int64).reshape(-1, 3)
+
+
+def key_layout(n_labels: int) -> tuple[int, int]:
+    """Bits of the label combination and of each invariant's cell in a 64-bit key."""
+    label_bits = max(1, (max(n_labels, 1) ** 4 - 1).bit_length())
+    return label_bits, (64 - label_bits) // 4
+
+
+def cells_of(inv: np.ndarray, cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cell coordinates (int64) and position inside the cell (uint8, 1/256ths) of invariants ``(m, 4)``.
+
+    Invariants lie in [-1, 1] (``A``, ``B`` are the most distant pair), so ``t + 1`` is >= 0 and cells
+    count from 0; the ladder's smallest cell keeps the largest coordinate far below ``2 ** bits``.
+    """
+    s = (inv + 1.0) / cell[:, None]
+    k = np.floor(s)
+    sub = np.clip(np.floor((s - k) * SUB_CELLS), 0, SUB_CELLS - 1).astype(np.uint8)
+    return np.maximum(k, 0).astype(np.int64), sub
+
+
+def cell_keys(label_key: np.ndarray, cells: np.ndarray, bits: int) -> np.ndarray:
+    """The 64-bit keys (uint64) of cells ``(m, 4)`` of label combinations ``label_key``."""
+    key = label_key.astype(np.uint64)
+    for j in range(4):
+        key = (key << np.uint64(bits)) | cells[:, j].astype(np.uint64)
+    return key
+
+
+# ------------------------------------------------------------------------------- prefix and header
+
+
+def write_header(fd: int, header: dict[str, Any], offset: int) -> None:
+    """Write the JSON header at ``offset``, the file's end, then the prefix that points at it."""
+    header_bytes = json.dumps(header, separators=(",", ":"), allow_nan=False).encode("utf-8")
+    pwrite_all(fd, header_bytes, offset)
+    prefix = _PREFIX.pack(INDEX_MAGIC, INDEX_VERSION, 0, offset, len(header_bytes), zlib.crc32(header_bytes))
+    pwrite_all(fd, prefix + struct.pack("<I", zlib.crc32(prefix)), 0)
+    os.ftruncate(fd, offset + len(header_bytes))
+
+
+def read_header(f: IO[bytes], size: int, where: str) -> dict[str, Any]:
+    """The checked JSON header of an open index file of ``size`` bytes (its offset as ``_header_offset``)."""
+    head = f.read(PREFIX_SIZE)
+    if len(head) < 8 or not head.startswith(INDEX_MAGIC):
+        raise MapFormatError(f"{where}: not a mapdb quad index (bad magic number)")
+    if len(head) < PREFIX_SIZE:
+        raise MapFormatError(f"{where}: truncated quad index")
+    _, version, _flags, h_off, h_len, h_crc = _PREFIX.unpack_from(head)
+    if zlib.crc32(head[: _PREFIX.size]) != struct.unpack_from("<I", head, _PREFIX.size)[0]:
+        raise MapFormatError(f"{where}: quad index prefix checksum mismatch (file is corrupt)")
+    if version > INDEX_VERSION:
+        raise MapVersionError(f"{where}: written by a newer quad index format (version {version}); "
+                              f"this mapdb {__version__} reads up to version {INDEX_VERSION}")
+    if h_len > _MAX_HEADER or h_off < PREFIX_SIZE or h_off + h_len != size:
+        raise MapFormatError(f"{where}: truncated quad index ({size} bytes; its header says "
+                             f"{h_off + h_len})")
+    f.seek(h_off)
+    raw = f.read(h_len)
+    if len(raw) != h_len or zlib.crc32(raw) != h_crc:
+        raise MapFormatError(f"{where}: quad index header checksum mismatch (file is corrupt)")
+    try:
+        header = json.loads(raw.decode("utf-8"))
+    except (ValueError, RecursionError):  # RecursionError: nesting deeper than the parser's stack
+        raise MapFormatError(f"{where}: quad index header is not JSON") from None
+    if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
+        raise MapFormatError(f"{where}: not a mapdb quad index (header)")
+    header["_header_offset"] = h_off
+    return header
+
+
+class Counts(NamedTuple):
+    """A header's counts and key layout, checked (:func:`header_counts`)."""
+
+    objects: int
+    neighbours: int
+    quads: int
+    cells: int
+    max_cell: int
+    origin: tuple[int, ...]
+    cell_bits: int
+
+
+def header_counts(h: dict[str, Any], n_labels: int, identity: dict[str, Any], where: str) -> Counts:
+    """The header's counts, checked against each other, the map's (``identity``) and the format's bounds."""
+    n, k, q, d = (int(h[key]) for key in ("objects", "neighbours", "quads", "cells"))
+    max_cell = int(h["max_cell"])
+    origin = tuple(int(v) for v in h["origin"])
+    label_bits, bits = int(h["key_label_bits"]), int(h["key_cell_bits"])
+    if (label_bits, bits) != key_layout(n_labels) or int(h["sub_cells"]) != SUB_CELLS or \
+            int(h["block_size"]) != BLOCK:
+        raise MapFormatError(f"{where}: unsupported key layout")
+    n_triples = math.comb(k, 3) if k >= 3 else 0  # counted, not listed: k is not checked yet
+    if not (0 <= n < 2**32 and n == int(identity["count"]) and (k == 0 or 3 <= k <= MAX_NEIGHBOURS)
+            and 0 <= q <= n * n_triples and 0 <= d <= q and 0 <= max_cell <= q
+            and (d > 0) == (q > 0) and (max_cell > 0) == (q > 0)):
+        raise MapFormatError(f"{where}: quad index counts out of range (objects {n}, neighbours {k}, "
+                             f"quads {q}, cells {d})")
+    return Counts(n, k, q, d, max_cell, origin, bits)
+
+
+def header_combos(combos: Any, quads: int, n_labels: int, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The header's label-combination keys (ascending, int64) and their cell sides (float64), checked."""
+    if not isinstance(combos, list) or len(combos) > max(quads, 0):
+        raise MapFormatError(f"{where}: quad index label combinations out of range")
+    ck = np.array([int(c[0]) for c in combos], np.int64)
+    cc = np.array([float(c[1]) for c in combos], np.float64)
+    if ck.size and (np.any(np.diff(ck) <= 0) or ck[0] < 0 or ck[-1] >= max(n_labels, 1) ** 4
+                    or not np.all((cc >= CELL_LADDER[-1] * 0.999) & (cc <= CELL_LADDER[0] * 1.001))):
+        raise MapFormatError(f"{where}: quad index label combinations out of range")
+    return ck, cc
+
+
+# ----------------------------------------------------------------------------------------- sections
+
+
+def section_shapes(n: int, k: int, q: int, d: int) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Shape and dtype of every section but ``crc``, for ``n`` objects, ``k`` neighbours, ``q`` quads, ``d``
+    cells."""
+    shapes: dict[str, tuple[int, ...]] = {
+        "coords": (n, 2), "neighbours": (n, k), "anchor": (q,), "triple": (q,), "sub": (q, 4),
+        "dir_key": (d,), "dir_start": (d + 1,), "fence": (-(-d // FENCE),)}
+    return {name: (shape, SECTIONS[name] or start_dtype(q)) for name, shape in shapes.items()}
+
+
+def check_sections(layout: dict[str, Any], shapes: dict[str, tuple[tuple[int, ...], str]], end: int,
+                   where: str) -> int:
+    """Check the header's ``sections`` against the counts and the file; return the number of checksum blocks.
+
+    Every section must have the dtype, shape and length the counts give and lie between the prefix and
+    the header (``end``) without overlapping another, so that nothing mapped is larger than the file.
+    """
+    spans = []
+    total_blocks = 0
+    for name, (shape, dtype) in shapes.items():
+        sec = layout[name]
+        length = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        if sec["dtype"] != dtype or [int(v) for v in sec["shape"]] != list(shape) or int(sec["length"]) != length:
+            raise MapFormatError(f"{where}: quad index section {name} does not match the counts")
+        total_blocks += -(-length // BLOCK)
+        spans.append((int(sec["offset"]), length, name))
+    crc_sec = layout["crc"]
+    if crc_sec["dtype"] != "<u4" or [int(v) for v in crc_sec["shape"]] != [total_blocks] or \
+            int(crc_sec["length"]) != 4 * total_blocks:
+        raise MapFormatError(f"{where}: quad index checksum table does not match the sections")
+    spans.append((int(crc_sec["offset"]), 4 * total_blocks, "crc"))
+    spans.sort()
+    at = PREFIX_SIZE
+    for off, length, name in spans:
+        if off < at or off + length > end:
+            raise MapFormatError(f"{where}: truncated or overlapping quad index section {name}")
+        at = off + length
+    return total_blocks
+
+
+class SectionPlan:
+    """Where a writer puts each section: one after another, each at an ``ALIGN``-byte boundary, from ``ALIGN``
+    on; ``sections`` is the header's ``sections``, ``offset`` the end of the last one."""
+
+    def __init__(self) -> None:
+        self.sections: dict[str, dict[str, Any]] = {}
+        self.offset = ALIGN
+
+    def place(self, name: str, dtype: str, shape: tuple[int, ...]) -> None:
+        """Put the next section at ``offset``."""
+        length = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        self.sections[name] = {"offset": self.offset, "length": length, "dtype": dtype, "shape": list(shape)}
+        self.offset += -(-length // ALIGN) * ALIGN
+
+    def __getitem__(self, name: str) -> dict[str, Any]:
+        return self.sections[name]
+
+    def checksums(self, path: str | os.PathLike[str]) -> np.ndarray:
+        """The ``crc`` table of the sections written to ``path``: the CRC-32 of every block of every section,
+        in ``SECTIONS`` order (each section's ``first_block`` is set)."""
+        crcs: list[np.ndarray] = []
+        with open(path, "rb") as f:
+            for name in SECTIONS:
+                sec = self.sections[name]
+                sec["first_block"] = sum(len(c) for c in crcs)
+                crcs.append(_block_crcs(f, sec["offset"], sec["length"]))
+        return np.concatenate(crcs).astype("<u4") if crcs else np.zeros(0, "<u4")
+
+
+def _block_crcs(f: IO[bytes], offset: int, length: int) -> np.ndarray:
+    """CRC-32 of every ``BLOCK`` bytes of ``length`` bytes at ``offset`` of ``f`` (the last block may be shorter)."""
+    out = np.zeros(-(-length // BLOCK), np.uint32)
+    f.seek(offset)
+    done = 0
+    step = 4096 * BLOCK
+    while done < length:
+        chunk = f.read(min(step, length - done))
+        if not chunk:
+            raise MapdbIOError(f"{f.name}: could not read back what was written")
+        view = memoryview(chunk)
+        for i in range(0, len(chunk), BLOCK):
+            out[(done + i) // BLOCK] = zlib.crc32(view[i : i + BLOCK])
+        done += len(chunk)
+    return out
+
+
+def pread(fd: int, offset: int, length: int, where: str) -> bytes:
+    """Exactly ``length`` bytes at ``offset`` (a short read means a truncated index)."""
+    data = os.pread(fd, length, offset) if length else b""
+    if len(data) != length:
+        raise MapFormatError(f"{where}: truncated quad index")
+    return data
+
+
+def pwrite_all(fd: int, data: bytes, offset: int) -> None:
+    """Write all of ``data`` at ``offset`` (``os.pwrite`` may write less than asked)."""
+    view = memoryview(data)
+    while view:
+        written = os.pwrite(fd, view, offset)
+        view, offset = view[written:], offset + written

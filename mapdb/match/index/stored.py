@@ -1,0 +1,370 @@
+"""A disk-backed lost-in-space quad index: built in bounded memory, opened in milliseconds, memory-mapped.
+
+The whole-map :class:`~mapdb.match.quads.QuadIndex` keeps every quad's complex coordinates and labels and
+a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds the same
+quads (:func:`~mapdb.match.quads.neighbour_quads` with the same number of neighbours, the same canonical
+order and invariants from :func:`~mapdb.match.quads.canonical_quads`) in a sidecar file ``MAP.qidx``
+beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the format is in ``docs/index_format.md``.
+
+How a quad is stored
+    A quad is an *anchor* object and a triple of its ``K`` nearest neighbours (the neighbour table,
+    ``K`` object ids per object, is in the file), so it costs a 4-byte anchor id and a 1-byte triple
+    number instead of four ids; it is kept once, at the smallest-id member whose neighbours hold the
+    other three (checked against the neighbour table, so chunks of anchors need no coordination).
+    Object ids are positions in ``MetaMap.all()`` (pages in page order); their quantized positions are
+    in the file too, so that ids resolve to map metres without decoding pages.
+
+How quads are found (geometric hashing)
+    The four invariants of each label combination are cut into a grid of cells of side ``c`` (one ``c``
+    per label combination, chosen at build time from a sample so that a quad's cell holds about
+    ``target_occupancy`` other quads); quads are sorted by ``(label combination, cell)`` and a directory
+    of the non-empty cells gives each one's range.  Each quad also keeps its position inside its cell
+    to 1/256 of ``c`` (4 bytes): bounds on its distance to a query without reading its coordinates.
+    A lookup enumerates the cells its ball reaches (at most 3^4, about a third of them for a ball as
+    wide as a cell), finds them in the memory-mapped directory (a fence of every 512th key, read when
+    opening, names the one page to search), drops the candidates whose lower bound exceeds the radius
+    or the query's k-th smallest upper bound (they cannot be among its ``k`` nearest) without reading
+    their anchor and triple, recomputes the others' exact invariants from the coordinate table with
+    ``canonical_quads`` (bit-identical to the in-memory index's) and keeps those within the radius,
+    the ``k`` nearest per query.
+
+    **The lookup radius is clamped to the cell size** of the query's label combination: a ball wider
+    than a cell would cover many cells, and where ``c`` is smaller than the radius the quads are dense
+    enough that the ``k`` nearest usually lie within ``c`` anyway (``c`` is chosen so that a ball of
+    radius ``c`` around a quad holds about five times ``target_occupancy`` others, and the matcher keeps
+    at most 16 hits per lookup).  :meth:`StoredQuadIndex.cell_size` tells the clamp.
+
+Safety
+    Nothing in the file is executed (a JSON header, fixed-size little-endian arrays); every count and
+    length is checked against the file size and the format's bounds when the file is opened; every
+    section is checksummed in 4 KiB blocks (CRC-32), each block checked the first time a lookup reads
+    it (:meth:`StoredQuadIndex.verify` checks all); ids and ranges read from the file are checked
+    before use, and a lookup's memory is bounded whatever the file says.  A lookup asks the kernel for
+    all the pages it is about to read at once (``MADV_WILLNEED``), so on a cold file it waits for a few
+    rounds of parallel reads (5M objects: about 0.6 s for an image's lookups) rather than for each page
+    fault in turn (2 s).  The header records the map's header CRC-32, file size, object count and
+    labels: an index is refused for any other map.
+
+The code is in four modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
+prefix, header, sections, cell keys), :mod:`~mapdb.match.index.build` (:func:`build_index`, the external
+sort), :mod:`~mapdb.match.index.generate` (neighbours, quads, cells) and :mod:`~mapdb.match.index.lookup`
+(checked sections, the cells and candidates of a lookup).
+"""
+
+from __future__ import annotations
+
+import mmap
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ...errors import MapdbIOError, MapFormatError, reading
+from ...mapfile.store import MetaMap
+from ..quads import canonical_quads, label_keys
+from .build import build_index
+from .layout import (
+    INDEX_SUFFIX,
+    check_sections,
+    header_combos,
+    header_counts,
+    index_path,
+    map_identity,
+    read_header,
+    section_shapes,
+    triples,
+)
+from .lookup import (
+    LOOKUP_CANDIDATES,
+    Best,
+    bound_candidates,
+    find_cells,
+    map_sections,
+    pieces,
+    query_cells,
+    take_rows,
+)
+
+__all__ = [
+    "INDEX_SUFFIX",
+    "StoredQuadIndex",
+    "build_index",
+    "index_path",
+    "map_identity",
+    "open_index",
+]
+
+
+class StoredQuadIndex:
+    """A quad index file opened for lookups (memory-mapped; use :func:`open_index` or :meth:`for_map`).
+
+    Attributes
+    ----------
+    path : Path
+    labels : tuple of str
+        The map's label names: label codes in lookups index into them.
+    neighbours : int
+        Neighbours per anchor the quads were built with.
+    n_objects, n_quads, n_cells : int
+    quantum : float
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        where = str(self.path)
+        with reading(where, "quad index"):
+            f = open(self.path, "rb")  # noqa: SIM115 - closed below once mapped and the small sections read
+        try:
+            try:
+                size = os.fstat(f.fileno()).st_size
+                header = read_header(f, size, where)
+                self._mmap = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else None
+                if self._mmap is not None and hasattr(mmap, "MADV_RANDOM"):
+                    # Lookups read scattered pages: no read-ahead around each (a cold lookup reads what it needs).
+                    self._mmap.madvise(mmap.MADV_RANDOM)
+            except OSError as exc:
+                raise MapdbIOError(f"{where}: cannot read quad index ({exc.strerror or exc})") from None
+            try:
+                self._setup(header, size, where, f.fileno())
+            except BaseException as exc:
+                self.close()
+                if isinstance(exc, MapFormatError) or not isinstance(
+                        exc, LookupError | TypeError | ValueError | OverflowError | AttributeError):
+                    raise
+                raise MapFormatError(f"{where}: header is not valid quad index metadata") from None
+        finally:
+            f.close()
+
+    def _setup(self, h: dict[str, Any], size: int, where: str, fd: int) -> None:
+        self.where = where
+        self.header = h
+        self.identity = dict(h["map"])
+        self.labels = tuple(str(s) for s in self.identity["labels"])
+        self.quantum = float(self.identity["quantum"])
+        counts = header_counts(h, len(self.labels), self.identity, where)
+        n, k, q, d = counts.objects, counts.neighbours, counts.quads, counts.cells
+        self.max_cell, self.origin, self._bits = counts.max_cell, counts.origin, counts.cell_bits
+        self.n_objects, self.neighbours, self.n_quads, self.n_cells = n, k, q, d
+        self._triples = triples(k) if k >= 3 else np.zeros((0, 3), np.int64)
+        self._combo_keys, self._combo_cell = header_combos(h["combos"], q, len(self.labels), where)
+        shapes = section_shapes(n, k, q, d)
+        total_blocks = check_sections(h["sections"], shapes, int(h["_header_offset"]), where)
+        self._sections, self._fence = map_sections(self._mmap, fd, h, shapes, total_blocks, where)
+
+    # ------------------------------------------------------------------------------------------ public
+
+    @classmethod
+    def for_map(cls, map_: MetaMap, path: str | os.PathLike[str] | None = None) -> StoredQuadIndex | None:
+        """The index beside an open map file (``path``, default :func:`index_path`), or None if there is none.
+
+        A map held in memory (no file) has none.
+
+        Raises
+        ------
+        MapFormatError
+            If the index is damaged or was built for another map (or another version of this one).
+        """
+        if path is None and getattr(map_, "path", None) is None:
+            return None
+        path = index_path(map_.path) if path is None else Path(path)
+        if not path.exists():
+            return None
+        return open_index(path, map_)
+
+    def check_map(self, map_: MetaMap) -> None:
+        """Refuse (:class:`MapFormatError`) unless this index was built from exactly this map file."""
+        mine, theirs = self.identity, map_identity(map_)
+        for key in ("header_crc32", "file_size", "count", "labels"):
+            if mine.get(key) != theirs[key]:
+                raise MapFormatError(f"{self.where}: quad index of another map (or of an earlier version of "
+                                     f"{map_.path}: its {key.replace('_', ' ')} differs); rebuild it with "
+                                     f"`mapdb index {map_.path}`")
+
+    def close(self) -> None:
+        """Release the mapping (arrays returned by lookups are copies and stay valid)."""
+        self._sections = {}
+        if self._mmap is not None:
+            try:
+                self._mmap.close()
+            except BufferError:  # a caller still holds a view: the mapping goes with it
+                pass
+            self._mmap = None
+
+    def __enter__(self) -> StoredQuadIndex:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def verify(self) -> None:
+        """Check every block of every section (lookups check only the blocks they read)."""
+        for section in self._sections.values():
+            section.verify()
+
+    def cell_size(self, labels: np.ndarray) -> np.ndarray:
+        """The cell side (the largest effective lookup radius) for label 4-tuples ``(m, 4)``; 0 if absent."""
+        labels = np.asarray(labels, np.int64).reshape(-1, 4)
+        pos, present = self._combo(labels)
+        return np.where(present, self._combo_cell[np.minimum(pos, max(self._combo_cell.size - 1, 0))]
+                        if self._combo_cell.size else 0.0, 0.0)
+
+    def _combo(self, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lk = np.rint(label_keys(labels, len(self.labels))).astype(np.int64) if len(labels) else np.zeros(0, np.int64)
+        if not self._combo_keys.size:
+            return np.zeros(lk.size, np.int64), np.zeros(lk.size, bool)
+        pos = np.searchsorted(self._combo_keys, lk)
+        ok = pos < self._combo_keys.size
+        ok[ok] = self._combo_keys[pos[ok]] == lk[ok]
+        return pos, ok
+
+    def coordinates(self, ids: np.ndarray) -> np.ndarray:
+        """Map positions (complex ``x + iy``, map metres, as ``MetaMap.all()`` gives them) of object ids."""
+        ids = np.asarray(ids, np.int64)
+        if ids.size and (ids.min() < 0 or ids.max() >= self.n_objects):
+            raise IndexError(f"object ids must be in [0, {self.n_objects})")
+        c = self._sections["coords"].rows(ids.reshape(-1)).astype(np.int64)
+        x = (c[:, 0] + self.origin[0]) * self.quantum
+        y = (c[:, 1] + self.origin[1]) * self.quantum
+        return (x + 1j * y).reshape(ids.shape)
+
+    def lookup(self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray | float, k: int, *,
+               return_distance: bool = False) -> tuple[np.ndarray, ...]:
+        """Map quads near query quads: at most ``k`` per query, nearest first, within its radius.
+
+        Parameters
+        ----------
+        invariants : (m, 4) float
+            ``Re t_C, Im t_C, Re t_D, Im t_D`` of each query quad in canonical order
+            (:func:`~mapdb.match.quads.canonical_quads`).
+        labels : (m, 4) int
+            Label codes (into :attr:`labels`) of the query's ``A, B, C, D``.
+        radius : (m,) float or float
+            Lookup radius in invariant space, clamped to :meth:`cell_size` of the query's labels.
+        k : int
+            Most hits per query.
+
+        Returns
+        -------
+        row : (h,) int64
+            The query row of each hit (ascending; within a row, nearest first).
+        ids : (h, 4) int64
+            The hit's object ids in canonical order ``A, B, C, D``; :meth:`coordinates` gives their
+            positions.
+        distance : (h,) float64
+            Only with ``return_distance``: Euclidean distance of the invariants.
+
+        Raises
+        ------
+        MapFormatError
+            If a block read is corrupt or the file's ranges and ids are inconsistent.
+        """
+        inv = np.asarray(invariants, np.float64).reshape(-1, 4)
+        labels = np.asarray(labels, np.int64).reshape(-1, 4)
+        m = len(inv)
+        radius = np.broadcast_to(np.asarray(radius, np.float64), (m,))
+        if len(labels) != m:
+            raise ValueError(f"{m} invariant rows but {len(labels)} label rows")
+        empty = (np.zeros(0, np.int64), np.zeros((0, 4), np.int64)) + ((np.zeros(0),) if return_distance else ())
+        if m == 0 or k <= 0 or self.n_quads == 0:
+            return empty
+        pos, present = self._combo(labels)
+        present &= np.isfinite(inv).all(axis=1) & np.isfinite(radius) & (radius >= 0)
+        present &= ((labels >= 0) & (labels < len(self.labels))).all(axis=1)
+        rows = np.flatnonzero(present)
+        if not rows.size:
+            return empty
+        cell = self._combo_cell[pos[rows]]
+        q = inv[rows]
+        r = np.minimum(radius[rows], cell)
+        which, start, length, rel = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
+        best = Best(k)
+        for piece, idx in pieces(start, length, LOOKUP_CANDIDATES):
+            self._candidates(which[piece], idx, take_rows(rel, piece), q, r, cell, k, best)
+        row, ids, dist = best.result()
+        row = rows[row]
+        return (row, ids, dist) if return_distance else (row, ids)
+
+    def _cell_ranges(self, q: np.ndarray, r: np.ndarray, cell: np.ndarray,
+                     lk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The non-empty cells the queries' balls reach: query row, first quad, quads, the query's position
+        relative to the cell (:func:`~mapdb.match.index.lookup.query_cells`).
+
+        Their directory ranges are checked, and the blocks of ``sub`` holding them (read below range by range).
+        """
+        which, rel, keys = query_cells(q, r, cell, lk, self._bits)
+        dir_start = self._sections["dir_start"]
+        at = find_cells(self._fence, self._sections["dir_key"], self.n_cells, keys)
+        found = at >= 0
+        which, at = which[found], at[found]
+        start = dir_start.rows(at).astype(np.int64)
+        stop = dir_start.rows(at + 1).astype(np.int64)
+        length = stop - start
+        if length.size and (start.min() < 0 or stop.max() > self.n_quads or length.min() < 1
+                            or length.max() > self.max_cell):
+            raise MapFormatError(f"{self.where}: quad index directory out of range (file is corrupt)")
+        # Every candidate's position inside its cell is read; its anchor and triple only if it survives
+        # the bounds (a few in a hundred where cells are crowded): their blocks are checked as they are read.
+        self._sections["sub"].check_ranges(start, stop)
+        return which, start, length, rel[found]
+
+    def _candidates(self, which: np.ndarray, idx: np.ndarray, rel: np.ndarray, q: np.ndarray,
+                    r: np.ndarray, cell: np.ndarray, k: int, best: Best) -> None:
+        """Bound, resolve and measure one batch of candidates; offer those within the radius to ``best``.
+
+        ``which`` (the query row of each candidate) is ascending.
+        """
+        sub = take_rows(self._sections["sub"].array, idx)  # its blocks checked by _cell_ranges
+        which, idx = bound_candidates(which, idx, rel, sub, r, cell, k)
+        if not idx.size:
+            return
+        ids, inv = self._resolve(idx)
+        dist = np.sqrt(((inv - q[which]) ** 2).sum(axis=1))
+        hit = dist <= r[which]
+        best.offer(which[hit], ids[hit], dist[hit])
+
+    def _resolve(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Object ids ``(m, 4)`` in canonical order and invariants of the stored quads at ``positions``."""
+        read = self._sections
+        anchor = read["anchor"].rows(positions).astype(np.int64)
+        triple = read["triple"].rows(positions).astype(np.int64)
+        if anchor.size and (anchor.max() >= self.n_objects or triple.max() >= len(self._triples)):
+            raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
+        nb = read["neighbours"].rows(anchor).astype(np.int64)
+        members = np.empty((positions.size, 4), np.int64)
+        members[:, 0] = anchor
+        members[:, 1:] = np.take_along_axis(nb, self._triples[triple], axis=1)
+        if members.size and members.max() >= self.n_objects:
+            raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
+        # The canonical order from the ids in ascending order, as at build time (and as QuadIndex does).
+        members.sort(axis=1)
+        order, inv, _ = canonical_quads(self.coordinates(members))
+        return np.take_along_axis(members, order, axis=1), inv
+
+    def quads(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """Object ids ``(m, 4)``, in canonical order, of the stored quads ``start:stop`` (in key order)."""
+        stop = self.n_quads if stop is None else min(stop, self.n_quads)
+        return self._resolve(np.arange(max(start, 0), max(stop, start, 0), dtype=np.int64))[0]
+
+
+
+
+def open_index(path: str | os.PathLike[str], map_: MetaMap | None = None) -> StoredQuadIndex:
+    """Open a quad index file; with ``map_``, refuse it unless it was built from that map file.
+
+    Raises
+    ------
+    MapdbIOError
+        If the file is missing or unreadable.
+    MapFormatError
+        If it is not a quad index, is truncated, fails a checksum, holds counts its size cannot hold, or
+        (with ``map_``) belongs to another map.
+    """
+    index = StoredQuadIndex(path)
+    if map_ is not None:
+        try:
+            index.check_map(map_)
+        except BaseException:
+            index.close()
+            raise
+    return index

@@ -1,0 +1,256 @@
+"""The map's objects for verification: one KD-tree over all labels, label densities, stored areas.
+
+:class:`ObjectIndex` answers what :mod:`mapdb.match.verify` asks of the map: the nearest object of an image
+object's label where a hypothesis projects it (optionally with a compatible area), objects within a gate,
+densities per label in a disc or from the ``k``-th nearest.  :mod:`mapdb.match.mapobjects.paged_objects` gives the
+same answers for a big map file read page by page.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..._scipy import quick_tree
+from ...objects import Objects
+from ..evidence.areas import compatible
+
+__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "ObjectIndex"]
+
+# Normalised residual beyond which an object counts as unmatched (a random point would be that close
+# with probability 1 - e^-3 = 95%): also the search bound of the nearest-neighbour queries.
+U_MAX = 3.0
+# The longest search of a ranking under mean densities (see ``ObjectIndex._reach``).
+GLOBAL_REACH_M = 300.0
+
+# Neighbours looked at for an area-compatible map object when the nearest is not one (beyond the excluded).
+AREA_NEIGHBOURS = 8
+
+# Fixed sample of the unit disc (sunflower pattern) for the share of a density disc inside the map.
+_DISC = np.sqrt((np.arange(256) + 0.5) / 256) * np.exp(1j * np.arange(256) * math.pi * (3 - math.sqrt(5)))
+
+
+
+class ObjectIndex:
+    """Map objects for verification: one cKDTree over all labels, label densities, the region's bounds.
+
+    The tree holds ``(x, y, label * gap)``: with a search bound below the gap, one query finds the
+    nearest objects of each query's own label, whatever the mix of labels, instead of one query per
+    label (a cKDTree query costs tens of microseconds whatever its size).
+
+    Parameters
+    ----------
+    objects : Objects
+        Map objects in projected metres (the whole map, or those read around a prior).
+    bounds : (minx, miny, maxx, maxy), optional
+        The region the objects were read from (default their bounding box): outside it the density
+        estimate knows there is no map.
+
+    Examples
+    --------
+    >>> idx = ObjectIndex(Objects.from_names([0.0, 10.0, 20.0], [0.0, 0.0, 5.0], ["b", "b", "p"]))
+    >>> len(idx), idx.counts.tolist()
+    (3, [2, 1])
+    >>> dist, which = idx.nearest(np.array([[1.0 + 0j, 19.0 + 4j]]), np.array([0, 1]), idx.density)
+    >>> dist.round(2).tolist(), which.tolist()
+    ([[1.0, 1.41]], [[0, 2]])
+    >>> len(ObjectIndex(Objects.empty(["b"])))
+    0
+    """
+
+    def __init__(self, objects: Objects, bounds: tuple[float, float, float, float] | None = None) -> None:
+        self.labels = tuple(objects.labels)
+        self.z = objects.x + 1j * objects.y
+        self.label = objects.label.astype(np.int64)
+        n = len(objects)
+        if bounds is None:
+            bounds = (
+                (float(objects.x.min()), float(objects.y.min()), float(objects.x.max()), float(objects.y.max()))
+                if n
+                else (0.0, 0.0, 0.0, 0.0)
+            )
+        self.bounds = tuple(float(v) for v in bounds)
+        self.area = max((self.bounds[2] - self.bounds[0]) * (self.bounds[3] - self.bounds[1]), 1.0)
+        self.counts = np.bincount(self.label, minlength=len(self.labels)) if n else np.zeros(len(self.labels), int)
+        # Densities over the whole region only rank hypotheses; the decision uses local ones.
+        self.density = np.maximum(self.counts, 1) / self.area
+        # Far beyond any search bound (those stay below the region's size, see ``_bound``), so a bounded
+        # search never crosses from one label to another.
+        self.gap = 1e3 * (math.sqrt(self.area) + 1e4)
+        self.tree = quick_tree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
+        self._area = objects.area
+        self._log_area: np.ndarray | None = None  # made on first use: only images with areas need it
+
+    def __len__(self) -> int:
+        return int(self.z.size)
+
+    def _points(self, w: np.ndarray, labels: np.ndarray) -> np.ndarray:
+        return np.column_stack([w.real, w.imag, labels * self.gap])
+
+    def _bound(self, reach: float) -> float:
+        return float(min(reach, 0.5 * self.gap))
+
+    def local_density(self, centres: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Objects per square metre of each label within ``radius`` of each centre (inside the bounds).
+
+        ``centres`` (complex) and ``radius`` have shape ``(H,)``; the result ``(H, L)``.  A label with no
+        object in a disc counts one, so that no density is zero.
+        """
+        centres = np.atleast_1d(np.asarray(centres, np.complex128))
+        radius = np.broadcast_to(np.asarray(radius, np.float64), centres.shape)
+        h, n_labels = centres.size, len(self.labels)
+        minx, miny, maxx, maxy = self.bounds
+        disc = centres[:, None] + radius[:, None] * _DISC[None, :]
+        inside = (disc.real >= minx) & (disc.real <= maxx) & (disc.imag >= miny) & (disc.imag <= maxy)
+        area = math.pi * radius**2 * np.maximum(inside.mean(axis=1), 1.0 / _DISC.size)
+        count = np.ones((h, n_labels))
+        present = np.flatnonzero(self.counts)
+        if self.tree is not None and present.size:
+            w = np.repeat(centres, present.size)
+            codes = np.tile(present, h)
+            r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
+            found = self.tree.query_ball_point(self._points(w, codes), r, return_length=True)
+            count[:, present] = np.maximum(np.asarray(found).reshape(h, present.size), 1)
+        return count / area[:, None]
+
+    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int) -> np.ndarray:
+        """Objects per square metre of each projected image object's label around where it lands.
+
+        ``(k - 1) / (pi d_k^2)``, ``d_k`` the distance to the ``k``-th nearest map object of that label: a
+        density that follows the map's clustering (a dense old town beside empty slopes), where one
+        density over the footprint would make chance alignments in the town look significant.  A label
+        with a single map object gets ``1 / (pi d_1^2)``; a label absent from the map, the region's floor.
+        ``w`` is ``(H, n)`` complex; ``img_label`` ``(n,)``.  Returns ``(H, n)``.
+        """
+        shape = w.shape
+        labels = np.broadcast_to(img_label, shape).ravel()
+        out = np.full(labels.size, 1.0 / self.area)
+        kk = np.minimum(k, self.counts[labels])
+        sel = np.flatnonzero(kk > 0)
+        if self.tree is None or not sel.size:
+            return out.reshape(shape)
+        k_max = int(kk[sel].max())
+        d, _ = self.tree.query(self._points(w.ravel()[sel], labels[sel]), k=k_max,
+                               distance_upper_bound=self._bound(0.5 * self.gap))
+        d = d.reshape(sel.size, k_max)[np.arange(sel.size), kk[sel] - 1]
+        out[sel] = np.maximum(kk[sel] - 1, 1) / (math.pi * np.maximum(d, 1e-3) ** 2)
+        return out.reshape(shape)
+
+    def nearest(
+        self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray, exclude: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Distance to, and index of, the nearest map object of each projected image object's label.
+
+        ``w`` has shape ``(H, n)`` (map metres, complex); ``img_label`` is ``(n,)`` or ``(H, n)``;
+        ``density`` is ``(L,)`` or ``(H, L)``.  Objects with nothing of their label within the
+        normalised residual ``U_MAX`` get ``inf`` and -1.  ``exclude`` (complex, ``(H, m)``) lists map
+        positions that row ``h`` may not use: the map points a hypothesis was built from.
+        """
+        shape = w.shape
+        labels = np.broadcast_to(img_label, shape).ravel()
+        if self.tree is None:
+            return np.full(shape, np.inf), np.full(shape, -1, dtype=np.int64)
+        reach = self._reach(density, labels)
+        k = 1 if exclude is None else 1 + exclude.shape[1]
+        d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(reach.max()))
+        if k == 1:  # nothing to exclude: the nearest is the answer when within reach
+            ok = d <= reach
+            return np.where(ok, d, np.inf).reshape(shape), np.where(ok, i, -1).reshape(shape)
+        rows = np.repeat(np.arange(shape[0]), shape[1])
+        dist, index = self._first_allowed(d.reshape(labels.size, k), i.reshape(labels.size, k), reach, exclude, rows)
+        return dist.reshape(shape), index.reshape(shape)
+
+    def _reach(self, density: np.ndarray, labels: np.ndarray) -> np.ndarray:
+        """The search reach of each object: where its normalised residual would pass ``U_MAX``.
+
+        Under the region's mean densities (a 1-D ``density``, which only ranks hypotheses) at most
+        ``GLOBAL_REACH_M``: a sparse label's mean density would send the search kilometres away, where a
+        "match" means nothing (and a map read page by page would read all of it).  On 400 Andorra images
+        the answers are bit-identical with and without the cap."""
+        if np.ndim(density) > 1:
+            return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))[labels]
+        return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
+
+    def _first_allowed(self, d: np.ndarray, i: np.ndarray, reach: np.ndarray, exclude: np.ndarray | None,
+                       rows: np.ndarray, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Of ``k`` neighbours a query point (``d``, ``i``: ``(m, k)``), the nearest within reach, not at one of
+        its row's ``exclude`` points and ``allowed`` (``(m, k)``): distances and indices (inf and -1 if none)."""
+        found = d <= reach[:, None]
+        if exclude is not None:
+            near = np.abs(self.z[np.minimum(i, len(self) - 1)][:, :, None] - exclude[rows][:, None, :])
+            found &= ~(near < 1e-6).any(axis=2)
+        if allowed is not None:
+            found &= allowed
+        first = np.argmax(found, axis=1)  # nearest allowed (column 0 if none: then not found)
+        pick = np.arange(d.shape[0])
+        ok = found[pick, first]
+        return np.where(ok, d[pick, first], np.inf), np.where(ok, i[pick, first], -1)
+
+    @property
+    def log_area(self) -> np.ndarray:
+        """Natural log of each map object's stored area (NaN where it has none: points)."""
+        if self._log_area is None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                self._log_area = np.where(self._area > 0, np.log(self._area), np.nan)
+        return self._log_area
+
+    def nearest_compatible(self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray, exclude: np.ndarray | None,
+                           lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`nearest`, among the map objects whose areas are compatible with each image object's band
+        (``lo``, ``hi``: ``(H, n)`` log square metres, :func:`mapdb.match.evidence.areas.bands`).  Where the nearest is
+        not compatible, the next ``AREA_NEIGHBOURS`` are looked at; none compatible counts as unmatched."""
+        dist, index = self.nearest(w, img_label, density, exclude)  # also what a paged index loads for the reach
+        ok = compatible(self.log_area[np.maximum(index, 0)], lo, hi) | (index < 0)
+        redo = np.flatnonzero(~ok.ravel())
+        if not redo.size:
+            return dist, index
+        shape = w.shape
+        labels = np.broadcast_to(img_label, shape).ravel()[redo]
+        reach = self._reach(density, labels)
+        k = min(len(self), AREA_NEIGHBOURS + (0 if exclude is None else exclude.shape[1]))
+        d, i = self.tree.query(self._points(w.ravel()[redo], labels), k=k,  # type: ignore[union-attr]
+                               distance_upper_bound=self._bound(reach.max()))
+        d, i = d.reshape(redo.size, k), i.reshape(redo.size, k)
+        allowed = compatible(self.log_area[np.minimum(i, len(self) - 1)], lo.ravel()[redo][:, None],
+                             hi.ravel()[redo][:, None])
+        rows = redo // shape[1]
+        dist, index = dist.ravel().copy(), index.ravel().copy()
+        dist[redo], index[redo] = self._first_allowed(d, i, reach, exclude, rows, allowed)
+        return dist.reshape(shape), index.reshape(shape)
+
+    def at(self, points: np.ndarray, labels: np.ndarray) -> np.ndarray:
+        """Index of the map object at each of ``points`` (complex, any shape) of ``labels`` (same shape), -1
+        where there is none (within a millimetre)."""
+        if self.tree is None:
+            return np.full(np.shape(points), -1, np.int64)
+        d, i = self.tree.query(self._points(np.ravel(points), np.ravel(labels)), k=1, distance_upper_bound=1e-3)
+        return np.where(np.isfinite(d), i, -1).reshape(np.shape(points))
+
+    def disc_members(self, centres: np.ndarray, radius: np.ndarray, codes: np.ndarray) -> list[list[np.ndarray]]:
+        """Indices of the map objects of each label in ``codes`` within ``radius`` of each centre:
+        ``out[h][code]`` (empty for the labels not asked)."""
+        centres = np.atleast_1d(np.asarray(centres, np.complex128))
+        radius = np.broadcast_to(np.asarray(radius, np.float64), centres.shape)
+        empty = np.zeros(0, np.int64)
+        out = [[empty] * len(self.labels) for _ in range(centres.size)]
+        if self.tree is None:
+            return out
+        codes = np.unique(codes)
+        w = np.repeat(centres, codes.size)
+        found = self.tree.query_ball_point(self._points(w, np.tile(codes, centres.size)),
+                                           np.minimum(np.repeat(radius, codes.size), 0.5 * self.gap))
+        for j, hits in enumerate(found):
+            out[j // codes.size][int(codes[j % codes.size])] = np.asarray(hits, np.int64)
+        return out
+
+    def within(self, w: np.ndarray, img_label: np.ndarray, gate: float, k: int) -> tuple[np.ndarray, ...]:
+        """Pairs (image object, map object, squared distance) within ``gate`` metres, up to ``k`` per object."""
+        if self.tree is None or not w.size:
+            empty = np.zeros(0, np.int64)
+            return empty, empty, np.zeros(0)
+        k = max(1, min(k, len(self)))
+        d, i = self.tree.query(self._points(w, img_label), k=k, distance_upper_bound=self._bound(gate))
+        d, i = d.reshape(w.size, k), i.reshape(w.size, k)
+        rows, cols = np.nonzero(np.isfinite(d))
+        return rows, i[rows, cols], d[rows, cols] ** 2
