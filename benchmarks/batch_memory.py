@@ -126,7 +126,8 @@ def main() -> None:
     args = parser.parse_args()
 
     from mapdb.detections.images import MAX_DOCUMENT_BYTES
-    from mapdb.mapfile.store import MemoryMap, write_map
+    from mapdb.mapfile.queries import MemoryMap
+    from mapdb.mapfile.writer import write_map
     from mapdb.simulation.simulate import paper_map, simulate_images
 
     with tempfile.TemporaryDirectory(dir=args.dir) as tmp:

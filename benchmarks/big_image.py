@@ -25,7 +25,7 @@ CHILD = r"""
 import json, resource, sys, time
 import numpy as np
 from mapdb.localize.localizer import localize
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 n, map_path = int(sys.argv[1]), sys.argv[2]
 with open_map(map_path) as m:
     if n == 20:

@@ -57,7 +57,7 @@ def footprint_axis(polygon) -> tuple[float, float]:
 
 def measure(altitude: float, heights: bool, n: int, seed: int) -> np.ndarray:
     """Rows ``(cut, footprint elongation, blob elongation, angle in degrees)`` of both extracts' building blobs."""
-    from mapdb.mapfile.store import open_map
+    from mapdb.mapfile.reader import open_map
     from mapdb.match.geometry import fit_similarity_complex
     from mapdb.simulation.outlines import read_scene
     from mapdb.simulation.rendered import simulate_masks

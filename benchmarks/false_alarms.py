@@ -49,7 +49,7 @@ def build_maps() -> dict[str, Path]:
 
 
 def _objects(path: Path):
-    from mapdb.mapfile.store import open_map
+    from mapdb.mapfile.reader import open_map
 
     with open_map(path) as m:
         # One nominal CRS: the extracts lie in UTM 31 and 32 but far apart; only patterns matter here.
@@ -58,7 +58,8 @@ def _objects(path: Path):
 
 def write_cases(maps: dict[str, Path], n: int, seed: int, world: int, workdir: Path) -> list[dict]:
     """Maps (own, the other two, optionally a world) and images, written for the worker processes."""
-    from mapdb.mapfile.store import MemoryMap, write_map
+    from mapdb.mapfile.queries import MemoryMap
+    from mapdb.mapfile.writer import write_map
     from mapdb.objects import concat
     from mapdb.simulation.simulate import simulate_images
 
@@ -141,9 +142,9 @@ def main() -> None:
         workdir = Path(tmp)
         cases = write_cases(build_maps(), args.n, args.seed, args.world, workdir)
         from mapdb.localize import localizer as tree_localize
-        from mapdb.mapfile import store as tree_store
+        from mapdb.mapfile import reader as tree_reader
 
-        table(localize_all(tree_localize.localize, tree_store, cases), "this tree")
+        table(localize_all(tree_localize.localize, tree_reader, cases), "this tree")
         if args.baseline:
             old = import_baseline(args.baseline, workdir)
             # The baseline has no stored index: its whole-map index of a world would be built in memory.

@@ -45,7 +45,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 from test_hostile_maps import DIR, Page, Parts, Run, encode_page, handmade  # noqa: E402
 
 from mapdb import Objects  # noqa: E402
-from mapdb.mapfile.store import open_map, write_map  # noqa: E402
+from mapdb.mapfile.reader import open_map  # noqa: E402
+from mapdb.mapfile.writer import write_map  # noqa: E402
 from mapdb.simulation.simulate import simulate_images  # noqa: E402
 
 ANDORRA = ROOT.parent / "shared" / "data" / "osm" / "andorra-2021-06-22.osm.pbf"

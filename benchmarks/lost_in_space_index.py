@@ -57,7 +57,8 @@ from _baseline import as_json, import_baseline  # noqa: E402
 from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
 
 from mapdb.camera import image_plane  # noqa: E402
-from mapdb.mapfile.store import open_map, write_map  # noqa: E402
+from mapdb.mapfile.reader import open_map  # noqa: E402
+from mapdb.mapfile.writer import write_map  # noqa: E402
 from mapdb.match.fast import FastOptions  # noqa: E402
 from mapdb.match.hypotheses import _quad_keys  # noqa: E402
 from mapdb.match.quads import LABEL_GAP, label_keys, neighbour_quads  # noqa: E402
@@ -342,7 +343,7 @@ sys.path.insert(0, "benchmarks")
 import numpy as np
 from lost_in_space_index import _image_arrays, image_queries
 from mapdb.match.index.stored import StoredQuadIndex, index_path
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 image = json.loads(sys.argv[2])
 """ + DROP_CACHE + """t1 = time.perf_counter()
 m = open_map(sys.argv[1])

@@ -32,7 +32,9 @@ import numpy as np
 
 from mapdb.build.pipeline import build_map
 from mapdb.localize.localizer import localize
-from mapdb.mapfile.store import MemoryMap, open_map, write_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.match.paper.algorithm import PaperOptions
 from mapdb.simulation.simulate import paper_map, simulate_images
 

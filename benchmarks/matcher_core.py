@@ -112,9 +112,9 @@ def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int) -> 
 def per_image_table(args: argparse.Namespace, map_path: Path, images: list[dict], work: Path) -> None:
     """Print part 1: median ms per image of this tree (and the baseline), with and without a prior."""
     from mapdb.localize import localizer as tree_localize
-    from mapdb.mapfile import store as tree_store
+    from mapdb.mapfile import reader as tree_reader
 
-    versions = {"this tree": (tree_localize.localize, tree_store)}
+    versions = {"this tree": (tree_localize.localize, tree_reader)}
     if args.baseline:
         old = import_baseline(args.baseline, work)
         versions[f"baseline {args.baseline}"] = (old.localize, import_baseline(args.baseline, work, "store"))
@@ -144,7 +144,7 @@ def main() -> None:
     if not ANDORRA.exists():
         sys.exit(f"skipped: {ANDORRA} not found")
     from mapdb.build.pipeline import build_map
-    from mapdb.mapfile.store import open_map
+    from mapdb.mapfile.reader import open_map
     from mapdb.simulation.simulate import simulate_images
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.navigator import Navigator
 from mapdb.navigation.track import plot_track

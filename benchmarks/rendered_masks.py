@@ -162,11 +162,11 @@ def main() -> None:
         sys.exit(f"real data not found in {DATA}: {', '.join(missing)}")
 
     from mapdb.localize import localizer as tree_localize
-    from mapdb.mapfile import store as tree_store
+    from mapdb.mapfile import reader as tree_reader
 
     with tempfile.TemporaryDirectory() as tmp:
         # Each matcher opens the maps with its own revision's store.
-        matchers = {"current": (tree_localize.localize, tree_store)}
+        matchers = {"current": (tree_localize.localize, tree_reader)}
         if args.baseline:
             matchers[f"baseline {args.baseline}"] = (import_baseline(args.baseline, Path(tmp)).localize,
                                                      import_baseline(args.baseline, Path(tmp), "store"))
@@ -177,7 +177,7 @@ def main() -> None:
 def run(maps: dict[str, Path], matchers: dict[str, Any], n: int, seed: int, altitudes: tuple[float, ...] = ALTITUDES,
         kinds: tuple[str, ...] = KINDS) -> dict[str, list[tuple]]:
     """Render every row's images once (with this tree) and localize them with every matcher."""
-    from mapdb.mapfile.store import open_map
+    from mapdb.mapfile.reader import open_map
     from mapdb.simulation.outlines import read_scene
 
     results: dict[str, list[tuple]] = {k: [] for k in matchers}

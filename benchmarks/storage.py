@@ -22,7 +22,8 @@ import numpy as np
 
 from mapdb.build.pipeline import build_map
 from mapdb.evaluation.storage import format_storage, sorted_columns, storage_reports
-from mapdb.mapfile.store import open_map, write_map
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from synthetic_world import synthetic_world  # noqa: E402

@@ -19,7 +19,7 @@ import numpy as np
 
 from mapdb.build.pipeline import build_map
 from mapdb.mapfile.export import export_map
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "osm"
 EXTRACTS = ["monaco-2021-12-03.osm.pbf", "andorra-2021-06-22.osm.pbf", "liechtenstein-2013-08-03.osm.pbf"]

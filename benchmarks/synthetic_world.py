@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from mapdb.build.pipeline import build_map
-from mapdb.mapfile.store import open_map, write_map
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.objects import Objects, concat
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "osm"

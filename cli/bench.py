@@ -9,7 +9,7 @@ import click
 
 from mapdb.evaluation.paper_bench import bench_paper, format_bench
 from mapdb.evaluation.storage import DEFAULT_GSD_M, DEFAULT_JPEG_BPP, format_storage, storage_reports
-from mapdb.mapfile.store import write_map
+from mapdb.mapfile.writer import write_map
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 from mapdb.simulation.simulate import paper_map
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from mapdb.build.pipeline import SPOOL_CHOICES, build_map
-from mapdb.mapfile.store import DEFAULT_QUANTUM
+from mapdb.mapfile.layout import DEFAULT_QUANTUM
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 from mapdb.sources import DEFAULT_MIN_AREA_M2
 from mapdb.sources.osm import NODE_INDEXES

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from mapdb.mapfile.export import EXPORT_CRS, LONLAT_CRS, default_export_crs, export_map
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.outputs import check_outputs
 
 from .options import bbox_option, debug_option, handle_errors, parents_option

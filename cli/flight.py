@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.path import read_linestring
 from mapdb.outputs import check_outputs

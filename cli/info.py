@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from mapdb.mapfile.export import map_info
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.outputs import dumps_strict
 
 from .options import debug_option, handle_errors, json_option

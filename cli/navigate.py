@@ -8,7 +8,7 @@ import sys
 import click
 
 from mapdb.detections.images import read_image_documents
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
 from mapdb.navigation.track import plot_track, track_geojson
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict

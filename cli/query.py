@@ -12,7 +12,7 @@ import click
 from mapdb.detections.images import Prior, check_prior, read_image_documents
 from mapdb.errors import ImageInputError
 from mapdb.localize.localizer import METHODS, localize_documents
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions
 from mapdb.outputs import atomic_open, check_outputs
 

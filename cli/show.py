@@ -11,7 +11,7 @@ from mapdb.detections.images import parse_image, read_image_documents
 from mapdb.errors import ImageInputError
 from mapdb.evaluation.plot import plot_match
 from mapdb.localize.localizer import METHODS, localize
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions
 from mapdb.outputs import atomic_path, check_outputs
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.outputs import check_outputs
 from mapdb.simulation.simulate import map_bbox_from_lonlat, simulate_images, write_images
 

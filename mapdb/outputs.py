@@ -206,7 +206,7 @@ def temporary_prefix(target: Path) -> str:
 
 def _temp_pattern(target: Path) -> re.Pattern[str]:
     """Names of ``target``'s temporaries: files (``.NAME.PID.HEX.tmp[.ext]``) and the folders of records a
-    streaming map writer spills (``.NAME.PID.XXXXXXXX.spill``, :class:`mapdb.mapfile.store.MapWriter`)."""
+    streaming map writer spills (``.NAME.PID.XXXXXXXX.spill``, :class:`mapdb.mapfile.writer.MapWriter`)."""
     name = re.escape(target.name[:_NAME_KEEP])
     return re.compile(rf"\.{name}\.(\d+)\.(?:[0-9a-f]+\.tmp(?:\.[^.]*)?|[A-Za-z0-9_]+\.spill)")
 

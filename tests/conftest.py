@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from mapdb.mapfile.store import MemoryMap, write_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.writer import write_map
 from mapdb.simulation.simulate import paper_map, simulate_images
 
 

@@ -15,7 +15,8 @@ from test_analyze import GAP, SIDE, X0, Y0, write_synthetic
 
 from mapdb.camera import Camera, image_plane
 from mapdb.localize.localizer import Localizer
-from mapdb.mapfile.store import open_map, write_map
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.match.ambiguity import find_rivals
 from mapdb.match.fast import FastOptions
 from mapdb.match.geometry import fit_similarity_complex

@@ -22,7 +22,7 @@ from mapdb_cli.main import cli
 from mapdb.analysis import SampleConfig
 from mapdb.analysis.measures import measure_cells
 from mapdb.analysis.run import analyze
-from mapdb.mapfile.store import write_map
+from mapdb.mapfile.writer import write_map
 from mapdb.objects import Objects
 
 X0, Y0 = 500_000.0, 5_000_000.0

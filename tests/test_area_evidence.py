@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from mapdb.localize.localizer import localize
-from mapdb.mapfile.store import MemoryMap
+from mapdb.mapfile.queries import MemoryMap
 from mapdb.match.evidence.areas import ImageAreas, bands, disc_chances
 from mapdb.match.fast import match_fast
 from mapdb.match.quads import QuadIndex

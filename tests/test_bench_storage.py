@@ -18,7 +18,7 @@ from osmxml import X0, Y0, OsmXml, square
 
 from mapdb.build.pipeline import build_map
 from mapdb.evaluation.storage import format_storage, storage_report, storage_reports
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE = REPO / "sample_maps" / "helsinki.osm.pbf"

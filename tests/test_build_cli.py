@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from mapdb_cli.main import cli
 from osmxml import OsmXml, lonlat, square
 
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 
 
 def run(*args: str):

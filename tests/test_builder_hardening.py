@@ -31,7 +31,7 @@ import mapdb.sources.osm as osm
 from mapdb.build.pipeline import build_map
 from mapdb.errors import LabelTableError, SourceError
 from mapdb.labels import default_label_table, load_label_table
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.sources.landcover import read_landcover
 from mapdb.sources.layers import read_layer
 from mapdb.sources.osm import read_osm

@@ -32,7 +32,7 @@ from mapdb.geo import (
     split_bbox,
 )
 from mapdb.mapfile.export import select_lonlat
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.simulation.simulate import map_bbox_from_lonlat, simulate_images
 
 REPO = Path(__file__).resolve().parents[1]

@@ -16,7 +16,8 @@ from mapdb.answers import Answer
 from mapdb.errors import ImageInputError, MapdbIOError
 from mapdb.evaluation.evaluate import evaluate_images, format_summary, load_images, outcome, plot_evaluation, summarize
 from mapdb.evaluation.paper_bench import bench_paper, format_bench
-from mapdb.mapfile.store import MemoryMap, write_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.writer import write_map
 from mapdb.simulation.simulate import paper_map, simulate_images
 
 HAS_LOCALIZER = importlib.util.find_spec("mapdb.localize.localizer") is not None

@@ -201,7 +201,8 @@ def check_header(header: dict, pages: list[DecodedPage]) -> None:
 # ------------------------------------------------------------------------------------------------ Tests
 
 from mapdb.build.pipeline import build_map  # noqa: E402  (the maps are built, and read back, by mapdb itself)
-from mapdb.mapfile.store import open_map, write_map  # noqa: E402
+from mapdb.mapfile.reader import open_map  # noqa: E402
+from mapdb.mapfile.writer import write_map  # noqa: E402
 from mapdb.objects import Objects  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]

@@ -1,7 +1,7 @@
 """Crafted maps with valid checksums: every reading command ends in one line, never in a traceback.
 
 A generator takes a genuine map apart (or builds one from nothing, with a page encoder written here from
-``docs/format.md`` and independent of ``mapdb.mapfile.store``), breaks one rule of the format, and puts the file
+``docs/format.md`` and independent of ``mapdb.mapfile``), breaks one rule of the format, and puts the file
 back together with every checksum recomputed: the header's CRC-32, the directory's CRC-32 in the header,
 and each page's CRC-32 in its directory record.  So nothing here is caught by a checksum; each kind must
 be caught by a check of meaning.
@@ -38,7 +38,8 @@ import pytest
 from click.testing import CliRunner
 
 from mapdb import MapdbIOError, MapFormatError, Objects
-from mapdb.mapfile.store import open_map, write_map
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.simulation.simulate import simulate_images
 
 MAGIC = b"\x89MAPDB\r\n"

@@ -26,7 +26,8 @@ from mapdb.build.pipeline import build_map
 from mapdb.errors import LabelTableError
 from mapdb.geo import in_bbox
 from mapdb.mapfile.export import export_map
-from mapdb.mapfile.store import MemoryMap, open_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.reader import open_map
 from mapdb.objects import Objects
 
 REPO = Path(__file__).resolve().parents[1]

@@ -15,7 +15,7 @@ from shapely.geometry import Point, box
 from mapdb.classmap import load_class_table
 from mapdb.errors import LabelTableError, SourceError
 from mapdb.labels import default_label_table
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.sources.layers import read_layer
 
 LABELS = default_label_table().labels

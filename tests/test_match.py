@@ -10,7 +10,7 @@ from scipy.stats import binom
 
 from mapdb.camera import Camera, Pose, project_to_image
 from mapdb.localize.localizer import localize
-from mapdb.mapfile.store import MemoryMap
+from mapdb.mapfile.queries import MemoryMap
 from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
 from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
@@ -372,7 +372,8 @@ def test_the_localizer_uses_a_stored_lost_in_space_index_beside_the_map(tmp_path
     """With ``MAP.qidx`` beside the map, lost-in-space lookups go to it (no quad index built in memory) and
     images are localized as with the in-memory index."""
     from mapdb.localize.localizer import Localizer, StoredQuads
-    from mapdb.mapfile.store import open_map, write_map
+    from mapdb.mapfile.reader import open_map
+    from mapdb.mapfile.writer import write_map
     from mapdb.match.index.stored import build_index
 
     path = tmp_path / "paper.mapdb"

@@ -19,7 +19,7 @@ from mapdb.build.merge import content_digest, merge_maps
 from mapdb.build.pipeline import build_map
 from mapdb.errors import SourceError
 from mapdb.labels import default_label_table
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 

@@ -18,7 +18,8 @@ from mapdb_cli.main import cli
 
 from mapdb.camera import Camera
 from mapdb.detections.images import parse_image
-from mapdb.mapfile.store import MemoryMap, write_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.writer import write_map
 from mapdb.navigation.filter import FixComponent, ParticleFilter
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.frames import read_frame
@@ -310,7 +311,7 @@ def test_a_long_flight_with_a_blackout_and_a_map_gap(world) -> None:
 @pytest.mark.skipif(not SHARED.exists(), reason="../shared/data/osm (the real extracts) is not present")
 def test_a_flight_over_monaco(tmp_path) -> None:
     from mapdb.build.pipeline import build_map
-    from mapdb.mapfile.store import open_map
+    from mapdb.mapfile.reader import open_map
 
     map_path = tmp_path / "monaco.mapdb"
     build_map([SHARED / "monaco-2021-12-03.osm.pbf"], map_path)

@@ -22,7 +22,8 @@ from mapdb_cli.main import cli
 from osmxml import OsmXml, square
 
 from mapdb.errors import MapdbIOError
-from mapdb.mapfile.store import open_map, write_map
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, remove_stale_temporaries
 from mapdb.simulation.simulate import paper_map, write_images
 

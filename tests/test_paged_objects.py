@@ -8,7 +8,8 @@ import pytest
 
 from mapdb._scipy import cKDTree
 from mapdb.localize.localizer import Localizer
-from mapdb.mapfile.store import open_map, write_map
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.match.index.stored import build_index
 from mapdb.match.mapobjects import paged_objects
 from mapdb.match.mapobjects.kd_forest import MAX_TREES, Forest

@@ -21,7 +21,8 @@ from mapdb.answers import Answer, Candidate
 from mapdb.evaluation.evaluate import outcome
 from mapdb.evaluation.plot import crs_name, match_geometry, plot_evaluation, plot_match
 from mapdb.localize.localizer import localize
-from mapdb.mapfile.store import open_map, write_map
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.objects import Objects
 from mapdb.simulation.simulate import paper_map, simulate_images
 

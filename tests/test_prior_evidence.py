@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from mapdb.localize.localizer import Localizer
-from mapdb.mapfile.store import MemoryMap
+from mapdb.mapfile.queries import MemoryMap
 from mapdb.match.fast import FastOptions
 from mapdb.match.mapobjects.object_index import ObjectIndex
 from mapdb.objects import Objects

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mapdb.localize.localizer import localize
-from mapdb.mapfile.store import MemoryMap
+from mapdb.mapfile.queries import MemoryMap
 from mapdb.match.evidence.relief import ReliefFit, _whitened, fit_with_relief, leave_one_out_sigma, radial_excess
 from mapdb.match.fast import FastOptions
 from mapdb.match.geometry import fit_similarity_complex

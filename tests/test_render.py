@@ -18,7 +18,7 @@ from mapdb.build.pipeline import build_map
 from mapdb.camera import Camera, Pose, project_points, project_to_image
 from mapdb.detections.masks import from_mask, read_mask
 from mapdb.errors import SourceError
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 from mapdb.simulation.outlines import FROM_HEIGHT, FROM_LEVELS, FROM_TYPE, Scene, read_scene
 from mapdb.simulation.render import blob_sources, render_mask
 from mapdb.simulation.rendered import simulate_masks

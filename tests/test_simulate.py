@@ -13,7 +13,9 @@ from mapdb_cli.main import cli
 
 from mapdb.camera import Camera, Pose, image_to_ground, level_pixels, nadir_pixel, project_to_image
 from mapdb.errors import EmptyMapError
-from mapdb.mapfile.store import MemoryMap, open_map, write_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.match.geometry import apply_similarity, fit_similarity
 from mapdb.objects import Objects
 from mapdb.simulation.simulate import paper_map, simulate_images

@@ -11,7 +11,9 @@ import pytest
 from scipy.spatial import cKDTree
 
 from mapdb import EmptyMapError, MapdbIOError, MapFormatError, MapVersionError, Objects
-from mapdb.mapfile.store import MemoryMap, open_map, write_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 
 LABELS = ("building", "road_intersection", "park", "water")
 SOURCE = {"name": "x.osm.pbf", "kind": "osm", "size": 10, "sha256": "0" * 64, "objects": 5000}

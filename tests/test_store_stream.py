@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from mapdb import EmptyMapError, MapdbIOError, Objects
-from mapdb.mapfile.store import MapWriter, open_map, write_map, write_map_from_chunks
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import MapWriter, write_map, write_map_from_chunks
 
 LABELS = ("building", "road_intersection", "park", "water")
 CRS = "EPSG:32635"

@@ -13,7 +13,9 @@ from click.testing import CliRunner
 from mapdb_cli.index import index as index_command
 
 from mapdb.errors import MapdbIOError, MapFormatError
-from mapdb.mapfile.store import MemoryMap, open_map, write_map
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.reader import open_map
+from mapdb.mapfile.writer import write_map
 from mapdb.match.index import build as index_build
 from mapdb.match.index import generate as index_generate
 from mapdb.match.index import lookup as index_lookup

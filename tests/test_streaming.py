@@ -26,7 +26,7 @@ from mapdb_cli.main import cli
 
 from mapdb.detections.images import MAX_OBJECTS, split_image_documents
 from mapdb.localize.localizer import localize_documents
-from mapdb.mapfile.store import open_map
+from mapdb.mapfile.reader import open_map
 
 # A generous bound for one answer (the first one builds the map's index); a reader that waited for the
 # end of its input would never answer at all, so this only has to be finite.

@@ -159,7 +159,7 @@ _OPEN: dict[tuple[str, int, int], tuple[Any, Any]] = {}
 def _opened(map_path: str) -> tuple[Any, Any]:
     """This process's open map and localizer for a path (opened once; reopened if the file changed)."""
     from ..localize.localizer import Localizer
-    from ..mapfile.store import open_map
+    from ..mapfile.reader import open_map
 
     st = os.stat(map_path)
     key = (os.path.realpath(map_path), st.st_mtime_ns, st.st_size)

@@ -57,7 +57,7 @@ def _view(analysis: Analysis) -> tuple[float, float, float, float]:
 
 
 def _dots(map_path: str, view: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
-    from ..mapfile.store import open_map
+    from ..mapfile.reader import open_map
 
     with open_map(map_path) as m:
         found = m.query_bbox(view[0], view[1], view[2], view[3])

@@ -119,7 +119,7 @@ def plan(map_path: str, configs: dict[str, SampleConfig], *, cell_m: float = 100
          bbox: Sequence[Any] | None = None, progress: ProgressLike = None) -> Plan:
     """Check the map, the labels, the box and the cell size, and count what each cell holds (no simulation:
     bad input fails here, before any worker starts)."""
-    from ..mapfile.store import open_map
+    from ..mapfile.reader import open_map
 
     say = as_progress(progress)
     with open_map(map_path) as m:

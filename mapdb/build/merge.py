@@ -42,7 +42,8 @@ from .pipeline import _auto_crs, _projected_crs, _to_lonlat, file_sha256
 from ..errors import EmptyMapError, SourceError
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress
-from ..mapfile.store import MapWriter, open_map
+from ..mapfile.reader import open_map
+from ..mapfile.writer import MapWriter
 
 __all__ = ["content_digest", "merge_maps"]
 

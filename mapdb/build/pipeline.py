@@ -29,7 +29,7 @@ from ..outputs import Progress, ProgressLike, as_progress
 from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm import FILE_INDEX_BYTES, NODE_INDEXES, TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, release_freed_memory
-from ..mapfile.store import MapWriter
+from ..mapfile.writer import MapWriter
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
            "utm_crs_for"]

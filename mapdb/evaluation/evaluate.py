@@ -35,7 +35,7 @@ import numpy as np
 from ..answers import Answer
 from ..detections.images import read_image_documents
 from ..errors import ImageInputError, MapdbError, MapdbIOError, MapFormatError
-from ..mapfile.store import DEFAULT_QUANTUM
+from ..mapfile.layout import DEFAULT_QUANTUM
 from ..outputs import Progress, ProgressLike, as_progress
 
 __all__ = [
@@ -185,7 +185,8 @@ _WORKER: dict[str, Any] = {}
 
 
 def _open_for_worker(spec: tuple[str, Any]) -> Any:
-    from ..mapfile.store import MemoryMap, open_map
+    from ..mapfile.queries import MemoryMap
+    from ..mapfile.reader import open_map
 
     kind, value = spec
     if kind == "path":

@@ -109,7 +109,7 @@ def bench_paper(
         "objects_mean", "bound": summary, "fast": summary, "paper": summary}, ...], "elapsed_s": ...}``, each
         summary from :func:`mapdb.evaluation.evaluate.summarize` (``paper`` over the images it ran on; absent if none).
     """
-    from ..mapfile.store import MemoryMap
+    from ..mapfile.queries import MemoryMap
 
     start = time.perf_counter()
     say = as_progress(progress)

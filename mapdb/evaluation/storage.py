@@ -36,7 +36,9 @@ import shapely
 
 from ..build.pipeline import build_map
 from ..errors import MapdbError, MapdbIOError, MapFormatError
-from ..mapfile.store import MAGIC, MetaMap, area_codes, open_map
+from ..mapfile.codec import area_codes
+from ..mapfile.layout import MAGIC
+from ..mapfile.reader import MetaMap, open_map
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress
 

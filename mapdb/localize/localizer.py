@@ -44,7 +44,7 @@ from ..answers import Answer, Candidate
 from ..camera import Camera, image_plane, level_pixels
 from ..detections.images import ImageObjects, Prior, check_prior, parse_image
 from ..errors import ImageInputError
-from ..mapfile.store import MetaMap
+from ..mapfile.reader import MetaMap
 from ..match.evidence.blobs import outward_normals
 from ..match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from ..match.hypotheses import PRIOR_SLACK
@@ -195,7 +195,7 @@ class Localizer:
     Parameters
     ----------
     map : MetaMap or MemoryMap
-        The map (:func:`mapdb.mapfile.store.open_map`); the localizer does not close it.
+        The map (:func:`mapdb.mapfile.reader.open_map`); the localizer does not close it.
     method : {"fast", "paper"}
     options : FastOptions or PaperOptions, optional
         The method's tuning (defaults when None or of the other method).
@@ -205,7 +205,7 @@ class Localizer:
     Examples
     --------
     >>> from mapdb.objects import Objects
-    >>> from mapdb.mapfile.store import MemoryMap
+    >>> from mapdb.mapfile.queries import MemoryMap
     >>> loc = Localizer(MemoryMap(Objects.from_names([0.0, 50.0], [0.0, 0.0], ["park"] * 2, crs="EPSG:32631")))
     >>> loc.localize({"width": 640, "height": 480, "objects": []}).reason
     '0 objects: at least 3 are needed'
@@ -430,7 +430,7 @@ def localize(
     image : dict or ImageObjects
         An image document (see :mod:`mapdb.detections.images`) or an already parsed one.
     map : MetaMap or MemoryMap
-        The map (:func:`mapdb.mapfile.store.open_map`).  Calls on one map share one :class:`Localizer` (its indexes).
+        The map (:func:`mapdb.mapfile.reader.open_map`).  Calls on one map share one :class:`Localizer` (its indexes).
     method : {"fast", "paper"}
         The fast matcher (:mod:`mapdb.match.fast`) or the paper's Algorithm 1 (:mod:`mapdb.match.paper.algorithm`;
         seconds to minutes per image).
@@ -450,7 +450,7 @@ def localize(
     Examples
     --------
     >>> from mapdb.objects import Objects
-    >>> from mapdb.mapfile.store import MemoryMap
+    >>> from mapdb.mapfile.queries import MemoryMap
     >>> m = MemoryMap(Objects.from_names([0.0, 50.0], [0.0, 0.0], ["building"] * 2, crs="EPSG:32631"))
     >>> localize({"width": 640, "height": 480, "objects": []}, m).reason
     '0 objects: at least 3 are needed'

@@ -20,7 +20,8 @@ from pyproj import Transformer
 from ..errors import EmptyMapError, MapdbError, MapdbIOError
 from ..objects import Objects
 from ..outputs import atomic_path
-from .store import MapBase, MetaMap
+from .queries import MapBase
+from .reader import MetaMap
 
 __all__ = ["EXPORT_CRS", "EXPORT_FORMATS", "default_export_crs", "export_map", "map_info", "select_lonlat"]
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from ... import __version__
 from ...errors import MapFormatError
-from ...mapfile.store import open_map
+from ...mapfile.reader import open_map
 from ...objects import Objects
 from ...outputs import atomic_path, check_outputs, pid_alive
 from .generate import RECORD, SHARED, cell_for, choose_cells, chunk_records, neighbour_table, sample_quads

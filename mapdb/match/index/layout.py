@@ -22,8 +22,8 @@ import numpy as np
 
 from ... import __version__
 from ...errors import MapdbIOError, MapFormatError, MapVersionError, reading
-from ...mapfile.store import MAGIC as MAP_MAGIC
-from ...mapfile.store import MetaMap
+from ...mapfile.layout import MAGIC as MAP_MAGIC
+from ...mapfile.reader import MetaMap
 
 __all__ = [
     "BLOCK",
@@ -66,7 +66,7 @@ INDEX_SUFFIX = ".qidx"
 # section sizes and checksums.
 _PREFIX = struct.Struct("<8sHHQII")
 PREFIX_SIZE = _PREFIX.size + 4
-_MAP_PREFIX = struct.Struct("<8sHHI")  # the map file's own prefix (mapdb.mapfile.store), for its header CRC
+_MAP_PREFIX = struct.Struct("<8sHHI")  # the map file's own prefix (mapdb.mapfile.layout), for its header CRC
 _MAX_HEADER = 16 << 20
 ALIGN = 4096  # sections start at multiples of a page
 BLOCK_BITS = 12

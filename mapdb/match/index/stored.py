@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import MapdbIOError, MapFormatError, reading
-from ...mapfile.store import MetaMap
+from ...mapfile.reader import MetaMap
 from ..quads import canonical_quads, label_keys
 from .build import build_index
 from .layout import (

@@ -47,7 +47,7 @@ FIRST_REACH_M = 50.0
 
 
 class PagedObjectIndex(ObjectIndex):
-    """An :class:`ObjectIndex` over a :class:`~mapdb.mapfile.store.MetaMap` that reads pages as queries need them.
+    """An :class:`ObjectIndex` over a :class:`~mapdb.mapfile.reader.MetaMap` that reads pages as queries need them.
 
     Parameters
     ----------
@@ -56,7 +56,8 @@ class PagedObjectIndex(ObjectIndex):
 
     Examples
     --------
-    >>> from mapdb.mapfile.store import write_map, open_map
+    >>> from mapdb.mapfile.reader import open_map
+    >>> from mapdb.mapfile.writer import write_map
     >>> import tempfile, pathlib
     >>> path = pathlib.Path(tempfile.mkdtemp()) / "m.mapdb"
     >>> o = Objects.from_names([0.0, 10.0, 5000.0], [0.0, 0.0, 3000.0], ["b", "b", "p"], crs="EPSG:32631")
@@ -209,7 +210,7 @@ class WholeMapObjects:
 
     Examples
     --------
-    >>> from mapdb.mapfile.store import MemoryMap
+    >>> from mapdb.mapfile.queries import MemoryMap
     >>> whole = WholeMapObjects(MemoryMap(Objects.from_names([0.0, 50.0], [0.0, 0.0], ["park"] * 2)))
     >>> len(whole.index())
     2
