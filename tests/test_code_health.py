@@ -54,7 +54,8 @@ def test_every_function_is_at_most_60_lines() -> None:
 
 
 def test_no_matcher_module_is_over_400_lines() -> None:
-    sizes = {str(p.relative_to(ROOT)): len(p.read_text(encoding="utf-8").splitlines()) for p in _sources("mapdb/match/**/*.py")}
+    sizes = {str(p.relative_to(ROOT)): len(p.read_text(encoding="utf-8").splitlines())
+             for p in _sources("mapdb/match/**/*.py")}
     assert sizes, "no matcher modules found"
     assert {name: n for name, n in sizes.items() if n > MAX_MATCH_MODULE_LINES} == {}
 
