@@ -3,7 +3,7 @@ read ends in one line (exit 1, no traceback, no output left behind).
 
 Every case is a small real file written here: OSM XML (tests/osmxml.py), GeoJSON and CSV layers,
 sparse GeoTIFFs written with rasterio, and gzip / bzip2 bombs whose limit is scaled down (the module
-constants of :mod:`mapdb.sources.osm`) so that they stay a few MB.
+constants of :mod:`mapdb.sources.osm.files`) so that they stay a few MB.
 """
 
 from __future__ import annotations
@@ -26,15 +26,15 @@ from osmxml import OsmXml, lonlat, square
 from rasterio import Affine
 from rasterio.windows import Window
 
-import mapdb.sources.landcover as landcover
-import mapdb.sources.osm as osm
+import mapdb.sources.landcover.tiles as landcover_tiles
+import mapdb.sources.osm.files as osm_files
 from mapdb.build.pipeline import build_map
 from mapdb.errors import LabelTableError, SourceError
 from mapdb.labels import default_label_table, load_label_table
 from mapdb.mapfile.store import open_map
-from mapdb.sources.landcover import read_landcover
+from mapdb.sources.landcover.reader import read_landcover
 from mapdb.sources.layers import read_layer
-from mapdb.sources.osm import read_osm
+from mapdb.sources.osm.reader import read_osm
 
 TABLE = default_label_table()
 
@@ -123,15 +123,15 @@ def test_osm_broken_ways_and_junctions(tmp_path: Path) -> None:
 @pytest.mark.parametrize("compress", ["gz", "bz2"])
 def test_decompression_bomb_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compress: str) -> None:
     # The limit scaled down a thousandfold (256 KiB floor, ratio 100): an 8 MB inflate is a bomb here.
-    monkeypatch.setattr(osm, "MIN_INFLATED_BYTES", 256 << 10)
+    monkeypatch.setattr(osm_files, "MIN_INFLATED_BYTES", 256 << 10)
     header = b'<?xml version="1.0"?>\n<osm version="0.6">\n<node id="1" version="1" lat="60" lon="24">'
     body = header + b" " * (8 << 20) + b'<tag k="building" v="yes"/></node>\n</osm>\n'
     bomb = tmp_path / f"bomb.osm.{compress}"
     bomb.write_bytes(gzip.compress(body, 9) if compress == "gz" else bz2.compress(body, 9))
-    assert bomb.stat().st_size * osm.MAX_INFLATION < len(body)  # the test's own premise
+    assert bomb.stat().st_size * osm_files.MAX_INFLATION < len(body)  # the test's own premise
     out = tmp_path / "m.mapdb"
     message = assert_fails_cleanly(run("build", bomb, "-o", out), out, bomb.name, "decompression bomb")
-    assert f"{osm.inflation_limit(bomb.stat().st_size):,} bytes" in message
+    assert f"{osm_files.inflation_limit(bomb.stat().st_size):,} bytes" in message
     # Under the limit, the same content reads.
     small = header + b" " * (100 << 10) + b'<tag k="building" v="yes"/></node>\n</osm>\n'
     fine = tmp_path / f"fine.osm.{compress}"
@@ -310,7 +310,7 @@ def test_sparse_raster_reads_only_its_blocks(tmp_path: Path) -> None:
         # The premise: GDAL sees absent blocks as absent.
         assert src.get_tag_item("BLOCK_OFFSET_1_0", "TIFF", bidx=1) in (None, "", "0")
         assert src.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1) not in (None, "", "0")
-        tiling = landcover._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
+        tiling = landcover_tiles._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
         present = tiling.present
         tiles = [t for _, _, row in tiling.rows() for t in row]
     assert present is not None and present.shape == (391, 391) and np.flatnonzero(present.ravel()).size == 3
@@ -336,7 +336,7 @@ def test_absent_blocks_are_read_when_their_fill_is_a_class(tmp_path: Path) -> No
 def test_huge_row_read_in_bounded_tiles(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # One row of 200 000 pixels stored as a single strip, read in tiles of 4096 pixels: a line of water
     # across many tiles is still one patch.
-    monkeypatch.setattr(landcover, "_TILE_PIXELS", 4096)
+    monkeypatch.setattr(landcover_tiles, "_TILE_PIXELS", 4096)
     data = np.full((1, 200_000), 255, np.uint8)
     data[0, 1_000:150_000] = WATER
     path = tmp_path / "clc_row.tif"
@@ -345,7 +345,7 @@ def test_huge_row_read_in_bounded_tiles(tmp_path: Path, monkeypatch: pytest.Monk
         dst.write(data, 1)
     with rasterio.open(path) as src:
         assert src.block_shapes[0] == (1, 200_000)
-        tiling = landcover._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
+        tiling = landcover_tiles._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
         assert (tiling.tile_rows, tiling.tile_cols) == (1, 4096)
     objects = read_landcover(path, TABLE, min_area_m2=0.0)
     assert len(objects) == 1 and objects.area[0] == pytest.approx(149_000 * 1e4)
@@ -354,7 +354,7 @@ def test_huge_row_read_in_bounded_tiles(tmp_path: Path, monkeypatch: pytest.Monk
 
 def test_block_too_big_to_read_in_parts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # A strip GDAL would inflate whole: refused on one line when it holds data, skipped when absent.
-    monkeypatch.setattr(landcover, "_MAX_BLOCK_BYTES", 1 << 16)
+    monkeypatch.setattr(landcover_tiles, "_MAX_BLOCK_BYTES", 1 << 16)
     full = tmp_path / "clc_strip.tif"
     empty = tmp_path / "clc_empty_strip.tif"
     for path, fill in ((full, WATER), (empty, None)):

@@ -15,7 +15,8 @@ from ..errors import SourceError
 from ..labels import LabelTable
 from ..objects import Objects
 from .layers import LAYER_SUFFIXES, read_layer
-from .osm import OSM_SUFFIXES, read_osm
+from .osm.files import OSM_SUFFIXES
+from .osm.reader import read_osm
 from .suffixes import RASTER_SUFFIXES
 
 if TYPE_CHECKING:
@@ -79,7 +80,7 @@ def read_source(
     if kind == "osm":
         return read_osm(path, table, bbox=bbox, progress=progress, counts=counts)
     if kind == "landcover":
-        from .landcover import read_landcover  # rasterio and scipy.ndimage: only a build with rasters pays
+        from .landcover.reader import read_landcover  # rasterio and scipy.ndimage: only a build with rasters pays
 
         return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
                               progress=progress)
