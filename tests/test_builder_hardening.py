@@ -17,6 +17,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import osmium
 import pytest
 import rasterio
 from clichecks import assert_one_line_error
@@ -118,6 +119,91 @@ def test_osm_broken_ways_and_junctions(tmp_path: Path) -> None:
     assert 0 < park < 400.0  # the bow tie's two triangles, not a crossed ring's signed nonsense
     summary = build_ok(source, "-o", tmp_path / "m.mapdb")
     assert summary["skipped"] == dict(sorted((+counts).items()))
+
+
+def test_osm_areas_cut_by_a_clipped_extract_are_counted(tmp_path: Path) -> None:
+    # A clipped extract keeps the ways that cross its border but not their nodes beyond it: the ways
+    # reference nodes the file does not hold, and relations reference member ways it does not hold.
+    doc = OsmXml()
+    doc.ring(square(0.0, 0.0, 10.0), {"building": "yes"})
+    # A building missing one corner of five: the four present still make a valid ring, and are not kept.
+    p = [doc.node(x, y) for x, y in square(100.0, 0.0, 10.0)]
+    beyond = [doc.node(110.0, 0.0)]
+    doc.way([p[0], p[1], beyond[0], p[2], p[3], p[0]], {"building": "yes"})
+    q = [doc.node(x, y) for x, y in square(200.0, 0.0, 20.0)]
+    beyond += [doc.node(220.0, 0.0), doc.node(180.0, 0.0)]
+    doc.way([q[0], beyond[1], q[1], q[2], beyond[2], q[3], q[0]], {"leisure": "park"})
+    # Multipolygons: one whose inner way is not in the file, one whose outer way lacks a node, one whole.
+    r = [doc.node(x, y) for x, y in square(300.0, 0.0, 10.0)]
+    inner = doc.ring(square(300.0, 0.0, 4.0))
+    doc.relation([("w", doc.way(r + r[:1]), "outer"), ("w", inner, "inner")],
+                 {"type": "multipolygon", "building": "yes"})
+    s = [doc.node(x, y) for x, y in square(400.0, 0.0, 10.0)]
+    beyond.append(doc.node(410.0, 0.0))
+    cut = doc.way([s[0], s[1], beyond[3], s[2], s[3], s[0]])
+    doc.relation([("w", cut, "outer")], {"type": "multipolygon", "natural": "water"})
+    doc.relation([("w", doc.ring(square(500.0, 0.0, 10.0)), "outer")], {"type": "multipolygon", "building": "yes"})
+    # Not areas, so not counted: an unlabelled ring, a relation osmium does not assemble (type=site), and a
+    # roundabout (a "way" rule: kept from the nodes present, as before).
+    t = [doc.node(x, y) for x, y in square(600.0, 0.0, 10.0)]
+    doc.way([t[0], t[1], beyond[0], t[2], t[0]])
+    doc.relation([("w", inner, "outer")], {"type": "site", "building": "yes"})
+    v = [doc.node(x, y) for x, y in square(700.0, 0.0, 15.0)]
+    doc.way([v[0], v[1], beyond[1], v[2], v[3], v[0]], {"junction": "roundabout", "highway": "primary"})
+    complete = doc.write(tmp_path / "complete.osm")
+    doc.nodes = [n for n in doc.nodes if not n.startswith(tuple(f'<node id="{i}" ' for i in beyond))]
+    doc.ways = [w for w in doc.ways if not w.startswith(f'<way id="{inner}" ')]
+    clipped = doc.write(tmp_path / "clipped.osm")
+
+    counts: Counter[str] = Counter()
+    objects = read_osm(clipped, TABLE, counts=counts)
+    assert +counts == {"missing_nodes": 2, "incomplete_relations": 2}
+    assert objects.counts() == {"building": 2, "roundabout": 1}
+    summary = build_ok(clipped, "-o", tmp_path / "m.mapdb")
+    assert summary["skipped"] == {"incomplete_relations": 2, "missing_nodes": 2}
+    with open_map(tmp_path / "m.mapdb") as m:
+        assert m.metadata["sources"][0]["skipped"] == {"incomplete_relations": 2, "missing_nodes": 2}
+    # The same extract whole: nothing skipped, and every area above is an object.
+    counts = Counter()
+    objects = read_osm(complete, TABLE, counts=counts)
+    assert +counts == {}
+    assert objects.counts() == {"building": 4, "park": 1, "water": 1, "roundabout": 1}
+
+
+def test_sample_extract_counts_its_cut_areas_as_an_independent_pass_does() -> None:
+    # The sample map's source is clipped at its border: count, with a plain osmium handler and the label
+    # table's rules, the closed ways tagged as areas with a node missing, and the labelled multipolygons
+    # with a member way, or a node of one, missing.
+    sample = Path(__file__).resolve().parents[1] / "sample_maps" / "helsinki.osm.pbf"
+    area_rules = [r for r in TABLE.osm_rules if "area" in r.geometry]
+    way_rules = [r for r in TABLE.osm_rules if "way" in r.geometry]  # their ways are lines, not areas
+
+    def labelled(tags: osmium.osm.TagList, rules: list = area_rules) -> bool:
+        return any(r.matches(tags.get(r.key)) for r in rules)
+
+    class Pass(osmium.SimpleHandler):
+        def __init__(self) -> None:
+            super().__init__()
+            self.cut_ways, self.members, self.whole_ways = 0, [], set()
+
+        def way(self, w: osmium.osm.Way) -> None:
+            whole = all(n.location.valid() for n in w.nodes)
+            if whole:
+                self.whole_ways.add(w.id)
+            elif w.is_closed() and labelled(w.tags) and not labelled(w.tags, way_rules):
+                self.cut_ways += 1
+
+        def relation(self, r: osmium.osm.Relation) -> None:
+            if r.tags.get("type") in ("multipolygon", "boundary") and labelled(r.tags):
+                self.members.append([m.ref for m in r.members if m.type == "w"])
+
+    found = Pass()
+    found.apply_file(str(sample), locations=True)
+    cut_relations = sum(1 for ways in found.members if ways and not set(ways) <= found.whole_ways)
+    counts: Counter[str] = Counter()
+    read_osm(sample, TABLE, counts=counts)
+    assert found.cut_ways > 0 and cut_relations > 0  # the premise: the sample is a clipped extract
+    assert (counts["missing_nodes"], counts["incomplete_relations"]) == (found.cut_ways, cut_relations)
 
 
 @pytest.mark.parametrize("compress", ["gz", "bz2"])

@@ -34,6 +34,10 @@ SKIPPED_KINDS = {
     "invalid_coordinates": "objects skipped: a coordinate not a finite number, or outside lon [-180, 180] / "
                            "lat [-90, 90]",
     "unclosed_rings": "ways tagged as areas skipped: they do not close",
+    "missing_nodes": "ways tagged as areas skipped: a node missing from the extract (cut by a clipped extract's "
+                     "border)",
+    "incomplete_relations": "multipolygon relations skipped: a member way or node missing from the extract (cut "
+                            "by a clipped extract's border) or out of range",
     "invalid_geometries": "invalid polygons skipped: nothing with an area left after repair",
     "repaired_geometries": "invalid polygons repaired (shapely make_valid) and kept",
     "outside_crs": "objects skipped: no position in the map's CRS",

@@ -26,7 +26,8 @@ only those some area rule labels are given to it.  Coordinates stay in lon/lat
 
 Broken data is skipped or repaired and counted (``read_osm(counts=...)``), never
 silently moved and never a traceback: nodes whose coordinates are out of range
-or not numbers, ways tagged as areas that do not close, rings that cross
+or not numbers, ways tagged as areas that do not close, areas cut by a clipped
+extract's border (a node or member way missing from the file), rings that cross
 themselves (rebuilt with shapely's ``make_valid``).  Compressed XML is inflated
 under a bound (:func:`inflation_limit`), so a decompression bomb costs at most
 that much time, memory and temporary disk before a one-line error.

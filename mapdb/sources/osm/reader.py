@@ -52,8 +52,11 @@ def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, floa
         Incremented with what was skipped or repaired instead of failing the read:
         ``"invalid_coordinates"`` (objects with a coordinate that is not a number or lies outside
         lon [-180, 180], lat [-90, 90]), ``"unclosed_rings"`` (ways tagged as areas that do not
-        close), ``"repaired_geometries"`` (areas whose rings cross themselves, rebuilt with
-        shapely's ``make_valid``) and ``"invalid_geometries"`` (areas that could not be repaired).
+        close), ``"missing_nodes"`` (ways tagged as areas with a node missing from the extract: a clipped
+        extract's border cuts them), ``"incomplete_relations"`` (multipolygon relations osmium could not
+        assemble: a member way or node missing from the extract, or out of range), ``"repaired_geometries"``
+        (areas whose rings cross themselves, rebuilt with shapely's ``make_valid``) and
+        ``"invalid_geometries"`` (areas that could not be repaired).
     node_index : str
         Where libosmium keeps node locations: ``"auto"`` (:func:`choose_node_index`, by the input's size),
         or one of :data:`NODE_INDEXES` (``"flex_mem"`` in memory, ``"sparse_file_array"`` and

@@ -26,6 +26,9 @@ from .progress import _PROGRESS_STRIDE, Progress, _ByteProgress
 
 __all__ = ["AREA_BLOCK", "POINT_BLOCK"]
 
+# The relations libosmium assembles into areas (with at least one way member).
+_AREA_RELATION_TYPES = frozenset({"multipolygon", "boundary"})
+
 # Areas whose centroid and area are computed together, after which their geometries are dropped: big
 # enough for shapely's vectorised calls to pay, small enough that the geometries cost a few megabytes.
 AREA_BLOCK = 4096
@@ -75,6 +78,9 @@ class _Collected:
         # Closed ways whose area osmium could not assemble (rings crossing themselves), with their
         # label code: rebuilt by _repair_ways.
         self.failed_area_ways: dict[int, int] = {}
+        # Areas osmium assembled from relations: the labelled relations it was given that never came out
+        # are the ones it could not complete (see _LabelledRelations).
+        self.relation_areas = 0
 
     def add_area(self, wkb: str, code: int) -> None:
         self.area_wkb.append(wkb)
@@ -132,7 +138,8 @@ def _scan(path: Path, source: str, table: LabelTable, report: Progress, out: _Co
     node_rules = _rules_for(table, "node")
     way_rules = _rules_for(table, "way")
     roads = frozenset(table.intersections.highways) if table.intersections is not None else frozenset()
-    processor = _processor(source, out.locations, area_rules, node_rules, way_rules, roads)
+    relations = _LabelledRelations(area_rules)
+    processor = _processor(source, out.locations, area_rules, node_rules, way_rules, roads, relations)
     wkb = osmium.geom.WKBFactory()
     counts = out.counts
     seen = 0
@@ -149,12 +156,16 @@ def _scan(path: Path, source: str, table: LabelTable, report: Progress, out: _Co
         elif kind == "w":
             _take_way(obj, way_rules, area_rules, roads, wkb, out, counts)
     meter.release()
+    # Relations osmium was given but never assembled: a member way or node missing from the extract (or
+    # out of range), as libosmium waits for all members and builds no rings through an invalid location.
+    counts["incomplete_relations"] += relations.assembling - out.relation_areas
 
 
 def _processor(source: str, locations: Any, area_rules: list[tuple[int, TagRule]],
                node_rules: list[tuple[int, TagRule]], way_rules: list[tuple[int, TagRule]],
-               roads: frozenset[str]) -> Any:
-    """osmium's reader of ``source``, letting through (a superset of) the objects the rules may use."""
+               roads: frozenset[str], relations: _LabelledRelations | None = None) -> Any:
+    """osmium's reader of ``source``, letting through (a superset of) the objects the rules may use;
+    ``relations`` (made here when None) is the first pass's filter of the relations to assemble."""
     area_filter = _tag_prefilter([r for _, r in area_rules])
     node_filter = _tag_prefilter([r for _, r in node_rules])
     # Ways tagged as areas come through too: osmium silently drops those that do not close or have a
@@ -168,7 +179,8 @@ def _processor(source: str, locations: Any, area_rules: list[tuple[int, TagRule]
         # rules themselves: libosmium keeps every relation it is given, with its members, until it is
         # complete, and a relation no rule labels (a peninsula or a mountain range of thousands of members,
         # most of them outside the extract) never gives an object.
-        processor.with_areas(_tag_prefilter([r for _, r in area_rules]), _LabelledRelations(area_rules))
+        relations = relations if relations is not None else _LabelledRelations(area_rules)
+        processor.with_areas(_tag_prefilter([r for _, r in area_rules]), relations)
         processor.with_filter(area_filter.enable_for(osmium.osm.AREA))
         kinds |= osmium.osm.AREA
     if node_filter is not None:
@@ -183,18 +195,27 @@ def _processor(source: str, locations: Any, area_rules: list[tuple[int, TagRule]
 
 
 class _LabelledRelations:
-    """A first-pass filter for osmium's area assembly: drops the relations no area rule labels."""
+    """A first-pass filter for osmium's area assembly: drops the relations no area rule labels, and counts
+    those of the others that libosmium's multipolygon manager will try to assemble."""
 
     def __init__(self, area_rules: list[tuple[int, TagRule]]) -> None:
         self.area_rules = area_rules
+        self.assembling = 0
 
     def relation(self, relation: Any) -> bool:
-        return _first_match(self.area_rules, relation.tags) < 0  # True: filtered out
+        if _first_match(self.area_rules, relation.tags) < 0:
+            return True  # filtered out
+        # The relations libosmium's MultipolygonManager takes: type multipolygon or boundary, a way member.
+        if relation.tags.get("type") in _AREA_RELATION_TYPES and any(m.type == "w" for m in relation.members):
+            self.assembling += 1
+        return False
 
 
 def _take_area(obj: Any, area_rules: list[tuple[int, TagRule]], wkb: Any, out: _Collected,
                counts: Counter[str]) -> None:
     """Keep an assembled area that an area rule labels (or note why it cannot be kept)."""
+    if not obj.from_way():
+        out.relation_areas += 1
     code = _first_match(area_rules, obj.tags)
     if code < 0:
         return
@@ -254,7 +275,11 @@ def _collect_way(way: Any, code: int, out: _Collected, counts: Counter[str]) -> 
 
 def _check_area_way(way: Any, tags: Any, area_rules: list[tuple[int, TagRule]], wkb: Any,
                     counts: Counter[str]) -> None:
-    """Count a way tagged as an area that osmium will not make one of: unclosed, or a node out of range.
+    """Count a way tagged as an area that osmium will not make one of: unclosed, a node out of range, or a
+    node missing from the extract (a way cut by a clipped extract's border).
+
+    A ring closed from the nodes present is not kept: it is not the area's outline (a building that loses one
+    corner keeps half its area, its centroid moves some 4 m; ``benchmarks/clipped_areas.py``).
 
     The cheap tests come first: most ways here are closed and sound, and the tag rules are tried
     only for the few that are not.
@@ -264,12 +289,12 @@ def _check_area_way(way: Any, tags: Any, area_rules: list[tuple[int, TagRule]], 
             wkb.create_linestring(way)  # one C++ pass over the node locations; the result is not needed
             return
         except osmium.InvalidLocationError:
-            kind = "invalid_coordinates" if _has_bad_node(way) else None  # else: nodes missing from an extract
+            kind = "invalid_coordinates" if _has_bad_node(way) else "missing_nodes"
         except RuntimeError:  # fewer than two distinct nodes: osmium will not assemble it either
             kind = "invalid_geometries"
     else:
         kind = "unclosed_rings"
-    if kind is not None and _first_match(area_rules, tags) >= 0:
+    if _first_match(area_rules, tags) >= 0:
         counts[kind] += 1
 
 
