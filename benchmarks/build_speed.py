@@ -5,7 +5,7 @@ Side by side in one run, each repeated (default 3 times, median reported):
 * ``bare pyosmium``: ``FileProcessor(...).with_locations("flex_mem").with_areas()``, iterating every
   object and doing nothing: the floor set by locating nodes and assembling areas;
 * the same pass with every object dropped in C++ before Python sees it (for reference only);
-* ``read_osm``: :func:`mapdb.sources.osm.read_osm` with the default label table;
+* ``read_osm``: :func:`mapdb.sources.osm.reader.read_osm` with the default label table;
 * ``mapdb build``: :func:`mapdb.build.pipeline.build_map` to a temporary file (if the module exists).
 
 The goal is a whole build at most 2.5x the bare pass.  Run::
@@ -93,7 +93,7 @@ def main() -> None:
 def in_this_process(path: Path, repeat: int) -> None:
     """The bare pass, ``read_osm`` and ``build_map`` of this tree, one after the other in this process."""
     from mapdb.labels import default_label_table
-    from mapdb.sources.osm import read_osm
+    from mapdb.sources.osm.reader import read_osm
 
     table = default_label_table()
     cases: list[tuple[str, Callable[[], object]]] = [

@@ -176,8 +176,8 @@ def main() -> None:
     for name, size, _made, seconds, wall, rss, outcome in rows:
         size_text = f"{size / 1e6:8.2f}MB" if size is not None else f"{'':10s}"
         print(f"{name:40s} {size_text} {seconds:7.2f} {wall:7.2f} {rss / 1e6:7.0f}MB  {outcome}")
-    from mapdb.sources.landcover import _MAX_BLOCK_BYTES, _TILE_PIXELS
-    from mapdb.sources.osm import MAX_INFLATION, MIN_INFLATED_BYTES
+    from mapdb.sources.landcover.tiles import _MAX_BLOCK_BYTES, _TILE_PIXELS
+    from mapdb.sources.osm.files import MAX_INFLATION, MIN_INFLATED_BYTES
 
     print()
     print(f"limits: tiles of {_TILE_PIXELS:,} pixels; blocks holding data up to {_MAX_BLOCK_BYTES >> 20} MiB; "

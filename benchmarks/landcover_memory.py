@@ -2,7 +2,7 @@
 
 For every raster (default: the 36000 x 36000 ESA WorldCover tile and the two CORINE rasters in
 ``../shared/data/landcover``), a child Python process runs
-:func:`mapdb.sources.landcover.read_landcover` with the default label table and min area, and
+:func:`mapdb.sources.landcover.reader.read_landcover` with the default label table and min area, and
 this script reports, side by side:
 
 * peak RSS of the child (``ru_maxrss`` of that child, from ``os.wait4``: the per-child figure that
@@ -46,7 +46,7 @@ GOAL_BYTES = 1.5e9
 _CHILD = r"""
 import json, sys, time
 from mapdb.labels import default_label_table
-from mapdb.sources.landcover import read_landcover
+from mapdb.sources.landcover.reader import read_landcover
 path, mode = sys.argv[1], sys.argv[2]
 if mode == "imports":
     print(json.dumps({"seconds": 0.0, "counts": {}, "crs": ""}))
@@ -56,7 +56,8 @@ if mode == "strips":
     import rasterio
     from rasterio.windows import Window
     from pathlib import Path
-    from mapdb.sources.landcover import _GDAL_CACHE_MB, _Tiling
+    from mapdb.sources.landcover.reader import _GDAL_CACHE_MB
+    from mapdb.sources.landcover.tiles import _Tiling
     with rasterio.Env(GDAL_CACHEMAX=_GDAL_CACHE_MB), rasterio.open(path) as src:
         tiling = _Tiling(Path(path), src, Window(0, 0, src.width, src.height), skip_absent=False)
         for r0, r1, tiles in tiling.rows():

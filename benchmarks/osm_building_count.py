@@ -113,7 +113,7 @@ def count_buildings(path: str | Path) -> dict[str, int]:
 
 def main(data_dir: Path = DEFAULT_DATA) -> None:
     from mapdb.labels import default_label_table
-    from mapdb.sources.osm import read_osm
+    from mapdb.sources.osm.reader import read_osm
 
     files = sorted(data_dir.glob("*.osm.pbf"))
     if not files:

@@ -8,7 +8,7 @@ from mapdb.build.pipeline import SPOOL_CHOICES, build_map
 from mapdb.mapfile.layout import DEFAULT_QUANTUM
 from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
 from mapdb.sources import DEFAULT_MIN_AREA_M2
-from mapdb.sources.osm import NODE_INDEXES
+from mapdb.sources.osm.index import NODE_INDEXES
 
 from .options import (
     bbox_option,

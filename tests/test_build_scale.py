@@ -14,7 +14,12 @@ import osmium
 import pytest
 from osmxml import OsmXml, square
 
-import mapdb.sources.osm as osm
+import mapdb.sources.osm.areas as osm_areas
+import mapdb.sources.osm.index as osm_index
+import mapdb.sources.osm.intersections as osm_roads
+import mapdb.sources.osm.progress as osm_progress
+import mapdb.sources.osm.reader as osm_reader
+import mapdb.sources.osm.scan as osm_scan
 from mapdb.build.merge import content_digest
 from mapdb.build.pipeline import build_map
 from mapdb.errors import EmptyMapError, MapdbIOError, SourceError
@@ -51,8 +56,8 @@ def test_blockwise_read_equals_one_shot(tmp_path: Path, monkeypatch: pytest.Monk
     source = town().write(tmp_path / "town.osm")
     whole = read_osm_counts(source)
     # Blocks of 3 areas and a road network spilled to buckets after 8 node ids: the same objects.
-    monkeypatch.setattr(osm, "AREA_BLOCK", 3)
-    monkeypatch.setattr(osm, "ROAD_REFS_IN_MEMORY", 8)
+    monkeypatch.setattr(osm_scan, "AREA_BLOCK", 3)
+    monkeypatch.setattr(osm_roads, "ROAD_REFS_IN_MEMORY", 8)
     blocks = read_osm_counts(source)
     assert whole[1]["road_intersection"] == 32 and whole[1]["building"] == 50
     for a, b in zip(arrays(whole[0]), arrays(blocks[0]), strict=True):
@@ -60,15 +65,15 @@ def test_blockwise_read_equals_one_shot(tmp_path: Path, monkeypatch: pytest.Monk
 
 
 def read_osm_counts(source: Path, **kwargs) -> tuple[Objects, Counter[str]]:
-    objects = osm.read_osm(source, TABLE, **kwargs)
+    objects = osm_reader.read_osm(source, TABLE, **kwargs)
     return objects, Counter(objects.names().tolist())
 
 
 def test_blockwise_build_writes_the_same_map(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     source = town().write(tmp_path / "town.osm")
     build_map([source], tmp_path / "one.mapdb")
-    monkeypatch.setattr(osm, "AREA_BLOCK", 2)
-    monkeypatch.setattr(osm, "ROAD_REFS_IN_MEMORY", 5)
+    monkeypatch.setattr(osm_scan, "AREA_BLOCK", 2)
+    monkeypatch.setattr(osm_roads, "ROAD_REFS_IN_MEMORY", 5)
     build_map([source], tmp_path / "blocks.mapdb")
     assert content_digest(tmp_path / "one.mapdb") == content_digest(tmp_path / "blocks.mapdb")
 
@@ -78,8 +83,8 @@ def test_file_node_indexes_give_the_same_objects_and_leave_nothing(tmp_path: Pat
     source = town().write(tmp_path / "town.osm")
     work = tmp_path / "work"
     work.mkdir()
-    in_memory = osm.read_osm(source, TABLE, node_index="flex_mem")
-    in_file = osm.read_osm(source, TABLE, node_index=index, index_dir=work)
+    in_memory = osm_reader.read_osm(source, TABLE, node_index="flex_mem")
+    in_file = osm_reader.read_osm(source, TABLE, node_index=index, index_dir=work)
     for a, b in zip(arrays(in_memory), arrays(in_file), strict=True):
         np.testing.assert_array_equal(a, b)
     assert list(work.iterdir()) == []  # the index file and its directory are gone
@@ -89,25 +94,25 @@ def test_junctions_from_buckets_equal_the_in_memory_ones() -> None:
     rng = np.random.default_rng(5)
     lengths = rng.integers(2, 9, 400)
     refs = rng.integers(0, 300, int(lengths.sum()))
-    expected = osm._junction_node_ids(refs, lengths)
-    got = osm._nodes_with_three_arms(*osm._directed_edges(refs, lengths))
+    expected = osm_roads._junction_node_ids(refs, lengths)
+    got = osm_roads._nodes_with_three_arms(*osm_roads._directed_edges(refs, lengths))
     assert expected.size > 50
     np.testing.assert_array_equal(expected, got)
 
 
 def test_auto_node_index_follows_the_input_size() -> None:
-    assert osm.choose_node_index(osm.FILE_INDEX_BYTES - 1) == "flex_mem"
-    assert osm.choose_node_index(osm.FILE_INDEX_BYTES) == "sparse_file_array"
-    assert osm.choose_node_index(osm.DENSE_INDEX_BYTES) == "dense_file_array"
+    assert osm_index.choose_node_index(osm_index.FILE_INDEX_BYTES - 1) == "flex_mem"
+    assert osm_index.choose_node_index(osm_index.FILE_INDEX_BYTES) == "sparse_file_array"
+    assert osm_index.choose_node_index(osm_index.DENSE_INDEX_BYTES) == "dense_file_array"
 
 
 def test_an_index_directory_that_cannot_be_written_is_one_line(tmp_path: Path) -> None:
     source = town(size=3).write(tmp_path / "town.osm")
     missing = tmp_path / "no" / "such"
     with pytest.raises(MapdbIOError, match=r"no/such: cannot hold the node location index"):
-        osm.read_osm(source, TABLE, node_index="sparse_file_array", index_dir=missing)
+        osm_reader.read_osm(source, TABLE, node_index="sparse_file_array", index_dir=missing)
     with pytest.raises(SourceError, match="node index 'mmap'"):
-        osm.read_osm(source, TABLE, node_index="mmap")
+        osm_reader.read_osm(source, TABLE, node_index="mmap")
     out = tmp_path / "map.mapdb"
     run = subprocess.run([sys.executable, "-m", "mapdb_cli", "build", str(source), "-o", str(out), "-q",
                           "--node-index", "sparse_file_array", "--index-dir", str(missing)],
@@ -123,7 +128,7 @@ def test_bytes_read_is_the_position_of_the_descriptor(tmp_path: Path) -> None:
     path.write_bytes(bytes(4096))
     with open(path, "rb", buffering=0) as f:
         f.read(1000)
-        assert osm._bytes_read(osm._file_identity(str(path))) == 1000
+        assert osm_progress._bytes_read(osm_progress._file_identity(str(path))) == 1000
 
 
 def test_progress_reports_the_share_read_and_the_time_left(tmp_path: Path) -> None:
@@ -132,7 +137,7 @@ def test_progress_reports_the_share_read_and_the_time_left(tmp_path: Path) -> No
     path = tmp_path / "big.osm.pbf"
     path.write_bytes(bytes(4 << 20))
     lines: list[str] = []
-    meter = osm._ByteProgress(path, str(path), lines.append, None)
+    meter = osm_progress._ByteProgress(path, str(path), lines.append, None)
     with open(path, "rb", buffering=0) as f:  # stands for libosmium's descriptor of the input
         f.read(1 << 20)
         meter.last -= 10
@@ -241,11 +246,11 @@ def test_a_spooled_read_equals_read_osm_and_a_build_leaves_no_files(tmp_path: Pa
     source = town().write(tmp_path / "town.osm")
     spool_dir = tmp_path / "spools"
     spool_dir.mkdir()
-    spools = osm.read_osm_spooled(source, TABLE, spool_dir=spool_dir)
+    spools = osm_reader.read_osm_spooled(source, TABLE, spool_dir=spool_dir)
     assert sorted(p.name.split("-")[1] for p in spool_dir.iterdir()) == ["areas", "others", "points"]
     from mapdb.sources.spool import joined
 
-    for a, b in zip(arrays(joined(spools, TABLE.labels, "EPSG:4326")), arrays(osm.read_osm(source, TABLE)),
+    for a, b in zip(arrays(joined(spools, TABLE.labels, "EPSG:4326")), arrays(osm_reader.read_osm(source, TABLE)),
                     strict=True):
         np.testing.assert_array_equal(a, b)
     work = tmp_path / "work"
@@ -279,12 +284,12 @@ def test_relations_no_rule_labels_are_not_assembled(tmp_path: Path) -> None:
     unlabelled = doc.relation([("w", cape, "outer")], {"type": "multipolygon", "natural": "peninsula"})
     source = doc.write(tmp_path / "town.osm")
     table = TABLE
-    rules = {kind: osm._rules_for(table, kind) for kind in ("area", "node", "way")}
-    processor = osm._processor(str(source), osmium.index.create_map("flex_mem"), rules["area"], rules["node"],
+    rules = {kind: osm_scan._rules_for(table, kind) for kind in ("area", "node", "way")}
+    processor = osm_scan._processor(str(source), osmium.index.create_map("flex_mem"), rules["area"], rules["node"],
                                rules["way"], frozenset())
     from_relations = {obj.orig_id() for obj in processor if obj.type_str() == "a" and not obj.from_way()}
     assert from_relations == {labelled} and unlabelled not in from_relations
-    assert osm.read_osm(source, TABLE).counts()["forest"] == 1
+    assert osm_reader.read_osm(source, TABLE).counts()["forest"] == 1
 
 
 def test_hulls_in_slices_equal_hulls_at_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -295,9 +300,9 @@ def test_hulls_in_slices_equal_hulls_at_once(tmp_path: Path, monkeypatch: pytest
         doc.way(ring[:half + 1], {"junction": "roundabout"})
         doc.way(ring[half:] + ring[:1], {"junction": "roundabout"})
     source = doc.write(tmp_path / "rings.osm")
-    whole = osm.read_osm(source, TABLE)
-    monkeypatch.setattr(osm, "_HULL_POINTS", 3)
-    sliced = osm.read_osm(source, TABLE)
+    whole = osm_reader.read_osm(source, TABLE)
+    monkeypatch.setattr(osm_areas, "_HULL_POINTS", 3)
+    sliced = osm_reader.read_osm(source, TABLE)
     assert whole.counts() == {"roundabout": 7} and (whole.area > 1000).all()
     for a, b in zip(arrays(whole), arrays(sliced), strict=True):
         np.testing.assert_array_equal(a, b)

@@ -3,7 +3,7 @@ read ends in one line (exit 1, no traceback, no output left behind).
 
 Every case is a small real file written here: OSM XML (tests/osmxml.py), GeoJSON and CSV layers,
 sparse GeoTIFFs written with rasterio, and gzip / bzip2 bombs whose limit is scaled down (the module
-constants of :mod:`mapdb.sources.osm`) so that they stay a few MB.
+constants of :mod:`mapdb.sources.osm.files`) so that they stay a few MB.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import osmium
 import pytest
 import rasterio
 from clichecks import assert_one_line_error
@@ -26,15 +27,15 @@ from osmxml import OsmXml, lonlat, square
 from rasterio import Affine
 from rasterio.windows import Window
 
-import mapdb.sources.landcover as landcover
-import mapdb.sources.osm as osm
+import mapdb.sources.landcover.tiles as landcover_tiles
+import mapdb.sources.osm.files as osm_files
 from mapdb.build.pipeline import build_map
 from mapdb.errors import LabelTableError, SourceError
 from mapdb.labels import default_label_table, load_label_table
 from mapdb.mapfile.reader import open_map
-from mapdb.sources.landcover import read_landcover
+from mapdb.sources.landcover.reader import read_landcover
 from mapdb.sources.layers import read_layer
-from mapdb.sources.osm import read_osm
+from mapdb.sources.osm.reader import read_osm
 
 TABLE = default_label_table()
 
@@ -120,18 +121,103 @@ def test_osm_broken_ways_and_junctions(tmp_path: Path) -> None:
     assert summary["skipped"] == dict(sorted((+counts).items()))
 
 
+def test_osm_areas_cut_by_a_clipped_extract_are_counted(tmp_path: Path) -> None:
+    # A clipped extract keeps the ways that cross its border but not their nodes beyond it: the ways
+    # reference nodes the file does not hold, and relations reference member ways it does not hold.
+    doc = OsmXml()
+    doc.ring(square(0.0, 0.0, 10.0), {"building": "yes"})
+    # A building missing one corner of five: the four present still make a valid ring, and are not kept.
+    p = [doc.node(x, y) for x, y in square(100.0, 0.0, 10.0)]
+    beyond = [doc.node(110.0, 0.0)]
+    doc.way([p[0], p[1], beyond[0], p[2], p[3], p[0]], {"building": "yes"})
+    q = [doc.node(x, y) for x, y in square(200.0, 0.0, 20.0)]
+    beyond += [doc.node(220.0, 0.0), doc.node(180.0, 0.0)]
+    doc.way([q[0], beyond[1], q[1], q[2], beyond[2], q[3], q[0]], {"leisure": "park"})
+    # Multipolygons: one whose inner way is not in the file, one whose outer way lacks a node, one whole.
+    r = [doc.node(x, y) for x, y in square(300.0, 0.0, 10.0)]
+    inner = doc.ring(square(300.0, 0.0, 4.0))
+    doc.relation([("w", doc.way(r + r[:1]), "outer"), ("w", inner, "inner")],
+                 {"type": "multipolygon", "building": "yes"})
+    s = [doc.node(x, y) for x, y in square(400.0, 0.0, 10.0)]
+    beyond.append(doc.node(410.0, 0.0))
+    cut = doc.way([s[0], s[1], beyond[3], s[2], s[3], s[0]])
+    doc.relation([("w", cut, "outer")], {"type": "multipolygon", "natural": "water"})
+    doc.relation([("w", doc.ring(square(500.0, 0.0, 10.0)), "outer")], {"type": "multipolygon", "building": "yes"})
+    # Not areas, so not counted: an unlabelled ring, a relation osmium does not assemble (type=site), and a
+    # roundabout (a "way" rule: kept from the nodes present, as before).
+    t = [doc.node(x, y) for x, y in square(600.0, 0.0, 10.0)]
+    doc.way([t[0], t[1], beyond[0], t[2], t[0]])
+    doc.relation([("w", inner, "outer")], {"type": "site", "building": "yes"})
+    v = [doc.node(x, y) for x, y in square(700.0, 0.0, 15.0)]
+    doc.way([v[0], v[1], beyond[1], v[2], v[3], v[0]], {"junction": "roundabout", "highway": "primary"})
+    complete = doc.write(tmp_path / "complete.osm")
+    doc.nodes = [n for n in doc.nodes if not n.startswith(tuple(f'<node id="{i}" ' for i in beyond))]
+    doc.ways = [w for w in doc.ways if not w.startswith(f'<way id="{inner}" ')]
+    clipped = doc.write(tmp_path / "clipped.osm")
+
+    counts: Counter[str] = Counter()
+    objects = read_osm(clipped, TABLE, counts=counts)
+    assert +counts == {"missing_nodes": 2, "incomplete_relations": 2}
+    assert objects.counts() == {"building": 2, "roundabout": 1}
+    summary = build_ok(clipped, "-o", tmp_path / "m.mapdb")
+    assert summary["skipped"] == {"incomplete_relations": 2, "missing_nodes": 2}
+    with open_map(tmp_path / "m.mapdb") as m:
+        assert m.metadata["sources"][0]["skipped"] == {"incomplete_relations": 2, "missing_nodes": 2}
+    # The same extract whole: nothing skipped, and every area above is an object.
+    counts = Counter()
+    objects = read_osm(complete, TABLE, counts=counts)
+    assert +counts == {}
+    assert objects.counts() == {"building": 4, "park": 1, "water": 1, "roundabout": 1}
+
+
+def test_sample_extract_counts_its_cut_areas_as_an_independent_pass_does() -> None:
+    # The sample map's source is clipped at its border: count, with a plain osmium handler and the label
+    # table's rules, the closed ways tagged as areas with a node missing, and the labelled multipolygons
+    # with a member way, or a node of one, missing.
+    sample = Path(__file__).resolve().parents[1] / "sample_maps" / "helsinki.osm.pbf"
+    area_rules = [r for r in TABLE.osm_rules if "area" in r.geometry]
+    way_rules = [r for r in TABLE.osm_rules if "way" in r.geometry]  # their ways are lines, not areas
+
+    def labelled(tags: osmium.osm.TagList, rules: list = area_rules) -> bool:
+        return any(r.matches(tags.get(r.key)) for r in rules)
+
+    class Pass(osmium.SimpleHandler):
+        def __init__(self) -> None:
+            super().__init__()
+            self.cut_ways, self.members, self.whole_ways = 0, [], set()
+
+        def way(self, w: osmium.osm.Way) -> None:
+            whole = all(n.location.valid() for n in w.nodes)
+            if whole:
+                self.whole_ways.add(w.id)
+            elif w.is_closed() and labelled(w.tags) and not labelled(w.tags, way_rules):
+                self.cut_ways += 1
+
+        def relation(self, r: osmium.osm.Relation) -> None:
+            if r.tags.get("type") in ("multipolygon", "boundary") and labelled(r.tags):
+                self.members.append([m.ref for m in r.members if m.type == "w"])
+
+    found = Pass()
+    found.apply_file(str(sample), locations=True)
+    cut_relations = sum(1 for ways in found.members if ways and not set(ways) <= found.whole_ways)
+    counts: Counter[str] = Counter()
+    read_osm(sample, TABLE, counts=counts)
+    assert found.cut_ways > 0 and cut_relations > 0  # the premise: the sample is a clipped extract
+    assert (counts["missing_nodes"], counts["incomplete_relations"]) == (found.cut_ways, cut_relations)
+
+
 @pytest.mark.parametrize("compress", ["gz", "bz2"])
 def test_decompression_bomb_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, compress: str) -> None:
     # The limit scaled down a thousandfold (256 KiB floor, ratio 100): an 8 MB inflate is a bomb here.
-    monkeypatch.setattr(osm, "MIN_INFLATED_BYTES", 256 << 10)
+    monkeypatch.setattr(osm_files, "MIN_INFLATED_BYTES", 256 << 10)
     header = b'<?xml version="1.0"?>\n<osm version="0.6">\n<node id="1" version="1" lat="60" lon="24">'
     body = header + b" " * (8 << 20) + b'<tag k="building" v="yes"/></node>\n</osm>\n'
     bomb = tmp_path / f"bomb.osm.{compress}"
     bomb.write_bytes(gzip.compress(body, 9) if compress == "gz" else bz2.compress(body, 9))
-    assert bomb.stat().st_size * osm.MAX_INFLATION < len(body)  # the test's own premise
+    assert bomb.stat().st_size * osm_files.MAX_INFLATION < len(body)  # the test's own premise
     out = tmp_path / "m.mapdb"
     message = assert_fails_cleanly(run("build", bomb, "-o", out), out, bomb.name, "decompression bomb")
-    assert f"{osm.inflation_limit(bomb.stat().st_size):,} bytes" in message
+    assert f"{osm_files.inflation_limit(bomb.stat().st_size):,} bytes" in message
     # Under the limit, the same content reads.
     small = header + b" " * (100 << 10) + b'<tag k="building" v="yes"/></node>\n</osm>\n'
     fine = tmp_path / f"fine.osm.{compress}"
@@ -310,7 +396,7 @@ def test_sparse_raster_reads_only_its_blocks(tmp_path: Path) -> None:
         # The premise: GDAL sees absent blocks as absent.
         assert src.get_tag_item("BLOCK_OFFSET_1_0", "TIFF", bidx=1) in (None, "", "0")
         assert src.get_tag_item("BLOCK_OFFSET_0_0", "TIFF", bidx=1) not in (None, "", "0")
-        tiling = landcover._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
+        tiling = landcover_tiles._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
         present = tiling.present
         tiles = [t for _, _, row in tiling.rows() for t in row]
     assert present is not None and present.shape == (391, 391) and np.flatnonzero(present.ravel()).size == 3
@@ -336,7 +422,7 @@ def test_absent_blocks_are_read_when_their_fill_is_a_class(tmp_path: Path) -> No
 def test_huge_row_read_in_bounded_tiles(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # One row of 200 000 pixels stored as a single strip, read in tiles of 4096 pixels: a line of water
     # across many tiles is still one patch.
-    monkeypatch.setattr(landcover, "_TILE_PIXELS", 4096)
+    monkeypatch.setattr(landcover_tiles, "_TILE_PIXELS", 4096)
     data = np.full((1, 200_000), 255, np.uint8)
     data[0, 1_000:150_000] = WATER
     path = tmp_path / "clc_row.tif"
@@ -345,7 +431,7 @@ def test_huge_row_read_in_bounded_tiles(tmp_path: Path, monkeypatch: pytest.Monk
         dst.write(data, 1)
     with rasterio.open(path) as src:
         assert src.block_shapes[0] == (1, 200_000)
-        tiling = landcover._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
+        tiling = landcover_tiles._Tiling(path, src, Window(0, 0, src.width, src.height), skip_absent=True)
         assert (tiling.tile_rows, tiling.tile_cols) == (1, 4096)
     objects = read_landcover(path, TABLE, min_area_m2=0.0)
     assert len(objects) == 1 and objects.area[0] == pytest.approx(149_000 * 1e4)
@@ -354,7 +440,7 @@ def test_huge_row_read_in_bounded_tiles(tmp_path: Path, monkeypatch: pytest.Monk
 
 def test_block_too_big_to_read_in_parts(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     # A strip GDAL would inflate whole: refused on one line when it holds data, skipped when absent.
-    monkeypatch.setattr(landcover, "_MAX_BLOCK_BYTES", 1 << 16)
+    monkeypatch.setattr(landcover_tiles, "_MAX_BLOCK_BYTES", 1 << 16)
     full = tmp_path / "clc_strip.tif"
     empty = tmp_path / "clc_empty_strip.tif"
     for path, fill in ((full, WATER), (empty, None)):

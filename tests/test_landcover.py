@@ -13,7 +13,8 @@ from scipy import ndimage
 
 from mapdb.errors import MapdbIOError, SourceError
 from mapdb.labels import default_label_table, load_label_table
-from mapdb.sources.landcover import RASTER_SUFFIXES, is_raster_path, raster_class_table_name, read_landcover
+from mapdb.sources.landcover.reader import is_raster_path, raster_class_table_name, read_landcover
+from mapdb.sources.suffixes import RASTER_SUFFIXES
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "landcover"
 TABLE = default_label_table()

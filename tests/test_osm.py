@@ -15,7 +15,8 @@ from pyproj import Transformer
 
 from mapdb.errors import MapdbIOError, SourceError
 from mapdb.labels import default_label_table, load_label_table
-from mapdb.sources.osm import OSM_SUFFIXES, is_osm_path, read_osm
+from mapdb.sources.osm.files import OSM_SUFFIXES, is_osm_path
+from mapdb.sources.osm.reader import read_osm
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 TABLE = default_label_table()

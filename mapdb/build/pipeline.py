@@ -27,7 +27,8 @@ from ..labels import LabelTable, load_label_table
 from ..objects import Objects
 from ..outputs import Progress, ProgressLike, as_progress
 from ..sources import SKIPPED_KINDS, read_source, source_kind
-from ..sources.osm import FILE_INDEX_BYTES, NODE_INDEXES, TRIM_INPUT_BYTES, read_osm_spooled
+from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
+from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, release_freed_memory
 from ..mapfile.writer import MapWriter
 
@@ -202,7 +203,7 @@ def build_map(
         A TOML class table (:mod:`mapdb.classmap`) mapping the values of a layer column to labels;
         features with other values are skipped and counted (``unmapped_labels``).
     node_index, index_dir : str, path, optional
-        Where OSM node locations are kept (:func:`mapdb.sources.osm.read_osm`: ``"auto"`` chooses memory or a
+        Where OSM node locations are kept (:func:`mapdb.sources.osm.reader.read_osm`: ``"auto"`` chooses memory or a
         temporary file by the input's size) and the directory of such temporary files, and of the objects
         read from OSM sources (28 bytes an object, read back in blocks; all removed at the end).
     spool : str

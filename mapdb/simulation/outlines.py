@@ -53,7 +53,8 @@ from ..labels import LabelTable, TagRule, default_label_table
 from ..objects import Objects
 
 # One reader of OSM files: the same checks, XML repair, tag pre-filters and label-rule matching.
-from ..sources.osm import _XML_SUFFIXES, _check_readable, _first_match, _rules_for, _tag_prefilter, _xml_input
+from ..sources.osm.files import _XML_SUFFIXES, _check_readable, _xml_input
+from ..sources.osm.scan import _first_match, _rules_for, _tag_prefilter
 
 __all__ = [
     "DEFAULT_HEIGHT_M",
@@ -215,7 +216,7 @@ _HEIGHT_KEYS = ("height", "building:levels", "roof:levels", "building")
 def _processor(source: str, area_rules: list[tuple[int, TagRule]], way_rules: list[tuple[int, TagRule]]) -> Any:
     """osmium's reader of ``source`` letting through only areas and ways that the rules may label.
 
-    The tag filters run in C++ (the reader's own :func:`mapdb.sources.osm._tag_prefilter`); nodes are
+    The tag filters run in C++ (the reader's own :func:`mapdb.sources.osm.scan._tag_prefilter`); nodes are
     read for their locations only, and relations only to assemble multipolygons.
     """
     processor = osmium.FileProcessor(source).with_locations("flex_mem")

@@ -15,7 +15,8 @@ from ..errors import SourceError
 from ..labels import LabelTable
 from ..objects import Objects
 from .layers import LAYER_SUFFIXES, read_layer
-from .osm import OSM_SUFFIXES, read_osm
+from .osm.files import OSM_SUFFIXES
+from .osm.reader import read_osm
 from .suffixes import RASTER_SUFFIXES
 
 if TYPE_CHECKING:
@@ -33,6 +34,10 @@ SKIPPED_KINDS = {
     "invalid_coordinates": "objects skipped: a coordinate not a finite number, or outside lon [-180, 180] / "
                            "lat [-90, 90]",
     "unclosed_rings": "ways tagged as areas skipped: they do not close",
+    "missing_nodes": "ways tagged as areas skipped: a node missing from the extract (cut by a clipped extract's "
+                     "border)",
+    "incomplete_relations": "multipolygon relations skipped: a member way or node missing from the extract (cut "
+                            "by a clipped extract's border) or out of range",
     "invalid_geometries": "invalid polygons skipped: nothing with an area left after repair",
     "repaired_geometries": "invalid polygons repaired (shapely make_valid) and kept",
     "outside_crs": "objects skipped: no position in the map's CRS",
@@ -79,7 +84,7 @@ def read_source(
     if kind == "osm":
         return read_osm(path, table, bbox=bbox, progress=progress, counts=counts)
     if kind == "landcover":
-        from .landcover import read_landcover  # rasterio and scipy.ndimage: only a build with rasters pays
+        from .landcover.reader import read_landcover  # rasterio and scipy.ndimage: only a build with rasters pays
 
         return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
                               progress=progress)
