@@ -78,7 +78,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--sizes", default="1000,10000,100000")
     args = parser.parse_args()
-    print(f"rtree {'%s (libspatialindex)' % rtree.__version__ if rtree else 'not installed'}, "
+    print(f"rtree {rtree.__version__ + ' (libspatialindex)' if rtree else 'not installed'}, "
           f"shapely {shapely.__version__}; medians of {args.repeats}, milliseconds")
     print(f"{'pages':>8} {'STR build':>10} {'rtree build':>12} {'STR 1000 q':>11} {'rtree 1000 q':>13} "
           f"{'STR bulk 1000':>14}")

@@ -38,12 +38,12 @@ import numpy as np
 from pyproj import CRS, Transformer
 
 from .._scipy import cKDTree
-from .pipeline import _auto_crs, _projected_crs, _to_lonlat, file_sha256
 from ..errors import EmptyMapError, SourceError
-from ..objects import Objects
-from ..outputs import ProgressLike, as_progress
 from ..mapfile.reader import open_map
 from ..mapfile.writer import MapWriter
+from ..objects import Objects
+from ..outputs import ProgressLike, as_progress
+from .pipeline import _auto_crs, _projected_crs, _to_lonlat, file_sha256
 
 __all__ = ["content_digest", "merge_maps"]
 

@@ -18,19 +18,19 @@ from pyproj import CRS, Transformer
 from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
-from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 from ..classmap import ClassTable, check_label, load_class_table
 from ..cluster import open_client, run_tasks, worker_count
 from ..errors import EmptyMapError, MapdbError, MapdbIOError, SourceError
 from ..geo import bbox_text, check_bbox, in_bbox
 from ..labels import LabelTable, load_label_table
+from ..mapfile.writer import MapWriter
 from ..objects import Objects
 from ..outputs import Progress, ProgressLike, as_progress
 from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, release_freed_memory
-from ..mapfile.writer import MapWriter
+from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
            "utm_crs_for"]
