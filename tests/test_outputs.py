@@ -24,7 +24,8 @@ from osmxml import OsmXml, square
 from mapdb.errors import MapdbIOError
 from mapdb.mapfile.store import open_map, write_map
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, remove_stale_temporaries
-from mapdb.simulation.simulate import paper_map, write_images
+from mapdb.simulation.documents import write_images
+from mapdb.simulation.simulate import paper_map
 
 
 def run(*args: object):
