@@ -73,7 +73,8 @@ def image_points(im: ImageObjects) -> tuple[np.ndarray, bool, list[str]]:
     return image_plane(u, v, im.width, im.height), levelled, notes
 
 
-def scale_hints(im: ImageObjects, diag_px: float):
+def scale_hints(im: ImageObjects, diag_px: float
+                ) -> tuple[float | None, tuple[float, float] | None, float | None]:
     """Focal length (pixels), allowed metres per pixel and the footprint's largest half-diagonal (metres),
     each None unless the field of view (and, for the last two, the altitude) is given."""
     focal_px = None if im.fov_deg is None else Camera(im.width, im.height, im.fov_deg).focal_px

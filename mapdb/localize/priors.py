@@ -36,7 +36,8 @@ def checked_caller_prior(x: float, y: float, radius: float) -> tuple[float, floa
     return (checked.x, checked.y, checked.radius)
 
 
-def resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float] | Prior | None):
+def resolve_prior(im: ImageObjects, crs: str,
+                  prior: tuple[float, float, float] | Prior | None) -> tuple[float, float, float] | None:
     """The prior that applies, as (x, y, radius) in the map's CRS: the image's own, else the caller's.
 
     The caller's is (x, y, radius) in the map's CRS or a :class:`mapdb.detections.images.Prior` (``lonlat=True``:
