@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from mapdb.evaluation.evaluate import DEFAULT_FP_THRESHOLD_M, evaluate_images, format_summary, load_images
-from mapdb.evaluation.plot import plot_evaluation
+from mapdb.evaluation.evaluation_plot import plot_evaluation
 from mapdb.mapfile.reader import open_map
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
 

@@ -8,7 +8,7 @@ from mapdb.mapfile.reader import open_map
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.path import read_linestring
 from mapdb.outputs import check_outputs
-from mapdb.simulation.simulate import write_images
+from mapdb.simulation.documents import write_images
 
 from .options import debug_option, finite, finite_float, handle_errors, parents_option, progress_printer, quiet_option
 from .simulate import MAX_ATTITUDE_STD, MAX_PIXEL_STD, MAX_SPURIOUS_RATE, parse_fov, parse_size, rate

@@ -27,9 +27,9 @@ def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float
         return (checked.x, checked.y, checked.radius)
     if not map_crs:
         raise click.BadParameter("the map has no CRS to place a lon/lat position in", param_hint="'--initial'")
-    from mapdb.localize.localizer import _transformer
+    from mapdb.localize.lonlat import transformer
 
-    x, y = _transformer("EPSG:4326", map_crs).transform(checked.x, checked.y)
+    x, y = transformer("EPSG:4326", map_crs).transform(checked.x, checked.y)
     return (float(x), float(y), checked.radius)
 
 

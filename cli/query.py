@@ -11,7 +11,8 @@ import click
 
 from mapdb.detections.images import Prior, check_prior, read_image_documents
 from mapdb.errors import ImageInputError
-from mapdb.localize.localizer import METHODS, localize_documents
+from mapdb.localize.batch import localize_documents
+from mapdb.localize.localizer import METHODS
 from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions
 from mapdb.outputs import atomic_open, check_outputs

@@ -9,7 +9,7 @@ import click
 from mapdb.answers import Answer
 from mapdb.detections.images import parse_image, read_image_documents
 from mapdb.errors import ImageInputError
-from mapdb.evaluation.plot import plot_match
+from mapdb.evaluation.match_plot import plot_match
 from mapdb.localize.localizer import METHODS, localize
 from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions

@@ -6,7 +6,9 @@ import click
 
 from mapdb.mapfile.reader import open_map
 from mapdb.outputs import check_outputs
-from mapdb.simulation.simulate import map_bbox_from_lonlat, simulate_images, write_images
+from mapdb.simulation.documents import write_images
+from mapdb.simulation.poses import map_bbox_from_lonlat
+from mapdb.simulation.simulate import simulate_images
 
 from .options import (
     bbox_option,

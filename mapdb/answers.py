@@ -2,7 +2,7 @@
 
 An :class:`Answer` is either accepted (``status == "ok"``: a position and the pose behind it) or
 rejected (``status == "rejected"``: a ``reason``).  Both carry the runner-up :class:`Candidate` places
-the search found and the time it took.  :mod:`mapdb.localize.localizer` documents what each field means; the JSON
+the search found and the time it took.  :mod:`mapdb.localize.records` documents what each field means; the JSON
 form is what ``mapdb query`` writes, one object per line, and :meth:`Answer.from_json` reads it back.
 
 Examples
@@ -60,7 +60,7 @@ _POSE = ("x", "y", "lon", "lat", "crs", "inliers", "heading_deg", "scale_m_per_p
 
 @dataclass
 class Answer:
-    """One image's answer (:func:`mapdb.localize.localize`); the module docs of :mod:`mapdb.localize.localizer`
+    """One image's answer (:func:`mapdb.localize.localize`); the module docs of :mod:`mapdb.localize.records`
     say what each field means."""
 
     id: str | int | None

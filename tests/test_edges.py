@@ -33,7 +33,8 @@ from mapdb.geo import (
 )
 from mapdb.mapfile.export import select_lonlat
 from mapdb.mapfile.reader import open_map
-from mapdb.simulation.simulate import map_bbox_from_lonlat, simulate_images
+from mapdb.simulation.poses import map_bbox_from_lonlat
+from mapdb.simulation.simulate import simulate_images
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "sample_maps" / "helsinki.osm.pbf"

@@ -14,7 +14,8 @@ from mapdb_cli.main import cli
 
 from mapdb.answers import Answer
 from mapdb.errors import ImageInputError, MapdbIOError
-from mapdb.evaluation.evaluate import evaluate_images, format_summary, load_images, outcome, plot_evaluation, summarize
+from mapdb.evaluation.evaluate import evaluate_images, format_summary, load_images, outcome, summarize
+from mapdb.evaluation.evaluation_plot import plot_evaluation
 from mapdb.evaluation.paper_bench import bench_paper, format_bench
 from mapdb.mapfile.queries import MemoryMap
 from mapdb.mapfile.writer import write_map

@@ -25,7 +25,8 @@ from mapdb.errors import MapdbIOError
 from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
 from mapdb.outputs import atomic_open, atomic_path, check_outputs, remove_stale_temporaries
-from mapdb.simulation.simulate import paper_map, write_images
+from mapdb.simulation.documents import write_images
+from mapdb.simulation.simulate import paper_map
 
 
 def run(*args: object):

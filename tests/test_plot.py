@@ -18,8 +18,11 @@ from mapdb_cli.show import show
 from PIL import Image
 
 from mapdb.answers import Answer, Candidate
+from mapdb.evaluation.drawing import crs_name
 from mapdb.evaluation.evaluate import outcome
-from mapdb.evaluation.plot import crs_name, match_geometry, plot_evaluation, plot_match
+from mapdb.evaluation.evaluation_plot import plot_evaluation
+from mapdb.evaluation.match_geometry import match_geometry
+from mapdb.evaluation.match_plot import plot_match
 from mapdb.localize.localizer import localize
 from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
@@ -257,7 +260,16 @@ def test_crs_is_named_for_people() -> None:
     assert crs_name("not a crs") == "not a crs"
 
 
-def test_importing_the_pictures_module_does_not_import_matplotlib() -> None:
-    code = "import sys, mapdb.evaluation.plot, mapdb.evaluation.evaluate; print('matplotlib' in sys.modules)"
+def test_importing_the_pictures_modules_does_not_import_matplotlib() -> None:
+    code = ("import sys, mapdb.evaluation.evaluation_plot, mapdb.evaluation.match_plot, mapdb.evaluation.evaluate; "
+            "print('matplotlib' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def test_the_evaluation_does_not_import_its_pictures() -> None:
+    # The pictures take their defaults from the evaluation, never the other way round: no import cycle.
+    code = ("import sys, mapdb.evaluation.evaluate; "
+            "print(sorted(m for m in sys.modules if m.endswith(('_plot', '.drawing', '.match_geometry'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"

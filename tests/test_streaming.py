@@ -25,7 +25,7 @@ from click.testing import CliRunner
 from mapdb_cli.main import cli
 
 from mapdb.detections.images import MAX_OBJECTS, split_image_documents
-from mapdb.localize.localizer import localize_documents
+from mapdb.localize.batch import localize_documents
 from mapdb.mapfile.reader import open_map
 
 # A generous bound for one answer (the first one builds the map's index); a reader that waited for the

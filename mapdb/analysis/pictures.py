@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation.plot import crs_name, pyplot, save_figure
+from ..evaluation.drawing import crs_name, pyplot, save_figure
 from .measures import MIN_VISIBLE
 from .run import Analysis
 

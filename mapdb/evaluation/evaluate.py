@@ -51,16 +51,6 @@ __all__ = [
 DEFAULT_FP_THRESHOLD_M = 2.0
 
 
-def __getattr__(name: str) -> Any:
-    # plot_evaluation is drawn in mapdb.evaluation.plot and importable here, where callers found it (not in __all__:
-    # it is mapdb.evaluation.plot's); imported on demand: mapdb.evaluation.plot takes its defaults from here.
-    if name == "plot_evaluation":
-        from .plot import plot_evaluation
-
-        return plot_evaluation
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def load_images(path: str | Path) -> list[dict[str, Any]]:
     """Read simulated images (JSON Lines, each with a ``truth``) for evaluation.
 

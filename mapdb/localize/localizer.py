@@ -1,48 +1,26 @@
 """Localize images in a map: image objects in, position (or a reasoned rejection) out.
 
-:func:`localize` answers one image; :func:`localize_documents` answers every
-document of a JSON Lines file in input order, a malformed line becoming a
-``rejected`` record so that one bad line never stops a batch.
-
-The answer (an :class:`mapdb.answers.Answer`; ``Answer.to_json()`` gives this JSON, which ``mapdb query``
-writes)::
-
-    {"id": ..., "status": "ok", "x": ..., "y": ..., "lon": ..., "lat": ..., "crs": "EPSG:...",
-     "inliers": 14, "heading_deg": ..., "scale_m_per_px": ..., "sigma_m": ..., "score": ...,
-     "altitude_m": ...,                      # when the field of view is known
-     "candidates": [{"x": ..., "y": ..., "inliers": ..., "score": ...}, ...], "time_ms": ...}
-    {"id": ..., "status": "rejected", "reason": "...", "candidates": [...], "time_ms": ...}
-
-* ``x``, ``y``: the map point under the image centre; when roll, pitch and the
-  field of view are given, the image is first levelled
-  (:func:`mapdb.camera.level_pixels`) and the point is the camera nadir.
-* ``heading_deg``: the direction the image's *up* points to, clockwise from map
-  north (the simulator's yaw).
-* ``scale_m_per_px``: ground size of a pixel at the image centre.
-* ``sigma_m``: estimated 1-sigma error of ``x`` (and of ``y``) in metres, from the
-  fit residuals and the inliers' spread; errors that shift all objects alike
-  (an attitude error not given) are not in it.
-* ``score``: ``-log10`` of the number of false alarms (fast method): above 3
-  means fewer than one chance in a thousand that so good a match arises from
-  objects unrelated to the map.  None for the paper method, which has no such
-  measure.  ``expected_false_alarms`` is that number, ``10 ** -score``.
+A :class:`Localizer` holds an open map with the matcher's indexes and options and answers images one after
+another; :func:`localize` answers one image with the localizer kept for its map (:func:`localizer_for`).
+Each answer takes the same steps: parse the image and pick the prior that applies
+(:mod:`mapdb.localize.priors`), keep the objects the map knows as points of the image plane
+(:mod:`mapdb.localize.image_points`), run the matcher on the indexes of the map region the prior reaches,
+and make the answer (:mod:`mapdb.localize.records`, which documents its fields).  A batch of documents is
+answered by :func:`mapdb.localize.batch.localize_documents`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
-from collections import Counter, OrderedDict
-from collections.abc import Callable, Iterable, Iterator
-from functools import lru_cache
+from collections import OrderedDict
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
 from ..answers import Answer, Candidate
-from ..camera import Camera, image_plane, level_pixels
-from ..detections.images import ImageObjects, Prior, check_prior, parse_image
+from ..detections.images import ImageObjects, parse_image
 from ..errors import ImageInputError
 from ..mapfile.reader import MetaMap
 from ..match.evidence.blobs import outward_normals
@@ -52,24 +30,13 @@ from ..match.index.stored import StoredQuadIndex
 from ..match.mapobjects.paged_objects import WholeMapObjects
 from ..match.paper.algorithm import PaperOptions, match_paper
 from ..match.quads import near_only
+from .image_points import image_points, known_objects, scale_hints
+from .priors import outside_bounds, prior_margin, resolve_prior
+from .records import FoundPose, RejectionError, finite, ok_record, rejected, rounded
 
-__all__ = [
-    "METHODS",
-    "Localizer",
-    "SCALE_TOLERANCE",
-    "localize",
-    "localize_documents",
-    "localizer_for",
-    "prior_margin",
-]
+__all__ = ["METHODS", "Localizer", "localize", "localizer_for"]
 
 METHODS = ("fast", "paper")
-# With a known altitude and field of view the scale is known up to terrain relief and altimeter error;
-# hypotheses off by more than this factor are not considered.
-SCALE_TOLERANCE = 1.5
-# With a prior but no known scale, objects this far beyond the prior radius (or the radius itself, if
-# larger) are read so that the edges of the image are matched too.
-DEFAULT_PRIOR_MARGIN_M = 300.0
 # With a prior, quad indexes are built and cached per square tile of the map (only the pages near the
 # prior are read); a tile's anchors find their neighbours within this margin around it.
 TILE_SIZE_M = 1000.0
@@ -85,34 +52,6 @@ MAX_CACHED_BLOCKS = 9
 MAX_CACHED_QUADS = 4_000_000
 
 
-def _rounded(value: float, digits: int) -> float:
-    return float(round(value, digits))
-
-
-def _finite(value: float, digits: int) -> float | None:
-    """Rounded, or None where there is no finite value (a candidate without evidence scores -inf)."""
-    return _rounded(value, digits) if math.isfinite(value) else None
-
-
-@lru_cache(maxsize=16)
-def _transformer(src: str, dst: str) -> Any:
-    from pyproj import Transformer
-
-    return Transformer.from_crs(src, dst, always_xy=True)
-
-
-def _to_lonlat(crs: str, x: float, y: float) -> tuple[float | None, float | None]:
-    if not crs:
-        return None, None
-    try:
-        lon, lat = _transformer(crs, "EPSG:4326").transform(x, y)
-    except Exception:  # pyproj raises several kinds; lon/lat is a convenience, not the answer
-        return None, None
-    if not (math.isfinite(lon) and math.isfinite(lat)):
-        return None, None
-    return _rounded(lon, 8), _rounded(lat, 8)
-
-
 def _image_id(image: Any) -> Any:
     if isinstance(image, ImageObjects):
         return image.id
@@ -120,13 +59,6 @@ def _image_id(image: Any) -> Any:
         value = image.get("id")
         return value if isinstance(value, str | int) and not isinstance(value, bool) else None
     return None
-
-
-def prior_margin(radius: float, half_diagonal_m: float | None) -> float:
-    """How far beyond a prior's radius map objects are read: the footprint's half-diagonal if known."""
-    if half_diagonal_m is not None:
-        return 1.2 * half_diagonal_m
-    return max(radius, DEFAULT_PRIOR_MARGIN_M)
 
 
 class _Recent:
@@ -351,69 +283,6 @@ def localizer_for(map: Any, method: str = "fast", options: FastOptions | PaperOp
     return map.cached(f"mapdb.localize.localizer/{method}/{options!r}", lambda: Localizer(map, method, options))
 
 
-def _elapsed_ms(start: float) -> float:
-    return _rounded((time.perf_counter() - start) * 1000.0, 3)
-
-
-def _rejected(image_id: Any, reason: str, start: float, candidates: list[Candidate] | None = None,
-              **extra: Any) -> Answer:
-    return Answer(id=image_id, status="rejected", reason=reason, candidates=candidates or [], **extra,
-                  time_ms=_elapsed_ms(start))
-
-
-@lru_cache(maxsize=64)
-def _checked_caller_prior(x: float, y: float, radius: float) -> tuple[float, float, float]:
-    """A caller's prior, checked against the same ranges as an image's (a radius of 1e308 would overflow the
-    tiles); once per prior, not per image of a batch that shares it."""
-    checked = check_prior(x, y, radius, source="prior argument")
-    return (checked.x, checked.y, checked.radius)
-
-
-def _resolve_prior(im: ImageObjects, crs: str, prior: tuple[float, float, float] | Prior | None):
-    """The prior that applies, as (x, y, radius) in the map's CRS: the image's own, else the caller's.
-
-    The caller's is (x, y, radius) in the map's CRS or a :class:`mapdb.detections.images.Prior` (``lonlat=True``:
-    x, y are lon, lat degrees), as ``mapdb query --prior-crs EPSG:4326`` gives it.
-    """
-    p = im.prior
-    if p is None:
-        if prior is None:
-            return None
-        if not isinstance(prior, Prior):
-            return _checked_caller_prior(*prior)
-        p = prior
-    if not p.lonlat:
-        return (p.x, p.y, p.radius)
-    if not crs:
-        raise ImageInputError("prior: given in lon/lat but the map has no CRS to convert it to")
-    try:
-        x, y = _transformer("EPSG:4326", crs).transform(p.x, p.y)
-    except Exception:  # pyproj raises several kinds for points a projection cannot take
-        x = y = math.nan
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise ImageInputError(f"prior: lon {p.x}, lat {p.y} is outside the map's CRS ({crs})")
-    return (float(x), float(y), p.radius)
-
-
-def _outside_bounds(prior: tuple[float, float, float], margin: float, bounds: tuple[float, ...]) -> str | None:
-    """Why a prior cannot meet the map, or None: its disc, widened by ``margin``, misses the map's bounds.
-
-    The margin is how far beyond the disc the image's objects may lie (:func:`prior_margin`): a prior
-    just off the map's edge can still see the map.  A prior given in metres whose numbers look like
-    lon/lat gets a hint, the usual mistake.
-    """
-    x, y, r = prior
-    x0, y0, x1, y1 = bounds
-    if not all(math.isfinite(v) for v in bounds):
-        return None  # nothing known about where the map is
-    gap = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
-    if gap <= r + margin:
-        return None
-    far = f"{gap / 1000.0:,.1f} km" if gap >= 1000.0 else f"{gap:.0f} m"
-    hint = " (lon, lat? give the prior in lon/lat)" if abs(x) <= 180.0 and abs(y) <= 90.0 else ""
-    return f"prior ({x:.0f}, {y:.0f}) is {far} outside the map's bounds{hint}: no objects here"
-
-
 def localize(
     image: dict[str, Any] | ImageObjects,
     map: Any,
@@ -458,27 +327,6 @@ def localize(
     return localizer_for(map, method, options).localize(image, prior, source=source)
 
 
-class _RejectionError(Exception):
-    """A step's reason to reject the image (with what the answer should still carry)."""
-
-    def __init__(self, reason: str, candidates: list[Candidate] | None = None, **extra: Any) -> None:
-        super().__init__(reason)
-        self.reason, self.candidates, self.extra = reason, candidates, extra
-
-
-@dataclasses.dataclass
-class _Pose:
-    """What a matcher found: ``z -> a z + b``, its quality and what the answer carries besides."""
-
-    a: complex
-    b: complex
-    inliers: int
-    sigma_m: float | None
-    score: float | None
-    candidates: list[Candidate]
-    extra: dict[str, Any]
-
-
 def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
             prior: tuple[float, float, float] | None, source: str) -> Answer:
     start = time.perf_counter()
@@ -487,189 +335,62 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         im, prior = _checked(image, localizer.map.crs, prior, source)
     except ImageInputError as exc:
         message = str(exc)
-        return _rejected(image_id, message[len(source) + 2 :] if message.startswith(f"{source}: ") else message,
+        return rejected(image_id, message[len(source) + 2 :] if message.startswith(f"{source}: ") else message,
                          start)
     image_id = im.id if isinstance(im.id, str | int) else None
     skipped: dict[str, Any] = {}
     try:
-        im, codes, skipped = _known_objects(im, tuple(localizer.map.labels))
-        z, levelled, notes = _image_plane(im)
+        im, codes, skipped = known_objects(im, tuple(localizer.map.labels))
+        z, levelled, notes = image_points(im)
         diag_px = math.hypot(im.width, im.height)
-        focal_px, scale_range, half_diag_m = _scale_hints(im, diag_px)
+        focal_px, scale_range, half_diag_m = scale_hints(im, diag_px)
         margin = prior_margin(prior[2], half_diag_m) if prior is not None else 0.0
-        outside = None if prior is None else _outside_bounds(prior, margin, localizer.map.bounds)
+        outside = None if prior is None else outside_bounds(prior, margin, localizer.map.bounds)
         if outside:
-            raise _RejectionError(outside)
+            raise RejectionError(outside)
         anchorable = None if im.border is None else ~im.border
         # A levelled image's pixel areas and boxes are not the level camera's: they are left out.
         outward = None if im.bbox is None or levelled else outward_normals(im.bbox, im.width, im.height)
         pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
                       None if levelled else im.area_px, outward)
-    except _RejectionError as rejection:
-        return _rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
-    return _ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start)
+    except RejectionError as rejection:
+        return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
+    return ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start)
 
 
 def _checked(image: dict[str, Any] | ImageObjects, crs: str, prior: tuple[float, float, float] | None,
              source: str) -> tuple[ImageObjects, tuple[float, float, float] | None]:
     """The parsed image and the prior that applies to it (its own, else the caller's)."""
     im = image if isinstance(image, ImageObjects) else parse_image(image, source)
-    return im, _resolve_prior(im, crs, prior)
-
-
-def _known_objects(im: ImageObjects, map_labels: tuple[str, ...]) -> tuple[ImageObjects, np.ndarray, dict]:
-    """The image's objects of labels the map knows, their label codes, and the others counted.
-
-    Objects of labels the map does not know (a detector's class the map lacks) are left out and counted:
-    the others may still place the image.
-    """
-    n = len(im)
-    if n < 3:
-        raise _RejectionError(f"{n} objects: at least 3 are needed")
-    known = {name: code for code, name in enumerate(map_labels)}
-    is_known = np.fromiter((name in known for name in im.names), dtype=bool, count=n)
-    unknown = sorted({str(name) for name in im.names[~is_known]})
-    skipped: dict[str, Any] = {}
-    if unknown:
-        counts = Counter(str(name) for name in im.names[~is_known])
-        skipped = {"skipped_labels": {name: counts[name] for name in unknown}}
-        n = int(is_known.sum())
-        if n < 3:
-            listed = ", ".join(repr(u) for u in unknown[:5]) + (" ..." if len(unknown) > 5 else "")
-            raise _RejectionError(
-                f"unknown label{'s' if len(unknown) > 1 else ''} {listed}: the map has {', '.join(map_labels)}; "
-                f"{n} object{'' if n == 1 else 's'} left: at least 3 are needed", **skipped)
-        im = dataclasses.replace(
-            im, x=im.x[is_known], y=im.y[is_known], names=im.names[is_known],
-            area_px=None if im.area_px is None else im.area_px[is_known],
-            border=None if im.border is None else im.border[is_known],
-            bbox=None if im.bbox is None else im.bbox[is_known])
-    return im, np.fromiter((known[name] for name in im.names), dtype=np.int64, count=n), skipped
-
-
-def _image_plane(im: ImageObjects) -> tuple[np.ndarray, bool, list[str]]:
-    """Objects as complex pixels from the image centre, y up; levelled first when roll, pitch and the field
-    of view are given.  Also whether it was levelled, and notes for the answer."""
-    u, v = im.x, im.y
-    notes = []
-    levelled = False
-    if im.roll_deg is not None or im.pitch_deg is not None:
-        if im.fov_deg is None:
-            notes.append("attitude ignored: levelling the image needs camera.fov_deg")
-        else:
-            u, v = level_pixels(u, v, Camera(im.width, im.height, im.fov_deg), im.roll_deg or 0.0,
-                                im.pitch_deg or 0.0)
-            if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v))):
-                raise _RejectionError("attitude puts objects at or above the horizon")
-            levelled = True
-    return image_plane(u, v, im.width, im.height), levelled, notes
-
-
-def _scale_hints(im: ImageObjects, diag_px: float):
-    """Focal length (pixels), allowed metres per pixel and the footprint's largest half-diagonal (metres),
-    each None unless the field of view (and, for the last two, the altitude) is given."""
-    focal_px = None if im.fov_deg is None else Camera(im.width, im.height, im.fov_deg).focal_px
-    if focal_px is None or im.altitude_m is None:
-        return focal_px, None, None
-    s0 = im.altitude_m / focal_px
-    scale_range = (s0 / SCALE_TOLERANCE, s0 * SCALE_TOLERANCE)
-    return focal_px, scale_range, scale_range[1] * diag_px / 2.0
+    return im, resolve_prior(im, crs, prior)
 
 
 def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: float,
            prior: tuple[float, float, float] | None, margin: float, scale_range: tuple[float, float] | None,
            notes: list[str], skipped: dict[str, Any], anchorable: np.ndarray | None = None,
-           area_px: np.ndarray | None = None, outward: np.ndarray | None = None) -> _Pose:
-    """Run the localizer's method on the image plane; the pose, or a :class:`_RejectionError`."""
+           area_px: np.ndarray | None = None, outward: np.ndarray | None = None) -> FoundPose:
+    """Run the localizer's method on the image plane; the pose, or a :class:`~mapdb.localize.records.RejectionError`."""
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
                            scale_range=scale_range, anchorable=anchorable, area_px=area_px, outward=outward)
         candidates = [
-            Candidate(x=_rounded(c.b.real, 3), y=_rounded(c.b.imag, 3), inliers=c.inliers,
-                      score=_finite(c.score, 2), sigma_m=_finite(c.sigma_m, 3))
+            Candidate(x=rounded(c.b.real, 3), y=rounded(c.b.imag, 3), inliers=c.inliers,
+                      score=finite(c.score, 2), sigma_m=finite(c.sigma_m, 3))
             for c in found.candidates
         ]
         extra: dict[str, Any] = {"hypotheses": found.n_hypotheses, **skipped}
         if notes:
             extra["notes"] = notes
         if found.best is None:
-            raise _RejectionError(found.reason or "no match", candidates, **extra)
+            raise RejectionError(found.reason or "no match", candidates, **extra)
         best = found.best
-        return _Pose(best.a, best.b, best.inliers, best.sigma_m, _rounded(best.score, 2), candidates, extra)
+        return FoundPose(best.a, best.b, best.inliers, best.sigma_m, rounded(best.score, 2), candidates, extra)
     map_ = localizer.map
     objects = map_.query_radius(prior[0], prior[1], prior[2] + margin) if prior is not None else map_.all()
     answer = match_paper(z, codes, objects, options=localizer.paper_options)
     extra = {"notes": notes, **skipped} if notes else {**skipped}
     if answer.best is None:
-        raise _RejectionError(answer.reason or "no match", [], **extra)
-    extra["error_std"] = _rounded(answer.best.error_std, 6)
-    return _Pose(answer.best.a, answer.best.b, answer.best.matched, None, None, [], extra)
-
-
-def _ok_record(image_id: Any, crs: str, pose: _Pose, focal_px: float | None, levelled: bool,
-               start: float) -> Answer:
-    """The answer of a localized image (module docs)."""
-    a, b = pose.a, pose.b
-    lon, lat = _to_lonlat(crs, b.real, b.imag)
-    return Answer(
-        id=image_id,
-        status="ok",
-        x=_rounded(b.real, 3),
-        y=_rounded(b.imag, 3),
-        lon=lon,
-        lat=lat,
-        crs=crs or None,
-        inliers=int(pose.inliers),
-        heading_deg=_rounded((-math.degrees(np.angle(a))) % 360.0, 3),
-        scale_m_per_px=_rounded(abs(a), 6),
-        sigma_m=None if pose.sigma_m is None else _rounded(pose.sigma_m, 3),
-        score=pose.score,
-        # The number of false alarms the score stands for: how many answers this good the search would be
-        # expected to find by chance in a map that does not hold the place (benchmarks/false_alarms.py
-        # measures how that holds on real places not in the map).
-        expected_false_alarms=None if pose.score is None else float(f"{10.0 ** -pose.score:.3g}"),
-        altitude_m=None if focal_px is None else _rounded(abs(a) * focal_px, 2),
-        levelled=levelled,
-        candidates=pose.candidates,
-        **pose.extra,
-        time_ms=_elapsed_ms(start),
-    )
-
-
-def localize_documents(
-    documents: Iterable[tuple[str, Any]],
-    map: Any,
-    method: str = "fast",
-    prior: tuple[float, float, float] | None = None,
-    *,
-    options: FastOptions | PaperOptions | None = None,
-) -> Iterator[Answer]:
-    """Answer every document of a batch, in order; a document that failed to decode is rejected.
-
-    Parameters
-    ----------
-    documents : iterable of (where, document or ImageInputError)
-        As :func:`mapdb.detections.images.split_image_documents` or
-        :func:`~mapdb.detections.images.read_image_documents` give them.
-    map, method, prior, options
-        As for :func:`localize`.
-
-    Yields
-    ------
-    Answer
-        One answer per document, as soon as that document is read (a lazy ``documents``, such as
-        :func:`~mapdb.detections.images.read_image_documents` gives, is consumed one document at a time).  A
-        rejection of a document without an ``id`` names its place (``where``) in the reason, so that
-        it can be found in the input.
-    """
-    localizer = localizer_for(map, method, options)
-    for where, doc in documents:
-        if isinstance(doc, Exception):
-            start = time.perf_counter()
-            yield _rejected(None, str(doc), start)
-            continue
-        answer = localizer.localize(doc, prior, source=where)
-        if not answer.ok and answer.id is None and not (answer.reason or "").startswith(where):
-            answer.reason = f"{where}: {answer.reason}"
-        yield answer
+        raise RejectionError(answer.reason or "no match", [], **extra)
+    extra["error_std"] = rounded(answer.best.error_std, 6)
+    return FoundPose(answer.best.a, answer.best.b, answer.best.matched, None, None, [], extra)

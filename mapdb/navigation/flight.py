@@ -3,8 +3,9 @@
 The aircraft flies a :class:`~mapdb.navigation.path.FlightPath` at constant speed, banking in turns as a
 coordinated turn needs (``roll = atan(v^2 / (g R))``), with a little turbulence on roll and pitch.  Each
 frame is the image a downward-looking camera takes at that pose, made by the single-image simulator's own
-steps (:mod:`mapdb.simulation.simulate`: its camera, detector errors, label confusion and truth), so that a frame is
-also a valid ``mapdb query`` input.
+steps (its camera, :mod:`mapdb.simulation.poses`; detector errors and label confusion,
+:mod:`mapdb.simulation.detector`; document and truth, :mod:`mapdb.simulation.documents`), so that a frame
+is also a valid ``mapdb query`` input.
 
 Frame document (one JSON line each; the image keys are the query schema's)::
 
@@ -44,16 +45,10 @@ from .._scipy import cKDTree
 from ..camera import Camera, project_to_image
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress
-from ..simulation.simulate import (
-    _detect,
-    _Detector,
-    _image_document,
-    _label_mix,
-    _map_objects,
-    _placement_limits,
-    _Shot,
-    _truth,
-)
+from ..simulation.detector import Detector, detect, label_mix
+from ..simulation.documents import image_document, truth_entry
+from ..simulation.poses import Shot, placement_limits
+from ..simulation.simulate import objects_of_map
 from .path import FlightPath, heading_deg, survey_pattern
 
 __all__ = ["DEFAULT_LENGTH_M", "FlightOptions", "in_windows", "simulate_flight"]
@@ -157,10 +152,10 @@ def _biases(options: FlightOptions) -> dict[str, Any]:
             "imu": options.imu_bias_mps * complex(draws[2], draws[3])}
 
 
-def _visible(objects: Objects, tree: cKDTree, shot: _Shot, x: float, y: float
+def _visible(objects: Objects, tree: cKDTree, shot: Shot, x: float, y: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Map indices and pixels of the objects inside the image of a camera at ``(x, y)``."""
-    _, _, reach = _placement_limits(shot, (x, y, x, y), False)
+    _, _, reach = placement_limits(shot, (x, y, x, y), False)
     near = np.asarray(tree.query_ball_point([x, y], reach * 1.001 + 1e-6), dtype=np.int64)
     near.sort()
     u, v = project_to_image(objects.x[near], objects.y[near], shot.pose(x, y), shot.camera)
@@ -168,7 +163,7 @@ def _visible(objects: Objects, tree: cKDTree, shot: _Shot, x: float, y: float
     return near[seen], u[seen], v[seen]
 
 
-def _sensors(rng: np.random.Generator, options: FlightOptions, biases: dict[str, Any], shot: _Shot,
+def _sensors(rng: np.random.Generator, options: FlightOptions, biases: dict[str, Any], shot: Shot,
              velocity: complex) -> dict[str, Any]:
     """What the autopilot reports of the true ``shot`` and velocity (module docs)."""
     err = rng.standard_normal(6)
@@ -185,26 +180,26 @@ def _sensors(rng: np.random.Generator, options: FlightOptions, biases: dict[str,
 
 
 def _frame(i: int, truth: _Trajectory, options: FlightOptions, objects: Objects, tree: cKDTree,
-           detector: _Detector, biases: dict[str, Any], blackout: bool, withheld: bool) -> dict[str, Any]:
+           detector: Detector, biases: dict[str, Any], blackout: bool, withheld: bool) -> dict[str, Any]:
     """Frame ``i``: the camera's objects, the sensors, the truth."""
     rng = np.random.default_rng([options.seed, i])
     wobble = options.turbulence_deg * rng.standard_normal(2)
     camera = Camera(options.size[0], options.size[1], options.fov_deg)
-    shot = _Shot(float(truth.altitude[i]), camera, float(truth.heading[i]), float(truth.roll[i] + wobble[0]),
-                 float(wobble[1]))
+    shot = Shot(float(truth.altitude[i]), camera, float(truth.heading[i]), float(truth.roll[i] + wobble[0]),
+                float(wobble[1]))
     x, y = float(truth.z[i].real), float(truth.z[i].imag)
     index, u, v = _visible(objects, tree, shot, x, y)
     n_visible = index.size
     if blackout:
         index, u, v, names = index[:0], u[:0], v[:0], np.zeros(0, object)
     else:
-        index, u, v, names = _detect(rng, objects, index, u, v, camera, detector)
-    doc = _image_document(f"frame-{i:06d}", camera, names, u, v)
+        index, u, v, names = detect(rng, objects, index, u, v, camera, detector)
+    doc = image_document(f"frame-{i:06d}", camera, names, u, v)
     doc = {"id": doc.pop("id"), "time_s": round(float(truth.t[i]), 6), **doc}
     doc.update(_sensors(np.random.default_rng([options.seed, i, 1]), options, biases, shot, complex(truth.velocity[i])))
     if withheld:
         doc["map_withheld"] = True
-    doc["truth"] = {**_truth(shot, x, y, n_visible, index, None), "time_s": doc["time_s"],
+    doc["truth"] = {**truth_entry(shot, x, y, n_visible, index, None), "time_s": doc["time_s"],
                     "velocity_mps": [float(truth.velocity[i].real), float(truth.velocity[i].imag)],
                     "blackout": bool(blackout)}
     return doc
@@ -231,7 +226,7 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
         One frame document per ``1 / fps`` seconds, from the path's start.
     """
     options = options or FlightOptions()
-    objects, counts = _map_objects(map)
+    objects, counts = objects_of_map(map)
     wanted = options.length_m
     if waypoints is None:
         wanted = wanted or DEFAULT_LENGTH_M
@@ -239,8 +234,8 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
     path = FlightPath.from_waypoints(waypoints, options.turn_radius_m)
     length = min(wanted or path.length, path.length)
     truth = _trajectory(path, options, length)
-    names, mix = _label_mix(counts)
-    detector = _Detector(options.pixel_std, options.miss_rate, options.spurious_rate, options.label_noise, names, mix)
+    names, mix = label_mix(counts)
+    detector = Detector(options.pixel_std, options.miss_rate, options.spurious_rate, options.label_noise, names, mix)
     tree = cKDTree(np.column_stack([objects.x, objects.y]))
     biases = _biases(options)
     blackout = in_windows(truth.t, options.blackouts)

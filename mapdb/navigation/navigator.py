@@ -36,7 +36,8 @@ import numpy as np
 
 from ..answers import Answer
 from ..camera import Camera
-from ..localize.localizer import Localizer, _to_lonlat
+from ..localize.localizer import Localizer
+from ..localize.lonlat import to_lonlat
 from .filter import FixComponent, ParticleFilter
 from .frames import Frame, read_frame
 from .track import TrackRecord
@@ -165,7 +166,7 @@ class Navigator:
         record.status = status if self.filter.initialised else "not initialised"
         if self.filter.initialised:
             position, velocity, cov, _ = self.filter.estimate()
-            lon, lat = _to_lonlat(self.map.crs, position.real, position.imag)
+            lon, lat = to_lonlat(self.map.crs, position.real, position.imag)
             record.x, record.y, record.lon, record.lat = position.real, position.imag, lon, lat
             record.velocity, record.cov, record.crs = velocity, cov, self.map.crs or None
             record.heading_deg = None if self.orientation.heading is None else self.orientation.heading % 360.0

@@ -225,9 +225,9 @@ def read_linestring(path: str | Path, crs: str | None) -> np.ndarray:
         raise SourceError(f"{name}: a LineString needs at least two [lon, lat] positions within range")
     if not crs:
         raise SourceError(f"{name}: the map has no CRS to place lon/lat waypoints in")
-    from ..localize.localizer import _transformer
+    from ..localize.lonlat import transformer
 
-    x, y = _transformer("EPSG:4326", crs).transform(lonlat[:, 0], lonlat[:, 1])
+    x, y = transformer("EPSG:4326", crs).transform(lonlat[:, 0], lonlat[:, 1])
     return np.asarray(x) + 1j * np.asarray(y)
 
 

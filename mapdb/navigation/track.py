@@ -212,7 +212,7 @@ def plot_track(records: Sequence[TrackRecord], map: Any, path: str | Path, *, ti
     """Draw a track over its map: map objects, the true track (when known), the estimate with its 3-sigma
     discs, fixes used and rejected; below, the stated 3-sigma and the true error against time.  Axes in
     metres of the map's CRS (named), with a scale bar."""
-    from ..evaluation.plot import _metre_axes, _widened, pyplot, save_figure
+    from ..evaluation.drawing import metre_axes, pyplot, save_figure, widened
 
     s = _series(records)
     plt = pyplot()
@@ -221,12 +221,12 @@ def plot_track(records: Sequence[TrackRecord], map: Any, path: str | Path, *, ti
     pad = 0.08 * max(float(np.ptp(points.real)), float(np.ptp(points.imag)), 200.0)
     box = (float(points.real.min() - pad), float(points.imag.min() - pad),
            float(points.real.max() + pad), float(points.imag.max() + pad))
-    view = _widened(ax, box)  # the view's shape made the axes' shape: equal scale that fills them
+    view = widened(ax, box)  # the view's shape made the axes' shape: equal scale that fills them
     _draw_track(ax, s, map.query_bbox(*view) if map is not None else None)
     ax.set_xlim(view[0], view[2])
     ax.set_ylim(view[1], view[3])
     ax.set_aspect("equal", adjustable="box")
-    _metre_axes(ax, getattr(map, "crs", None))
+    metre_axes(ax, getattr(map, "crs", None))
     _scale_bar(ax, box[2] - box[0])
     ax.legend(fontsize=7, loc="upper right", markerscale=1.5, ncol=2)
     ax.set_title(title or f"navigated track: {len(records)} frames", fontsize=10)

@@ -34,22 +34,12 @@ from .._scipy import cKDTree
 from ..detections.masks import DEFAULT_MIN_AREA_PX, from_mask
 from ..errors import EmptyMapError
 from ..outputs import ProgressLike, as_progress, atomic_path
+from .detector import Detector, confuse_labels, label_mix
+from .documents import add_hints, bound_entry, truth_entry
 from .outlines import Scene
+from .poses import Shot, camera_area, draw_shot, place_camera
 from .render import Rendering, blob_sources, render_mask
-from .simulate import (
-    _add_hints,
-    _bound,
-    _camera_area,
-    _check_simulate_args,
-    _confuse_labels,
-    _Detector,
-    _draw_shot,
-    _label_mix,
-    _map_objects,
-    _place_camera,
-    _Shot,
-    _truth,
-)
+from .simulate import check_simulate_args, objects_of_map
 
 __all__ = ["MAX_RENDERS", "RenderedImage", "png_bytes", "simulate_masks", "write_masks"]
 
@@ -59,13 +49,13 @@ RenderedImage = tuple[dict[str, Any], np.ndarray]
 
 
 def _render_until_enough(
-    rng: np.random.Generator, objects: Any, tree: cKDTree, scene: Scene, shot: _Shot, place: dict[str, Any],
+    rng: np.random.Generator, objects: Any, tree: cKDTree, scene: Scene, shot: Shot, place: dict[str, Any],
     render: dict[str, Any], min_objects: int, image_id: str, map_name: str, i: int,
 ) -> tuple[float, float, Rendering, dict[str, Any]]:
     """Camera position, rendering and extracted document of one image with at least ``min_objects`` blobs."""
     for _ in range(MAX_RENDERS if min_objects > 0 else 1):
-        cam_x, cam_y, *_ = _place_camera(rng, objects, tree, shot, place["area"], place["keep_inside"],
-                                         math.ceil(min_objects / 2), place["max_tries"], map_name, i)
+        cam_x, cam_y, *_ = place_camera(rng, objects, tree, shot, place["area"], place["keep_inside"],
+                                        math.ceil(min_objects / 2), place["max_tries"], map_name, i)
         rendering = render_mask(scene, shot.pose(cam_x, cam_y), shot.camera, heights=render["heights"],
                                 mask_noise_px=render["mask_noise_px"], miss_rate=render["miss_rate"], rng=rng)
         doc = from_mask(rendering.mask, rendering.classes, connectivity=render["connectivity"],
@@ -77,7 +67,7 @@ def _render_until_enough(
 
 
 def _rendered_truth(
-    objects: Any, shot: _Shot, cam_x: float, cam_y: float, rendering: Rendering, scene: Scene,
+    objects: Any, shot: Shot, cam_x: float, cam_y: float, rendering: Rendering, scene: Scene,
     doc: dict[str, Any], render: dict[str, Any], with_attitude: bool,
 ) -> dict[str, Any]:
     """The ``truth`` entry: the ideal simulator's keys, with blobs in place of projected centroids."""
@@ -88,8 +78,8 @@ def _rendered_truth(
     seen_map = np.unique(scene.map_index[seen[seen > 0] - 1])
     u = np.array([o["x"] for o in doc["objects"]], np.float64)
     v = np.array([o["y"] for o in doc["objects"]], np.float64)
-    bound = _bound(objects, index, u, v, shot, cam_x, cam_y, with_attitude)
-    truth = _truth(shot, cam_x, cam_y, int((seen_map >= 0).sum()), index, bound)
+    bound = bound_entry(objects, index, u, v, shot, cam_x, cam_y, with_attitude)
+    truth = truth_entry(shot, cam_x, cam_y, int((seen_map >= 0).sum()), index, bound)
     truth["covers"] = [[j for j, _ in c] for c in covers]
     truth["cover_px"] = [[px for _, px in c] for c in covers]
     truth["mask"] = f"{doc['id']}.png"
@@ -129,14 +119,14 @@ def simulate_masks(
         Each image's query document with its ``truth`` (module docs) and its label mask (codes: label
         code + 1, 0 nothing); made as they are asked for, so that masks need not all be held at once.
     """
-    _check_simulate_args(n, yaw, attitude_std, 0.0, miss_rate, 0.0, label_noise, min_objects, max_tries)
+    check_simulate_args(n, yaw, attitude_std, 0.0, miss_rate, 0.0, label_noise, min_objects, max_tries)
     if mask_noise_px < 0:
         raise ValueError(f"mask_noise_px must be >= 0, got {mask_noise_px}")
     map_name = getattr(map, "path", None) or "map"
-    objects, counts = _map_objects(map)
+    objects, counts = objects_of_map(map)
     tree = cKDTree(np.column_stack([objects.x, objects.y]))
-    confusion = _Detector(0.0, 0.0, 0.0, label_noise, *_label_mix(counts))
-    area, keep_inside = _camera_area(objects, bbox, map_name)
+    confusion = Detector(0.0, 0.0, 0.0, label_noise, *label_mix(counts))
+    area, keep_inside = camera_area(objects, bbox, map_name)
     place = {"area": area, "keep_inside": keep_inside, "max_tries": max_tries}
     render = {"heights": heights, "mask_noise_px": float(mask_noise_px), "miss_rate": float(miss_rate),
               "connectivity": connectivity, "min_area": min_area}
@@ -146,22 +136,22 @@ def simulate_masks(
 
 
 def _generate(objects: Any, tree: cKDTree, scene: Scene, n: int, camera: tuple[Any, ...], place: dict[str, Any],
-              render: dict[str, Any], confusion: _Detector, hints: tuple[float | None, bool, bool],
+              render: dict[str, Any], confusion: Detector, hints: tuple[float | None, bool, bool],
               min_objects: int, seed: int, id_prefix: str, map_name: str, say: Any) -> Iterator[RenderedImage]:
     """The images of :func:`simulate_masks`, image ``i`` drawn from ``(seed, i)`` alone."""
     with_prior, with_attitude, with_altitude = hints
     say.start(n, "render")
     for i in range(n):
         rng = np.random.default_rng([seed, i])
-        shot = _draw_shot(rng, *camera)
+        shot = draw_shot(rng, *camera)
         cam_x, cam_y, rendering, doc = _render_until_enough(rng, objects, tree, scene, shot, place, render,
                                                             min_objects, f"{id_prefix}{i:06d}", map_name, i)
         truth = _rendered_truth(objects, shot, cam_x, cam_y, rendering, scene, doc, render, with_attitude)
         labels = np.array([o["label"] for o in doc["objects"]], dtype=object)
-        _confuse_labels(rng, labels, confusion)
+        confuse_labels(rng, labels, confusion)
         for o, label in zip(doc["objects"], labels, strict=True):
             o["label"] = str(label)
-        _add_hints(rng, doc, shot, cam_x, cam_y, with_prior, with_attitude, with_altitude)
+        add_hints(rng, doc, shot, cam_x, cam_y, with_prior, with_attitude, with_altitude)
         doc["truth"] = truth
         yield doc, rendering.mask
         say.advance()
