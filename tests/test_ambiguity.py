@@ -16,10 +16,10 @@ from test_analyze import GAP, SIDE, X0, Y0, write_synthetic
 from mapdb.camera import Camera, image_plane
 from mapdb.localize.localizer import Localizer
 from mapdb.mapfile.store import open_map, write_map
-from mapdb.match.ambiguity import find_rivals
 from mapdb.match.fast import FastOptions
 from mapdb.match.geometry import fit_similarity_complex
 from mapdb.match.refine import PLACE_FRACTION, Candidate, pose_shift, residual_sigma
+from mapdb.match.rivals import find_rivals
 from mapdb.objects import Objects
 from mapdb.simulation.simulate import simulate_images
 

@@ -423,7 +423,9 @@ def test_a_round_screens_shared_poses_first_and_the_whole_round_when_they_fail()
     answered: the shared poses are screened first, and when they give nothing the whole round is."""
     from scipy.spatial import cKDTree
 
-    from mapdb.match.fast import FastOptions, _verify_round
+    from mapdb.match.hypotheses import Hypotheses
+    from mapdb.match.options import FastOptions
+    from mapdb.match.screen import screen_round
 
     m = _random_map()
     objs = m.all()
@@ -444,8 +446,8 @@ def test_a_round_screens_shared_poses_first_and_the_whole_round_when_they_fail()
     pts = np.column_stack([z.real, z.imag])
     screen_of = cKDTree(pts).query(pts, k=min(12, z.size))[1]
     opts = FastOptions()
-    found = _verify_round(a, b, img_ids, map_z, z, label, ObjectIndex(objs), screen_of, math.hypot(W, H),
-                          math.log10(a.size), opts)
+    found = screen_round(Hypotheses(a, b, img_ids, map_z), z, label, ObjectIndex(objs), screen_of, math.hypot(W, H),
+                         math.log10(a.size), opts)
     best = min(found, key=lambda c: c.log10_nfa)
     assert best.log10_nfa < opts.log10_epsilon
     assert abs(best.b - centre) < 1e-6

@@ -14,9 +14,10 @@ import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
 from .evidence.blobs import BlobErrors, placed_sources
+from .evidence.points import GATE_SIGMAS, residual_sigmas
 from .evidence.relief import ReliefFit, fit_with_relief, leave_one_out_sigma
 from .geometry import prediction_variance_factor
-from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
+from .mapobjects.object_index import ObjectIndex
 
 __all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "polish", "pose_shift"]
 

@@ -15,11 +15,9 @@ import numpy as np
 from .decision import log10_nfa_curve
 from .evidence.areas import ImageAreas, bands, compatible, disc_chances, sample_evidence
 from .evidence.blobs import BlobErrors, cut_area_residuals
+from .evidence.points import GATE_SIGMAS, first_per_map_object, residual_sigmas
 from .geometry import fit_similarity_complex
 from .mapobjects.object_index import U_MAX, ObjectIndex
-
-# Residual sigmas within which an association is kept (refinement's second net, the final assignment's gate).
-GATE_SIGMAS = 3.5
 
 __all__ = [
     "GATE_SIGMAS", "U_MAX", "ObjectIndex", "decision_nfa", "first_per_map_object", "refine", "residual_sigmas",
@@ -167,29 +165,3 @@ def refine(
         a = np.where(ok, a_new, a)
         b = np.where(ok, b_new, b)
     return a, b, nfa, inlier, mid, dist
-
-
-def residual_sigmas(dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
-    """Per-axis error of each row's similarity fitted to its inliers: ``sqrt(sum r^2 / (2k - 4))``.
-
-    ``dist`` and ``inlier`` are ``(H, n)``; 4 parameters are fitted, so ``2k - 4`` degrees of freedom
-    (at least 1).
-    """
-    k = inlier.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(np.where(inlier, dist**2, 0.0).sum(axis=1) / np.maximum(2 * k - 4, 1))
-
-
-def first_per_map_object(mid: np.ndarray, dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
-    """Mask keeping, per row and map object, only the closest of the image objects matched to it."""
-    h, n = mid.shape
-    keep = np.ones((h, n), bool)
-    r, c = np.nonzero(inlier)
-    if r.size == 0:
-        return keep
-    order = np.lexsort((dist[r, c], mid[r, c], r))
-    r, c = r[order], c[order]
-    dup = np.zeros(r.size, bool)
-    dup[1:] = (r[1:] == r[:-1]) & (mid[r[1:], c[1:]] == mid[r[:-1], c[:-1]])
-    keep[r[dup], c[dup]] = False
-    return keep
