@@ -1,8 +1,24 @@
 """The fast matcher: indexed quad invariants, vectorised verification, an a contrario decision.
 
-The design follows blind astrometry (astrometry.net's quads) and AC-RANSAC, one module a stage:
-:mod:`~mapdb.match.quads` (index), :mod:`~mapdb.match.hypotheses`, :mod:`~mapdb.match.verify`,
-:mod:`~mapdb.match.decision` and :mod:`~mapdb.match.refine`; :func:`match_fast` hands each the next.
+The design follows blind astrometry (astrometry.net's solver) and AC-RANSAC, one module a stage, each handed
+the previous one's result by :func:`match_fast`, which reads as the stages in order:
+
+======================================  =================================================================
+stage (module)                          hands on
+======================================  =================================================================
+:mod:`~mapdb.match.hypotheses`          a round's :class:`~mapdb.match.hypotheses.Hypotheses` (image quads
+(:mod:`~mapdb.match.cut_quads`)         looked up in the :mod:`~mapdb.match.quads` index)
+:mod:`~mapdb.match.screen`              the round's places, screened, verified (:mod:`~mapdb.match.verify`),
+                                        decided and refined: :class:`~mapdb.match.refine.Candidate` s
+:mod:`~mapdb.match.decide`              the best place if certain, else the rejection
+:mod:`~mapdb.match.rivals`              other places holding the winner's pattern; ambiguous or not
+:mod:`~mapdb.match.refine`              the final fit (:func:`~mapdb.match.refine.polish`); the answer
+======================================  =================================================================
+
+The rivals come before the final fit: they are compared with the winner as the search refined it, and an
+ambiguous image is rejected without the fit's cost.  Every stage reads :class:`~mapdb.match.options.FastOptions`
+and the image's :class:`~mapdb.match.evidence.image.ImageEvidence` (the evidence models beyond point residuals:
+areas, cut blobs, relief), set up once here.
 
 1. **Index** (built once per map, or per map tile, and cached).  Every map object
    and three of its ``map_neighbours`` nearest neighbours form a *quad*.  Its two

@@ -73,7 +73,7 @@ class FastOptions:
         ``len(pixel_sigmas) * max_batches`` rounds, whatever its number of objects.
     ambiguity_anchors : int
         The winner's inliers (nearest the image centre) whose quads are looked up again in the quad indexes
-        for far places holding the same pattern (:mod:`mapdb.match.ambiguity`; 0, the default: the repeats
+        for far places holding the same pattern (:mod:`mapdb.match.rivals`; 0, the default: the repeats
         within the footprint and the search's runner-ups only, about 15 % less time an image).
     ambiguity_places : int
         At most this many other places (runner-ups, repeats, look-up hits; those where most image objects

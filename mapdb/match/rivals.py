@@ -24,8 +24,8 @@ Places are distinct when some image point moves by more than a place's width bet
 (:func:`~mapdb.match.refine.pose_shift`), so a quarter turn at the same spot is another place.  The prior
 and the scale range rule poses out exactly as in the search: a place outside the prior's disc is no rival,
 the prior resolves it.  A rival is reported on the winner's scale: the winner's score less how much worse
-it explains the image under the common density; :func:`mapdb.match.fast.match_fast` rejects the image as
-ambiguous when a rival comes within ``ambiguity_margin`` of the winner.
+it explains the image under the common density; :func:`mapdb.match.decide.ambiguous` rejects the image
+when a rival comes within ``ambiguity_margin`` of the winner.
 """
 
 from __future__ import annotations
