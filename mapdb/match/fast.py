@@ -171,8 +171,7 @@ def match_fast(
     if rejected is not None:
         return rejected
     # 5. Refine: the final association and fit, then the answer unless its error is too large.
-    best = polish(best, z, img_label, objects, whole=evidence.anchors, jackknife=evidence.jackknife,
-                  errors=evidence.errors)
+    best = polish(best, z, img_label, objects, evidence=evidence)
     return answer(best, rest, opts, n_tests, rounds)
 
 

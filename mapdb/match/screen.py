@@ -71,7 +71,6 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
               evidence: ImageEvidence | None) -> list[Candidate]:
     """:func:`screen_round` on the hypotheses given: at most ``opts.max_verified``, the most shared poses first
     (``votes``: :func:`pose_votes`, computed here if None and needed)."""
-    evidence = evidence or ImageEvidence()
     if len(hyps) > opts.max_verified:
         hyps = hyps.take(prioritise(hyps.a, hyps.b, diag_px, opts.max_verified, votes))
     # Screen: the shortlist ...
@@ -87,6 +86,6 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
     radius = opts.density_radius_factor * np.abs(hyps.a) * diag_px / 2.0
     density = index.local_density(hyps.b, radius)
     nfa = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
-                       opts.density_neighbours, evidence.areas, radius, evidence.errors)
+                       opts.density_neighbours, evidence, radius)
     a, b, _, inlier, mid, dist = refine(hyps.a, hyps.b, z, img_label, index, density, log10_tests, 2)
     return candidates(a, b, nfa, inlier, mid, dist, z)
