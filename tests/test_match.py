@@ -11,10 +11,10 @@ from scipy.stats import binom
 from mapdb.camera import Camera, Pose, project_to_image
 from mapdb.localize.localizer import localize
 from mapdb.mapfile.store import MemoryMap
-from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
 from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
 from mapdb.match.hypotheses import pose_votes, prioritise
+from mapdb.match.nfa import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.paper.algorithm import match_paper
 from mapdb.match.quads import canonical_quads, neighbour_quads
 from mapdb.objects import Objects

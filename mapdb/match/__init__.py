@@ -10,7 +10,7 @@
      against the map's objects held by :mod:`~mapdb.match.mapobjects`), each place decided and refined:
      candidates;
   3. :mod:`~mapdb.match.decide` - the best candidate certain enough (the false-alarm model of
-     :mod:`~mapdb.match.decision`), or the rejection;
+     :mod:`~mapdb.match.nfa`), or the rejection;
   4. :mod:`~mapdb.match.rivals` - other places where the map repeats the winner's pattern, compared under one
      density: ambiguous or not;
   5. :mod:`~mapdb.match.refine` - the final association and fit (:func:`~mapdb.match.refine.polish`), and

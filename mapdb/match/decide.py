@@ -4,7 +4,7 @@ The search (:mod:`~mapdb.match.hypotheses` then :mod:`~mapdb.match.screen`, roun
 candidates best first; each check here takes the previous stage's result and either passes or gives the
 :class:`MatchResult` that rejects the image:
 
-* :func:`uncertain` - no candidate, or the best one's number of false alarms (:mod:`mapdb.match.decision`) is
+* :func:`uncertain` - no candidate, or the best one's number of false alarms (:mod:`mapdb.match.nfa`) is
   not below ``10**log10_epsilon``;
 * :func:`ambiguous` - after the rivals (:mod:`~mapdb.match.rivals`), a distinct place comes within
   ``ambiguity_margin`` of the winner's score;

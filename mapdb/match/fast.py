@@ -47,7 +47,7 @@ areas, cut blobs, relief), set up once here.
    whose coarse pose another one shares (a right place is found by several
    image quads, a chance hit of a big map's index by one) are screened first,
    and the whole round only when they give nothing accepted.
-4. **Decision** (:mod:`mapdb.match.decision`): the number of false alarms of a
+4. **Decision** (:mod:`mapdb.match.nfa`): the number of false alarms of a
    hypothesis *as it came from its quad* (refitting a model to its own inliers
    makes it look better than chance says), with tolerance discs shaped by how
    far each object lies from the quad, the quad's own map points excluded

@@ -2,7 +2,7 @@
 
 Image objects are projected into the map by each hypothesis and matched to the nearest map object of
 their label (:class:`ObjectIndex`); residuals become normalised ``u = lambda pi r^2`` and the a contrario
-model of :mod:`mapdb.match.decision` turns them into a number of false alarms.  :func:`screen` ranks many
+model of :mod:`mapdb.match.nfa` turns them into a number of false alarms.  :func:`screen` ranks many
 hypotheses cheaply, :func:`decision_nfa` is the full test, :func:`refine` re-associates and refits.
 """
 
@@ -12,11 +12,11 @@ import math
 
 import numpy as np
 
-from .decision import log10_nfa_curve
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, first_per_map_object, residual_sigmas
 from .geometry import fit_similarity_complex
 from .mapobjects.object_index import U_MAX, ObjectIndex
+from .nfa import log10_nfa_curve
 
 __all__ = [
     "GATE_SIGMAS", "U_MAX", "ObjectIndex", "decision_nfa", "first_per_map_object", "refine", "residual_sigmas",

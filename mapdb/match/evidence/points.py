@@ -2,7 +2,7 @@
 map object, and the per-axis error of a similarity fitted to such pairs.
 
 An image object projected by a hypothesis lands at ``w``; its residual is the distance to the map object it
-is associated with, normalised by the label's density into ``u = lambda pi r^2`` (:mod:`mapdb.match.decision`).
+is associated with, normalised by the label's density into ``u = lambda pi r^2`` (:mod:`mapdb.match.nfa`).
 The other models refine this one: :mod:`~mapdb.match.evidence.areas` (stored areas), :mod:`~mapdb.match.evidence.blobs`
 (cut blobs' ellipses) and :mod:`~mapdb.match.evidence.relief` (the final fit, relief weighed radially).
 """
