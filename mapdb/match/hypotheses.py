@@ -5,6 +5,9 @@ missing or extra object still leaves quads whose members are all among the map's
 up with a radius from the pixel error and the quad's size; near the canonical-order boundaries every
 ordering is looked up, so noise cannot hide a quad behind a flip.  Objects nearest the image centre anchor
 the first quads (their neighbourhoods are least cut by the image edge), a few anchors per round.
+
+The first stage of :func:`mapdb.match.fast.match_fast`: each round's :class:`Hypotheses` go to the screen
+(:mod:`mapdb.match.screen`).
 """
 
 from __future__ import annotations
