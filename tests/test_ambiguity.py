@@ -17,10 +17,10 @@ from mapdb.camera import Camera, image_plane
 from mapdb.localize.localizer import Localizer
 from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
-from mapdb.match.ambiguity import find_rivals
 from mapdb.match.fast import FastOptions
 from mapdb.match.geometry import fit_similarity_complex
 from mapdb.match.refine import PLACE_FRACTION, Candidate, pose_shift, residual_sigma
+from mapdb.match.rivals import find_rivals
 from mapdb.objects import Objects
 from mapdb.simulation.simulate import simulate_images
 

@@ -9,6 +9,7 @@ from test_blob_errors import random_poses
 
 from mapdb.match.evidence.areas import ImageAreas
 from mapdb.match.evidence.blobs import AREA_SHIFT, BlobErrors, cut_area_residuals
+from mapdb.match.evidence.image import ImageEvidence
 from mapdb.match.refine import Candidate, polish
 from mapdb.match.verify import ObjectIndex, decision_nfa
 from mapdb.objects import Objects
@@ -83,7 +84,7 @@ def test_cut_buildings_placed_by_area_give_more_evidence_at_the_true_pose() -> N
         radius = np.array([1.5 * abs(a) * 800.0 / 2])
         density = index.local_density(np.array([b]), radius)
         return float(decision_nfa(np.array([a]), np.array([b]), quad[None, :], mz[None, :], z, labels, index,
-                                  density, 3.0, 6, areas, radius, errors)[0])
+                                  density, 3.0, 6, ImageEvidence(areas=areas, errors=errors), radius)[0])
 
     a, b = np.array([a_true]), np.array([b_true])
     cut = np.flatnonzero(~whole)
@@ -114,7 +115,7 @@ def test_the_final_fit_places_cut_buildings_by_their_map_objects_areas() -> None
     labels = np.zeros(w.size, np.int64)
     cand = Candidate(a=a * 1.01, b=b + 3 + 2j, log10_nfa=-9.0, inliers=w.size, sigma_axis_m=2.0, variance_factor=0.3,
                      pairs=np.column_stack([np.arange(w.size), np.arange(w.size)]))
-    placed = polish(cand, z, labels, index, errors=errors)
+    placed = polish(cand, z, labels, index, evidence=ImageEvidence(errors=errors))
     # Placed at the scale of the fit before (1 % off at first), so within millimetres after two rounds.
     assert placed.inliers == w.size and abs(placed.b - b) < 0.02 and abs(placed.a - a) < 1e-4
     assert abs(polish(cand, z, labels, index).b - b) > 1.0  # at the visible centroids: metres off

@@ -11,10 +11,10 @@ from scipy.stats import binom
 from mapdb.camera import Camera, Pose, project_to_image
 from mapdb.localize.localizer import localize
 from mapdb.mapfile.queries import MemoryMap
-from mapdb.match.decision import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.fast import ObjectIndex, QuadIndex, match_fast
 from mapdb.match.geometry import fit_similarity_complex, prediction_variance_factor, similarity_from_pairs
 from mapdb.match.hypotheses import pose_votes, prioritise
+from mapdb.match.nfa import log10_binomial_tail, log10_nfa_curve
 from mapdb.match.paper.algorithm import match_paper
 from mapdb.match.quads import canonical_quads, neighbour_quads
 from mapdb.objects import Objects
@@ -424,7 +424,9 @@ def test_a_round_screens_shared_poses_first_and_the_whole_round_when_they_fail()
     answered: the shared poses are screened first, and when they give nothing the whole round is."""
     from scipy.spatial import cKDTree
 
-    from mapdb.match.fast import FastOptions, _verify_round
+    from mapdb.match.hypotheses import Hypotheses
+    from mapdb.match.options import FastOptions
+    from mapdb.match.screen import screen_round
 
     m = _random_map()
     objs = m.all()
@@ -445,8 +447,8 @@ def test_a_round_screens_shared_poses_first_and_the_whole_round_when_they_fail()
     pts = np.column_stack([z.real, z.imag])
     screen_of = cKDTree(pts).query(pts, k=min(12, z.size))[1]
     opts = FastOptions()
-    found = _verify_round(a, b, img_ids, map_z, z, label, ObjectIndex(objs), screen_of, math.hypot(W, H),
-                          math.log10(a.size), opts)
+    found = screen_round(Hypotheses(a, b, img_ids, map_z), z, label, ObjectIndex(objs), screen_of, math.hypot(W, H),
+                         math.log10(a.size), opts)
     best = min(found, key=lambda c: c.log10_nfa)
     assert best.log10_nfa < opts.log10_epsilon
     assert abs(best.b - centre) < 1e-6

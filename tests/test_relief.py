@@ -10,6 +10,7 @@ import pytest
 
 from mapdb.localize.localizer import localize
 from mapdb.mapfile.queries import MemoryMap
+from mapdb.match.evidence.image import ImageEvidence
 from mapdb.match.evidence.relief import ReliefFit, _whitened, fit_with_relief, leave_one_out_sigma, radial_excess
 from mapdb.match.fast import FastOptions
 from mapdb.match.geometry import fit_similarity_complex
@@ -149,7 +150,7 @@ def test_one_far_point_among_few_makes_the_answer_imprecise() -> None:
     index = ObjectIndex(Objects.from_names(seen.real, seen.imag, ["building"] * 6))
     cand = Candidate(a=0.3, b=500 + 500j, log10_nfa=-9.0, inliers=6, sigma_axis_m=0.6, variance_factor=0.2,
                      pairs=np.column_stack([np.arange(6), np.arange(6)]))
-    final = polish(cand, src, np.zeros(6, np.int64), index, jackknife=True)
+    final = polish(cand, src, np.zeros(6, np.int64), index, evidence=ImageEvidence(jackknife=True))
     assert polish(cand, src, np.zeros(6, np.int64), index).sigma_m == pytest.approx(model)  # points: the model
     assert final.inliers == 6 and abs(final.b - fit.b) < 1e-6
     assert final.sigma_m == pytest.approx(leave_one_out_sigma(src, seen, fit)) and final.sigma_m > model

@@ -25,12 +25,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .hypotheses import round_hypotheses
+from .hypotheses import Hypotheses, round_hypotheses
+from .options import FastOptions
 from .quads import QuadIndex
 
 if TYPE_CHECKING:
     from .evidence.blobs import BlobErrors
-    from .fast import FastOptions
 
 __all__ = ["CUT_FIT_WEIGHT", "CUT_SIGMA_PX", "cut_batches", "cut_round_hypotheses"]
 
@@ -83,7 +83,7 @@ def cut_round_hypotheses(
     z: np.ndarray, img_label: np.ndarray, batch: np.ndarray, quads: Sequence[QuadIndex], opts: FastOptions,
     sigma_px: float, errors: BlobErrors, whole: np.ndarray, prior: tuple[float, float, float] | None,
     scale_range: tuple[float, float] | None,
-) -> tuple[np.ndarray, ...]:
+) -> Hypotheses:
     """:func:`~mapdb.match.hypotheses.round_hypotheses` for quads with cut blobs: each cut blob looked up at its
     expected place (``errors``' shift along its border's normal) with a pixel error ``CUT_SIGMA_PX``, and the
     similarity fitted mostly to the whole blobs.  Returns ``a``, ``b``, image ids ``(H, 4)``, map points."""

@@ -5,23 +5,46 @@ missing or extra object still leaves quads whose members are all among the map's
 up with a radius from the pixel error and the quad's size; near the canonical-order boundaries every
 ordering is looked up, so noise cannot hide a quad behind a flip.  Objects nearest the image centre anchor
 the first quads (their neighbourhoods are least cut by the image edge), a few anchors per round.
+
+The first stage of :func:`mapdb.match.fast.match_fast`: each round's :class:`Hypotheses` go to the screen
+(:mod:`mapdb.match.screen`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import numpy as np
 
 from .geometry import fit_similarity_complex
+from .options import FastOptions
 from .quads import PAIRS, QuadIndex, first_rows, neighbour_quads, quad_frames
 
-if TYPE_CHECKING:
-    from .fast import FastOptions
+__all__ = [
+    "Hypotheses", "allowed_poses", "anchor_batches", "lookup_hypotheses", "pose_votes", "prioritise",
+    "round_hypotheses",
+]
 
-__all__ = ["allowed_poses", "anchor_batches", "lookup_hypotheses", "pose_votes", "prioritise", "round_hypotheses"]
+
+@dataclass(frozen=True)
+class Hypotheses:
+    """A round's hypotheses, what this stage hands the screen (:mod:`mapdb.match.screen`): similarities
+    ``z -> a z + b`` (``a``, ``b`` complex, ``(H,)``), each from the image objects ``img_ids`` ``(H, 4)`` of its
+    quad and their map points ``map_z`` ``(H, 4)``."""
+
+    a: np.ndarray
+    b: np.ndarray
+    img_ids: np.ndarray
+    map_z: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.a)
+
+    def take(self, rows: np.ndarray | list[int]) -> Hypotheses:
+        """The hypotheses of ``rows`` (indices or a mask), in that order."""
+        return Hypotheses(self.a[rows], self.b[rows], self.img_ids[rows], self.map_z[rows])
 
 
 def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | None = None) -> list[np.ndarray]:
@@ -60,7 +83,7 @@ def round_hypotheses(
     prior: tuple[float, float, float] | None,
     scale_range: tuple[float, float] | None,
     weight: np.ndarray | None = None,
-) -> tuple[np.ndarray, ...]:
+) -> Hypotheses:
     """One round's hypotheses: ``a``, ``b`` (complex), image ids ``(H, 4)`` and map points ``(H, 4)``.
 
     Hypotheses whose image centre falls outside the prior (with a little slack: a quad's estimate of the
@@ -71,7 +94,7 @@ def round_hypotheses(
     img_ids, map_z = lookup_hypotheses(z, img_label, batch, quads, opts, sigma_px)
     a, b = fit_similarity_complex(z[img_ids], map_z, None if weight is None else weight[img_ids])
     ok = allowed_poses(a, b, prior, scale_range)
-    return a[ok], b[ok], img_ids[ok], map_z[ok]
+    return Hypotheses(a[ok], b[ok], img_ids[ok], map_z[ok])
 
 
 def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,

@@ -13,10 +13,11 @@ from typing import Any
 import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
-from .evidence.blobs import BlobErrors, placed_sources
-from .evidence.relief import ReliefFit, fit_with_relief, leave_one_out_sigma
+from .evidence.image import ImageEvidence
+from .evidence.points import GATE_SIGMAS, residual_sigmas
+from .evidence.relief import ReliefFit
 from .geometry import prediction_variance_factor
-from .verify import GATE_SIGMAS, ObjectIndex, residual_sigmas
+from .mapobjects.object_index import ObjectIndex
 
 __all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "polish", "pose_shift"]
 
@@ -84,7 +85,7 @@ def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: in
 
 def polish(
     cand: Candidate, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, iterations: int = 2,
-    whole: np.ndarray | None = None, jackknife: bool = False, errors: BlobErrors | None = None,
+    evidence: ImageEvidence | None = None,
 ) -> Candidate:
     """Final association by optimal assignment, then the least-squares fit over it.
 
@@ -94,13 +95,15 @@ def polish(
     current fit, and at least its farthest inlier), and the pairs minimising the total squared
     distance are kept (a minimum-weight full bipartite matching).
 
-    The fit is :func:`~mapdb.match.evidence.relief.fit_with_relief` over the pairs whose image object is ``whole``
-    (bool, ``(n,)``: not cut by the image border) when at least four are, else over all pairs; every pair
-    still counts as an inlier.  With ``errors`` (:class:`~mapdb.match.evidence.blobs.BlobErrors`), a fit that must use
-    cut blobs places each where its blob puts its map object (:func:`~mapdb.match.evidence.blobs.placed_sources`: a cut
-    building by the map object's stored area), not at the visible part's centroid, pulled inward.
+    The fit is the image's evidence models' (:meth:`~mapdb.match.evidence.image.ImageEvidence.fit`; None: point
+    residuals): :func:`~mapdb.match.evidence.relief.fit_with_relief` over the pairs whose image object is one of
+    its ``anchors`` (not cut by the image border) when at least four are, else over all pairs; every pair
+    still counts as an inlier.  With its ``errors`` (:class:`~mapdb.match.evidence.blobs.BlobErrors`), a fit that
+    must use cut blobs places each where its blob puts its map object
+    (:func:`~mapdb.match.evidence.blobs.placed_sources`: a cut building by the map object's stored area), not at
+    the visible part's centroid, pulled inward.
 
-    With ``jackknife`` (objects extracted from masks: blobs, whose errors are not alike), the answer's error
+    With its ``jackknife`` (objects extracted from masks: blobs, whose errors are not alike), the answer's error
     (``sigma_m``) is the larger of the fit's model, ``sigma_axis * sqrt(variance_factor)``, and the
     jackknife's (:func:`~mapdb.match.evidence.relief.leave_one_out_sigma`; folded into ``variance_factor``).  The model
     trusts the residuals to be independent and alike, which a handful of blobs, one of them a partly hidden
@@ -116,6 +119,7 @@ def polish(
     for them: the jackknife's is noisier, and on ``benchmarks/matcher_core.py``'s 300 Andorra images (6-8
     objects in the ones it changed) it withheld 3 more answers, 0.5-1.7 m off.
     """
+    evidence = evidence or ImageEvidence()
     a, b = cand.a, cand.b
     farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
@@ -132,7 +136,7 @@ def polish(
                 break  # the pairs of the last fit: fitting them again gives it again
             pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign
             scale = abs(a)  # the scale cut blobs are placed at, the jackknife's too
-            fit = _fit_pairs(z, index, pairs, whole, errors, scale)
+            fit = evidence.fit(z, index, pairs, scale)
             if fit is None:
                 return cand
             a, b = fit.a, fit.b
@@ -157,43 +161,15 @@ def polish(
             break
         pairs = assigned
         scale = abs(a)
-        fit = _fit_pairs(z, index, pairs, whole, errors, scale)
+        fit = evidence.fit(z, index, pairs, scale)
         if fit is None:
             return cand
         a, b = fit.a, fit.b
     if fit is None:
         return cand
-    sigma_axis, variance = fit.sigma_axis, fit.variance_factor
-    if jackknife:
-        used = _fitted(pairs, whole)
-        sigma_axis = max(sigma_axis, 1e-12)  # an exact fit (no residual) must not hide an infinite jackknife
-        src = _sources(z, index, used, errors, scale)
-        variance = max(variance, (leave_one_out_sigma(src, index.z[used[:, 1]], fit) / sigma_axis) ** 2)
+    sigma_axis, variance = evidence.error(z, index, pairs, fit, scale)
     return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
                      variance_factor=variance, pairs=pairs)
-
-
-def _fitted(pairs: np.ndarray, whole: np.ndarray | None) -> np.ndarray:
-    """The pairs the final fit uses: those of whole objects when at least four are, else all."""
-    if whole is not None and np.count_nonzero(whole[pairs[:, 0]]) >= 4:
-        return pairs[whole[pairs[:, 0]]]
-    return pairs
-
-
-def _sources(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, errors: BlobErrors | None,
-             scale: float) -> np.ndarray:
-    """The image positions the fit takes the ``pairs`` from: blobs placed by their errors when known."""
-    return z[pairs[:, 0]] if errors is None else placed_sources(errors, z, pairs, index, scale)
-
-
-def _fit_pairs(z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, whole: np.ndarray | None,
-               errors: BlobErrors | None = None, scale: float = 1.0) -> ReliefFit | None:
-    """The similarity fitted to ``pairs`` (image id, map id), whole objects only when four are, or None when
-    they cannot fix one; ``scale`` (metres per pixel) places cut blobs by their map objects' areas."""
-    pairs = _fitted(pairs, whole)
-    if len(pairs) < 3:
-        return None
-    return fit_with_relief(_sources(z, index, pairs, errors, scale), index.z[pairs[:, 1]])
 
 
 def pose_shift(a: Any, b: Any, a0: complex, b0: complex, diag_px: float) -> Any:

@@ -2,7 +2,7 @@
 
 Image objects are projected into the map by each hypothesis and matched to the nearest map object of
 their label (:class:`ObjectIndex`); residuals become normalised ``u = lambda pi r^2`` and the a contrario
-model of :mod:`mapdb.match.decision` turns them into a number of false alarms.  :func:`screen` ranks many
+model of :mod:`mapdb.match.nfa` turns them into a number of false alarms.  :func:`screen` ranks many
 hypotheses cheaply, :func:`decision_nfa` is the full test, :func:`refine` re-associates and refits.
 """
 
@@ -12,19 +12,18 @@ import math
 
 import numpy as np
 
-from .decision import log10_nfa_curve
-from .evidence.areas import ImageAreas, bands, compatible, disc_chances, sample_evidence
-from .evidence.blobs import BlobErrors, cut_area_residuals
+from .evidence.image import ImageEvidence
+from .evidence.points import GATE_SIGMAS, first_per_map_object, residual_sigmas
 from .geometry import fit_similarity_complex
 from .mapobjects.object_index import U_MAX, ObjectIndex
-
-# Residual sigmas within which an association is kept (refinement's second net, the final assignment's gate).
-GATE_SIGMAS = 3.5
+from .nfa import log10_nfa_curve
 
 __all__ = [
     "GATE_SIGMAS", "U_MAX", "ObjectIndex", "decision_nfa", "first_per_map_object", "refine", "residual_sigmas",
     "screen",
 ]
+
+_POINTS = ImageEvidence()  # ideal centroids: point residuals only
 
 
 def screen(
@@ -69,9 +68,8 @@ def decision_nfa(
     density: np.ndarray,
     log10_tests: float,
     local_neighbours: int = 0,
-    areas: ImageAreas | None = None,
+    evidence: ImageEvidence | None = None,
     area_radius: np.ndarray | None = None,
-    errors: BlobErrors | None = None,
 ) -> np.ndarray:
     """log10 NFA of quad hypotheses over all image objects, tolerances shaped by each quad's geometry.
 
@@ -79,36 +77,20 @@ def decision_nfa(
     from the quad: per-axis variance ``sigma^2 (1 + 1/4 + |z - mean|^2 / spread)``.  The tolerance disc of
     each object scales with that, so a near object must match tightly and a far one loosely.
 
-    With ``areas`` and ``area_radius`` (the density disc's radius per hypothesis), an object's evidence is
-    its nearest map object of a compatible area, at the density of those (:mod:`mapdb.match.evidence.areas`).
-    With ``errors``, each object's map object is looked for from where its blob says it lies and its residual
-    measured in its error ellipse (:mod:`mapdb.match.evidence.blobs`: blobs cut by the image border); with both, a cut
-    blob of a solid label is measured from where each candidate map object's own area puts it
-    (:func:`~mapdb.match.evidence.blobs.cut_area_residuals`).
+    The residuals come from the image's evidence models (:meth:`~mapdb.match.evidence.image.ImageEvidence.residuals`;
+    None: point residuals only).  With its ``areas`` and ``area_radius`` (the density disc's radius per
+    hypothesis), an object's evidence is its nearest map object of a compatible area, at the density of those
+    (:mod:`mapdb.match.evidence.areas`).  With its ``errors``, each object's map object is looked for from where
+    its blob says it lies and its residual measured in its error ellipse (:mod:`mapdb.match.evidence.blobs`: blobs
+    cut by the image border); with both, a cut blob of a solid label is measured from where each candidate map
+    object's own area puts it (:func:`~mapdb.match.evidence.blobs.cut_area_residuals`).
     """
     h, n = len(a), z.size
     w = a[:, None] * z[None, :] + b[:, None]
-    expected = w if errors is None else errors.expected(a, b, z)
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
-    share: np.ndarray | float = 1.0  # of the map objects compatible with each object's area
-    from_sample = np.zeros(h)  # log10 factor from the areas of each quad's own objects
-    if areas is not None and area_radius is not None:
-        lo, hi = bands(areas, a)
-        dist, mid = index.nearest_compatible(expected, img_label, density, map_z, lo, hi)
-        share = disc_chances(index.log_area, index.disc_members(b, area_radius, img_label), img_label, lo, hi)
-        rows = np.arange(h)[:, None]
-        at = index.at(map_z, img_label[img_ids])
-        fits = compatible(np.where(at >= 0, index.log_area[np.maximum(at, 0)], np.nan), lo[rows, img_ids],
-                          hi[rows, img_ids])
-        from_sample = sample_evidence(fits, share[rows, img_ids])
-    else:
-        dist, mid = index.nearest(expected, img_label, density, exclude=map_z)
-    r2 = dist**2 if errors is None else np.where(mid >= 0, errors.r2(a, b, z, index.z[np.maximum(mid, 0)]), np.inf)
-    if errors is not None and errors.visible_px is not None and areas is not None and area_radius is not None:
-        # Cut solid blobs: each map object measured from where a blob of its own area would put it.
-        cut = np.flatnonzero(np.isfinite(errors.visible_px))
-        r2[:, cut] = cut_area_residuals(errors, a, b, z, cut, index, img_label, map_z, lo, hi)[0]
+    r2, share, from_sample = (evidence or _POINTS).residuals(w, a, b, img_ids, map_z, z, img_label, index, density,
+                                                             area_radius)
     lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
     if local_neighbours:
         # The larger of the two densities: neither a dense old town beside empty slopes (the footprint's
@@ -167,29 +149,3 @@ def refine(
         a = np.where(ok, a_new, a)
         b = np.where(ok, b_new, b)
     return a, b, nfa, inlier, mid, dist
-
-
-def residual_sigmas(dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
-    """Per-axis error of each row's similarity fitted to its inliers: ``sqrt(sum r^2 / (2k - 4))``.
-
-    ``dist`` and ``inlier`` are ``(H, n)``; 4 parameters are fitted, so ``2k - 4`` degrees of freedom
-    (at least 1).
-    """
-    k = inlier.sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(np.where(inlier, dist**2, 0.0).sum(axis=1) / np.maximum(2 * k - 4, 1))
-
-
-def first_per_map_object(mid: np.ndarray, dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
-    """Mask keeping, per row and map object, only the closest of the image objects matched to it."""
-    h, n = mid.shape
-    keep = np.ones((h, n), bool)
-    r, c = np.nonzero(inlier)
-    if r.size == 0:
-        return keep
-    order = np.lexsort((dist[r, c], mid[r, c], r))
-    r, c = r[order], c[order]
-    dup = np.zeros(r.size, bool)
-    dup[1:] = (r[1:] == r[:-1]) & (mid[r[1:], c[1:]] == mid[r[:-1], c[:-1]])
-    keep[r[dup], c[dup]] = False
-    return keep

@@ -3,7 +3,7 @@
 A hypothesis ``z -> a z + b`` fixes the scale (``|a|`` metres per pixel), so an image object's pixel area
 (``area_px``, as :func:`mapdb.detections.masks.from_mask` and :mod:`mapdb.detections.coco` write it) becomes
 square metres and can be compared with the area the map stores for the object it lands on.  In the a contrario model of
-:mod:`mapdb.match.decision` this is a *thinning* of the null's Poisson process: under the null, map
+:mod:`mapdb.match.nfa` this is a *thinning* of the null's Poisson process: under the null, map
 objects' areas are independent of where an image object lands, so the map objects of a label that are
 *compatible* with a blob (their area within the blob's band) form a Poisson process of density
 ``lambda q``, ``q`` the share of the label's map objects that are compatible.  The evidence of an image

@@ -16,7 +16,7 @@ at 120 m, and a radial stretch of 2 or 4 changed nothing measurable).  On the sa
 equivalent radius fell from 30 to 22 px (buildings) and 36 to 18 px (others).
 
 **Calibration.**  The ellipse has the area of the disc it replaces (``k * 1/k = 1``), so under the null of
-:mod:`mapdb.match.decision` (map objects a Poisson process independent of the image) the chance that a map
+:mod:`mapdb.match.nfa` (map objects a Poisson process independent of the image) the chance that a map
 object lies within ``u = lambda pi r_eff^2`` is ``1 - exp(-u)`` for an ellipse with a fixed centre and
 shape, as for a disc.  The map object measured is the Euclidean nearest to the ellipse's centre (the index
 answers nearest queries): its ``u`` is ``u_disc * g(theta)``, ``E[1 / g] = 1`` over a uniform direction,

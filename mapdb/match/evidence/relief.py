@@ -40,7 +40,7 @@ import math
 import numpy as np
 
 from ..geometry import fit_similarity_complex, prediction_variance_factor
-from ..verify import residual_sigmas
+from .points import residual_sigmas
 
 __all__ = ["RELIEF_ITERATIONS", "ReliefFit", "fit_with_relief", "leave_one_out_sigma", "radial_excess"]
 

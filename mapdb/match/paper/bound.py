@@ -8,14 +8,11 @@ compare both).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..._scipy import cKDTree
-
-if TYPE_CHECKING:
-    from .algorithm import PaperOptions
+from .options import PaperOptions
 
 __all__ = ["NearestBound", "wrap_angle"]
 

@@ -1,4 +1,4 @@
-"""Ambiguity: does the map hold the winner's pattern at another place too?
+"""Rivals: does the map hold the winner's pattern at another place too?  The stage after the decision.
 
 The search stops at the first round that accepts, so the runner-ups it compares the winner with are the
 ones it happened to find, each scored with its own label densities.  On a map with repeated structure (a
@@ -24,8 +24,8 @@ Places are distinct when some image point moves by more than a place's width bet
 (:func:`~mapdb.match.refine.pose_shift`), so a quarter turn at the same spot is another place.  The prior
 and the scale range rule poses out exactly as in the search: a place outside the prior's disc is no rival,
 the prior resolves it.  A rival is reported on the winner's scale: the winner's score less how much worse
-it explains the image under the common density; :func:`mapdb.match.fast.match_fast` rejects the image as
-ambiguous when a rival comes within ``ambiguity_margin`` of the winner.
+it explains the image under the common density; :func:`mapdb.match.decide.ambiguous` rejects the image
+when a rival comes within ``ambiguity_margin`` of the winner.
 """
 
 from __future__ import annotations
@@ -33,17 +33,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from itertools import combinations
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .hypotheses import allowed_poses, round_hypotheses
+from .options import FastOptions
 from .quads import QuadIndex
 from .refine import PLACE_FRACTION, Candidate, candidates, merge_candidates, pose_shift
 from .verify import ObjectIndex, refine
-
-if TYPE_CHECKING:
-    from .fast import FastOptions
 
 __all__ = ["find_rivals", "inlier_quads"]
 
@@ -98,8 +95,8 @@ def find_rivals(
     hit_a, hit_b = hit_a[allowed], hit_b[allowed]
     batch = inlier_quads(z, best.pairs[:, 0], opts.image_neighbours, opts.ambiguity_anchors)
     if len(batch):
-        found_a, found_b, _, _ = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
-        hit_a, hit_b = np.concatenate([hit_a, found_a]), np.concatenate([hit_b, found_b])
+        found = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
+        hit_a, hit_b = np.concatenate([hit_a, found.a]), np.concatenate([hit_b, found.b])
     keep = _places(hit_a, hit_b, best, diag_px)
     a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
     near = _near_counts(a, b, best, z, img_label, index, opts)
