@@ -357,14 +357,19 @@ def test_forged_ids_and_ranges_raise_instead_of_reading_past_arrays(small, tmp_p
         _one_line_error(exc, "corrupt")
 
 
-def test_a_forged_fence_misdirects_lookups_but_reads_nothing_outside(small, tmp_path) -> None:
+def test_a_forged_fence_or_directory_out_of_order_is_refused(small, tmp_path) -> None:
     path, target = _copy(small, tmp_path)
-    _rewrite(target, patch=("fence", 1, 0))  # no longer ascending
+    _rewrite(target, patch=("fence", 1, 0))  # no longer ascending: refused when opened
+    with pytest.raises(MapFormatError) as exc:
+        open_index(target)
+    _one_line_error(exc, "fence out of order")
+    _, target = _copy(small, tmp_path)
+    _rewrite(target, patch=("dir_key", 3, 0))  # a page of the directory no longer ascending: its first lookup
     with open_map(path) as m:
         query, labels, radius = _queries(m.all())
-    with open_index(target) as ix:
-        row, ids = ix.lookup(query, labels, radius, 16)
-        assert ids.size == 0 or ids.max() < ix.n_objects
+    with open_index(target) as ix, pytest.raises(MapFormatError) as exc:
+        ix.lookup(query, labels, radius, 16)
+    _one_line_error(exc, "directory out of order")
 
 
 # --------------------------------------------------------------------------------------------- command line

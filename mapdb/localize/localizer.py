@@ -333,7 +333,8 @@ class Localizer:
             self._whole_quads.stored.close()
             self._whole_quads = None
         if not self._stored_failed:
-            self.warn(f"{reason}; answering with the in-memory search")
+            rebuild = "" if "rebuild with" in reason else f"; rebuild with mapdb index {self.map.path}"
+            self.warn(f"{reason}{rebuild}; answering with the in-memory search")
         self._stored_failed = True
 
     def fast_indexes(self, prior: tuple[float, float, float] | None, margin: float):
