@@ -232,10 +232,15 @@ def header_combos(combos: Any, quads: int, n_labels: int, where: str) -> tuple[n
         raise MapFormatError(f"{where}: quad index label combinations out of range")
     if quads > 0 and not combos:
         raise MapFormatError(f"{where}: quad index lists no label combination for its {quads} quads")
-    if not all(isinstance(c, list) and len(c) == 2 for c in combos):
+    try:  # one array of pairs (vectorised: a map of many labels has thousands of combinations)
+        table = np.array(combos, dtype=np.float64) if combos else np.zeros((0, 2))
+    except (TypeError, ValueError):
+        raise MapFormatError(f"{where}: quad index label combinations out of range") from None
+    if table.shape != (len(combos), 2) or not np.all(table[:, 0] == np.floor(table[:, 0])):
         raise MapFormatError(f"{where}: quad index label combinations out of range")
-    ck = np.array([whole(c[0], where, "combos", 0, 2**62) for c in combos], np.int64)
-    cc = np.array([float(c[1]) for c in combos], np.float64)
+    # Label keys stay below L^4 (checked below), far below 2^53: exact in float64.
+    ck = np.clip(table[:, 0], -1, 2**62).astype(np.int64)
+    cc = table[:, 1]
     # A cell side is one of the ladder's, as written (a JSON float reads back bit for bit).
     if ck.size and not np.isin(cc, CELL_LADDER).all():
         raise MapFormatError(f"{where}: quad index cell sides are not the format's")
@@ -272,12 +277,12 @@ def check_sections(layout: dict[str, Any], shapes: dict[str, tuple[tuple[int, ..
         if sec["dtype"] != dtype or [int(v) for v in sec["shape"]] != list(shape) or int(sec["length"]) != length:
             raise MapFormatError(f"{where}: quad index section {name} does not match the counts")
         total_blocks += -(-length // BLOCK)
-        spans.append((int(sec["offset"]), length, name))
+        spans.append((whole(sec["offset"], where, f"{name} offset"), length, name))
     crc_sec = layout["crc"]
     if crc_sec["dtype"] != "<u4" or [int(v) for v in crc_sec["shape"]] != [total_blocks] or \
             int(crc_sec["length"]) != 4 * total_blocks:
         raise MapFormatError(f"{where}: quad index checksum table does not match the sections")
-    spans.append((int(crc_sec["offset"]), 4 * total_blocks, "crc"))
+    spans.append((whole(crc_sec["offset"], where, "crc offset"), 4 * total_blocks, "crc"))
     spans.sort()
     at = PREFIX_SIZE
     for off, length, name in spans:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import MapFormatError
-from .layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, pread
+from .layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, pread, whole
 
 __all__ = ["LOOKUP_CANDIDATES", "Best", "Section", "bound_candidates", "find_cells", "map_sections", "pieces",
            "query_cells", "take_rows"]
@@ -138,7 +138,7 @@ def map_sections(mapping: mmap.mmap | None, fd: int, h: dict[str, Any],
     sections: dict[str, Section] = {}
     for name, (shape, dtype) in shapes.items():
         sec = layout[name]
-        first = int(sec["first_block"])
+        first = whole(sec["first_block"], where, f"{name} first_block")
         blocks = -(-int(sec["length"]) // BLOCK)
         if first < 0 or first + blocks > total_blocks:
             raise MapFormatError(f"{where}: quad index checksum table does not match the sections")

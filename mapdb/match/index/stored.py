@@ -146,7 +146,8 @@ class StoredQuadIndex:
         self._sections, self._fence = map_sections(self._mmap, fd, h, shapes, total_blocks, where)
         # Combinations left out of the header would make lookups find nothing: checked where the fence shows cells.
         fenced = (self._fence >> np.uint64(4 * self._bits)).astype(np.int64)
-        if fenced.size and not np.isin(fenced, self._combo_keys).all():
+        at = np.minimum(np.searchsorted(self._combo_keys, fenced), max(self._combo_keys.size - 1, 0))
+        if fenced.size and not (self._combo_keys.size and (self._combo_keys[at] == fenced).all()):
             raise mismatch(where, "its directory holds label combinations its header does not list")
 
     # ------------------------------------------------------------------------------------------ public
