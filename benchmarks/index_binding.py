@@ -3,11 +3,13 @@
 For each map given (its index ``MAP.qidx`` built beside it by ``mapdb index MAP``), prints a table of:
 
 * **open warm**: ``open_map`` then ``StoredQuadIndex.for_map`` (the index opened and checked against the
-  map: its header's ``map`` section), files in the page cache: median of ``--repeat`` runs;
+  map: its header's ``map`` section), files in the page cache: median and fastest of ``--repeat`` runs (on
+  a shared machine the fastest run is the one least disturbed);
 * **open cold**: the same with both files dropped from the page cache first (``posix_fadvise DONTNEED``;
   a file another process holds open may stay cached);
 * **positions**: the exact check of every coordinate against ``MetaMap.all()`` that the localizer makes for
-  a map it holds whole (the map decoded, then compared), median;
+  a map it holds whole: the comparison only (the localizer decodes the map for its object index anyway),
+  median;
 * **first**: with ``--images``, a fresh process's first answer as ``mapdb query`` meets it: ``open_map``, a
   new ``Localizer`` and its first image without prior (the index opened and checked, the position check,
   the object index built, the answer), median of ``--repeat`` / 5 runs (min 3);
@@ -59,8 +61,8 @@ def _positions_ms(map_path: str) -> float | None:
     with open_map(map_path) as m, StoredQuadIndex.for_map(m) as ix:
         if not hasattr(ix, "check_positions"):
             return None  # a tree from before the binding
-        start = time.perf_counter()
         objects = m.all()
+        start = time.perf_counter()
         ix.check_positions(objects.x, objects.y)
         return (time.perf_counter() - start) * 1000.0
 
@@ -93,10 +95,11 @@ def main() -> None:
     parser.add_argument("--images", nargs="*", default=[], help="an images file per map, in the same order")
     parser.add_argument("--repeat", type=int, default=30)
     args = parser.parse_args()
-    print(f"{'map':16} {'open warm ms':>12} {'open cold ms':>12} {'positions ms':>12} {'first ms':>9} "
+    print(f"{'map':16} {'open warm ms (min)':>18} {'open cold ms':>12} {'positions ms':>12} {'first ms':>9} "
           f"{'answer ms':>10}  ok")
     for i, map_path in enumerate(args.maps):
-        warm = statistics.median(_open_ms(map_path, False) for _ in range(args.repeat))
+        warm_runs = [_open_ms(map_path, False) for _ in range(args.repeat)]
+        warm = f"{statistics.median(warm_runs):.2f} ({min(warm_runs):.2f})"
         cold = statistics.median(_open_ms(map_path, True) for _ in range(max(3, args.repeat // 5)))
         pos = [_positions_ms(map_path) for _ in range(max(3, args.repeat // 5))]
         pos_text = "-" if pos[0] is None else f"{statistics.median(p for p in pos if p is not None):.2f}"
@@ -106,7 +109,7 @@ def main() -> None:
             first = f"{statistics.median(runs):.1f}"
             ms, n_ok, n = _answer_ms(map_path, args.images[i])
             answer, ok = f"{ms:.1f}", f"{n_ok}/{n}"
-        print(f"{os.path.basename(map_path):16} {warm:12.2f} {cold:12.2f} {pos_text:>12} {first:>9} {answer:>10}  {ok}")
+        print(f"{os.path.basename(map_path):16} {warm:>18} {cold:12.2f} {pos_text:>12} {first:>9} {answer:>10}  {ok}")
 
 
 if __name__ == "__main__":
