@@ -68,7 +68,7 @@ def _query(map_path: Path, images: Path):
 
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
-    """A map of 1500 objects in 12 pages, its genuine index, another map's index, images and both searches'
+    """A map of 1500 objects in 16 pages, its genuine index, another map's index, images and both searches'
     answers: with the genuine index and in memory (no index)."""
     root = tmp_path_factory.mktemp("hostile_qidx")
     map_path = root / "m.mapdb"
@@ -147,13 +147,13 @@ def _permuted(a: np.ndarray) -> np.ndarray:
 
 def _permuted_in_page(a: np.ndarray) -> np.ndarray:
     a = a.copy()
-    a[128:256] = _permuted(a[128:256])  # the second map page's objects among themselves: inside its box
+    a[100:150] = _permuted(a[100:150])  # objects of the second map page among themselves: inside its box
     return a
 
 
 def _one_moved(a: np.ndarray) -> np.ndarray:
     a = a.copy()
-    i = int(np.argmax(a[:128, 0] < a[:128, 0].max()))  # an object of page 0 that can move right inside its box
+    i = int(np.argmax(a[:90, 0] < a[:90, 0].max()))  # an object of page 0 that can move right inside its box
     a[i, 0] += 1
     return a
 
@@ -377,3 +377,18 @@ def test_a_genuine_index_passes_every_check(setup) -> None:
         ix.check_positions(objects.x, objects.y)
         _lookup_stored_quads(ix, root, objects)
         assert ix._boxes is not None and ix._boxes.checked.any()
+
+
+def test_a_damaged_map_page_is_the_maps_error_not_the_indexs(setup, tmp_path) -> None:
+    # The index passes its checks (the map's header and directory are intact); the page's own checksum fails
+    # when the localizer decodes the map: the query stops with the map's error, and blames no index.
+    map_path, images, root, _ = setup
+    damaged = tmp_path / "m.mapdb"
+    data = bytearray(map_path.read_bytes())
+    data[-10] ^= 0x55  # in the last page's bytes
+    damaged.write_bytes(bytes(data))
+    index_path(damaged).write_bytes((root / "genuine.qidx").read_bytes())
+    result = _query(damaged, images)
+    assert result.exit_code == 1 and result.stdout == ""
+    (line,) = result.stderr.splitlines()
+    assert line.startswith(f"mapdb: error: {damaged} page ") and line.endswith(": checksum mismatch (file is corrupt)")

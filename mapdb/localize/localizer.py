@@ -311,20 +311,27 @@ class Localizer:
         """
         if not isinstance(self.map, MetaMap) or self._stored_failed:
             return None
-        stored = None
         try:
             stored = StoredQuadIndex.for_map(self.map)
-            if stored is not None and len(self.map) < PAGED_FROM_OBJECTS:
-                objects = self.map.all()
-                stored.check_positions(objects.x, objects.y)
         except MapdbError as exc:
-            if stored is not None:
-                stored.close()
             self._drop_stored(str(exc))
             return None
-        if stored is not None and stored.neighbours != self.fast_options.map_neighbours:
-            stored.close()
+        if stored is None or stored.neighbours != self.fast_options.map_neighbours:
+            if stored is not None:
+                stored.close()
             return None
+        if len(self.map) < PAGED_FROM_OBJECTS:
+            try:
+                objects = self.map.all()  # a damaged map page is the map's error, raised as without an index
+            except BaseException:
+                stored.close()
+                raise
+            try:
+                stored.check_positions(objects.x, objects.y)
+            except MapdbError as exc:
+                stored.close()
+                self._drop_stored(str(exc))
+                return None
         return stored
 
     def _drop_stored(self, reason: str) -> None:
