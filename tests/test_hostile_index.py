@@ -190,6 +190,7 @@ HEADER_CASES = {
     "coords offset": _set("sections", "coords", "offset", value=lambda o: o + 4096),
     "anchor first block": _set("sections", "anchor", "first_block", value=lambda b: b + 1),
     "crc table crc": _set("crc_crc32", value=lambda c: c ^ 1),
+    "format version 3 in the header": _set("format_version", value=3),
     "sections gone": _set("sections", value={}),
 }
 

@@ -171,6 +171,9 @@ def read_header(f: IO[bytes], size: int, where: str) -> dict[str, Any]:
         raise MapFormatError(f"{where}: quad index header is not JSON") from None
     if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
         raise MapFormatError(f"{where}: not a mapdb quad index (header)")
+    if header.get("format_version") != version:
+        raise MapFormatError(f"{where}: quad index header says format version "
+                             f"{str(header.get('format_version'))[:20]}, its prefix {version}")
     header["_header_offset"] = h_off
     return header
 
