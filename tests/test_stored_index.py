@@ -359,14 +359,19 @@ def test_forged_ids_and_ranges_raise_instead_of_reading_past_arrays(small, tmp_p
         _one_line_error(exc, "corrupt")
 
 
-def test_a_forged_fence_misdirects_lookups_but_reads_nothing_outside(small, tmp_path) -> None:
+def test_a_forged_fence_or_directory_out_of_order_is_refused(small, tmp_path) -> None:
     path, target = _copy(small, tmp_path)
-    _rewrite(target, patch=("fence", 1, 0))  # no longer ascending
+    _rewrite(target, patch=("fence", 1, 0))  # no longer ascending: refused when opened
+    with pytest.raises(MapFormatError) as exc:
+        open_index(target)
+    _one_line_error(exc, "fence out of order")
+    _, target = _copy(small, tmp_path)
+    _rewrite(target, patch=("dir_key", 3, 0))  # a page of the directory no longer ascending: its first lookup
     with open_map(path) as m:
         query, labels, radius = _queries(m.all())
-    with open_index(target) as ix:
-        row, ids = ix.lookup(query, labels, radius, 16)
-        assert ids.size == 0 or ids.max() < ix.n_objects
+    with open_index(target) as ix, pytest.raises(MapFormatError) as exc:
+        ix.lookup(query, labels, radius, 16)
+    _one_line_error(exc, "directory out of order")
 
 
 # --------------------------------------------------------------------------------------------- command line
@@ -397,3 +402,31 @@ def test_cli_errors_leave_no_file(tmp_path) -> None:
         assert result.exit_code == 1
         assert result.output.startswith("mapdb: error: ") and result.output.count("\n") == 1, result.output
     assert sorted(os.listdir(tmp_path)) == ["bad.mapdb"]
+
+
+# --------------------------------------------------------------------------------------------- the document
+
+
+def test_docs_index_format_lists_exactly_the_header_and_sections_written(small) -> None:
+    """``docs/index_format.md`` and the writer agree: its version, every header key (``map.*`` the binding
+    section's), every section; a key added to one and not the other fails here."""
+    import re
+    from pathlib import Path
+
+    from mapdb.match.index.binding import IDENTITY_KEYS
+    from mapdb.match.index.layout import INDEX_VERSION, SECTIONS
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "index_format.md").read_text()
+    assert doc.startswith(f"# The lost-in-space quad index file, format version {INDEX_VERSION}\n")
+    header_part = doc[doc.index("## Header (JSON)") : doc.index("## Sections")]
+    documented = {key for row in re.findall(r"^\| (.+?) \|", header_part, re.M)
+                  for key in re.findall(r"`([a-z_0-9.]+)`", row)} - {"key"}
+    path, _ = small
+    with open_index(index_path(path)) as ix:
+        header = {k: v for k, v in ix.header.items() if not k.startswith("_")}
+    written = set(header) | {f"map.{key}" for key in header["map"]}
+    assert documented == written
+    assert set(header["map"]) == set(IDENTITY_KEYS)
+    sections_part = doc[doc.index("## Sections") : doc.index("**A quad**")]
+    assert set(re.findall(r"^\| `([a-z_]+)` \|", sections_part, re.M)) == set(SECTIONS) | {"crc"} == \
+        set(header["sections"])

@@ -12,6 +12,7 @@ answered by :func:`mapdb.localize.batch.localize_documents`.
 from __future__ import annotations
 
 import math
+import sys
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -21,13 +22,13 @@ import numpy as np
 
 from ..answers import Answer, Candidate
 from ..detections.images import ImageObjects, parse_image
-from ..errors import ImageInputError
+from ..errors import ImageInputError, MapdbError
 from ..mapfile.reader import MetaMap
 from ..match.evidence.blobs import outward_normals
 from ..match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from ..match.hypotheses import PRIOR_SLACK
 from ..match.index.stored import StoredQuadIndex
-from ..match.mapobjects.paged_objects import WholeMapObjects
+from ..match.mapobjects.paged_objects import PAGED_FROM_OBJECTS, WholeMapObjects
 from ..match.paper.algorithm import PaperOptions, match_paper
 from ..match.quads import near_only
 from .image_points import image_points, known_objects, scale_hints
@@ -96,8 +97,21 @@ class StoredQuads:
 
     def lookup(self, invariants: np.ndarray, labels: np.ndarray, radius: np.ndarray, k: int,
                near: tuple[complex, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
-        rows, ids = self.stored.lookup(invariants, labels, radius, k)
-        return near_only(rows, self.stored.coordinates(ids), near)  # the stored index knows no positions
+        try:
+            rows, ids = self.stored.lookup(invariants, labels, radius, k)
+            points = self.stored.coordinates(ids)
+        except MapdbError as exc:  # a damaged block, a quad not where it is filed: the index, not the map
+            raise _StoredIndexError(str(exc)) from None
+        return near_only(rows, points, near)  # the stored index knows no positions
+
+
+class _StoredIndexError(Exception):
+    """A stored index found damaged (or not its map's) during a lookup: the image is answered again without."""
+
+
+def _warn_stderr(message: str) -> None:
+    """Say ``mapdb: warning: MESSAGE`` on one line of standard error (the default of :attr:`Localizer.warn`)."""
+    print(f"mapdb: warning: {message}", file=sys.stderr, flush=True)
 
 
 class NearQuads:
@@ -157,11 +171,22 @@ class Localizer:
         self._tiles = _Recent(MAX_CACHED_QUADS, size=lambda quads: max(quads.n_quads, 1))
         self._block_quads = _Recent(MAX_CACHED_BLOCKS)
         self._previous_block: tuple | None = None
+        # Says why the map's stored index is not used (once): a callable taking one line.
+        self.warn: Callable[[str], None] = _warn_stderr
+        self._stored_failed = False
 
     def localize(self, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None = None, *,
                  source: str = "image") -> Answer:
-        """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own."""
-        return _answer(self, image, self.prior if prior is None else prior, source)
+        """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own.
+
+        A stored index found damaged during the answer is dropped (saying so once) and the image answered
+        again with the quad index built in memory: the answer is the in-memory search's.
+        """
+        try:
+            return _answer(self, image, self.prior if prior is None else prior, source)
+        except _StoredIndexError as exc:
+            self._drop_stored(str(exc))
+            return _answer(self, image, self.prior if prior is None else prior, source)
 
     @property
     def fast_options(self) -> FastOptions:
@@ -210,14 +235,46 @@ class Localizer:
         return self._whole_objects.wait(timeout)
 
     def _stored_index(self) -> StoredQuadIndex | None:
-        """The map's stored quad index, if it has one built with the matcher's number of neighbours."""
-        if not isinstance(self.map, MetaMap):
+        """The map's stored quad index, if it has one built with the matcher's number of neighbours.
+
+        An index that cannot be used (damaged, of another map, not a regular file) is not: the quad index is
+        built in memory instead, saying so once (:attr:`warn`).  Where the whole map is decoded anyway (a
+        map the object index holds whole), the index's coordinates are checked against it exactly.
+        """
+        if not isinstance(self.map, MetaMap) or self._stored_failed:
             return None
-        stored = StoredQuadIndex.for_map(self.map)
-        if stored is not None and stored.neighbours != self.fast_options.map_neighbours:
-            stored.close()
+        try:
+            stored = StoredQuadIndex.for_map(self.map)
+        except MapdbError as exc:
+            self._drop_stored(str(exc))
             return None
+        if stored is None or stored.neighbours != self.fast_options.map_neighbours:
+            if stored is not None:
+                stored.close()
+            return None
+        if len(self.map) < PAGED_FROM_OBJECTS:
+            try:
+                objects = self.map.all()  # a damaged map page is the map's error, raised as without an index
+            except BaseException:
+                stored.close()
+                raise
+            try:
+                stored.check_positions(objects.x, objects.y)
+            except MapdbError as exc:
+                stored.close()
+                self._drop_stored(str(exc))
+                return None
         return stored
+
+    def _drop_stored(self, reason: str) -> None:
+        """Stop using the stored index (it failed a check), say so once, and search in memory from now on."""
+        if isinstance(self._whole_quads, StoredQuads):
+            self._whole_quads.stored.close()
+            self._whole_quads = None
+        if not self._stored_failed:
+            rebuild = "" if "rebuild with" in reason else f"; rebuild with mapdb index {self.map.path}"
+            self.warn(f"{reason}{rebuild}; answering with the in-memory search")
+        self._stored_failed = True
 
     def fast_indexes(self, prior: tuple[float, float, float] | None, margin: float):
         """Objects to verify against and quad indexes to look hypotheses up in.

@@ -4,5 +4,6 @@
 * :mod:`~mapdb.match.index.generate` - the quads of a map's objects;
 * :mod:`~mapdb.match.index.build` - the writer;
 * :mod:`~mapdb.match.index.lookup` - what one lookup reads;
+* :mod:`~mapdb.match.index.binding` - the index checked against its map;
 * :mod:`~mapdb.match.index.stored` - :class:`~mapdb.match.index.stored.StoredQuadIndex`, the reader.
 """

@@ -32,6 +32,7 @@ from ...errors import MapFormatError
 from ...mapfile.reader import open_map
 from ...objects import Objects
 from ...outputs import atomic_path, check_outputs, pid_alive
+from .binding import map_identity
 from .generate import RECORD, SHARED, cell_for, choose_cells, chunk_records, neighbour_table, sample_quads
 from .layout import (
     BLOCK,
@@ -45,7 +46,6 @@ from .layout import (
     cells_of,
     index_path,
     key_layout,
-    map_identity,
     pwrite_all,
     start_dtype,
     triples,
@@ -156,7 +156,7 @@ def _read_map(map_path: str | os.PathLike[str], neighbours: int, target: float, 
         n_labels = len(map_.labels)
         quantum = float(map_.quantum)
     n = len(objects)
-    coords, origin = _quantize(objects, quantum, map_path)
+    coords, origin = _quantize(objects, quantum, tuple(identity["origin"]), map_path)
     k = min(neighbours, n - 1)
     xy = np.column_stack([objects.x, objects.y])
     z = objects.x + 1j * objects.y
@@ -174,18 +174,23 @@ def _read_map(map_path: str | os.PathLike[str], neighbours: int, target: float, 
     return _Build(n, k, coords, table, identity, origin, label_bits, bits, target, workers, say)
 
 
-def _quantize(objects: Objects, quantum: float, map_path: str | os.PathLike[str]) -> tuple[np.ndarray,
-                                                                                             tuple[int, int]]:
-    """Positions in quanta relative to the smallest (int32 ``(n, 2)``), and that origin."""
+def _quantize(objects: Objects, quantum: float, origin: tuple[int, ...],
+              map_path: str | os.PathLike[str]) -> tuple[np.ndarray, tuple[int, int]]:
+    """Positions in quanta relative to ``origin``, the smallest page origin (int32 ``(n, 2)``), and the origin.
+
+    A map's pages are tight boxes, so the origin is its smallest position in quanta and the coordinates
+    are at least 0 (checked: the reader relies on it).
+    """
     n = len(objects)
-    qx = np.rint(objects.x / quantum).astype(np.int64)
-    qy = np.rint(objects.y / quantum).astype(np.int64)
-    origin = (int(qx.min()), int(qy.min())) if n else (0, 0)
-    if n and max(int(qx.max()) - origin[0], int(qy.max()) - origin[1]) >= 2**31:
+    qx = np.rint(objects.x / quantum).astype(np.int64) - origin[0]
+    qy = np.rint(objects.y / quantum).astype(np.int64) - origin[1]
+    if n and min(int(qx.min()), int(qy.min())) < 0:
+        raise MapFormatError(f"{map_path}: an object lies outside its map page: the map is damaged")
+    if n and max(int(qx.max()), int(qy.max())) >= 2**31:
         raise MapFormatError(f"{map_path}: the map spans more than 2^31 quanta: too wide for an index")
     if n >= 2**32:
         raise MapFormatError(f"{map_path}: {n} objects: an index holds fewer than 2^32")
-    return np.column_stack([qx - origin[0], qy - origin[1]]).astype(np.int32), origin
+    return np.column_stack([qx, qy]).astype(np.int32), (int(origin[0]), int(origin[1]))
 
 
 def _work_directory(output: Path) -> Path:
@@ -373,8 +378,7 @@ def _header(b: _Build, counts: dict[str, int], combos: list[tuple[int, float]], 
     return {
         "format": FORMAT_NAME,
         "format_version": INDEX_VERSION,
-        "map": b.identity,
-        "origin": list(b.origin),
+        "map": b.identity,  # what binds the index to its map (origin included): docs/index_format.md
         **counts,
         "key_label_bits": b.label_bits,
         "key_cell_bits": b.bits,

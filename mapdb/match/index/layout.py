@@ -21,9 +21,7 @@ from typing import IO, Any, NamedTuple
 import numpy as np
 
 from ... import __version__
-from ...errors import MapdbIOError, MapFormatError, MapVersionError, reading
-from ...mapfile.layout import MAGIC as MAP_MAGIC
-from ...mapfile.reader import MetaMap
+from ...errors import MapdbIOError, MapFormatError, MapVersionError
 
 __all__ = [
     "BLOCK",
@@ -40,6 +38,7 @@ __all__ = [
     "SECTIONS",
     "SectionPlan",
     "SUB_CELLS",
+    "MAX_QUANTA",
     "cell_keys",
     "cells_of",
     "check_sections",
@@ -47,27 +46,27 @@ __all__ = [
     "header_counts",
     "index_path",
     "key_layout",
-    "map_identity",
     "pread",
     "pwrite_all",
     "read_header",
     "section_shapes",
     "start_dtype",
     "triples",
+    "whole",
     "write_header",
 ]
 
 FORMAT_NAME = "mapdb-quad-index"
 INDEX_MAGIC = b"\x89MAPDBQX"
-INDEX_VERSION = 1
+INDEX_VERSION = 2  # 2: the header's ``map`` section binds the index to its map (origin, pages_sha256)
 INDEX_SUFFIX = ".qidx"
 # magic | u16 version | u16 flags | u64 header offset | u32 header length | u32 header CRC-32 | u32 CRC-32 of
 # the 28 bytes before it.  The JSON header is written last, at the end of the file, since it holds the
 # section sizes and checksums.
 _PREFIX = struct.Struct("<8sHHQII")
 PREFIX_SIZE = _PREFIX.size + 4
-_MAP_PREFIX = struct.Struct("<8sHHI")  # the map file's own prefix (mapdb.mapfile.layout), for its header CRC
 _MAX_HEADER = 16 << 20
+MAX_QUANTA = 1 << 52  # a map's positions in quanta stay within this (mapdb.mapfile.layout): so must an origin
 ALIGN = 4096  # sections start at multiples of a page
 BLOCK_BITS = 12
 BLOCK = 1 << BLOCK_BITS  # checksum block of every section: a page, what a lookup's first read of it costs
@@ -95,32 +94,6 @@ def start_dtype(quads: int) -> str:
 def index_path(map_path: str | os.PathLike[str]) -> Path:
     """The sidecar index of a map file: ``MAP`` + ``.qidx`` (``andorra.mapdb`` -> ``andorra.mapdb.qidx``)."""
     return Path(os.fspath(map_path) + INDEX_SUFFIX)
-
-
-def map_identity(map_: MetaMap) -> dict[str, Any]:
-    """What an index records of its map: header CRC-32, file size, object count, quantum, labels.
-
-    The header CRC-32 covers the header and, through its ``directory_crc32``, every page's CRC-32, so a
-    rewritten map (or another map of the same size) does not pass for the indexed one.
-    """
-    where = str(map_.path)
-    with reading(where, "map file"), open(map_.path, "rb") as f:
-        head = f.read(_MAP_PREFIX.size)
-        if len(head) < _MAP_PREFIX.size or not head.startswith(MAP_MAGIC):
-            raise MapFormatError(f"{where}: not a mapdb map (bad magic number)")
-        header_len = _MAP_PREFIX.unpack(head)[3]
-        f.seek(_MAP_PREFIX.size + header_len)
-        tail = f.read(4)
-        size = os.fstat(f.fileno()).st_size
-    if len(tail) < 4:
-        raise MapFormatError(f"{where}: truncated map file (header runs past the end)")
-    return {
-        "header_crc32": struct.unpack("<I", tail)[0],
-        "file_size": size,
-        "count": len(map_),
-        "quantum": float(map_.quantum),
-        "labels": list(map_.labels),
-    }
 
 
 # ------------------------------------------------------------------------------------------ cell keys
@@ -182,6 +155,9 @@ def read_header(f: IO[bytes], size: int, where: str) -> dict[str, Any]:
     if version > INDEX_VERSION:
         raise MapVersionError(f"{where}: written by a newer quad index format (version {version}); "
                               f"this mapdb {__version__} reads up to version {INDEX_VERSION}")
+    if version < INDEX_VERSION:
+        raise MapFormatError(f"{where}: quad index format version {version}, which does not bind the index to "
+                             f"its map; rebuild with mapdb index")
     if h_len > _MAX_HEADER or h_off < PREFIX_SIZE or h_off + h_len != size:
         raise MapFormatError(f"{where}: truncated quad index ({size} bytes; its header says "
                              f"{h_off + h_len})")
@@ -195,6 +171,9 @@ def read_header(f: IO[bytes], size: int, where: str) -> dict[str, Any]:
         raise MapFormatError(f"{where}: quad index header is not JSON") from None
     if not isinstance(header, dict) or header.get("format") != FORMAT_NAME:
         raise MapFormatError(f"{where}: not a mapdb quad index (header)")
+    if header.get("format_version") != version:
+        raise MapFormatError(f"{where}: quad index header says format version "
+                             f"{str(header.get('format_version'))[:20]}, its prefix {version}")
     header["_header_offset"] = h_off
     return header
 
@@ -211,17 +190,38 @@ class Counts(NamedTuple):
     cell_bits: int
 
 
+def whole(value: Any, where: str, what: str, low: int = 0, high: int = 2**63 - 1) -> int:
+    """A header integer within ``[low, high]``: a JSON integer, not a float, a string or a boolean."""
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise MapFormatError(f"{where}: quad index header field {what} is {str(value)[:40]!r}, not an integer "
+                             f"in [{low}, {high}]")
+    return value
+
+
 def header_counts(h: dict[str, Any], n_labels: int, identity: dict[str, Any], where: str) -> Counts:
-    """The header's counts, checked against each other, the map's (``identity``) and the format's bounds."""
-    n, k, q, d = (int(h[key]) for key in ("objects", "neighbours", "quads", "cells"))
-    max_cell = int(h["max_cell"])
-    origin = tuple(int(v) for v in h["origin"])
-    label_bits, bits = int(h["key_label_bits"]), int(h["key_cell_bits"])
-    if (label_bits, bits) != key_layout(n_labels) or int(h["sub_cells"]) != SUB_CELLS or \
-            int(h["block_size"]) != BLOCK:
+    """The header's counts, checked against each other, the map's (``identity``) and the format's bounds.
+
+    Every field must be a JSON integer in range (no float, string or boolean read as one); the origin
+    within the positions a map can hold, so that no coordinate computed from it overflows; the quantum a
+    finite number a map can have.
+    """
+    n, k, q, d, max_cell = (whole(h[key], where, key) for key in ("objects", "neighbours", "quads", "cells",
+                                                                    "max_cell"))
+    origin = identity["origin"]
+    if not isinstance(origin, list) or len(origin) != 2:
+        raise MapFormatError(f"{where}: quad index header field origin is not two integers")
+    origin = tuple(whole(v, where, "origin", -MAX_QUANTA, MAX_QUANTA) for v in origin)
+    quantum = identity["quantum"]
+    if isinstance(quantum, bool) or not isinstance(quantum, int | float) or not 0 < quantum <= 1000:
+        raise MapFormatError(f"{where}: quad index header field quantum is {str(quantum)[:40]!r}, not a number "
+                             f"in (0, 1000]")
+    label_bits, bits = whole(h["key_label_bits"], where, "key_label_bits"), whole(h["key_cell_bits"], where,
+                                                                                 "key_cell_bits")
+    if (label_bits, bits) != key_layout(n_labels) or whole(h["sub_cells"], where, "sub_cells") != SUB_CELLS or \
+            whole(h["block_size"], where, "block_size") != BLOCK:
         raise MapFormatError(f"{where}: unsupported key layout")
-    n_triples = math.comb(k, 3) if k >= 3 else 0  # counted, not listed: k is not checked yet
-    if not (0 <= n < 2**32 and n == int(identity["count"]) and (k == 0 or 3 <= k <= MAX_NEIGHBOURS)
+    n_triples = math.comb(k, 3) if 3 <= k <= MAX_NEIGHBOURS else 0  # counted, not listed: k is not checked yet
+    if not (0 <= n < 2**32 and n == whole(identity["count"], where, "count") and (k == 0 or 3 <= k <= MAX_NEIGHBOURS)
             and 0 <= q <= n * n_triples and 0 <= d <= q and 0 <= max_cell <= q
             and (d > 0) == (q > 0) and (max_cell > 0) == (q > 0)):
         raise MapFormatError(f"{where}: quad index counts out of range (objects {n}, neighbours {k}, "
@@ -233,8 +233,20 @@ def header_combos(combos: Any, quads: int, n_labels: int, where: str) -> tuple[n
     """The header's label-combination keys (ascending, int64) and their cell sides (float64), checked."""
     if not isinstance(combos, list) or len(combos) > max(quads, 0):
         raise MapFormatError(f"{where}: quad index label combinations out of range")
-    ck = np.array([int(c[0]) for c in combos], np.int64)
-    cc = np.array([float(c[1]) for c in combos], np.float64)
+    if quads > 0 and not combos:
+        raise MapFormatError(f"{where}: quad index lists no label combination for its {quads} quads")
+    try:  # one array of pairs (vectorised: a map of many labels has thousands of combinations)
+        table = np.array(combos, dtype=np.float64) if combos else np.zeros((0, 2))
+    except (TypeError, ValueError):
+        raise MapFormatError(f"{where}: quad index label combinations out of range") from None
+    if table.shape != (len(combos), 2) or not np.all(table[:, 0] == np.floor(table[:, 0])):
+        raise MapFormatError(f"{where}: quad index label combinations out of range")
+    # Label keys stay below L^4 (checked below), far below 2^53: exact in float64.
+    ck = np.clip(table[:, 0], -1, 2**62).astype(np.int64)
+    cc = table[:, 1]
+    # A cell side is one of the ladder's, as written (a JSON float reads back bit for bit).
+    if ck.size and not np.isin(cc, CELL_LADDER).all():
+        raise MapFormatError(f"{where}: quad index cell sides are not the format's")
     if ck.size and (np.any(np.diff(ck) <= 0) or ck[0] < 0 or ck[-1] >= max(n_labels, 1) ** 4
                     or not np.all((cc >= CELL_LADDER[-1] * 0.999) & (cc <= CELL_LADDER[0] * 1.001))):
         raise MapFormatError(f"{where}: quad index label combinations out of range")
@@ -268,12 +280,12 @@ def check_sections(layout: dict[str, Any], shapes: dict[str, tuple[tuple[int, ..
         if sec["dtype"] != dtype or [int(v) for v in sec["shape"]] != list(shape) or int(sec["length"]) != length:
             raise MapFormatError(f"{where}: quad index section {name} does not match the counts")
         total_blocks += -(-length // BLOCK)
-        spans.append((int(sec["offset"]), length, name))
+        spans.append((whole(sec["offset"], where, f"{name} offset"), length, name))
     crc_sec = layout["crc"]
     if crc_sec["dtype"] != "<u4" or [int(v) for v in crc_sec["shape"]] != [total_blocks] or \
             int(crc_sec["length"]) != 4 * total_blocks:
         raise MapFormatError(f"{where}: quad index checksum table does not match the sections")
-    spans.append((int(crc_sec["offset"]), 4 * total_blocks, "crc"))
+    spans.append((whole(crc_sec["offset"], where, "crc offset"), 4 * total_blocks, "crc"))
     spans.sort()
     at = PREFIX_SIZE
     for off, length, name in spans:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import MapFormatError
-from .layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, pread
+from .layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, pread, whole
 
 __all__ = ["LOOKUP_CANDIDATES", "Best", "Section", "bound_candidates", "find_cells", "map_sections", "pieces",
            "query_cells", "take_rows"]
@@ -64,6 +64,8 @@ class Section:
         self.row_bytes = max(1, int(np.prod(array.shape[1:], dtype=np.int64)) * array.itemsize)
         self.checked = np.zeros(crcs.size, bool)
         self.all_checked = crcs.size == 0
+        # Pages of FENCE rows found in order (``dir_key``: ascending, starting with their fence key).
+        self.ordered = np.zeros(-(-len(array) // FENCE) if array.ndim else 0, bool)
 
     def _check(self, blocks: np.ndarray) -> None:
         todo = np.unique(blocks[~self.checked[blocks]])
@@ -136,7 +138,7 @@ def map_sections(mapping: mmap.mmap | None, fd: int, h: dict[str, Any],
     sections: dict[str, Section] = {}
     for name, (shape, dtype) in shapes.items():
         sec = layout[name]
-        first = int(sec["first_block"])
+        first = whole(sec["first_block"], where, f"{name} first_block")
         blocks = -(-int(sec["length"]) // BLOCK)
         if first < 0 or first + blocks > total_blocks:
             raise MapFormatError(f"{where}: quad index checksum table does not match the sections")
@@ -147,7 +149,10 @@ def map_sections(mapping: mmap.mmap | None, fd: int, h: dict[str, Any],
     for b in range(fence.crcs.size):
         if zlib.crc32(raw[b * BLOCK : (b + 1) * BLOCK]) != int(fence.crcs[b]):
             raise MapFormatError(f"{where}: fence block {b} checksum mismatch (file is corrupt)")
-    return sections, np.frombuffer(raw, "<u8")
+    keys = np.frombuffer(raw, "<u8")
+    if keys.size > 1 and not (keys[1:] > keys[:-1]).all():
+        raise MapFormatError(f"{where}: quad index fence out of order (file is corrupt)")
+    return sections, keys
 
 
 def _mapped(mapping: mmap.mmap | None, dtype: str, offset: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -195,6 +200,7 @@ def find_cells(fence: np.ndarray, dir_key: Section, n_cells: int, keys: np.ndarr
     ok = page >= 0
     lo = np.maximum(page, 0) * FENCE
     dir_key.check_ranges(lo[ok], np.minimum(lo + FENCE, d)[ok])
+    _check_order(fence, dir_key, d, np.unique(page[ok]))
     # Branchless: the position moves up by each power of two in turn while the key just below the new position
     # is smaller (three array operations a step): it ends at the key's place if the page holds it.  Every probe
     # stays on the page; one past the directory's end reads its last key instead, the largest.
@@ -204,6 +210,18 @@ def find_cells(fence: np.ndarray, dir_key: Section, n_cells: int, keys: np.ndarr
     found = ok & (at < d)
     found[found] = dir_key.array[at[found]] == keys[found]
     return np.where(found, at, -1)
+
+
+def _check_order(fence: np.ndarray, dir_key: Section, n_cells: int, pages: np.ndarray) -> None:
+    """Refuse a page of ``dir_key`` (read the first time) whose keys do not ascend from its fence key to below the
+    next one: a binary search in it would miss cells, and lookups would find less without a word."""
+    todo = pages[~dir_key.ordered[pages]]
+    for p in todo.tolist():
+        keys = dir_key.array[p * FENCE : min((p + 1) * FENCE, n_cells)]
+        if (keys[0] != fence[p] or not (keys[1:] > keys[:-1]).all()
+                or (p + 1 < fence.size and keys[-1] >= fence[p + 1])):
+            raise MapFormatError(f"{dir_key.where}: quad index directory out of order (file is corrupt)")
+    dir_key.ordered[todo] = True
 
 
 def bound_candidates(which: np.ndarray, idx: np.ndarray, rel: np.ndarray, sub: np.ndarray,

@@ -6,49 +6,28 @@ quads (:func:`~mapdb.match.quads.neighbour_quads` with the same number of neighb
 order and invariants from :func:`~mapdb.match.quads.canonical_quads`) in a sidecar file ``MAP.qidx``
 beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the format is in ``docs/index_format.md``.
 
-How a quad is stored
-    A quad is an *anchor* object and a triple of its ``K`` nearest neighbours (the neighbour table,
-    ``K`` object ids per object, is in the file), so it costs a 4-byte anchor id and a 1-byte triple
-    number instead of four ids; it is kept once, at the smallest-id member whose neighbours hold the
-    other three (checked against the neighbour table, so chunks of anchors need no coordination).
-    Object ids are positions in ``MetaMap.all()`` (pages in page order); their quantized positions are
-    in the file too, so that ids resolve to map metres without decoding pages.
-
-How quads are found (geometric hashing)
-    The four invariants of each label combination are cut into a grid of cells of side ``c`` (one ``c``
-    per label combination, chosen at build time from a sample so that a quad's cell holds about
-    ``target_occupancy`` other quads); quads are sorted by ``(label combination, cell)`` and a directory
-    of the non-empty cells gives each one's range.  Each quad also keeps its position inside its cell
-    to 1/256 of ``c`` (4 bytes): bounds on its distance to a query without reading its coordinates.
-    A lookup enumerates the cells its ball reaches (at most 3^4, about a third of them for a ball as
-    wide as a cell), finds them in the memory-mapped directory (a fence of every 512th key, read when
-    opening, names the one page to search), drops the candidates whose lower bound exceeds the radius
-    or the query's k-th smallest upper bound (they cannot be among its ``k`` nearest) without reading
-    their anchor and triple, recomputes the others' exact invariants from the coordinate table with
-    ``canonical_quads`` (bit-identical to the in-memory index's) and keeps those within the radius,
-    the ``k`` nearest per query.
-
-    **The lookup radius is clamped to the cell size** of the query's label combination: a ball wider
-    than a cell would cover many cells, and where ``c`` is smaller than the radius the quads are dense
-    enough that the ``k`` nearest usually lie within ``c`` anyway (``c`` is chosen so that a ball of
-    radius ``c`` around a quad holds about five times ``target_occupancy`` others, and the matcher keeps
-    at most 16 hits per lookup).  :meth:`StoredQuadIndex.cell_size` tells the clamp.
+How it works (``docs/index_format.md`` in full)
+    A quad is an anchor object and a triple of its ``K`` nearest neighbours, filed by its label combination
+    and the cell of its invariants (side ``c`` per combination) with its position inside the cell; a
+    lookup reads the cells its ball reaches and recomputes the candidates the positions do not rule out.
+    **The lookup radius is clamped to the cell size** (:meth:`StoredQuadIndex.cell_size`): where ``c`` is
+    smaller than the radius the quads are dense enough that the matcher's 16 nearest lie within ``c``.
 
 Safety
-    Nothing in the file is executed (a JSON header, fixed-size little-endian arrays); every count and
-    length is checked against the file size and the format's bounds when the file is opened; every
-    section is checksummed in 4 KiB blocks (CRC-32), each block checked the first time a lookup reads
-    it (:meth:`StoredQuadIndex.verify` checks all); ids and ranges read from the file are checked
-    before use, and a lookup's memory is bounded whatever the file says.  A lookup asks the kernel for
-    all the pages it is about to read at once (``MADV_WILLNEED``), so on a cold file it waits for a few
-    rounds of parallel reads (5M objects: about 0.6 s for an image's lookups) rather than for each page
-    fault in turn (2 s).  The header records the map's header CRC-32, file size, object count and
-    labels: an index is refused for any other map.
+    Nothing in the file is executed; every count and length is checked against the file size and the
+    format's bounds when it is opened; every section is checksummed in 4 KiB blocks (CRC-32), each block
+    checked the first time a lookup reads it (:meth:`StoredQuadIndex.verify` checks all); ids and ranges are
+    checked before use, a lookup's memory is bounded, and its pages are asked for at once
+    (``MADV_WILLNEED``: 5M objects, about 0.6 s for a cold image's lookups instead of 2 s).  The index is
+    bound to its map (:mod:`~mapdb.match.index.binding`): the header's ``map`` section when it is opened with
+    its map, each map page's coordinates against the page's box, and each resolved quad (with a few the
+    bounds dropped, and each label combination's first cell) against the cell it was found in.
 
-The code is in four modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
+The code is in five modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
 prefix, header, sections, cell keys), :mod:`~mapdb.match.index.build` (:func:`build_index`, the external
 sort), :mod:`~mapdb.match.index.generate` (neighbours, quads, cells) and :mod:`~mapdb.match.index.lookup`
-(checked sections, the cells and candidates of a lookup).
+(checked sections, the cells and candidates of a lookup), :mod:`~mapdb.match.index.binding` (the index
+checked against its map).
 """
 
 from __future__ import annotations
@@ -63,6 +42,16 @@ import numpy as np
 from ...errors import MapdbIOError, MapFormatError, reading
 from ...mapfile.reader import MetaMap
 from ..quads import canonical_quads, label_keys
+from .binding import (
+    PageBoxes,
+    check_filed,
+    check_identity,
+    check_positions,
+    first_cells,
+    map_identity,
+    mismatch,
+    open_regular,
+)
 from .build import build_index
 from .layout import (
     INDEX_SUFFIX,
@@ -70,7 +59,6 @@ from .layout import (
     header_combos,
     header_counts,
     index_path,
-    map_identity,
     read_header,
     section_shapes,
     triples,
@@ -86,7 +74,10 @@ from .lookup import (
     take_rows,
 )
 
+AUDITED = 16  # candidates a lookup's batch resolves and checks whatever their bounds (check_filed)
+
 __all__ = [
+    "AUDITED",
     "INDEX_SUFFIX",
     "StoredQuadIndex",
     "build_index",
@@ -113,8 +104,10 @@ class StoredQuadIndex:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         where = str(self.path)
+        self._boxes: PageBoxes | None = None  # the map's page boxes, once bound to it (check_map)
+        self._audited = np.zeros(0, np.int64)  # label combinations whose first cell was checked (_audit)
         with reading(where, "quad index"):
-            f = open(self.path, "rb")  # noqa: SIM115 - closed below once mapped and the small sections read
+            f = open_regular(self.path, where, "quad index")  # closed below once mapped and the small sections read
         try:
             try:
                 size = os.fstat(f.fileno()).st_size
@@ -141,8 +134,8 @@ class StoredQuadIndex:
         self.header = h
         self.identity = dict(h["map"])
         self.labels = tuple(str(s) for s in self.identity["labels"])
-        self.quantum = float(self.identity["quantum"])
         counts = header_counts(h, len(self.labels), self.identity, where)
+        self.quantum = float(self.identity["quantum"])
         n, k, q, d = counts.objects, counts.neighbours, counts.quads, counts.cells
         self.max_cell, self.origin, self._bits = counts.max_cell, counts.origin, counts.cell_bits
         self.n_objects, self.neighbours, self.n_quads, self.n_cells = n, k, q, d
@@ -151,6 +144,11 @@ class StoredQuadIndex:
         shapes = section_shapes(n, k, q, d)
         total_blocks = check_sections(h["sections"], shapes, int(h["_header_offset"]), where)
         self._sections, self._fence = map_sections(self._mmap, fd, h, shapes, total_blocks, where)
+        # Combinations left out of the header would make lookups find nothing: checked where the fence shows cells.
+        fenced = (self._fence >> np.uint64(4 * self._bits)).astype(np.int64)
+        at = np.minimum(np.searchsorted(self._combo_keys, fenced), max(self._combo_keys.size - 1, 0))
+        if fenced.size and not (self._combo_keys.size and (self._combo_keys[at] == fenced).all()):
+            raise mismatch(where, "its directory holds label combinations its header does not list")
 
     # ------------------------------------------------------------------------------------------ public
 
@@ -173,13 +171,17 @@ class StoredQuadIndex:
         return open_index(path, map_)
 
     def check_map(self, map_: MetaMap) -> None:
-        """Refuse (:class:`MapFormatError`) unless this index was built from exactly this map file."""
-        mine, theirs = self.identity, map_identity(map_)
-        for key in ("header_crc32", "file_size", "count", "labels"):
-            if mine.get(key) != theirs[key]:
-                raise MapFormatError(f"{self.where}: quad index of another map (or of an earlier version of "
-                                     f"{map_.path}: its {key.replace('_', ' ')} differs); rebuild it with "
-                                     f"`mapdb index {map_.path}`")
+        """Refuse (:class:`MapFormatError`) unless this index was built from exactly this map file; then bind
+        it to the map: lookups check each page's coordinates against the map's page boxes."""
+        check_identity(self.identity, map_, self.where)
+        self._boxes = PageBoxes(map_.page_directory, self.origin, self.where, map_.path)
+
+    def check_positions(self, x: np.ndarray, y: np.ndarray) -> None:
+        """Refuse unless the index's coordinates are exactly the map's object positions ``x, y`` (map order):
+        for a caller that holds the map's objects decoded anyway (it costs O(N))."""
+        self._sections["coords"].verify()
+        check_positions(self.coordinates(np.arange(self.n_objects)), np.asarray(x), np.asarray(y), self.where,
+                        None if self._boxes is None else self._boxes.map_path)
 
     def close(self) -> None:
         """Release the mapping (arrays returned by lookups are copies and stay valid)."""
@@ -223,6 +225,8 @@ class StoredQuadIndex:
         ids = np.asarray(ids, np.int64)
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_objects):
             raise IndexError(f"object ids must be in [0, {self.n_objects})")
+        if self._boxes is not None:
+            self._boxes.check(self._sections["coords"], ids)
         c = self._sections["coords"].rows(ids.reshape(-1)).astype(np.int64)
         x = (c[:, 0] + self.origin[0]) * self.quantum
         y = (c[:, 1] + self.origin[1]) * self.quantum
@@ -277,18 +281,36 @@ class StoredQuadIndex:
         cell = self._combo_cell[pos[rows]]
         q = inv[rows]
         r = np.minimum(radius[rows], cell)
-        which, start, length, rel = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
+        self._audit(np.unique(self._combo_keys[pos[rows]]))
+        which, start, length, rel, keys = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
         best = Best(k)
         for piece, idx in pieces(start, length, LOOKUP_CANDIDATES):
-            self._candidates(which[piece], idx, take_rows(rel, piece), q, r, cell, k, best)
+            self._candidates(which[piece], idx, take_rows(rel, piece), keys[piece], q, r, cell, k, best)
         row, ids, dist = best.result()
         row = rows[row]
         return (row, ids, dist) if return_distance else (row, ids)
 
+    def _audit(self, lk: np.ndarray) -> None:
+        """The first lookup of each label combination resolves the first quad of its first cell and checks that
+        it is filed there (``check_filed``): a forged cell side would make lookups of the combination miss
+        every cell, finding nothing to check and nothing to answer with."""
+        new = np.setdiff1d(lk, self._audited)
+        if not new.size:
+            return
+        read = self._sections
+        at = first_cells(self._fence, read["dir_key"], self.n_cells, new, self._bits, self.where)
+        start = read["dir_start"].rows(at).astype(np.int64)
+        if start.min() < 0 or start.max() >= self.n_quads:
+            raise MapFormatError(f"{self.where}: quad index directory out of range (file is corrupt)")
+        _, inv = self._resolve(start)
+        check_filed(inv, read["dir_key"].array[at], read["sub"].rows(start),
+                    self._combo_cell[np.searchsorted(self._combo_keys, new)], self._bits, self.where)
+        self._audited = np.union1d(self._audited, new)
+
     def _cell_ranges(self, q: np.ndarray, r: np.ndarray, cell: np.ndarray,
-                     lk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                     lk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The non-empty cells the queries' balls reach: query row, first quad, quads, the query's position
-        relative to the cell (:func:`~mapdb.match.index.lookup.query_cells`).
+        relative to the cell (:func:`~mapdb.match.index.lookup.query_cells`), the cell's key.
 
         Their directory ranges are checked, and the blocks of ``sub`` holding them (read below range by range).
         """
@@ -306,19 +328,27 @@ class StoredQuadIndex:
         # Every candidate's position inside its cell is read; its anchor and triple only if it survives
         # the bounds (a few in a hundred where cells are crowded): their blocks are checked as they are read.
         self._sections["sub"].check_ranges(start, stop)
-        return which, start, length, rel[found]
+        return which, start, length, rel[found], keys[found]
 
-    def _candidates(self, which: np.ndarray, idx: np.ndarray, rel: np.ndarray, q: np.ndarray,
+    def _candidates(self, which: np.ndarray, idx: np.ndarray, rel: np.ndarray, key: np.ndarray, q: np.ndarray,
                     r: np.ndarray, cell: np.ndarray, k: int, best: Best) -> None:
         """Bound, resolve and measure one batch of candidates; offer those within the radius to ``best``.
 
-        ``which`` (the query row of each candidate) is ascending.
+        ``which`` (the query row of each candidate) is ascending; ``key`` is the key of its cell.  Every
+        resolved candidate must be filed where its recomputed invariants put it (``check_filed``).
         """
         sub = take_rows(self._sections["sub"].array, idx)  # its blocks checked by _cell_ranges
-        which, idx = bound_candidates(which, idx, rel, sub, r, cell, k)
-        if not idx.size:
+        which_all = which
+        which, kept = bound_candidates(which, np.arange(idx.size), rel, sub, r, cell, k)
+        # A few candidates the bounds dropped are resolved and checked too: forged positions in cells (or cell
+        # sides) would otherwise make every candidate look far, and lookups find nothing without a word.
+        audit = np.unique(np.linspace(0, idx.size - 1, min(idx.size, AUDITED)).astype(np.int64))
+        both = np.concatenate([kept, audit])
+        ids, inv = self._resolve(idx[both])
+        check_filed(inv, key[both], take_rows(sub, both), cell[which_all[both]], self._bits, self.where)
+        ids, inv = ids[: kept.size], inv[: kept.size]
+        if not kept.size:
             return
-        ids, inv = self._resolve(idx)
         dist = np.sqrt(((inv - q[which]) ** 2).sum(axis=1))
         hit = dist <= r[which]
         best.offer(which[hit], ids[hit], dist[hit])
@@ -338,7 +368,8 @@ class StoredQuadIndex:
             raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
         # The canonical order from the ids in ascending order, as at build time (and as QuadIndex does).
         members.sort(axis=1)
-        order, inv, _ = canonical_quads(self.coordinates(members))
+        with np.errstate(all="ignore"):  # four objects on one spot (forged coordinates): NaN, refused by the caller
+            order, inv, _ = canonical_quads(self.coordinates(members))
         return np.take_along_axis(members, order, axis=1), inv
 
     def quads(self, start: int = 0, stop: int | None = None) -> np.ndarray:
