@@ -33,6 +33,7 @@ import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any, Protocol, runtime_checkable
 
@@ -46,6 +47,7 @@ __all__ = [
     "atomic_open",
     "atomic_path",
     "check_outputs",
+    "creation_time",
     "dumps_strict",
     "json_safe",
     "pid_alive",
@@ -548,3 +550,14 @@ def as_progress(progress: ProgressLike) -> Progress:
     if isinstance(progress, Progress):
         return progress
     return LineProgress(progress)
+
+
+def creation_time() -> str:
+    """The time a file records as its writing: now, or ``SOURCE_DATE_EPOCH`` when set (reproducible files).
+
+    Maps and quad indexes both record it, so that two builds of the same inputs with the variable set are
+    byte-identical (https://reproducible-builds.org/specs/source-date-epoch/).
+    """
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    when = datetime.fromtimestamp(int(epoch), UTC) if epoch.isdigit() else datetime.now(UTC)
+    return when.isoformat(timespec="seconds")

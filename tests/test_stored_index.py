@@ -188,6 +188,17 @@ def test_build_is_deterministic_and_for_map_finds_nothing_without_a_sidecar(smal
         assert StoredQuadIndex.for_map(MemoryMap(m.all())) is None
 
 
+def test_with_source_date_epoch_two_builds_are_byte_identical(small, tmp_path, monkeypatch) -> None:
+    path, _ = small
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    first, second = tmp_path / "first.qidx", tmp_path / "second.qidx"
+    build_index(path, first)
+    build_index(path, second)
+    assert first.read_bytes() == second.read_bytes()
+    with open_index(first) as ix:
+        assert ix.header["created"] == "2023-11-14T22:13:20+00:00"
+
+
 # --------------------------------------------------------------------------------------------- hostile files
 
 

@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import re
 import struct
 import zlib
 from collections.abc import Callable
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +22,7 @@ from pyproj.exceptions import CRSError
 
 from .. import __version__
 from ..errors import MapFormatError
+from ..outputs import creation_time
 from .codec import _AREA_FLOOR_LOG2, _AREA_STEPS
 from .layout import (
     _M2_PER_OBJECT,
@@ -66,13 +65,6 @@ def _lonlat_bounds(crs: CRS, bounds: tuple[float, float, float, float]) -> list[
     return lonlat if all(map(math.isfinite, lonlat)) else None  # positions outside the projection's domain
 
 
-def _created() -> str:
-    """The header's time of writing: now, or ``SOURCE_DATE_EPOCH`` when set (for reproducible files)."""
-    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
-    when = datetime.fromtimestamp(int(epoch), UTC) if epoch.isdigit() else datetime.now(UTC)
-    return when.isoformat(timespec="seconds")
-
-
 def _map_header(crs: CRS, labels: tuple[str, ...], counts: np.ndarray, table: np.ndarray, quantum: float,
                 page_capacity: int, merged: int, metadata: dict[str, Any] | None) -> dict[str, Any]:
     """The header of a map of these pages and objects per label code; ``metadata`` adds entries but replaces
@@ -96,7 +88,7 @@ def _map_header(crs: CRS, labels: tuple[str, ...], counts: np.ndarray, table: np
         "pages": len(table),
         "directory_crc32": zlib.crc32(table.tobytes()),
         "software": f"mapdb {__version__}",
-        "created": _created(),
+        "created": creation_time(),
     }
     for key, value in (metadata or {}).items():
         header.setdefault(key, value)

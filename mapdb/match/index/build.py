@@ -21,7 +21,6 @@ import time
 import zlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +30,7 @@ from ... import __version__
 from ...errors import MapFormatError
 from ...mapfile.reader import open_map
 from ...objects import Objects
-from ...outputs import atomic_path, check_outputs, pid_alive
+from ...outputs import atomic_path, check_outputs, creation_time, pid_alive
 from .binding import map_identity
 from .generate import RECORD, SHARED, cell_for, choose_cells, chunk_records, neighbour_table, sample_quads
 from .layout import (
@@ -389,5 +388,5 @@ def _header(b: _Build, counts: dict[str, int], combos: list[tuple[int, float]], 
         "sections": layout.sections,
         "crc_crc32": zlib.crc32(crc_table.tobytes()),
         "software": f"mapdb {__version__}",
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "created": creation_time(),
     }
