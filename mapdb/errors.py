@@ -8,9 +8,12 @@ file it is about: the CLI prints ``str(exc)`` and nothing else.
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import IO
 
 __all__ = [
     "AnalysisError",
@@ -26,6 +29,7 @@ __all__ = [
     "OutputExistsError",
     "SchedulerError",
     "SourceError",
+    "open_regular",
     "reading",
 ]
 
@@ -103,3 +107,29 @@ def reading(path: str | Path, what: str = "file") -> Iterator[None]:
         if isinstance(exc, MapdbError):
             raise
         raise MapdbIOError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+
+
+def open_regular(path: str | Path, where: str | Path, what: str) -> IO[bytes]:
+    """``path`` opened for reading if it is a regular file, else a one-line :class:`MapdbIOError`.
+
+    Opened without blocking and checked with fstat (not stat then open, which a swap could defeat): a FIFO
+    given as a map, an index or a mask would hang the command, a device would feed it endless bytes.
+
+    Examples
+    --------
+    >>> open_regular("/dev/null", "/dev/null", "map file")
+    Traceback (most recent call last):
+    mapdb.errors.MapdbIOError: /dev/null: is a device, not a map file
+    """
+    with reading(where, what):
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
+            raise MapdbIOError(f"{where}: is {kind}, not a {what}")
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise

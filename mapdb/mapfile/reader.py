@@ -9,19 +9,17 @@ from __future__ import annotations
 
 import math
 import os
-import stat
 import struct
 import zlib
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import shapely
 
 from .. import __version__
-from ..errors import MapdbIOError, MapFormatError, MapVersionError, reading
+from ..errors import MapFormatError, MapVersionError, open_regular, reading
 from ..objects import Objects
 from .header import _MAX_HEADER, _check_directory, _check_header, _header_json_limit, _one_line, _parse_header_json
 from .layout import _DIR_DTYPE, _MAX_QUANTA, _MAX_VERSION, _PREFIX, FORMAT_VERSION, MAGIC
@@ -50,7 +48,7 @@ class MetaMap(MapBase):
         super().__init__()
         self.path = Path(path)
         where = str(self.path)
-        self._file = _open_regular(self.path, where)
+        self._file = open_regular(self.path, where, "map file")
         try:
             self._read_header(where)
         except BaseException:
@@ -287,27 +285,6 @@ class MetaMap(MapBase):
         objects = self._objects(range(self.page_count))
         self._check_label_counts(np.bincount(objects.label, minlength=len(self.labels)))
         return objects
-
-
-def _open_regular(path: Path, where: str) -> Any:
-    """The file opened for reading, if it is a regular file.
-
-    Opened without blocking and checked with fstat (not stat then open, which a swap could defeat): a FIFO
-    or a device given as a map would otherwise hang the command or feed it endless bytes.
-    """
-    with reading(where, "map file"):
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
-                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file")
-            raise MapdbIOError(f"{where}: is {kind}, not a map file" if kind.startswith("a ")
-                               else f"{where}: not a regular file, not a map file")
-        return os.fdopen(fd, "rb")
-    except BaseException:
-        os.close(fd)
-        raise
 
 
 def open_map(path: str | Path) -> MetaMap:

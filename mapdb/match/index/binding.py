@@ -27,20 +27,19 @@ from __future__ import annotations
 
 import hashlib
 import os
-import stat
 import struct
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 
-from ...errors import MapdbIOError, MapFormatError, reading
+from ...errors import MapFormatError, open_regular, reading
 from ...mapfile.layout import MAGIC as MAP_MAGIC
 from ...mapfile.reader import MetaMap
 from .layout import FENCE, cell_keys, cells_of
 from .lookup import Section
 
 __all__ = ["IDENTITY_KEYS", "PageBoxes", "check_filed", "check_identity", "check_positions", "first_cells",
-           "map_identity", "mismatch", "open_regular"]
+           "map_identity", "mismatch"]
 
 _MAP_PREFIX = struct.Struct("<8sHHI")  # the map file's own prefix (mapdb.mapfile.layout), for its header CRC
 # What the header's ``map`` section holds, in the order checked (the cheapest and most telling first).
@@ -84,25 +83,6 @@ def map_identity(map_: MetaMap) -> dict[str, Any]:
         "origin": [int(table["ox"].min()), int(table["oy"].min())] if len(table) else [0, 0],
         "pages_sha256": hashlib.sha256(table.tobytes()).hexdigest(),
     }
-
-
-def open_regular(path: str | os.PathLike[str], where: str, what: str) -> IO[bytes]:
-    """``path`` opened for reading if it is a regular file, else :class:`~mapdb.errors.MapdbIOError`.
-
-    Opened without blocking and checked with fstat (not stat then open, which a swap could defeat): a FIFO
-    in place of an index would hang the query, a device would feed it endless bytes.
-    """
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):
-            kind = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
-                    else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a special file")
-            raise MapdbIOError(f"{where}: is {kind}, not a {what}")
-        return os.fdopen(fd, "rb")
-    except BaseException:
-        os.close(fd)
-        raise
 
 
 def check_identity(recorded: dict[str, Any], map_: MetaMap, where: str) -> None:

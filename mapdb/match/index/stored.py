@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ...errors import MapdbIOError, MapFormatError, reading
+from ...errors import MapdbIOError, MapFormatError, open_regular, reading
 from ...mapfile.reader import MetaMap
 from ..quads import canonical_quads, label_keys
 from .binding import (
@@ -50,7 +50,6 @@ from .binding import (
     first_cells,
     map_identity,
     mismatch,
-    open_regular,
 )
 from .build import build_index
 from .layout import (
