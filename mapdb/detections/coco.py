@@ -7,7 +7,8 @@ result annotations together with the images they refer to.  Each annotation is o
 * instance polygons (``"segmentation": [[x1, y1, x2, y2, ...], ...]``): the exact area centroid and area
   of its polygons clipped to the image (no rasterising), in time linear in their vertices (at most
   :data:`MAX_POLYGON_VERTICES` an annotation): parts are summed, which is their union when they do not
-  overlap; a self-crossing polygon counts each point by its winding number;
+  overlap; a self-crossing polygon counts each point by its winding number (refused if its centroid so
+  falls outside it);
 * RLE masks (``"segmentation": {"size": [h, w], "counts": ...}``, uncompressed counts or COCO's
   compressed string; decoded here, pycocotools is not needed): the centroid of its pixels, as
   :func:`mapdb.detections.masks.from_mask` would give for that instance alone;
@@ -230,8 +231,9 @@ def _polygon_object(parts: list[Any], width: int, height: int, where: str
     Each part is integrated by the shoelace formula after clipping: a simple polygon's exact area and
     centroid, whichever way it turns; parts are summed, which is their union's when they do not overlap.  A
     self-crossing part counts each point by its winding number (the two lobes of a figure eight cancel),
-    and overlapping parts count their overlap twice: no overlay is computed, whose cost grows with the
-    square of the crossings (GEOS took minutes for 200 random vertices).
+    and overlapping parts count their overlap twice; when that puts the centroid outside the polygon's
+    bounds the annotation is refused.  No overlay is computed: its cost grows with the square of the
+    crossings (GEOS took minutes to repair a polygon of 200 random vertices).
     """
     if not all(isinstance(part, list) for part in parts):
         raise ImageInputError(f"{where}.segmentation: must be a list of polygons, each a list of numbers")
@@ -252,8 +254,13 @@ def _polygon_object(parts: list[Any], width: int, height: int, where: str
     if area <= 0:
         return None
     low, high = np.min([c[0] for c in corners], axis=0), np.max([c[1] for c in corners], axis=0)
+    x, y = mx / area, my / area
+    if not (low[0] <= x <= high[0] and low[1] <= y <= high[1]):
+        # Lobes of opposite turn cancel in the integrals: what is left is no region, and no place to report.
+        raise ImageInputError(f"{where}.segmentation: a polygon crossing itself (its centroid by winding number "
+                              "falls outside it); give simple polygons")
     bounds = (float(low[0]), float(low[1]), float(high[0]), float(high[1]))
-    return mx / area, my / area, area, _edge_box(bounds, width, height)
+    return x, y, area, _edge_box(bounds, width, height)
 
 
 def _box_object(box: Any, width: int, height: int, where: str) -> tuple[float, float, float, list[int]] | None:
