@@ -178,12 +178,14 @@ def georef(crs_wkt: str | None, transform: Any, width: int, height: int, source:
 
 def _implausible(out: dict[str, Any], t: Any) -> str | None:
     """Why a computed georeference cannot be right, or None."""
-    if not all(math.isfinite(v) for v in (*tuple(t)[:6], *(v for v in out.values() if isinstance(v, float)))):
-        return "its numbers are not finite"
+    if not all(math.isfinite(v) for v in tuple(t)[:6]):
+        return "its pixel size or position is not finite"
     if t.determinant == 0:
         return "its pixels have no area"
     if max(abs(out["x"]), abs(out["y"])) > MAX_MAP_COORDINATE_M:
         return f"its centre is more than {MAX_MAP_COORDINATE_M:.0e} from the origin of its CRS"
+    if not all(math.isfinite(v) for v in out.values() if isinstance(v, float)):
+        return "its centre has no finite longitude and latitude"
     if not (-180.0 <= out["lon"] <= 180.0 and -90.0 <= out["lat"] <= 90.0):
         return "its centre is not on the globe"
     if not 0.0 < out.get("m_per_px", 1.0) <= MAX_M_PER_PX:
