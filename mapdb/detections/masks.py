@@ -156,7 +156,7 @@ def _label_areas(labelled: np.ndarray, n: int) -> np.ndarray:
     long before, beside many new small ones) is counted with ``np.add.at``, so no strip costs O(n).
     """
     # 4 bytes a label while no region can hold 2**31 pixels: the count of 25 M specks takes 100 MB, not 200.
-    area = np.zeros(n + 1, np.int32 if labelled.size < 2**31 else np.int64)
+    area: np.ndarray = np.zeros(n + 1, np.int32 if labelled.size < 2**31 else np.int64)
     for rows in _strips(labelled.shape):
         ids, _, first, stop = _runs(labelled[rows])
         if ids.size == 0:
