@@ -10,7 +10,9 @@ Cases (generated in a temporary folder; the bombs are small files that decode to
   minimum area: the most labels a mask of this size can hold;
 * ``coco-1m``: a COCO file of one polygon of 1,000,000 vertices (about 40 MB);
 * ``coco-3m``: one polygon of 3,000,000 vertices (about 130 MB): refused by the vertex cap;
-* ``coco-scribbles``: 2,000 annotations of 200 random vertices each (self-crossing scribbles).
+* ``coco-scribbles``: 2,000 annotations of 200 random vertices each (self-crossing scribbles);
+* ``coco-zeros``: a COCO file of the largest size read (``MAX_COCO_BYTES``) that is one list of zeros: the
+  most Python objects JSON can make of that many bytes.
 
 Each case runs ``mask_document`` (or ``from_coco``) and writes the JSON, in a child process that reports its
 own peak RSS (``ru_maxrss``); the parent's memory (it generates the images) is not counted.  With
@@ -40,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from objects_mask import generated_mask  # noqa: E402
 
 SIDE = 10_000
-CASES = ("normal", "solid", "dots", "specks", "coco-1m", "coco-3m", "coco-scribbles")
+CASES = ("normal", "solid", "dots", "specks", "coco-1m", "coco-3m", "coco-scribbles", "coco-zeros")
 
 _CHILD = """
 import json, resource, sys, time, traceback
@@ -111,7 +113,16 @@ def make_case(name: str, folder: Path) -> tuple[str, Path]:
         radius = 1000 + 400 * rng.random(n)  # a star: simple, and as jagged as vertices can make it
         return "coco", _coco(folder / f"{name}.json", [np.c_[2000 + radius * np.cos(turn),
                                                               1500 + radius * np.sin(turn)]])
-    return "coco", _coco(folder / "scribbles.json", [rng.random((200, 2)) * (4000, 3000) for _ in range(2000)])
+    if name == "coco-scribbles":
+        return "coco", _coco(folder / "scribbles.json", [rng.random((200, 2)) * (4000, 3000) for _ in range(2000)])
+    from mapdb.detections.coco import MAX_COCO_BYTES
+
+    head = b'{"images": [{"id": 1, "width": 40, "height": 30}], "annotations": [], "padding": ['
+    zeros = (MAX_COCO_BYTES - len(head) - 3) // 2
+    path = folder / "zeros.json"
+    with open(path, "wb") as f:
+        f.write(head + b"0," * (zeros - 1) + b"0]}")
+    return "coco", path
 
 
 def run_case(kind: str, path: Path, code: str) -> dict[str, object]:

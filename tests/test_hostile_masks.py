@@ -375,3 +375,17 @@ def test_self_crossing_polygons_are_answered_at_once(tmp_path: Path) -> None:
         assert x0 <= x <= x1 and y0 <= y <= y1
         outcomes.add("answered")
     assert outcomes == {"refused", "answered"}
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_rle_over_the_count_cap_is_one_line(monkeypatch: pytest.MonkeyPatch, compressed: bool) -> None:
+    monkeypatch.setattr(coco, "MAX_RLE_COUNTS", 50)
+    mask = np.zeros((30, 40), bool)
+    mask[::2, ::3] = True  # many runs
+    counts = coco.encode_rle(mask)["counts"] if compressed else [1] * 1200
+    ann = {"image_id": 1, "category_id": 1, "segmentation": {"size": [30, 40], "counts": counts}}
+    with pytest.raises(coco.ImageInputError) as err:
+        coco.from_coco({"images": [{"id": 1, "width": 40, "height": 30}], "annotations": [ann]}, {1: "building"},
+                       source="c.json")
+    assert str(err.value) == (f"c.json: annotations[0].segmentation.counts: {len(counts):,} counts or characters, "
+                              "more than the 50 an RLE mask may have")

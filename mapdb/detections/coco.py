@@ -39,7 +39,8 @@ import numpy as np
 from ..errors import ImageInputError, MapdbIOError, reading
 from .masks import DEFAULT_MIN_AREA_PX, MAX_MASK_PIXELS, camera_fields, finish_document, object_records
 
-__all__ = ["BORDER_PX", "MAX_COCO_BYTES", "MAX_POLYGON_VERTICES", "decode_rle", "encode_rle", "from_coco", "read_coco"]
+__all__ = ["BORDER_PX", "MAX_COCO_BYTES", "MAX_POLYGON_VERTICES", "MAX_RLE_COUNTS", "decode_rle", "encode_rle",
+           "from_coco", "read_coco"]
 
 BORDER_PX = 1.0
 # COCO's validation annotations take 20 MB; a detector's output for a flight is smaller.
@@ -48,6 +49,9 @@ MAX_COCO_BYTES = 256 << 20
 # Their area and centroid cost time linear in the vertices (about 0.1 s a million,
 # ``python benchmarks/mask_limits.py``); the cap bounds the memory of one annotation's arrays.
 MAX_POLYGON_VERTICES = 1_000_000
+# Counts of an RLE mask (a list's numbers, a compressed string's characters): an instance mask has thousands.
+# Decoding takes about 53 bytes a character (traced: 106 MB for 2 M characters), about 210 MB at the cap.
+MAX_RLE_COUNTS = 4_000_000
 # A compressed RLE count of more chars than this does not fit in 64 bits.
 _MAX_RLE_CHARS = 11
 
@@ -288,6 +292,9 @@ def _rle_counts(segmentation: dict[str, Any], width: int, height: int, where: st
     if size != [height, width]:
         raise ImageInputError(f"{where}.segmentation.size: {size!r} disagrees with its image's height and width "
                               f"[{height}, {width}]")
+    if isinstance(counts, str | list) and len(counts) > MAX_RLE_COUNTS:
+        raise ImageInputError(f"{where}.segmentation.counts: {len(counts):,} counts or characters, more than the "
+                              f"{MAX_RLE_COUNTS:,} an RLE mask may have")
     if isinstance(counts, str):
         try:
             runs = decode_rle(counts)
