@@ -15,7 +15,8 @@ Cases (generated in a temporary folder; the bombs are small files that decode to
   most Python objects JSON can make of that many bytes.
 
 Each case runs ``mask_document`` (or ``from_coco``) and writes the JSON, in a child process that reports its
-own peak RSS (``ru_maxrss``); the parent's memory (it generates the images) is not counted.  With
+own peak RSS (``VmHWM``: ``ru_maxrss`` would count the parent's, which generates the images, as Linux keeps it
+across fork and exec); "wall s" is the child's whole run, Python's start and imports included.  With
 ``--code DIR`` the child imports ``mapdb`` from DIR first (an older checkout, for a before/after table).
 
 Run from the repository root::
@@ -63,8 +64,12 @@ try:
     outcome = f"{sum(len(d['objects']) for d in docs)} objects"
 except Exception as exc:
     outcome = "refused: " + str(exc).split(": ", 1)[-1][:70]
-print(json.dumps({"seconds": time.perf_counter() - start, "outcome": outcome,
-                  "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+try:  # this process's own peak: ru_maxrss would also count the parent's, inherited across fork and exec
+    with open("/proc/self/status") as f:
+        peak_kb = next(int(line.split()[1]) for line in f if line.startswith("VmHWM:"))
+except (OSError, StopIteration):
+    peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({"seconds": time.perf_counter() - start, "outcome": outcome, "rss_mb": peak_kb / 1024}))
 """
 
 

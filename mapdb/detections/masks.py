@@ -18,11 +18,16 @@ two objects; touching objects of one class are one region, as a segmentation mod
 is the background unless the class table maps it; other codes the table does not map are skipped and
 their pixels counted in the document's ``skipped_classes`` (``{"7": 1234}``).
 
-Everything is vectorised (``scipy.ndimage.label`` per class, then ``numpy.bincount`` over the region
-pixels only and ``ndimage.find_objects`` for the boxes): a 4000x3000 mask of three classes with about
-500 objects takes a few tenths of a second (``python benchmarks/objects_mask.py``).
+Everything is vectorised (``scipy.ndimage.label`` per class into int32 labels, then ``numpy.bincount`` over
+the runs of each label along the rows, a strip of rows at a time, and ``ndimage.find_objects`` for the
+boxes of the regions kept): a 4000x3000 mask of three classes with about 500 objects takes a few tenths of
+a second (``python benchmarks/objects_mask.py``).  Memory is the pixels, one boolean image and the labels
+(about 6 bytes a pixel for a mask of bytes) plus one strip's work: a 10000x10000 mask of one region, or of
+25 M specks, stays under 800 MB (``python benchmarks/mask_limits.py``).  Regions beyond the
+:data:`~mapdb.detections.images.MAX_OBJECTS` a query accepts are only counted, never measured.
 
-Masks are read from PNG or GeoTIFF (anything GDAL reads, :func:`read_mask`); a mask with a
+Masks are read from PNG or GeoTIFF (anything GDAL reads, :func:`read_mask`), strictly
+(:mod:`mapdb.detections.mask_files`: regular files only, whole or refused); a mask with a plausible
 georeference also gives the ground position of its centre (the document's ``georef``, which the
 query ignores and a test can compare with the answer).  COCO detector output is read by
 :mod:`mapdb.detections.coco`.
