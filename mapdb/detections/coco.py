@@ -43,8 +43,10 @@ __all__ = ["BORDER_PX", "MAX_COCO_BYTES", "MAX_POLYGON_VERTICES", "MAX_RLE_COUNT
            "from_coco", "read_coco"]
 
 BORDER_PX = 1.0
-# COCO's validation annotations take 20 MB; a detector's output for a flight is smaller.
-MAX_COCO_BYTES = 256 << 20
+# COCO's validation annotations take 20 MB; a detector's output for a flight is smaller.  JSON makes up to 6
+# times its size of Python objects (a file of zeros: 1.6 GB for 256 MiB), so the cap keeps a COCO file under a
+# gigabyte (``python benchmarks/mask_limits.py coco-zeros``).
+MAX_COCO_BYTES = 128 << 20
 # Vertices of one annotation's polygons (all its parts): a detector's instance outline has tens to thousands.
 # Their area and centroid cost time linear in the vertices (about 0.1 s a million,
 # ``python benchmarks/mask_limits.py``); the cap bounds the memory of one annotation's arrays.
