@@ -356,11 +356,12 @@ def from_mask(mask: np.ndarray, classes: Mapping[int, str], *, connectivity: int
     found: list[dict[str, np.ndarray]] = []
     skipped: dict[str, int] = {}
     codes, counts = _code_counts(array)
+    present = set(codes.tolist())
     n_objects = 0
     for code, count in zip(codes.tolist(), counts.tolist(), strict=True):
         if code in classes:
             # A mask holding only this code (and background) is its own binary image: no copy of it.
-            binary = array if set(codes.tolist()) <= {0, code} else array == code
+            binary = array if present <= {0, code} else array == code
             regions = _regions(binary, structure, min_area, room=MAX_OBJECTS - n_objects)
             del binary
             n_objects += int(regions["count"])
