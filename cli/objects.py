@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from typing import Any
 
 import click
@@ -73,7 +74,11 @@ def objects(masks, output, classes_file, label, labels_file, connectivity, min_a
     pixel size.  The documents are what `mapdb query` reads.
 
     A mask that cannot be read is reported on stderr (mapdb: error: FILE: problem) and the others are
-    still processed; the exit status is then 1.  The output is written whole at the end.
+    still processed; the exit status is then 1.  The output is written whole at the end; when every
+    input fails, nothing is written (only the errors are printed).  Only regular files are read: a FIFO or
+    a device is refused before it is opened.  A PNG must be whole (every chunk up to IEND) and any
+    warning GDAL gives while reading a mask refuses it.  A georeference that is not finite or not
+    plausible is dropped with a warning (mapdb: warning: FILE: georeference dropped: ...).
     """
     from mapdb.classmap import check_label, load_class_table
     from mapdb.labels import load_label_table
@@ -92,28 +97,12 @@ def objects(masks, output, classes_file, label, labels_file, connectivity, min_a
     if label is not None:
         check_label(label, table.labels, "--label")
     camera = {"fov_deg": fov, "attitude": attitude, "altitude": altitude}
-    failed = n_docs = n_objects = 0
-    with atomic_open(output) as out:
-        for path in masks:
-            try:
-                doc = _mask(path, classes, label, int(connectivity), min_area, camera)
-            except (MapdbError, OSError) as exc:
-                click.echo(f"mapdb: error: {exc}", err=True)
-                failed += 1
-                continue
-            n_objects += _write(out, doc)
-            n_docs += 1
-        if coco_file:
-            assert classes is not None
-            try:
-                docs = _coco(coco_file, classes.classes, coco_images, min_area, min_score, camera)
-            except (MapdbError, OSError) as exc:
-                click.echo(f"mapdb: error: {exc}", err=True)
-                failed += 1
-                docs = []
-            for doc in docs:
-                n_objects += _write(out, doc)
-            n_docs += len(docs)
+    try:
+        with atomic_open(output) as out:
+            n_docs, n_objects, failed = _convert(out, masks, classes, label, int(connectivity), min_area, camera,
+                                                 (coco_file, coco_images, min_score))
+    except _NothingReadError:
+        sys.exit(1)  # each failure is already reported; there is nothing to sum up
     if not quiet:
         click.echo(f"{n_docs} images, {n_objects} objects -> {output}" + (f"; {failed} failed" if failed else ""),
                    err=True)
@@ -121,14 +110,67 @@ def objects(masks, output, classes_file, label, labels_file, connectivity, min_a
         sys.exit(1)
 
 
+class _NothingReadError(Exception):
+    """Every input failed: the output is not written (an empty file would pass for an answer)."""
+
+    def __init__(self, failed: int) -> None:
+        super().__init__(f"{failed} inputs failed")
+        self.failed = failed
+
+
+def _convert(out: Any, masks: tuple[str, ...], classes: Any, label: str | None, connectivity: int, min_area: int,
+             camera: dict[str, Any], coco: tuple[str | None, str | None, float]) -> tuple[int, int, int]:
+    """Write the documents of the masks, then of the COCO file; (documents, objects, inputs failed).
+
+    An input that fails is reported on stderr and the others are still written.
+
+    Raises
+    ------
+    _NothingReadError
+        Every input failed.
+    """
+    coco_file, coco_images, min_score = coco
+    failed = n_docs = n_objects = 0
+    for path in masks:
+        try:
+            doc = _mask(path, classes, label, connectivity, min_area, camera)
+        except (MapdbError, OSError) as exc:
+            click.echo(f"mapdb: error: {exc}", err=True)
+            failed += 1
+            continue
+        n_objects += _write(out, doc)
+        n_docs += 1
+    if coco_file:
+        assert classes is not None
+        try:
+            docs = _coco(coco_file, classes.classes, coco_images, min_area, min_score, camera)
+        except (MapdbError, OSError) as exc:
+            click.echo(f"mapdb: error: {exc}", err=True)
+            failed += 1
+            docs = []
+        for doc in docs:
+            n_objects += _write(out, doc)
+        n_docs += len(docs)
+    if failed and not n_docs:
+        raise _NothingReadError(failed)
+    return n_docs, n_objects, failed
+
+
 def _mask(path: str, classes: Any, label: str | None, connectivity: int, min_area: int,
           camera: dict[str, Any]) -> dict[str, Any]:
+    from mapdb.detections.mask_files import GeorefWarning
     from mapdb.detections.masks import mask_document
 
     codes = None if classes is None else classes.codes
     if codes is not None and not codes:
         raise MapdbError(f"{classes.source}: no integer class codes, which a mask's pixels hold")
-    return mask_document(path, codes, label=label, connectivity=connectivity, min_area=min_area, **camera)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", GeorefWarning)
+        doc = mask_document(path, codes, label=label, connectivity=connectivity, min_area=min_area, **camera)
+    for warning in caught:
+        if issubclass(warning.category, GeorefWarning):
+            click.echo(f"mapdb: warning: {warning.message}", err=True)
+    return doc
 
 
 def _coco(path: str, classes: dict[str, str], images: str | None, min_area: int, min_score: float,

@@ -5,7 +5,10 @@ What most detection and instance-segmentation models emit: a COCO dict (``{"imag
 result annotations together with the images they refer to.  Each annotation is one object:
 
 * instance polygons (``"segmentation": [[x1, y1, x2, y2, ...], ...]``): the exact area centroid and area
-  of the union of its polygons, clipped to the image (no rasterising);
+  of its polygons clipped to the image (no rasterising), in time linear in their vertices (at most
+  :data:`MAX_POLYGON_VERTICES` an annotation): parts are summed, which is their union when they do not
+  overlap; a self-crossing polygon counts each point by its winding number (refused if its centroid so
+  falls outside it);
 * RLE masks (``"segmentation": {"size": [h, w], "counts": ...}``, uncompressed counts or COCO's
   compressed string; decoded here, pycocotools is not needed): the centroid of its pixels, as
   :func:`mapdb.detections.masks.from_mask` would give for that instance alone;
@@ -26,29 +29,43 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 from collections import Counter
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-import shapely
 
-from ..errors import ImageInputError, reading
+from ..errors import ImageInputError, MapdbIOError, reading
 from .masks import DEFAULT_MIN_AREA_PX, MAX_MASK_PIXELS, camera_fields, finish_document, object_records
 
-__all__ = ["BORDER_PX", "MAX_COCO_BYTES", "decode_rle", "encode_rle", "from_coco", "read_coco"]
+__all__ = ["BORDER_PX", "MAX_COCO_BYTES", "MAX_POLYGON_VERTICES", "MAX_RLE_COUNTS", "decode_rle", "encode_rle",
+           "from_coco", "read_coco"]
 
 BORDER_PX = 1.0
-# COCO's validation annotations take 20 MB; a detector's output for a flight is smaller.
-MAX_COCO_BYTES = 256 << 20
+# COCO's validation annotations take 20 MB; a detector's output for a flight is smaller.  JSON makes up to 6
+# times its size of Python objects (a file of zeros: 1.6 GB for 256 MiB), so the cap keeps a COCO file under a
+# gigabyte (``python benchmarks/mask_limits.py coco-zeros``).
+MAX_COCO_BYTES = 128 << 20
+# Vertices of one annotation's polygons (all its parts): a detector's instance outline has tens to thousands.
+# Their area and centroid cost time linear in the vertices (about 0.1 s a million,
+# ``python benchmarks/mask_limits.py``); the cap bounds the memory of one annotation's arrays.
+MAX_POLYGON_VERTICES = 1_000_000
+# Counts of an RLE mask (a list's numbers, a compressed string's characters): an instance mask has thousands.
+# Decoding takes about 53 bytes a character (traced: 106 MB for 2 M characters), about 210 MB at the cap.
+MAX_RLE_COUNTS = 4_000_000
 # A compressed RLE count of more chars than this does not fit in 64 bits.
 _MAX_RLE_CHARS = 11
 
 
 def read_coco(path: str | os.PathLike[str]) -> Any:
-    """The decoded JSON of a COCO file, or a one-line error (missing, too big, not JSON)."""
-    with reading(os.fspath(path), "COCO file"), open(path, "rb") as f:
-        data = f.read(MAX_COCO_BYTES + 1)
+    """The decoded JSON of a COCO file, or a one-line error (missing, not a regular file, too big, not JSON)."""
+    with reading(os.fspath(path), "COCO file"):
+        if not stat.S_ISREG(os.stat(path).st_mode) and not os.path.isdir(path):
+            # Checked before opening: reading a FIFO would wait for a writer forever, a device never end.
+            raise MapdbIOError(f"{path}: not a regular file")
+        with open(path, "rb") as f:
+            data = f.read(MAX_COCO_BYTES + 1)
     if len(data) > MAX_COCO_BYTES:
         raise ImageInputError(f"{path}: more than {MAX_COCO_BYTES >> 20} MiB; split the COCO file")
     try:
@@ -142,20 +159,114 @@ def _edge_box(bounds: tuple[float, float, float, float], width: int, height: int
             width if x1 >= width - BORDER_PX else math.ceil(x1), height if y1 >= height - BORDER_PX else math.ceil(y1)]
 
 
+def _clipped(xy: np.ndarray, axis: int, limit: float, keep_below: bool) -> np.ndarray:
+    """The ring ``xy`` (n x 2, closing edge implied) clipped to one side of the line ``xy[:, axis] == limit``.
+
+    Sutherland-Hodgman, vectorised: each edge gives its start if inside, then its crossing point if it
+    crosses.  The clipped ring may run along the line (zero-area bridges), which no integral below sees.
+    """
+    if xy.shape[0] == 0:
+        return xy
+    side = (limit - xy[:, axis]) if keep_below else (xy[:, axis] - limit)
+    inside = side >= 0
+    if inside.all():  # the usual case: a polygon within the image is its own clip
+        return xy
+    nxt = np.roll(xy, -1, axis=0)
+    inside_next = np.roll(inside, -1)
+    crossing = inside != inside_next
+    with np.errstate(invalid="ignore", divide="ignore"):  # edges along the line: their (unused) cut is NaN
+        t = (limit - xy[:, axis]) / (nxt[:, axis] - xy[:, axis])
+        cut = xy + t[:, None] * (nxt - xy)
+    cut[:, axis] = limit
+    points = np.stack([xy, cut], axis=1).reshape(-1, 2)
+    return points[np.stack([inside, crossing], axis=1).ravel()]
+
+
+def _ring_integrals(xy: np.ndarray, width: int, height: int) -> tuple[float, float, float]:
+    """Area and first moments (x, y) of one ring clipped to the image, oriented to a positive area."""
+    for axis, limit, below in ((0, 0.0, False), (0, float(width), True), (1, 0.0, False), (1, float(height), True)):
+        xy = _clipped(xy, axis, limit, below)
+    if xy.shape[0] < 3:
+        return 0.0, 0.0, 0.0
+    x, y = xy[:, 0], xy[:, 1]
+    x1, y1 = np.roll(x, -1), np.roll(y, -1)
+    cross = x * y1 - x1 * y
+    area = float(cross.sum()) / 2.0
+    mx, my = float(((x + x1) * cross).sum()) / 6.0, float(((y + y1) * cross).sum()) / 6.0
+    sign = -1.0 if area < 0 else 1.0
+    return sign * area, sign * mx, sign * my
+
+
+def _ring_bounds(xy: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lowest and highest x, y of a ring's part inside the image, in linear time.
+
+    The clipped ring's vertices will not do: its bridges along one edge of the image, cut by the next, leave
+    points the region does not reach.  The extremes are among the ring's vertices inside, its edges'
+    crossings of the image's edges, and the image's corners inside the ring (even-odd rule).
+    """
+    size = np.array([width, height], np.float64)
+    within = ((xy >= 0) & (xy <= size)).all(axis=1)
+    if within.all():
+        return xy.min(axis=0), xy.max(axis=0)
+    found = [xy[within]]
+    nxt = np.roll(xy, -1, axis=0)
+    for axis in (0, 1):
+        for limit in (0.0, size[axis]):
+            a, b = xy[:, axis] - limit, nxt[:, axis] - limit
+            crosses = (a * b <= 0) & (a != b)
+            t = (a[crosses] / (a[crosses] - b[crosses]))[:, None]
+            cut = xy[crosses] + t * (nxt[crosses] - xy[crosses])
+            cut[:, axis] = limit
+            found.append(cut[(cut[:, 1 - axis] >= 0) & (cut[:, 1 - axis] <= size[1 - axis])])
+    corners = np.array([[0.0, 0.0], [width, 0.0], [0.0, height], [width, height]])
+    for corner in corners:
+        spans = (xy[:, 1] > corner[1]) != (nxt[:, 1] > corner[1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            at = xy[spans, 0] + (corner[1] - xy[spans, 1]) * (nxt[spans, 0] - xy[spans, 0]) / (
+                nxt[spans, 1] - xy[spans, 1])
+        if np.count_nonzero(corner[0] < at) % 2:
+            found.append(corner[None])
+    points = np.concatenate(found)
+    return points.min(axis=0), points.max(axis=0)
+
+
 def _polygon_object(parts: list[Any], width: int, height: int, where: str
                     ) -> tuple[float, float, float, list[int]] | None:
-    rings = []
+    """Area centroid, area and box of an annotation's polygons clipped to the image, in time linear in vertices.
+
+    Each part is integrated by the shoelace formula after clipping: a simple polygon's exact area and
+    centroid, whichever way it turns; parts are summed, which is their union's when they do not overlap.  A
+    self-crossing part counts each point by its winding number (the two lobes of a figure eight cancel),
+    and overlapping parts count their overlap twice; when that puts the centroid outside the polygon's
+    bounds the annotation is refused.  No overlay is computed: its cost grows with the square of the
+    crossings (GEOS took minutes to repair a polygon of 200 random vertices).
+    """
+    if not all(isinstance(part, list) for part in parts):
+        raise ImageInputError(f"{where}.segmentation: must be a list of polygons, each a list of numbers")
+    vertices = sum(len(part) for part in parts) // 2
+    if vertices > MAX_POLYGON_VERTICES:
+        raise ImageInputError(f"{where}.segmentation: {vertices:,} vertices, more than the {MAX_POLYGON_VERTICES:,} "
+                              "a polygon annotation may have")
+    area = mx = my = 0.0
+    corners = []
     for part in parts:
         xy = _numbers(part, where + ".segmentation")
         if xy.size % 2 or xy.size < 6:
             raise ImageInputError(f"{where}.segmentation: a polygon needs x, y pairs, at least 3 of them")
-        rings.append(shapely.make_valid(shapely.Polygon(xy.reshape(-1, 2))))
-    shape = shapely.intersection(shapely.union_all(rings), shapely.box(0, 0, width, height))
-    area = float(shapely.area(shape))
+        a, x, y = _ring_integrals(xy.reshape(-1, 2), width, height)
+        if a > 0:
+            area, mx, my = area + a, mx + x, my + y
+            corners.append(_ring_bounds(xy.reshape(-1, 2), width, height))
     if area <= 0:
         return None
-    c = shapely.centroid(shape)
-    return shapely.get_x(c), shapely.get_y(c), area, _edge_box(shapely.bounds(shape), width, height)
+    low, high = np.min([c[0] for c in corners], axis=0), np.max([c[1] for c in corners], axis=0)
+    x, y = mx / area, my / area
+    if not (low[0] <= x <= high[0] and low[1] <= y <= high[1]):
+        # Lobes of opposite turn cancel in the integrals: what is left is no region, and no place to report.
+        raise ImageInputError(f"{where}.segmentation: a polygon crossing itself (its centroid by winding number "
+                              "falls outside it); give simple polygons")
+    bounds = (float(low[0]), float(low[1]), float(high[0]), float(high[1]))
+    return x, y, area, _edge_box(bounds, width, height)
 
 
 def _box_object(box: Any, width: int, height: int, where: str) -> tuple[float, float, float, list[int]] | None:
@@ -170,7 +281,7 @@ def _box_object(box: Any, width: int, height: int, where: str) -> tuple[float, f
 
 
 def _numbers(value: Any, where: str) -> np.ndarray:
-    if not isinstance(value, list) or not all(type(v) in (int, float) for v in value):
+    if not isinstance(value, list) or not set(map(type, value)) <= {int, float}:
         raise ImageInputError(f"{where}: must be a list of numbers")
     out = np.asarray(value, np.float64)
     if not np.isfinite(out).all():
@@ -183,6 +294,9 @@ def _rle_counts(segmentation: dict[str, Any], width: int, height: int, where: st
     if size != [height, width]:
         raise ImageInputError(f"{where}.segmentation.size: {size!r} disagrees with its image's height and width "
                               f"[{height}, {width}]")
+    if isinstance(counts, str | list) and len(counts) > MAX_RLE_COUNTS:
+        raise ImageInputError(f"{where}.segmentation.counts: {len(counts):,} counts or characters, more than the "
+                              f"{MAX_RLE_COUNTS:,} an RLE mask may have")
     if isinstance(counts, str):
         try:
             runs = decode_rle(counts)

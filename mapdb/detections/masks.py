@@ -18,11 +18,16 @@ two objects; touching objects of one class are one region, as a segmentation mod
 is the background unless the class table maps it; other codes the table does not map are skipped and
 their pixels counted in the document's ``skipped_classes`` (``{"7": 1234}``).
 
-Everything is vectorised (``scipy.ndimage.label`` per class, then ``numpy.bincount`` over the region
-pixels only and ``ndimage.find_objects`` for the boxes): a 4000x3000 mask of three classes with about
-500 objects takes a few tenths of a second (``python benchmarks/objects_mask.py``).
+Everything is vectorised (``scipy.ndimage.label`` per class into int32 labels, then ``numpy.bincount`` over
+the runs of each label along the rows, a strip of rows at a time, and ``ndimage.find_objects`` for the
+boxes of the regions kept): a 4000x3000 mask of three classes with about 500 objects takes a few tenths of
+a second (``python benchmarks/objects_mask.py``).  Memory is the pixels, one boolean image and the labels
+(about 6 bytes a pixel for a mask of bytes) plus one strip's work: a 10000x10000 mask of one region, or of
+25 M specks, stays under 800 MB (``python benchmarks/mask_limits.py``).  Regions beyond the
+:data:`~mapdb.detections.images.MAX_OBJECTS` a query accepts are only counted, never measured.
 
-Masks are read from PNG or GeoTIFF (anything GDAL reads, :func:`read_mask`); a mask with a
+Masks are read from PNG or GeoTIFF (anything GDAL reads, :func:`read_mask`), strictly
+(:mod:`mapdb.detections.mask_files`: regular files only, whole or refused); a mask with a plausible
 georeference also gives the ground position of its centre (the document's ``georef``, which the
 query ignores and a test can compare with the answer).  COCO detector output is read by
 :mod:`mapdb.detections.coco`.
@@ -30,21 +35,22 @@ query ignores and a test can compare with the answer).  COCO detector output is 
 
 from __future__ import annotations
 
-import math
 import os
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..errors import ImageInputError, MapdbIOError
+from ..errors import ImageInputError, reading
 from .images import MAX_ELONGATION, MAX_IMAGE_SIDE_PX, MAX_OBJECTS, parse_image
+from .mask_files import check_png_chunks, check_regular_file, georef, strict_gdal
 
 __all__ = [
     "DEFAULT_MIN_AREA_PX",
+    "MAX_MASK_BYTES",
     "MAX_MASK_PIXELS",
     "Mask",
     "camera_fields",
@@ -56,9 +62,11 @@ __all__ = [
 
 # Smaller regions are specks of segmentation noise, not objects a map holds.
 DEFAULT_MIN_AREA_PX = 4
-# A mask is held whole (regions cross any tiling): about 1 GB of working memory at this size.  A file
-# claiming more (a PNG header is a few bytes) is refused before any pixel is read.
+# A mask is held whole (regions cross any tiling): its pixels, a boolean image of one class and int32 labels,
+# 6 bytes a pixel for a mask of bytes (``python benchmarks/mask_limits.py``).  A file claiming more pixels, or
+# more bytes of pixels (a PNG or GeoTIFF header is a few bytes), is refused before any pixel is read.
 MAX_MASK_PIXELS = 100_000_000
+MAX_MASK_BYTES = 200 << 20
 # Codes spanning less than this are counted with one bincount; wider ones with a sort.
 _BINCOUNT_SPAN = 1 << 20
 _CHUNK = 1 << 18
@@ -73,7 +81,11 @@ def _structure(connectivity: int) -> np.ndarray:
 
 
 def _checked_mask(mask: Any, source: str) -> np.ndarray:
-    """A 2-D integer array (booleans and integral floats accepted), or a one-line ImageInputError."""
+    """A 2-D integer array (booleans and integral floats accepted), or a one-line ImageInputError.
+
+    Floats are checked a strip at a time and cast to the narrowest integer type that holds their range: a
+    float mask costs no 64-bit copy of itself.
+    """
     array = np.asarray(mask)
     if array.ndim != 2:
         raise ImageInputError(f"{source}: a mask must be a 2-D image, got {array.ndim} dimensions {array.shape}")
@@ -83,9 +95,16 @@ def _checked_mask(mask: Any, source: str) -> np.ndarray:
     if array.dtype == bool:
         return array.view(np.uint8)
     if array.dtype.kind == "f":
-        if not (np.isfinite(array).all() and (array == np.round(array)).all()):
-            raise ImageInputError(f"{source}: pixels are not whole numbers; a mask holds integer class codes")
-        return array.astype(np.int64)
+        flat = array.ravel()
+        for start in range(0, flat.size, _CHUNK):
+            chunk = flat[start:start + _CHUNK]
+            if not (np.isfinite(chunk).all() and (chunk == np.round(chunk)).all()):
+                raise ImageInputError(f"{source}: pixels are not whole numbers; a mask holds integer class codes")
+        low, high = float(array.min()), float(array.max())
+        if not -2.0 ** 63 <= low <= high < 2.0 ** 63:
+            raise ImageInputError(f"{source}: class codes beyond 64-bit integers")
+        narrow = np.result_type(np.min_scalar_type(int(low)), np.min_scalar_type(int(high)))
+        return array.astype(narrow if narrow.kind in "iu" else np.int64)
     if array.dtype.kind not in "iu":
         raise ImageInputError(f"{source}: pixels of type {array.dtype}; a mask holds integer class codes")
     return array
@@ -106,38 +125,116 @@ def _code_counts(array: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return present + low, counts[present]
 
 
-def _regions(binary: np.ndarray, structure: np.ndarray, min_area: int) -> dict[str, np.ndarray]:
+def _strips(shape: tuple[int, ...]) -> Iterator[slice]:
+    """Row slices of about ``_CHUNK`` pixels each: what the region sums hold at once."""
+    rows = max(1, _CHUNK // max(shape[1], 1))
+    for start in range(0, shape[0], rows):
+        yield slice(start, start + rows)
+
+
+def _runs(block: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The runs of one label along the rows of ``block`` (2-D labels), background left out: label, row, first
+    column and column past the last of each.
+
+    A region of a mask is a few runs a row, so the sums below cost the runs, not the pixels.
+    """
+    flat = block.ravel()
+    change = np.empty(flat.size, bool)
+    change[0] = True
+    np.not_equal(flat[1:], flat[:-1], out=change[1:])
+    change[::block.shape[1]] = True  # a run ends with its row
+    starts = np.flatnonzero(change)
+    ends = np.empty_like(starts)
+    ends[:-1], ends[-1] = starts[1:], flat.size
+    ids = flat[starts]
+    labelled = ids != 0
+    starts, ends, ids = starts[labelled], ends[labelled], ids[labelled]
+    row = starts // block.shape[1]
+    return ids, row, starts - row * block.shape[1], ends - row * block.shape[1]
+
+
+def _label_areas(labelled: np.ndarray, n: int) -> np.ndarray:
+    """Pixel count of each label 1..n (index 0 unused), from the runs of a strip at a time.
+
+    A strip's labels usually span a narrow range (labels are numbered in raster order), counted with one
+    bincount over that range; a strip whose labels span far more than its runs (a region that started
+    long before, beside many new small ones) is counted with ``np.add.at``, so no strip costs O(n).
+    """
+    # 4 bytes a label while no region can hold 2**31 pixels: the count of 25 M specks takes 100 MB, not 200.
+    area: np.ndarray = np.zeros(n + 1, np.int32 if labelled.size < 2**31 else np.int64)
+    for rows in _strips(labelled.shape):
+        ids, _, first, stop = _runs(labelled[rows])
+        if ids.size == 0:
+            continue
+        low, high = int(ids.min()), int(ids.max())
+        if high - low <= 4 * ids.size:
+            area[low:high + 1] += np.bincount(ids - low, weights=stop - first, minlength=high - low + 1).astype(
+                area.dtype)
+        else:
+            np.add.at(area, ids, (stop - first).astype(area.dtype))
+    return area
+
+
+def _moments(labelled: np.ndarray, k: int) -> tuple[np.ndarray, ...]:
+    """Sums over each label 1..k of 1, x, y, x*x, y*y and x*y (pixel column and row), a strip at a time.
+
+    Each run of columns ``a .. b - 1`` adds its closed forms (``(b - a) (a + b - 1) / 2`` for x, differences
+    of ``m (m + 1) (2m + 1) / 6`` for x*x).  The sums are of whole numbers, exact in float64 below 2**53
+    whatever their order: they are the bits a sum over the pixels one by one gives.
+    """
+    sums = np.zeros((6, k + 1))
+    for rows in _strips(labelled.shape):
+        ids, row, first, stop = _runs(labelled[rows])
+        if ids.size == 0:
+            continue
+        row += rows.start
+        count = stop - first
+        sx = count * (first + stop - 1) // 2
+        sxx = _squares(stop - 1) - _squares(first - 1)
+        for i, weights in enumerate((count, sx, row * count, sxx, row * row * count, row * sx)):
+            sums[i] += np.bincount(ids, weights=weights, minlength=k + 1)
+    return tuple(sums[:, 1:])
+
+
+def _squares(m: np.ndarray) -> np.ndarray:
+    """0**2 + 1**2 + ... + m**2, for m >= -1 (0 for -1 and 0)."""
+    return m * (m + 1) * (2 * m + 1) // 6
+
+
+def _regions(binary: np.ndarray, structure: np.ndarray, min_area: int, room: int) -> dict[str, np.ndarray]:
     """Pixel centroid, area and box of each connected region of ``binary`` with at least ``min_area`` pixels.
 
-    The sums visit only the region pixels (found in the boolean image, 4 times cheaper to scan than the
-    labels), so their memory follows the objects' area, not the image's.
+    Memory is the int32 labels (4 bytes a pixel) and sums a strip of pixels at a time, so a mask of
+    :data:`MAX_MASK_PIXELS` fits in well under a gigabyte.  If more than ``room`` regions are kept, only their
+    number is returned (``{"count": ...}``): the caller refuses the mask, and nothing is spent on them.
     """
     from scipy import ndimage
 
-    labelled, n = ndimage.label(binary, structure=structure)
-    width = binary.shape[1]
-    where = np.flatnonzero(binary.ravel())
-    ids = labelled.ravel()[where]
-    rows, cols = np.divmod(where, width)
-    area = np.bincount(ids, minlength=n + 1)[1:]
-
-    def mean(weights: np.ndarray) -> np.ndarray:
-        return np.bincount(ids, weights=weights, minlength=n + 1)[1:] / area
-
+    labelled = np.empty(binary.shape, np.int32)
+    n = int(ndimage.label(binary, structure=structure, output=labelled))
+    keep = _label_areas(labelled, n) >= max(min_area, 1)
+    keep[0] = False
+    k = int(np.count_nonzero(keep))
+    if k > room:
+        return {"count": np.array(k)}
+    # Kept regions renumbered 1..k in their order (dropped ones to 0), in place, a strip at a time.
+    renumber = np.zeros(n + 1, np.int32)
+    renumber[keep] = np.arange(1, k + 1, dtype=np.int32)
+    for rows in _strips(labelled.shape):
+        labelled[rows] = renumber[labelled[rows]]
+    del renumber, keep
+    area, sx, sy, sxx, syy, sxy = _moments(labelled, k)
     with np.errstate(invalid="ignore", divide="ignore"):
-        cx, cy = mean(cols), mean(rows)
+        cx, cy = sx / area, sy / area
         # Second moments about the centroid, each pixel a unit square (its own 1/12 added): a one-pixel line
         # has a finite elongation.
-        sxx = mean(cols * cols) - cx * cx + 1.0 / 12.0
-        syy = mean(rows * rows) - cy * cy + 1.0 / 12.0
-        sxy = mean(cols * rows) - cx * cy
-        orientation, elongation = major_axes(sxx, syy, sxy)
-    # find_objects scans the labels once in C: cheaper than reducing over the pixels when objects are large.
-    bbox = np.array([(b[1].start, b[0].start, b[1].stop, b[0].stop) for b in ndimage.find_objects(labelled)],
+        orientation, elongation = major_axes(sxx / area - cx * cx + 1.0 / 12.0, syy / area - cy * cy + 1.0 / 12.0,
+                                             sxy / area - cx * cy)
+    # find_objects scans the labels once in C; with the dropped regions at 0 it lists only the k kept.
+    bbox = np.array([(b[1].start, b[0].start, b[1].stop, b[0].stop) for b in ndimage.find_objects(labelled, k)],
                     dtype=np.int64).reshape(-1, 4)
-    keep = area >= max(min_area, 1)
-    return {"x": cx[keep] + 0.5, "y": cy[keep] + 0.5, "area": area[keep], "bbox": bbox[keep],
-            "orientation": orientation[keep], "elongation": elongation[keep]}
+    return {"x": cx + 0.5, "y": cy + 0.5, "area": area.astype(np.int64), "bbox": bbox,
+            "orientation": orientation, "elongation": elongation, "count": np.array(k)}
 
 
 def major_axes(sxx: np.ndarray, syy: np.ndarray, sxy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -259,13 +356,24 @@ def from_mask(mask: np.ndarray, classes: Mapping[int, str], *, connectivity: int
     found: list[dict[str, np.ndarray]] = []
     skipped: dict[str, int] = {}
     codes, counts = _code_counts(array)
+    present = set(codes.tolist())
+    n_objects = 0
     for code, count in zip(codes.tolist(), counts.tolist(), strict=True):
         if code in classes:
-            regions = _regions(array == code, structure, min_area)
-            found.append(regions)
-            labels += [classes[code]] * regions["x"].size
+            # A mask holding only this code (and background) is its own binary image: no copy of it.
+            binary = array if present <= {0, code} else array == code
+            regions = _regions(binary, structure, min_area, room=MAX_OBJECTS - n_objects)
+            del binary
+            n_objects += int(regions["count"])
+            if n_objects <= MAX_OBJECTS:
+                found.append(regions)
+                labels += [classes[code]] * regions["x"].size
         elif code != 0:
             skipped[str(code)] = count
+    if n_objects > MAX_OBJECTS:
+        # The regions of the other classes were only counted: the message says how many there are.
+        raise ImageInputError(f"{source}: {n_objects} objects, more than the {MAX_OBJECTS} a query accepts; "
+                              "raise the minimum area")
     x, y, area, bbox, orientation, elongation = (
         np.concatenate([r[k] for r in found]) if found else np.zeros((0, 4) if k == "bbox" else 0)
         for k in ("x", "y", "area", "bbox", "orientation", "elongation"))
@@ -285,77 +393,78 @@ class Mask:
 
 
 def _open_raster(path: Path) -> Any:
-    """The file opened with rasterio, or a one-line error (missing, a directory, not an image)."""
+    """The file opened with rasterio, or a one-line error (not an image)."""
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning, RasterioIOError
 
-    if not path.exists():
-        raise MapdbIOError(f"{path}: no such mask")
-    if path.is_dir():
-        raise MapdbIOError(f"{path}: is a directory, not a mask")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             return rasterio.open(path)
     except RasterioIOError as exc:
-        message = " ".join(str(exc).split()).replace(f"'{path}'", "").replace(str(path), "").strip(": ")
-        raise ImageInputError(f"{path}: not an image that GDAL can read ({message[:160] or 'unreadable'})") from None
+        raise ImageInputError(f"{path}: not an image that GDAL can read ({_gdal_message(exc, path)})") from None
+
+
+def _gdal_message(exc: BaseException, path: Path) -> str:
+    """GDAL's own words for ``exc`` (rasterio's "see previous exception" points to its cause), without the path."""
+    cause = exc.__cause__ or exc.__context__
+    text = str(cause) if cause is not None and "previous exception" in str(exc) else str(exc)
+    text = " ".join(text.split()).replace(f"'{path}'", "").replace(str(path), "").strip(": ,")
+    return text[:160] or "unreadable"
+
+
+def _read_pixels(ds: Any, path: Path) -> np.ndarray:
+    """The one band of class codes of an open raster (identical colour bands are one, alpha is ignored)."""
+    from rasterio.windows import Window
+
+    itemsize = np.dtype(ds.dtypes[0]).itemsize
+    if ds.width * ds.height > MAX_MASK_PIXELS or ds.width * ds.height * itemsize > MAX_MASK_BYTES:
+        raise ImageInputError(f"{path}: a {ds.width}x{ds.height} mask of {ds.dtypes[0]} is more than the "
+                              f"{MAX_MASK_PIXELS:,} pixels or {MAX_MASK_BYTES >> 20} MiB read at once")
+    colour = [i for i, c in enumerate(ds.colorinterp, start=1) if c.name != "alpha"] or [1]
+    array = ds.read(colour[0])
+    if len(colour) > 1:
+        # The other bands a strip at a time, all of them at once (so that a PNG is decoded once more, not per band).
+        rows = max(1, _CHUNK // (ds.width * (len(colour) - 1)))
+        for start in range(0, ds.height, rows):
+            block = ds.read(colour[1:], window=Window(0, start, ds.width, min(rows, ds.height - start)))
+            if not (block == array[None, start:start + rows]).all():
+                raise ImageInputError(f"{path}: {len(colour)} different bands; a mask has one band of class codes")
+    return array
 
 
 def read_mask(path: str | os.PathLike[str]) -> Mask:
-    """Read a mask file (PNG, GeoTIFF, anything GDAL reads) of one band.
+    """Read a mask file (PNG, GeoTIFF, anything GDAL reads) of one band, strictly.
 
     A file of several identical bands (a grey mask saved as RGB) is read as one band; an alpha band is
-    ignored.
+    ignored.  Only a regular file is opened; a PNG must be whole up to its ``IEND`` chunk; any warning or
+    error GDAL gives while reading refuses the file (:mod:`mapdb.detections.mask_files`).  A georeference that
+    is not finite or not plausible is dropped with a :class:`~mapdb.detections.mask_files.GeorefWarning`.
 
     Raises
     ------
     MapdbIOError
-        Missing or unreadable.
+        Missing, a directory, not a regular file, or unreadable.
     ImageInputError
-        Not an image, several different bands, more than :data:`MAX_MASK_PIXELS` pixels, pixels that
-        are not whole numbers.
+        Not an image, pixels that cannot be read whole, several different bands, more than
+        :data:`MAX_MASK_PIXELS` pixels or :data:`MAX_MASK_BYTES` bytes, pixels that are not whole numbers.
     """
     from rasterio.errors import RasterioError
 
     path = Path(path)
-    with _open_raster(path) as ds:
-        if ds.width * ds.height > MAX_MASK_PIXELS:
-            raise ImageInputError(f"{path}: a {ds.width}x{ds.height} mask is more than the {MAX_MASK_PIXELS:,} "
-                                  "pixels read at once")
-        try:
-            colour = [i for i, c in enumerate(ds.colorinterp, start=1) if c.name != "alpha"] or [1]
-            array = ds.read(colour[0])
-            for band in colour[1:]:
-                if not np.array_equal(ds.read(band), array):
-                    raise ImageInputError(f"{path}: {len(colour)} different bands; a mask has one band of class "
-                                          "codes")
-        except RasterioError as exc:
-            raise ImageInputError(f"{path}: cannot read its pixels ({' '.join(str(exc).split())[:160]})") from None
-        georef = _georef(ds)
-    return Mask(_checked_mask(array, str(path)), georef)
-
-
-def _georef(ds: Any) -> dict[str, Any] | None:
-    """Where the centre of a georeferenced raster is: map x, y (its CRS), lon, lat, heading, ground size of a pixel.
-
-    ``heading_deg`` is where the image's up points, clockwise from the CRS's north (as a query answers).
-    """
-    from pyproj import CRS, Transformer
-
-    t = ds.transform
-    if ds.crs is None or t.is_identity:
-        return None
-    crs = CRS.from_user_input(ds.crs.to_wkt())
-    cx, cy = t @ (ds.width / 2.0, ds.height / 2.0)
-    lon, lat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(cx, cy)
-    authority = crs.to_authority()
-    out: dict[str, Any] = {"crs": ":".join(authority) if authority else crs.to_wkt(), "x": cx, "y": cy,
-                           "lon": lon, "lat": lat, "heading_deg": math.degrees(math.atan2(-t.b, -t.e)) % 360.0}
-    if crs.is_projected:
-        unit = crs.axis_info[0].unit_conversion_factor if crs.axis_info else 1.0
-        out["m_per_px"] = math.sqrt(abs(t.determinant)) * unit
-    return out
+    check_regular_file(path)
+    with reading(path, "mask"):
+        check_png_chunks(path)
+        with strict_gdal() as complaints, _open_raster(path) as ds:
+            try:
+                array = _read_pixels(ds, path)
+            except RasterioError as exc:
+                raise ImageInputError(f"{path}: cannot read its pixels ({_gdal_message(exc, path)})") from None
+            if complaints:
+                raise ImageInputError(f"{path}: cannot read its pixels ({complaints[0][:160]})")
+            crs = None if ds.crs is None else ds.crs.to_wkt()
+            transform, width, height = ds.transform, ds.width, ds.height
+    return Mask(_checked_mask(array, str(path)), georef(crs, transform, width, height, str(path)))
 
 
 def mask_document(path: str | os.PathLike[str], classes: Mapping[int, str] | None = None, *,
@@ -368,12 +477,13 @@ def mask_document(path: str | os.PathLike[str], classes: Mapping[int, str] | Non
     if (classes is None) == (label is None):
         raise ValueError("give either a class table or a label")
     mask = read_mask(path)
-    array = mask.array
+    array, where = mask.array, mask.georef
+    del mask  # with a label, the pixels are replaced by a boolean image: the codes are not kept beside it
     if label is not None:
         array, classes = array != 0, {1: label}
     assert classes is not None
     options.setdefault("image_id", str(path))
     doc = from_mask(array, classes, source=str(path), **options)
-    if mask.georef is not None:
-        doc["georef"] = mask.georef
+    if where is not None:
+        doc["georef"] = where
     return doc
