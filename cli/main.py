@@ -54,6 +54,9 @@ TWO_WORD_COMMANDS = {("simulate", "flight"): "flight"}
 
 # The signals that end a command cleanly, and their names in the message.
 SIGNALS: dict[int, str] = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+# The signals received during this run: an Interrupted that a library swallowed (a bare ``except:``, or one
+# raised in a ``__del__``, where Python only prints it) still ends the command with the signal's status.
+_RECEIVED: list[int] = []
 
 
 class Interrupted(KeyboardInterrupt):
@@ -85,6 +88,7 @@ def _signals_interrupt() -> Iterator[None]:
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
+        _RECEIVED.append(signum)
         for each in SIGNALS:
             signal.signal(each, _at_once)
         raise Interrupted(signum)
@@ -101,6 +105,16 @@ def _signals_interrupt() -> Iterator[None]:
             signal.signal(each, handler)
 
 
+def _interrupted(signum: int) -> None:
+    """End the process after a signal: one line, status 128 + the signal.
+
+    Every ``with`` block on the way here has removed its temporary files; outputs already renamed into place
+    are complete.
+    """
+    click.echo(f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left", err=True)
+    sys.exit(128 + signum)
+
+
 class LazyGroup(click.Group):
     """A group whose subcommands are imported on first use, and which ends every command the same way on a
     signal (:class:`Interrupted`)."""
@@ -109,20 +123,20 @@ class LazyGroup(click.Group):
 
     def main(self, args: Any = None, *rest: Any, **options: Any) -> Any:
         self._debug = "--debug" in (sys.argv[1:] if args is None else list(args))
+        _RECEIVED.clear()
         with _signals_interrupt():
             return super().main(args, *rest, **options)
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
         except KeyboardInterrupt as exc:  # Interrupted, or a KeyboardInterrupt raised outside our handler
-            signum = getattr(exc, "signum", signal.SIGINT)
             if self._debug:
                 traceback.print_exc()
-            # Every block on the way here has removed its temporary files; outputs already renamed into place
-            # are complete.
-            click.echo(f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left", err=True)
-            sys.exit(128 + signum)
+            _interrupted(getattr(exc, "signum", signal.SIGINT))
+        if _RECEIVED:  # the Interrupted was swallowed on its way and the command went on to its end
+            _interrupted(_RECEIVED[0])
+        return result
 
     def resolve_command(self, ctx: click.Context, args: list[str]):
         module = TWO_WORD_COMMANDS.get((args[0], args[1])) if len(args) >= 2 else None

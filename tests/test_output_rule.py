@@ -24,6 +24,7 @@ import resource
 import signal
 import subprocess
 import sys
+import textwrap
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -376,3 +377,32 @@ def test_the_cli_modules_import_each_other_one_way() -> None:
         return any(n == goal or (n not in seen and reaches(n, goal, seen | {n})) for n in graph.get(start, ()))
 
     assert [name for name in graph if reaches(name, name, set())] == []
+
+
+def test_a_signal_a_library_swallows_still_ends_with_its_status(tmp_path: Path) -> None:
+    # Python runs a signal handler between any two bytecodes: in a bare ``except:`` of a library or a ``__del__``,
+    # the Interrupted it raises is lost and the command goes on.  It still ends with 143, after its work.
+    code = textwrap.dedent("""
+        import importlib.machinery, os, signal, sys, time, types
+        import click
+        import mapdb_cli.main as main
+
+        @click.command()
+        def swallow():
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(5)
+            except BaseException:  # what some libraries do
+                pass
+            click.echo("went on")
+
+        module = types.ModuleType("mapdb_cli.swallow")
+        module.__spec__ = importlib.machinery.ModuleSpec("mapdb_cli.swallow", None)
+        module.swallow = swallow
+        sys.modules["mapdb_cli.swallow"] = module
+        main.COMMANDS["swallow"] = "A command whose library swallows the interruption."
+        main.cli(["swallow"])
+    """)
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert (done.returncode, done.stdout) == (143, "went on\n")
+    assert done.stderr == "mapdb: interrupted by SIGTERM; no partial output left\n"
