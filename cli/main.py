@@ -74,12 +74,26 @@ def _at_once(signum: int, frame: Any) -> None:
     os._exit(128 + signum)
 
 
+def _after_the_command(signum: int, frame: Any) -> None:
+    """A signal once the command has returned, while the interpreter shuts down (a second or more on a busy
+    machine): every output is complete; end with the signal's status and line rather than die by it."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os.write(2, f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left\n".encode())
+    os._exit(128 + signum)
+
+
 @contextmanager
-def _signals_interrupt() -> Iterator[None]:
+def _signals_interrupt(process: bool) -> Iterator[None]:
     """While the block runs, SIGINT and SIGTERM raise :class:`Interrupted` in this process.
 
     A worker forked from it (``fork`` process pools) inherits the handler: there the signal ends the worker as
     it would by default, and this process, which got the signal too or sees its pool broken, cleans up.
+    ``process``: the command is the process (``mapdb ...``), which ends after the block: a signal then exits
+    at once (:func:`_after_the_command`); otherwise (a caller's ``cli([...])``) the caller's handlers return.
     """
     owner = os.getpid()
 
@@ -102,7 +116,7 @@ def _signals_interrupt() -> Iterator[None]:
         yield
     finally:
         for each, handler in previous.items():
-            signal.signal(each, handler)
+            signal.signal(each, _after_the_command if process else handler)
 
 
 def _interrupted(signum: int) -> None:
@@ -124,7 +138,7 @@ class LazyGroup(click.Group):
     def main(self, args: Any = None, *rest: Any, **options: Any) -> Any:
         self._debug = "--debug" in (sys.argv[1:] if args is None else list(args))
         _RECEIVED.clear()
-        with _signals_interrupt():
+        with _signals_interrupt(process=args is None):
             return super().main(args, *rest, **options)
 
     def invoke(self, ctx: click.Context) -> Any:

@@ -406,3 +406,22 @@ def test_a_signal_a_library_swallows_still_ends_with_its_status(tmp_path: Path) 
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert (done.returncode, done.stdout) == (143, "went on\n")
     assert done.stderr == "mapdb: interrupted by SIGTERM; no partial output left\n"
+
+
+def test_a_signal_after_the_command_while_python_shuts_down_ends_with_its_status(world: dict[str, Path],
+                                                                                 tmp_path: Path) -> None:
+    # The command is done (its output complete); the signal comes while the interpreter shuts down (an atexit
+    # hook stands for a slow shutdown on a busy machine): the same status and line, not a death by the signal.
+    code = textwrap.dedent("""
+        import atexit, os, signal, sys, time
+        atexit.register(lambda: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(5)))
+        sys.argv = ["mapdb", "info", sys.argv[1], "--json"]
+        from mapdb_cli.main import cli
+        cli()
+    """)
+    done = subprocess.run([sys.executable, "-c", code, str(world["paper"])], capture_output=True, text=True,
+                          timeout=60, cwd=tmp_path)
+    assert done.returncode == 143
+    with open_map(world["paper"]) as m:
+        assert json.loads(done.stdout)["objects"] == len(m.all())  # written whole before the signal
+    assert done.stderr == "mapdb: interrupted by SIGTERM; no partial output left\n"
