@@ -112,11 +112,25 @@ def _signals_interrupt(process: bool) -> Iterator[None]:
     except ValueError:  # not the main thread (a program running the CLI in a thread): its handlers stay
         yield
         return
+    hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_about_interrupts(hook)
     try:
         yield
     finally:
+        sys.unraisablehook = hook
         for each, handler in previous.items():
             signal.signal(each, _after_the_command if process else handler)
+
+
+def _quiet_about_interrupts(hook: Any) -> Any:
+    """``sys.unraisablehook`` that says nothing of an :class:`Interrupted` raised where Python cannot pass it on
+    (a ``__del__``, a weakref callback): Python would print its traceback; the command ends with its one line."""
+
+    def unraisable(report: Any) -> None:
+        if not isinstance(report.exc_value, Interrupted):
+            hook(report)
+
+    return unraisable
 
 
 def _interrupted(signum: int) -> None:
