@@ -10,8 +10,10 @@ from mapdb.analysis.outputs import output_folder, write_outputs
 from mapdb.analysis.run import execute, plan
 from mapdb.cluster import DEFAULT_TIMEOUT_S, open_client
 from mapdb.match.index.stored import index_path
+from mapdb.outputs import output_errors
 
 from .options import (
+    MAX_PRIOR_RADIUS,
     camera_options,
     debug_option,
     detector_error_options,
@@ -22,7 +24,6 @@ from .options import (
     progress_printer,
     quiet_option,
 )
-from .simulate import MAX_PRIOR_RADIUS
 
 
 def _labels(value: str | None) -> tuple[str, ...] | None:
@@ -87,6 +88,7 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
         planned = plan(map_file, configs, cell_m=cell_m, bbox=bbox_values, progress=say)
         with open_client(jobs, scheduler, timeout_s) as client:
             analyses = execute(planned, client, say)
-        written = write_outputs(folder, analyses)
+        with output_errors(outdir):  # a full disk names OUTDIR/analysis.png, not the folder's temporary name
+            written = write_outputs(folder, analyses)
     if say:
         say(f"{', '.join(written)} -> {outdir}")

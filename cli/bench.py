@@ -10,21 +10,24 @@ import click
 from mapdb.evaluation.paper_bench import bench_paper, format_bench
 from mapdb.evaluation.storage import DEFAULT_GSD_M, DEFAULT_JPEG_BPP, format_storage, storage_reports
 from mapdb.mapfile.writer import write_map
-from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
+from mapdb.outputs import dumps_strict
 from mapdb.simulation.simulate import paper_map
 
 from .options import (
+    MAX_PRIOR_RADIUS,
+    MAX_SPURIOUS_RATE,
     TerminalProgress,
+    check_paths,
     debug_option,
     finite_float,
     handle_errors,
     json_option,
     overwrite_option,
     parents_option,
+    parse_yaw,
     progress_printer,
     quiet_option,
 )
-from .simulate import MAX_PRIOR_RADIUS, MAX_SPURIOUS_RATE, parse_yaw
 
 
 @click.group()
@@ -67,8 +70,7 @@ def paper(n_images, paper_images, budget, cases, yaw, miss_rate, spurious_rate, 
         raise click.BadParameter(f"{cases!r} is not a list of case numbers", param_hint="--cases") from None
     if not chosen or not set(chosen) <= {1, 2, 3, 4, 5}:
         raise click.BadParameter(f"{cases!r}: cases are numbered 1 to 5", param_hint="--cases")
-    check_outputs([save_map], [], parents=parents)
-    refuse_existing(save_map, overwrite)
+    check_paths([save_map], [], overwrite=overwrite, parents=parents, what="map")
     if save_map:
         write_map(save_map, paper_map(seed=map_seed), metadata={"description": "paper Table 1 map"})
     result = bench_paper(n=n_images, paper_images=paper_images, budget_s=budget or None, cases=chosen, yaw=yaw,

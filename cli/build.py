@@ -6,12 +6,13 @@ import click
 
 from mapdb.build.pipeline import SPOOL_CHOICES, build_map
 from mapdb.mapfile.layout import DEFAULT_QUANTUM
-from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
+from mapdb.outputs import dumps_strict
 from mapdb.sources import DEFAULT_MIN_AREA_M2
 from mapdb.sources.osm.index import NODE_INDEXES
 
 from .options import (
     bbox_option,
+    check_paths,
     debug_option,
     finite_float,
     handle_errors,
@@ -80,8 +81,7 @@ def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_
     """
     if jobs is not None and scheduler is not None:
         raise click.UsageError("give --jobs (a local cluster) or --scheduler (an existing one), not both")
-    check_outputs([output], [*sources, labels_file, label_map], parents=parents)
-    refuse_existing(output, overwrite)
+    check_paths([output], [*sources, labels_file, label_map], overwrite=overwrite, parents=parents, what="map")
     summary = build_map(sources, output, labels=labels_file, crs=crs, bbox=bbox, quantum=quantum,
                         raster_classes=raster_classes, min_area_m2=min_area, label_column=label_column,
                         layer_crs=layer_crs, label=layer_label, label_map=label_map, node_index=node_index,

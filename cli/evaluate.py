@@ -9,16 +9,19 @@ import click
 from mapdb.evaluation.evaluate import DEFAULT_FP_THRESHOLD_M, evaluate_images, format_summary, load_images
 from mapdb.evaluation.evaluation_plot import plot_evaluation
 from mapdb.mapfile.reader import open_map
-from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
+from mapdb.outputs import atomic_open, atomic_path, dumps_strict
 
 from .options import (
+    check_paths,
     debug_option,
     finite_float,
     handle_errors,
     json_option,
+    overwrite_option,
     parents_option,
     progress_printer,
     quiet_option,
+    with_index,
 )
 
 
@@ -47,20 +50,21 @@ def parse_plot(ctx: click.Context | None, param: click.Parameter | None, value: 
               help="Save the error distribution and a map of image positions coloured by outcome.")
 @click.option("--outcomes", "outcomes_file", type=click.Path(), default=None, metavar="FILE.jsonl",
               help="Also write one line per image: status, position, error, time.")
+@overwrite_option
 @parents_option
 @json_option
 @quiet_option
 @debug_option
 @handle_errors
-def evaluate(map_file, images_file, method, jobs, fp_threshold, plot_file, outcomes_file, parents, as_json, quiet,
-             debug):
+def evaluate(map_file, images_file, method, jobs, fp_threshold, plot_file, outcomes_file, overwrite, parents, as_json,
+             quiet, debug):
     """Localize every image of IMAGES.jsonl (from `mapdb simulate`) in MAP and measure the answers.
 
     Reports the RMS, median and 95th-percentile error of correct answers, the fraction rejected, false
     positives (accepted with error above --fp-threshold) as a fraction of accepted, the error of the fit
     with the true correspondences (the bound), and time per image.
     """
-    check_outputs([outcomes_file, plot_file], [map_file, images_file], parents=parents)
+    check_paths([outcomes_file, plot_file], [*with_index(map_file), images_file], overwrite=overwrite, parents=parents)
     images = load_images(images_file)
     with open_map(map_file) as m:
         outcomes, summary = evaluate_images(m, images, method=method, jobs=jobs, fp_threshold=fp_threshold,

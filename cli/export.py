@@ -6,9 +6,8 @@ import click
 
 from mapdb.mapfile.export import EXPORT_CRS, LONLAT_CRS, default_export_crs, export_map
 from mapdb.mapfile.reader import open_map
-from mapdb.outputs import check_outputs
 
-from .options import bbox_option, debug_option, handle_errors, parents_option
+from .options import bbox_option, check_paths, debug_option, handle_errors, overwrite_option, parents_option
 
 
 @click.command()
@@ -21,16 +20,18 @@ from .options import bbox_option, debug_option, handle_errors, parents_option
                    ".parquet, which name their CRS.  A .geojson in the map CRS is not RFC 7946 (GDAL and "
                    "QGIS read its 'crs' member, web tools assume lon/lat).  CSV always has x,y and lon,lat.")
 @bbox_option
+@overwrite_option
 @parents_option
 @debug_option
 @handle_errors
-def export(map_file, output, crs, bbox, parents, debug):
+def export(map_file, output, crs, bbox, overwrite, parents, debug):
     """Export a map's objects as points with their label and area (m2).
 
     Every format also keeps each object's position in the map's CRS (columns x, y, exact to the
-    map's quantum).  OUTPUT's directory must exist unless --parents is given.
+    map's quantum).  An existing OUTPUT is replaced only with --overwrite; its directory must exist unless
+    --parents is given.
     """
-    check_outputs([output], [map_file], parents=parents)
+    check_paths([output], [map_file], overwrite=overwrite, parents=parents)
     crs = crs or default_export_crs(output)
     with open_map(map_file) as m:
         n = export_map(m, output, bbox, crs=crs, parents=parents)

@@ -7,11 +7,25 @@ import click
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.path import read_linestring
-from mapdb.outputs import check_outputs
 from mapdb.simulation.documents import write_images
 
-from .options import debug_option, finite, finite_float, handle_errors, parents_option, progress_printer, quiet_option
-from .simulate import MAX_ATTITUDE_STD, MAX_PIXEL_STD, MAX_SPURIOUS_RATE, parse_fov, parse_size, rate
+from .options import (
+    MAX_ATTITUDE_STD,
+    MAX_PIXEL_STD,
+    MAX_SPURIOUS_RATE,
+    check_paths,
+    debug_option,
+    finite,
+    finite_float,
+    handle_errors,
+    overwrite_option,
+    parents_option,
+    parse_fov,
+    parse_size,
+    progress_printer,
+    quiet_option,
+    rate,
+)
 
 
 def parse_windows(ctx: click.Context | None, param: click.Parameter | None, values: tuple[str, ...]):
@@ -79,13 +93,14 @@ std = finite_float(0.0, 1e4)
 @click.option("--map-gap", "map_gaps", multiple=True, callback=parse_windows, metavar="START:SECONDS",
               help="Mark frames from START for SECONDS as map-withheld: navigate does not query the map there.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same flight.")
+@overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size, turn_radius, pixel_std, miss_rate,
            spurious_rate, label_noise, attitude_std, turbulence, heading_bias, baro_std, baro_bias, imu_std, imu_bias,
-           blackouts, map_gaps, seed, parents, quiet, debug):
+           blackouts, map_gaps, seed, overwrite, parents, quiet, debug):
     """Simulate a flight over MAP: one frame document per line (JSON Lines).
 
     Each frame is a `mapdb query` image (objects, camera, attitude, altitude_m) with the autopilot's
@@ -94,7 +109,7 @@ def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size,
     """
     if isinstance(fov, tuple):
         raise click.BadParameter("give one field of view, not a range", param_hint="'--fov'")
-    check_outputs([output], [map_file, path_file], parents=parents)
+    check_paths([output], [map_file, path_file], overwrite=overwrite, parents=parents)
     options = FlightOptions(
         length_m=length, speed_mps=speed, fps=fps, altitude_m=altitude, fov_deg=fov, size=size,
         turn_radius_m=turn_radius, pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate,

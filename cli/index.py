@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import click
 
-from .options import debug_option, handle_errors, json_option, progress_printer, quiet_option
+from .options import (
+    check_paths,
+    debug_option,
+    handle_errors,
+    json_option,
+    overwrite_option,
+    progress_printer,
+    quiet_option,
+)
 
 
 @click.command()
@@ -13,26 +21,28 @@ from .options import debug_option, handle_errors, json_option, progress_printer,
 @click.option("--neighbours", default=8, show_default=True, type=click.IntRange(3, 12),
               help="Neighbours per object in the quads (the fast matcher's map_neighbours).")
 @click.option("--workers", type=click.IntRange(1, 64), help="Processes generating quads [default: up to 2].")
+@overwrite_option
 @json_option
 @quiet_option
 @debug_option
 @handle_errors
-def index(map_file, output, neighbours, workers, as_json, quiet, debug):
+def index(map_file, output, neighbours, workers, overwrite, as_json, quiet, debug):
     """Build a map's lost-in-space quad index (a checksummed file beside the map).
 
     Lookups without a prior then read the index (memory-mapped, opened in milliseconds) instead of
     building one in memory.  The index records which map it was built from and is refused for any
-    other, or for the map once rewritten: rebuild it then.  An existing index is replaced.
+    other, or for the map once rewritten: rebuild it then.  An existing index (or OUTPUT) is replaced only
+    with --overwrite.
     """
     from mapdb.match.index.stored import build_index, index_path
     from mapdb.outputs import dumps_strict
 
-    summary = build_index(map_file, output, neighbours=neighbours, workers=workers,
-                          progress=progress_printer(quiet))
+    target = output or index_path(map_file)
+    check_paths([target], [map_file], overwrite=overwrite, what="index")
+    summary = build_index(map_file, target, neighbours=neighbours, workers=workers, progress=progress_printer(quiet))
     if as_json:
         click.echo(dumps_strict(summary))
         return
-    target = output or index_path(map_file)
     click.echo(f"{target}: {summary['quads']} quads of {summary['objects']} objects ({summary['neighbours']} "
                f"neighbours), {summary['cells']} cells, {summary['bytes']} bytes "
                f"({summary['bytes'] / max(summary['objects'], 1):.0f} bytes/object), {summary['seconds']:.1f} s")

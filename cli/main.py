@@ -2,12 +2,26 @@
 
 Command modules are imported only when their command runs: ``mapdb --help`` and ``mapdb --version``
 import neither numpy nor scipy, so a caller that starts the CLI per image pays milliseconds, not a second.
+
+Signals are handled here, once for every command: SIGINT (Ctrl-C) and SIGTERM raise :class:`Interrupted` in
+the command, so that every ``with`` block on the way out removes its temporary files (an output is written to
+a temporary file and renamed only when complete), then the process ends with one line on stderr and the
+shell's status, 128 + the signal's number: 130 for SIGINT, 143 for SIGTERM.  A second signal while that
+unwinding runs ends the process at once (the same status); a temporary file it leaves is removed by the next
+run that writes the same output.
 """
 
 from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
+import signal
+import sys
+import traceback
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
 
 import click
 
@@ -38,8 +52,119 @@ COMMANDS = {
 TWO_WORD_COMMANDS = {("simulate", "flight"): "flight"}
 
 
+# The signals that end a command cleanly, and their names in the message.
+SIGNALS: dict[int, str] = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+# The signals received during this run: an Interrupted that a library swallowed (a bare ``except:``, or one
+# raised in a ``__del__``, where Python only prints it) still ends the command with the signal's status.
+_RECEIVED: list[int] = []
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived: raised where the command was, unwinding it like Ctrl-C (library code that
+    cleans up on ``KeyboardInterrupt`` does so for SIGTERM too)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _at_once(signum: int, frame: Any) -> None:
+    """A second signal while the first is unwinding: stop now."""
+    os.write(2, f"mapdb: interrupted again by {SIGNALS.get(signum, signum)}; stopped at once\n".encode())
+    os._exit(128 + signum)
+
+
+def _after_the_command(signum: int, frame: Any) -> None:
+    """A signal once the command has returned, while the interpreter shuts down (a second or more on a busy
+    machine): every output is complete; end with the signal's status and line rather than die by it."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os.write(2, f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left\n".encode())
+    os._exit(128 + signum)
+
+
+@contextmanager
+def _signals_interrupt(process: bool) -> Iterator[None]:
+    """While the block runs, SIGINT and SIGTERM raise :class:`Interrupted` in this process.
+
+    A worker forked from it (``fork`` process pools) inherits the handler: there the signal ends the worker as
+    it would by default, and this process, which got the signal too or sees its pool broken, cleans up.
+    ``process``: the command is the process (``mapdb ...``), which ends after the block: a signal then exits
+    at once (:func:`_after_the_command`); otherwise (a caller's ``cli([...])``) the caller's handlers return.
+    """
+    owner = os.getpid()
+
+    def interrupt(signum: int, frame: Any) -> None:
+        if os.getpid() != owner:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        _RECEIVED.append(signum)
+        for each in SIGNALS:
+            signal.signal(each, _at_once)
+        raise Interrupted(signum)
+
+    try:
+        previous = {each: signal.signal(each, interrupt) for each in SIGNALS}
+    except ValueError:  # not the main thread (a program running the CLI in a thread): its handlers stay
+        yield
+        return
+    hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_about_interrupts(hook)
+    try:
+        yield
+    finally:
+        sys.unraisablehook = hook
+        for each, handler in previous.items():
+            signal.signal(each, _after_the_command if process else handler)
+
+
+def _quiet_about_interrupts(hook: Any) -> Any:
+    """``sys.unraisablehook`` that says nothing of an :class:`Interrupted` raised where Python cannot pass it on
+    (a ``__del__``, a weakref callback): Python would print its traceback; the command ends with its one line."""
+
+    def unraisable(report: Any) -> None:
+        if not isinstance(report.exc_value, Interrupted):
+            hook(report)
+
+    return unraisable
+
+
+def _interrupted(signum: int) -> None:
+    """End the process after a signal: one line, status 128 + the signal.
+
+    Every ``with`` block on the way here has removed its temporary files; outputs already renamed into place
+    are complete.
+    """
+    click.echo(f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left", err=True)
+    sys.exit(128 + signum)
+
+
 class LazyGroup(click.Group):
-    """A group whose subcommands are imported on first use."""
+    """A group whose subcommands are imported on first use, and which ends every command the same way on a
+    signal (:class:`Interrupted`)."""
+
+    _debug = False
+
+    def main(self, args: Any = None, *rest: Any, **options: Any) -> Any:
+        self._debug = "--debug" in (sys.argv[1:] if args is None else list(args))
+        _RECEIVED.clear()
+        with _signals_interrupt(process=args is None):
+            return super().main(args, *rest, **options)
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            result = super().invoke(ctx)
+        except KeyboardInterrupt as exc:  # Interrupted, or a KeyboardInterrupt raised outside our handler
+            if self._debug:
+                traceback.print_exc()
+            _interrupted(getattr(exc, "signum", signal.SIGINT))
+        if _RECEIVED:  # the Interrupted was swallowed on its way and the command went on to its end
+            _interrupted(_RECEIVED[0])
+        return result
 
     def resolve_command(self, ctx: click.Context, args: list[str]):
         module = TWO_WORD_COMMANDS.get((args[0], args[1])) if len(args) >= 2 else None

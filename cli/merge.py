@@ -5,9 +5,17 @@ from __future__ import annotations
 import click
 
 from mapdb.build.merge import merge_maps
-from mapdb.outputs import check_outputs, dumps_strict, refuse_existing
+from mapdb.outputs import dumps_strict
 
-from .options import debug_option, handle_errors, overwrite_option, parents_option, progress_printer, quiet_option
+from .options import (
+    check_paths,
+    debug_option,
+    handle_errors,
+    overwrite_option,
+    parents_option,
+    progress_printer,
+    quiet_option,
+)
 
 
 @click.command()
@@ -26,9 +34,9 @@ def merge(maps, output, crs, overwrite, parents, quiet, debug):
     An object held by several maps (the same label at the same stored position; within one quantum for
     a map reprojected to the output CRS) is kept once, from the first map that holds it.  The maps must
     share the quantum and the label table.  The header keeps every map's sources.  Prints a JSON summary.
+    A map given twice (the same file, or the same SHA-256) is read once, with a warning.
     """
-    check_outputs([output], list(maps), parents=parents)
-    refuse_existing(output, overwrite)
+    check_paths([output], list(maps), overwrite=overwrite, parents=parents, what="map")
     summary = merge_maps(maps, output, crs=crs, progress=progress_printer(quiet))
     for warning in summary["warnings"]:
         click.echo(f"mapdb: warning: {warning}", err=True)

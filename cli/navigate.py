@@ -11,10 +11,19 @@ from mapdb.detections.images import read_image_documents
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
 from mapdb.navigation.track import plot_track, track_geojson
-from mapdb.outputs import atomic_open, atomic_path, check_outputs, dumps_strict
+from mapdb.outputs import atomic_open, atomic_path, dumps_strict
 
 from .evaluate import parse_plot
-from .options import debug_option, finite_float, handle_errors, parents_option, quiet_option
+from .options import (
+    check_paths,
+    debug_option,
+    finite_float,
+    handle_errors,
+    overwrite_option,
+    parents_option,
+    quiet_option,
+    with_index,
+)
 from .query import LONLAT, _stdin_file, checked_prior, parse_prior, parse_prior_crs
 
 
@@ -51,12 +60,13 @@ def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float
 @click.option("--attitude-std", type=finite_float(0.0, 10.0), default=NavigatorOptions.attitude_std,
               show_default=True, help="Accuracy of the frames' roll, pitch and yaw, degrees.")
 @click.option("--seed", type=int, default=0, show_default=True, help="The filter's random draws.")
+@overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, initial_crs, particles, attitude_std,
-             seed, parents, quiet, debug):
+             seed, overwrite, parents, quiet, debug):
     """Navigate the frames of FLIGHT.jsonl ('-' for stdin) over MAP: one track record per frame.
 
     A particle filter fuses the velocity from frame to frame with absolute fixes (the answer and its
@@ -66,8 +76,9 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     read.  A bad frame (out of time order, no objects, a NaN sensor) is answered with its reason; only a
     file that cannot be read at all is an error.
     """
-    check_outputs([output, geojson_file, plot_file],
-                  [map_file, _stdin_file() if flight_file == "-" else flight_file], parents=parents)
+    check_paths([output, geojson_file, plot_file],
+                [*with_index(map_file), _stdin_file() if flight_file == "-" else flight_file], overwrite=overwrite,
+                parents=parents)
     options = NavigatorOptions(particles=particles, attitude_std=attitude_std, seed=seed)
     records = []
     with open_map(map_file) as m:

@@ -11,9 +11,18 @@ import click
 
 from mapdb.detections.masks import DEFAULT_MIN_AREA_PX
 from mapdb.errors import MapdbError
-from mapdb.outputs import atomic_open, check_outputs
+from mapdb.outputs import atomic_open
 
-from .options import debug_option, finite, finite_float, handle_errors, parents_option, quiet_option
+from .options import (
+    check_paths,
+    debug_option,
+    finite,
+    finite_float,
+    handle_errors,
+    overwrite_option,
+    parents_option,
+    quiet_option,
+)
 
 
 def parse_attitude(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
@@ -58,12 +67,13 @@ def _write(out: Any, doc: dict[str, Any]) -> int:
               help="The images (id, width, height) of a --coco file that is a bare list of detections.")
 @click.option("--min-score", type=finite_float(), default=0.0, show_default=True,
               help="COCO detections scoring less are skipped (counted in skipped_low_score).")
+@overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def objects(masks, output, classes_file, label, labels_file, connectivity, min_area, fov, attitude, altitude,
-            coco_file, coco_images, min_score, parents, quiet, debug):
+            coco_file, coco_images, min_score, overwrite, parents, quiet, debug):
     """Image objects from segmentation masks (PNG, GeoTIFF) and COCO detections, one JSON document per line.
 
     Each connected region of a class of at least --min-area pixels becomes one object at the
@@ -91,7 +101,8 @@ def objects(masks, output, classes_file, label, labels_file, connectivity, min_a
         raise click.UsageError("masks need --classes FILE.toml (class codes to labels) or --label NAME (0/255 masks)")
     if coco_file and classes_file is None:
         raise click.UsageError("--coco needs --classes FILE.toml (category ids or names to labels)")
-    check_outputs([output], [*masks, classes_file, labels_file, coco_file, coco_images], parents=parents)
+    check_paths([output], [*masks, classes_file, labels_file, coco_file, coco_images], overwrite=overwrite,
+                parents=parents)
     table = load_label_table(labels_file)
     classes = None if classes_file is None else load_class_table(classes_file, table.labels)
     if label is not None:

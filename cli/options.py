@@ -16,13 +16,13 @@ import math
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import click
 
 from mapdb.errors import MapdbError
-from mapdb.outputs import LineProgress, Progress
+from mapdb.outputs import LineProgress, Progress, check_outputs
 
 
 class FiniteFloat(click.FloatRange):
@@ -53,7 +53,9 @@ def finite(text: str) -> float:
 
 
 debug_option = click.option("--debug", is_flag=True, help="Show tracebacks for errors.")
-overwrite_option = click.option("--overwrite", is_flag=True, help="Replace the output file if it exists.")
+overwrite_option = click.option("--overwrite", is_flag=True,
+                                help="Replace existing outputs (never an input); without it an existing output is "
+                                     "refused before any work.")
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of a table.")
 quiet_option = click.option("--quiet", "-q", is_flag=True, help="No progress messages on stderr.")
 parents_option = click.option("--parents", is_flag=True,
@@ -80,6 +82,25 @@ def parse_bbox(ctx: click.Context | None, param: click.Parameter | None, value: 
 bbox_option = click.option(
     "--bbox", callback=parse_bbox, metavar="MINLON,MINLAT,MAXLON,MAXLAT", help="Clip to this lon/lat box."
 )
+
+
+def check_paths(outputs: Iterable[str | os.PathLike[str] | None], inputs: Iterable[str | os.PathLike[str] | None],
+                *, overwrite: bool, parents: bool = False, what: str = "file") -> None:
+    """The output rule of every command, applied before any work (:func:`mapdb.outputs.check_outputs`).
+
+    An output that is one of ``inputs`` is refused even with ``--overwrite``; an existing output is refused
+    without it (``OUT: exists; pass --overwrite to replace this WHAT``); ``-`` (stdout) and character
+    devices (``/dev/null``) are exempt; the outputs' directories are made (``--parents``) only once every
+    check has passed.
+    """
+    check_outputs(outputs, inputs, parents=parents, overwrite=overwrite, what=what)
+
+
+def with_index(map_file: str) -> list[str]:
+    """A map and its quad index (``MAP.qidx``, read by lost-in-space lookups): inputs no output may replace."""
+    from mapdb.match.index.layout import index_path
+
+    return [map_file, str(index_path(map_file))]
 
 
 def fail(message: str) -> None:
@@ -109,10 +130,8 @@ def handle_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             if debug:
                 raise
             fail(str(exc) or exc.__class__.__name__)
-        except KeyboardInterrupt:
-            if debug:
-                raise
-            fail("interrupted")
+        # KeyboardInterrupt (SIGINT, and SIGTERM as cli.main raises it) passes on to cli.main, which ends the
+        # process with 130 or 143 once every ``with`` block has removed its temporary files.
         finally:
             _abandon_bars()  # a traceback under --debug must not leave the terminal's cursor hidden
 
@@ -222,8 +241,60 @@ def progress_printer(quiet: bool) -> Progress | None:
 
 
 # ------------------------------------------------------------------------------ camera and detector options
-# Shared by the commands that simulate images (``mapdb simulate``'s definitions: the same parsers, ranges and
-# help); the parsers and limits still live in cli/simulate.py and are imported when a command is defined.
+# The parsers, limits and options of the commands that simulate images (``simulate``, ``simulate flight``,
+# ``analyze``, ``bench paper``): defined here, so that every command module imports this one and none another.
+
+rate = finite_float(0.0, 1.0)
+# Past these the simulation means nothing, and huge values only cost memory or overflow.
+MAX_SPURIOUS_RATE = 100.0
+MAX_ATTITUDE_STD = 90.0
+MAX_PRIOR_RADIUS = 2.0e7  # half the Earth's circumference, metres
+MAX_PIXEL_STD = 1.0e6
+MAX_MASK_NOISE_PX = 1000.0
+
+
+def parse_range(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
+    """``"100"`` -> 100.0; ``"60:400"`` -> (60.0, 400.0), drawn uniformly per image."""
+    if value is None:
+        return None
+    try:
+        parts = [finite(v) for v in value.split(":")]
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not a finite number or LOW:HIGH") from None
+    if len(parts) == 1 and parts[0] > 0:
+        return parts[0]
+    if len(parts) == 2 and 0 < parts[0] <= parts[1]:
+        return (parts[0], parts[1])
+    raise click.BadParameter(f"{value!r} must be a positive number or LOW:HIGH with 0 < LOW <= HIGH")
+
+
+def parse_fov(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
+    """Like :func:`parse_range`, and below 180 degrees."""
+    fov = parse_range(ctx, param, value)
+    if fov is not None and max(fov if isinstance(fov, tuple) else (fov,)) >= 180.0:
+        raise click.BadParameter(f"{value!r}: a field of view must be below 180 degrees")
+    return fov
+
+
+def parse_size(ctx: click.Context | None, param: click.Parameter | None, value: str):
+    """``"640x480"`` -> (640, 480)."""
+    try:
+        w, h = (int(v) for v in value.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not WIDTHxHEIGHT (e.g. 640x480)") from None
+    if w <= 0 or h <= 0:
+        raise click.BadParameter(f"{value!r}: width and height must be positive")
+    return w, h
+
+
+def parse_yaw(ctx: click.Context | None, param: click.Parameter | None, value: str):
+    """Finite degrees, or ``"random"``."""
+    if value.lower() == "random":
+        return "random"
+    try:
+        return finite(value)
+    except ValueError:
+        raise click.BadParameter(f"{value!r} is not finite degrees or 'random'") from None
 
 
 def _stack(options: list[Callable[..., Any]]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
@@ -253,8 +324,6 @@ def camera_options(altitude: str = "100", fov: str = "35", *,
                    ranges: bool = True) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """``--altitude``, ``--fov`` and ``--size`` with these defaults; ``ranges`` allows ``LOW:HIGH`` drawn per
     image."""
-    from .simulate import parse_fov, parse_range, parse_size
-
     drawn = ", or LOW:HIGH drawn per image" if ranges else ""
     return _stack([
         click.option("--altitude", default=altitude, callback=parse_range if ranges else _one_value(parse_range),
@@ -268,8 +337,6 @@ def camera_options(altitude: str = "100", fov: str = "35", *,
 def detector_error_options(attitude_std: float = 0.0,
                            pixel_std: float = 0.0) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """``--attitude-std``, ``--pixel-std``, ``--miss-rate``, ``--spurious-rate``, ``--label-noise``."""
-    from .simulate import MAX_ATTITUDE_STD, MAX_PIXEL_STD, MAX_SPURIOUS_RATE, rate
-
     return _stack([
         click.option("--attitude-std", type=finite_float(0.0, MAX_ATTITUDE_STD), default=attitude_std,
                      show_default=True, help="Roll and pitch error std, degrees."),

@@ -15,16 +15,19 @@ from mapdb.localize.batch import localize_documents
 from mapdb.localize.localizer import METHODS
 from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions
-from mapdb.outputs import atomic_open, check_outputs
+from mapdb.outputs import atomic_open
 
 from .options import (
     TerminalProgress,
+    check_paths,
     debug_option,
     finite_float,
     handle_errors,
+    overwrite_option,
     parents_option,
     progress_printer,
     quiet_option,
+    with_index,
 )
 
 # What --prior-crs gives for a geographic WGS 84 CRS (EPSG:4326, OGC:CRS84, ...): X,Y are lon,lat.
@@ -119,11 +122,12 @@ def _stdin_file() -> str | None:
 @click.option("--min-score", type=finite_float(0.0, 300.0), default=-FastOptions().log10_epsilon, show_default=True,
               help="Accept an answer only above this score (-log10 of its expected false alarms; the default "
                    "was calibrated on real places not in the map, see the README).")
+@overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
-def query(map_file, images_file, output, method, prior, prior_crs, min_score, parents, quiet, debug):
+def query(map_file, images_file, output, method, prior, prior_crs, min_score, overwrite, parents, quiet, debug):
     """Localize every image of IMAGES (JSON Lines; '-' for stdin) in MAP.
 
     Writes one JSON answer per image, in input order: status "ok" with the position (map CRS and
@@ -141,14 +145,15 @@ def query(map_file, images_file, output, method, prior, prior_crs, min_score, pa
     Streaming: input is read line by line and each answer is written (to stdout, flushed) before the
     next line is read, so a process can feed frames through a pipe one at a time.  With -o the
     answers go to a temporary file renamed to OUT.jsonl at the end: an error (a damaged map) leaves
-    any earlier OUT.jsonl as it was.  OUT.jsonl may not be MAP or IMAGES, and its directory must
-    exist unless --parents is given.
+    any earlier OUT.jsonl as it was.  An existing OUT.jsonl is replaced only with --overwrite, and never
+    when it is MAP, MAP.qidx or IMAGES; its directory must exist unless --parents is given.
 
     Progress (--method paper only, on stderr): a bar on a terminal; plain lines when IMAGES is a
     file and stderr is not a terminal; nothing with -q.
     """
     checked = None if prior is None else checked_prior(prior, prior_crs == LONLAT)
-    check_outputs([output], [map_file, _stdin_file() if images_file == "-" else images_file], parents=parents)
+    check_paths([output], [*with_index(map_file), _stdin_file() if images_file == "-" else images_file],
+                overwrite=overwrite, parents=parents)
     say = _progress(method, images_file, quiet)
     with open_map(map_file) as m:
         prior_arg = None if checked is None else _prior_argument(checked, prior_crs, m.crs)

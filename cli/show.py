@@ -13,10 +13,18 @@ from mapdb.evaluation.match_plot import plot_match
 from mapdb.localize.localizer import METHODS, localize
 from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions
-from mapdb.outputs import atomic_path, check_outputs
+from mapdb.outputs import atomic_path
 
 from .evaluate import parse_plot
-from .options import debug_option, finite_float, handle_errors, parents_option
+from .options import (
+    check_paths,
+    debug_option,
+    finite_float,
+    handle_errors,
+    overwrite_option,
+    parents_option,
+    with_index,
+)
 
 
 def _matches_line(where: str, name: str, line: int) -> bool:
@@ -64,10 +72,11 @@ def _summary(answer: Answer) -> str:
               help="The localizer, as for `mapdb query`.")
 @click.option("--min-score", type=finite_float(0.0, 300.0), default=-FastOptions().log10_epsilon, show_default=True,
               help="Accept an answer only above this score, as for `mapdb query`.")
+@overwrite_option
 @parents_option
 @debug_option
 @handle_errors
-def show(map_file, images_file, image_id, line, output, method, min_score, parents, debug):
+def show(map_file, images_file, image_id, line, output, method, min_score, overwrite, parents, debug):
     """Localize one image of IMAGES.jsonl in MAP and draw the match.
 
     The picture shows, in map metres, the map's objects around the answer (coloured by label), the
@@ -78,7 +87,7 @@ def show(map_file, images_file, image_id, line, output, method, min_score, paren
     """
     if image_id is not None and line is not None:
         raise click.UsageError("give --id or --line, not both")
-    check_outputs([output], [map_file, images_file], parents=parents)
+    check_paths([output], [*with_index(map_file), images_file], overwrite=overwrite, parents=parents)
     where, doc = find_image(images_file, image_id, line)
     parse_image(doc, where)  # a bad image is an error here, not a picture of a rejection
     with open_map(map_file) as m:

@@ -5,72 +5,31 @@ from __future__ import annotations
 import click
 
 from mapdb.mapfile.reader import open_map
-from mapdb.outputs import check_outputs
 from mapdb.simulation.documents import write_images
 from mapdb.simulation.poses import map_bbox_from_lonlat
 from mapdb.simulation.simulate import simulate_images
 
 from .options import (
+    MAX_ATTITUDE_STD,
+    MAX_MASK_NOISE_PX,
+    MAX_PIXEL_STD,
+    MAX_PRIOR_RADIUS,
+    MAX_SPURIOUS_RATE,
     bbox_option,
+    check_paths,
     debug_option,
-    finite,
     finite_float,
     handle_errors,
+    overwrite_option,
     parents_option,
+    parse_fov,
+    parse_range,
+    parse_size,
+    parse_yaw,
     progress_printer,
     quiet_option,
+    rate,
 )
-
-
-def parse_range(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
-    """``"100"`` -> 100.0; ``"60:400"`` -> (60.0, 400.0), drawn uniformly per image."""
-    if value is None:
-        return None
-    try:
-        parts = [finite(v) for v in value.split(":")]
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is not a finite number or LOW:HIGH") from None
-    if len(parts) == 1 and parts[0] > 0:
-        return parts[0]
-    if len(parts) == 2 and 0 < parts[0] <= parts[1]:
-        return (parts[0], parts[1])
-    raise click.BadParameter(f"{value!r} must be a positive number or LOW:HIGH with 0 < LOW <= HIGH")
-
-
-def parse_fov(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
-    """Like :func:`parse_range`, and below 180 degrees."""
-    fov = parse_range(ctx, param, value)
-    if fov is not None and max(fov if isinstance(fov, tuple) else (fov,)) >= 180.0:
-        raise click.BadParameter(f"{value!r}: a field of view must be below 180 degrees")
-    return fov
-
-
-def parse_size(ctx: click.Context | None, param: click.Parameter | None, value: str):
-    try:
-        w, h = (int(v) for v in value.lower().split("x"))
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is not WIDTHxHEIGHT (e.g. 640x480)") from None
-    if w <= 0 or h <= 0:
-        raise click.BadParameter(f"{value!r}: width and height must be positive")
-    return w, h
-
-
-def parse_yaw(ctx: click.Context | None, param: click.Parameter | None, value: str):
-    if value.lower() == "random":
-        return "random"
-    try:
-        return finite(value)
-    except ValueError:
-        raise click.BadParameter(f"{value!r} is not finite degrees or 'random'") from None
-
-
-rate = finite_float(0.0, 1.0)
-# Past these the simulation means nothing, and huge values only cost memory or overflow.
-MAX_SPURIOUS_RATE = 100.0
-MAX_ATTITUDE_STD = 90.0
-MAX_PRIOR_RADIUS = 2.0e7  # half the Earth's circumference, metres
-MAX_PIXEL_STD = 1.0e6
-MAX_MASK_NOISE_PX = 1000.0
 
 
 @click.command()
@@ -107,18 +66,20 @@ MAX_MASK_NOISE_PX = 1000.0
 @click.option("--source", "source_file", type=click.Path(), metavar="EXTRACT.osm.pbf",
               help="With --render masks: the OSM extract the map was built from (its outlines are drawn).")
 @click.option("--masks-dir", type=click.Path(file_okay=False), metavar="DIR",
-              help="With --render masks: each image's mask is written here as ID.png, with classes.toml.")
+              help="With --render masks: each image's mask is written here as ID.png, with classes.toml; the folder "
+                   "appears whole, and an existing one (not empty) is replaced only with --overwrite.")
 @click.option("--mask-noise", type=finite_float(0.0, MAX_MASK_NOISE_PX), default=0.0, show_default=True,
               metavar="PX", help="With --render masks: grow or shrink each object's image by up to PX pixels.")
 @click.option("--no-heights", is_flag=True, help="With --render masks: draw buildings flat (no relief).")
 @bbox_option
+@overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std, pixel_std, miss_rate,
              spurious_rate, label_noise, with_prior, with_attitude, with_altitude, min_objects, seed, render,
-             source_file, masks_dir, mask_noise, no_heights, bbox, parents, quiet, debug):
+             source_file, masks_dir, mask_noise, no_heights, bbox, overwrite, parents, quiet, debug):
     """Simulate downward-looking camera images of MAP, one JSON object per line.
 
     Camera positions are uniform over the map (or --bbox), keeping the image footprint inside it. Each
@@ -132,14 +93,15 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
     """
     if render == "masks":
         _check_render_options(source_file, masks_dir, pixel_std, spurious_rate)
-        return _simulate_masks(map_file, output, n_images, source_file, masks_dir, parents, quiet, seed, bbox,
+        rule = (overwrite, parents)
+        return _simulate_masks(map_file, output, n_images, source_file, masks_dir, rule, quiet, seed, bbox,
                                dict(altitude=altitude, fov_deg=fov, size=size, yaw=yaw, attitude_std=attitude_std,
                                     miss_rate=miss_rate, label_noise=label_noise, mask_noise_px=mask_noise,
                                     heights=not no_heights, with_prior=with_prior, with_attitude=with_attitude,
                                     with_altitude=with_altitude, min_objects=min_objects, seed=seed))
     if source_file is not None or masks_dir is not None or mask_noise or no_heights:
         raise click.UsageError("--source, --masks-dir, --mask-noise and --no-heights need --render masks")
-    check_outputs([output], [map_file], parents=parents)
+    check_paths([output], [map_file], overwrite=overwrite, parents=parents)
     say = progress_printer(quiet)
     with open_map(map_file) as m:
         area = map_bbox_from_lonlat(m.crs, bbox, within=m.bounds) if bbox else None
@@ -164,37 +126,36 @@ def _check_render_options(source_file, masks_dir, pixel_std, spurious_rate) -> N
                                "use --mask-noise")
 
 
-def _simulate_masks(map_file, output, n_images, source_file, masks_dir, parents, quiet, seed, bbox, options) -> None:
-    """``--render masks``: render, extract, and write the masks, then the documents (each file atomically)."""
+def _simulate_masks(map_file, output, n_images, source_file, masks_dir, rule, quiet, seed, bbox, options) -> None:
+    """``--render masks``: render, extract, and write the masks folder (whole: it appears complete or not at all),
+    then the documents.  ``rule`` is (overwrite, parents): an existing folder or OUTPUT is replaced only with
+    --overwrite, and never when it is or holds an input."""
     from collections import Counter
-    from pathlib import Path
 
-    from mapdb.errors import MapdbIOError
+    from mapdb.analysis.outputs import output_folder
     from mapdb.simulation.outlines import read_scene
     from mapdb.simulation.rendered import png_bytes, simulate_masks, write_masks
 
-    directory = Path(masks_dir)
-    if directory.exists() and not directory.is_dir():
-        raise MapdbIOError(f"{directory}: exists and is not a directory")
-    if not directory.exists() and not parents and not directory.absolute().parent.is_dir():
-        raise MapdbIOError(f"{directory}: directory {directory.absolute().parent} does not exist")
-    check_outputs([output, directory / "classes.toml"] if directory.is_dir() else [output],
-                  [map_file, source_file], parents=parents)
-    say = progress_printer(quiet)
-    with open_map(map_file) as m:
-        area = map_bbox_from_lonlat(m.crs, bbox, within=m.bounds) if bbox else None
-        counts: Counter[str] = Counter()
-        scene = read_scene(source_file, m.all(), seed=seed, counts=counts)
-        skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
-        if say and skipped:
-            say(f"{source_file}: outlines left out: {skipped}")
-        images, masks = [], []
-        for doc, mask in simulate_masks(m, scene, n_images, bbox=area, progress=say, **options):
-            images.append(doc)
-            masks.append((doc["truth"]["mask"], png_bytes(mask)))
-    classes = "".join(f'{code + 1} = "{name}"\n' for code, name in enumerate(scene.labels))
-    masks.append(("classes.toml", f"# mask codes of mapdb simulate --render masks\n[classes]\n{classes}".encode()))
-    write_masks(masks, masks_dir)
+    overwrite, parents = rule
+    inputs = [map_file, source_file]
+    with output_folder(masks_dir, inputs, overwrite=overwrite, parents=parents) as folder:
+        # after the folder's own checks: OUTPUT may lie in it, and --parents then makes the folder
+        check_paths([output], inputs, overwrite=overwrite, parents=parents)
+        say = progress_printer(quiet)
+        with open_map(map_file) as m:
+            area = map_bbox_from_lonlat(m.crs, bbox, within=m.bounds) if bbox else None
+            counts: Counter[str] = Counter()
+            scene = read_scene(source_file, m.all(), seed=seed, counts=counts)
+            skipped = ", ".join(f"{n:,} {kind.replace('_', ' ')}" for kind, n in sorted(counts.items()) if n)
+            if say and skipped:
+                say(f"{source_file}: outlines left out: {skipped}")
+            images, masks = [], []
+            for doc, mask in simulate_masks(m, scene, n_images, bbox=area, progress=say, **options):
+                images.append(doc)
+                masks.append((doc["truth"]["mask"], png_bytes(mask)))
+        classes = "".join(f'{code + 1} = "{name}"\n' for code, name in enumerate(scene.labels))
+        masks.append(("classes.toml", f"# mask codes of mapdb simulate --render masks\n[classes]\n{classes}".encode()))
+        write_masks(masks, folder)
     write_images(images, output)
     if say:
         n_obj = sum(len(im["objects"]) for im in images)

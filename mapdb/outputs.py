@@ -9,12 +9,13 @@ Every command that writes a file goes through this module:
 * :func:`atomic_path` / :func:`atomic_open` write to a hidden temporary file beside the target and
   rename it into place at the end, so a failure or a kill leaves the previous file intact.  Errors
   name the path the user gave, never the temporary name.
-* :func:`refuse_existing` is the ``--overwrite`` rule for outputs whose loss is costly (maps).
+* :func:`refuse_existing` is the ``--overwrite`` rule: an existing output is replaced only when asked
+  (every command of the CLI, through ``check_outputs(..., overwrite=...)``); never an input, even then.
 * An output in a directory that does not exist is refused, as GDAL does (``OUT: directory DIR does
   not exist``), unless the caller asks for missing directories to be made (``parents``, the CLI's
   ``--parents``, like ``mkdir -p``).
-* :class:`Progress` is how long library functions report to the user (the CLI draws a bar on a
-  terminal, plain lines otherwise); :func:`as_progress` turns a plain message callback into one.
+* :class:`Progress`, :class:`LineProgress` and :func:`as_progress` (how long library functions report
+  to the user) live in :mod:`mapdb.progress` and are re-exported here.
 
 Symlinked outputs are written through: the link stays and its target is replaced, as GDAL and
 rasterio do when they open an output path.
@@ -30,14 +31,14 @@ import secrets
 import shutil
 import stat
 import sys
-import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any, Protocol, runtime_checkable
+from typing import IO, Any
 
 from .errors import MapdbError, MapdbIOError, OutputClashError, OutputExistsError
+from .progress import LineProgress, Progress, ProgressLike, as_progress  # re-exported: imported from here
 
 __all__ = [
     "LineProgress",
@@ -50,6 +51,7 @@ __all__ = [
     "creation_time",
     "dumps_strict",
     "json_safe",
+    "output_errors",
     "pid_alive",
     "refuse_existing",
     "remove_stale_temporaries",
@@ -124,8 +126,13 @@ def _make_parent(out: str) -> None:
 
 
 def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike | None], *,
-                  parents: bool = False) -> None:
+                  parents: bool = False, overwrite: bool = True, what: str = "file") -> None:
     """Refuse outputs that would destroy an input or cannot be written, before any work is done.
+
+    The checks, in order: no output is an input (whatever ``overwrite``), nor another output; each is a
+    regular file, a character device or nothing yet, in a directory that exists (or will, ``parents``);
+    without ``overwrite`` none exists; then a file can be created beside each (a read-only folder is
+    refused here, naming the output, rather than when the temporary file is made).
 
     Parameters
     ----------
@@ -134,16 +141,24 @@ def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike 
     parents : bool
         Create the outputs' missing directories (as ``mkdir -p``), once every check has passed.  Without
         it an output in a directory that does not exist is refused.
+    overwrite : bool
+        Whether existing outputs may be replaced (the CLI's ``--overwrite``).  Character devices
+        (``/dev/null``) are never refused.
+    what : str
+        What the outputs are, for the refusal: ``"OUT: exists; pass --overwrite to replace this WHAT"``.
 
     Raises
     ------
     OutputClashError
         If an output is the same file as an input (compared by device and inode when both exist,
         by resolved path otherwise), or the same output is given twice.
+    OutputExistsError
+        If an output exists and ``overwrite`` is false.
     MapdbIOError
         If an output exists and is not a regular file or a character device (a FIFO, a directory, a
         socket), lies under a path that is not a directory, or (without ``parents``) in a directory
-        that does not exist: ``"OUT: directory DIR does not exist"``.
+        that does not exist: ``"OUT: directory DIR does not exist"``; or if no file can be created in
+        its directory: ``"OUT: cannot write (Read-only file system)"``.
 
     Examples
     --------
@@ -176,9 +191,25 @@ def check_outputs(outputs: Iterable[PathLike | None], inputs: Iterable[PathLike 
             if key is not None and key in seen:
                 raise OutputClashError(f"{out}: is the same file as output {seen[key]}; choose another output path")
         seen.update({k: out for k in (ident, real) if k is not None})
-    if parents:
-        for out in outs:
+    for out in outs:
+        refuse_existing(out, overwrite, what)
+    for out in outs:
+        if parents:
             _make_parent(out)
+        _probe(out)
+
+
+def _probe(out: str) -> None:
+    """Create and delete a temporary file beside ``out``, as :func:`atomic_path` will: an error names ``out``."""
+    target = Path(os.path.realpath(out))
+    if _is_char_device(target):
+        return
+    probe = target.parent / f"{temporary_prefix(target)}{secrets.token_hex(4)}.tmp"
+    try:
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o600))
+    except OSError as exc:
+        raise _write_error(out, exc) from None
+    probe.unlink(missing_ok=True)
 
 
 def refuse_existing(path: PathLike | None, overwrite: bool, what: str = "map") -> None:
@@ -188,7 +219,8 @@ def refuse_existing(path: PathLike | None, overwrite: bool, what: str = "map") -
     ------
     OutputExistsError
         If ``path`` exists (a symlink counts when its target does) and ``overwrite`` is false.
-        Character devices (``/dev/null``) hold nothing to lose and are never refused.
+        Character devices (``/dev/null``) and empty directories (an output folder made beforehand) hold
+        nothing to lose and are never refused.
     """
     if path is None or os.fspath(path) == "-" or overwrite:
         return
@@ -196,8 +228,17 @@ def refuse_existing(path: PathLike | None, overwrite: bool, what: str = "map") -
         st = os.stat(path)
     except OSError:
         return
-    if not stat.S_ISCHR(st.st_mode):
-        raise OutputExistsError(f"{os.fspath(path)}: exists; pass --overwrite to replace this {what}")
+    if stat.S_ISCHR(st.st_mode) or (stat.S_ISDIR(st.st_mode) and _empty_directory(path)):
+        return
+    raise OutputExistsError(f"{os.fspath(path)}: exists; pass --overwrite to replace this {what}")
+
+
+def _empty_directory(path: PathLike) -> bool:
+    try:
+        with os.scandir(path) as entries:
+            return next(entries, None) is None
+    except OSError:
+        return False  # cannot see inside: the safe side is "it may hold something"
 
 
 def temporary_prefix(target: Path) -> str:
@@ -342,23 +383,92 @@ def atomic_path(path: PathLike, *, keep_suffix: bool = False, parents: bool = Fa
     _fsync_dir(target.parent)
 
 
+def _temporaries_named(given: str) -> re.Pattern[str]:
+    """Paths of the hidden temporaries beside ``given`` (files, folders, work folders, and what lies in them) as
+    a writer's error names them: group 1 is the temporary's name, group 2 the path inside it."""
+    target = Path(os.path.realpath(given))
+    # Writers cut long names at 100 characters or more (_NAME_KEEP here): the first 100 are always kept.
+    return re.compile(re.escape(f"{target.parent}{os.sep}") + "(" + re.escape(f".{target.name[:100]}")
+                      + r"[^\s'\"/]*)(?:/([^\s'\"]*))?")
+
+
+def _about(filename: Any, temporaries: re.Pattern[str], given: str, tmp: Path | None) -> bool:
+    """Whether an OS error's file is the output: none given, the output itself or one of its temporaries."""
+    if filename is None:
+        return True
+    name = os.fsdecode(filename)
+    return name in (given, str(tmp)) or temporaries.match(os.path.realpath(name)) is not None
+
+
+def _renamed(text: str, given: str, tmp: Path | None, temporaries: re.Pattern[str]) -> str:
+    """``text`` naming ``given`` wherever it names a temporary of it.
+
+    A file in a temporary folder (``.out.PID.X.tmp/analysis.png``) becomes that file in the output folder
+    (``out/analysis.png``); a file in a writer's work folder (``.a.qidx.PID.X.build/bucket``) is the output.
+    """
+    if tmp is not None:
+        text = text.replace(str(tmp), given)
+
+    def one(match: re.Match[str]) -> str:
+        inside = match.group(2)
+        return os.path.join(given, inside) if inside and match.group(1).endswith(".tmp") else given
+
+    return temporaries.sub(one, text)
+
+
 @contextmanager
 def _naming_errors(given: str, tmp: Path | None, every: bool = False) -> Iterator[None]:
     """Make errors of writing ``tmp`` (the temporary file, or a device written in place) name ``given``.
 
-    ``every``: all OS errors are about the output (preparing its directory and temporary file).
+    ``every``: all OS errors are about the output (preparing its directory and temporary file).  Otherwise an
+    OS error is about the output when it names no file, the output, or a temporary beside it (``tmp``, or a
+    work folder a writer made with the same prefix); a :class:`MapdbError` or a writer's own error (GDAL's,
+    SQLite's) whose message names such a temporary is raised again naming ``given``.
     """
+    temporaries = _temporaries_named(given)
+
+    def renamed(text: str) -> str:
+        return _renamed(text, given, tmp, temporaries)
+
     try:
         yield
     except MapdbError as exc:
-        if tmp is not None and str(tmp) in str(exc):
+        if renamed(str(exc)) != str(exc):
             # a writer's own error names the file it was given: name the user's path instead
-            raise type(exc)(str(exc).replace(str(tmp), given)) from exc.__cause__
+            raise type(exc)(renamed(str(exc))) from exc.__cause__
         raise
     except OSError as exc:
-        if every or exc.filename in (None, given, None if tmp is None else str(tmp)):
-            raise _write_error(given, exc) from None
+        if every or _about(exc.filename, temporaries, given, tmp):
+            named = given if every or exc.filename is None else renamed(os.fsdecode(exc.filename))
+            raise _write_error(named, exc) from None
         raise  # about another file (an input read in the block): its own message is right
+    except Exception as exc:
+        text = renamed(str(exc))
+        if text == str(exc):
+            raise  # not about the output
+        raise MapdbIOError(text if text.startswith(given) else f"{given}: cannot write ({text})") from exc
+
+
+@contextmanager
+def output_errors(path: PathLike) -> Iterator[None]:
+    """Make the errors of the block that are about ``path`` or its hidden temporaries name ``path``.
+
+    For writers that make their own temporary beside an output (a folder written whole, a work folder):
+    an ``OSError`` naming no file, or naming such a temporary, becomes ``"PATH: cannot write (reason)"``
+    (a file inside a temporary folder is named inside ``path``), and a :class:`MapdbError` or another
+    library's error (GDAL's, SQLite's) naming a temporary names ``path`` instead.
+
+    Examples
+    --------
+    >>> import os, tempfile
+    >>> d = tempfile.mkdtemp(); out = os.path.join(d, "out")
+    >>> with output_errors(out):  # doctest: +ELLIPSIS
+    ...     raise OSError(27, "File too large", os.path.join(d, ".out.1.ab.tmp", "analysis.png"))
+    Traceback (most recent call last):
+    mapdb.errors.MapdbIOError: .../out/analysis.png: cannot write (File too large)
+    """
+    with _naming_errors(os.fspath(path), None):
+        yield
 
 
 def _settle(tmp: Path, mode: int) -> None:
@@ -440,116 +550,6 @@ def atomic_open(path: PathLike, mode: str = "w", encoding: str | None = "utf-8",
             f = open(tmp, mode, encoding=encoding, **kwargs)  # noqa: SIM115
         with f:  # atomic_path syncs the file once it is closed
             yield f
-
-
-# --------------------------------------------------------------------------------------------------
-# Progress reports: what a long run tells the user while it works (on stderr, never with the results).
-
-
-@runtime_checkable
-class Progress(Protocol):
-    """What a long library function reports its progress to.
-
-    Calling it with a message reports a stage or an event (``"reading monaco.osm.pbf ..."``); ``start``
-    begins a count of ``total`` steps (None when not known in advance) named ``label``, ``advance`` counts
-    steps done and ``done`` ends the count (a new ``start`` ends the previous count too).  The library
-    never imports click: the CLI implements this with ``click.progressbar`` on a terminal and with
-    :class:`LineProgress` elsewhere.  Functions take any :data:`ProgressLike` and call
-    :func:`as_progress` on it.
-    """
-
-    def __call__(self, message: str) -> None: ...
-
-    def start(self, total: int | None, label: str) -> None: ...
-
-    def advance(self, n: int = 1) -> None: ...
-
-    def done(self) -> None: ...
-
-
-#: What a ``progress`` argument may be: a :class:`Progress`, a plain message callback, or None (silence).
-ProgressLike = Progress | Callable[[str], None] | None
-
-# A count without a known total prints at most one line per this many seconds.
-_LINE_INTERVAL_S = 1.0
-# A count with a total prints a line at each of this many equal parts of it.
-_LINE_PARTS = 10
-
-
-class LineProgress:
-    """A :class:`Progress` written as plain lines through a message callback: for logs, pipes, files.
-
-    A count prints ``"LABEL: I/TOTAL"`` at each tenth of its total (at every step of a count of ten or
-    fewer), and with no total known ``"LABEL: I"`` at most once a second; ``done`` prints the final count
-    unless it was the last line.  Nothing is printed when a count starts: a run that fails at once says
-    only what went wrong.
-
-    Parameters
-    ----------
-    say : callable or None
-        Receives each line; None discards them.
-
-    Examples
-    --------
-    >>> lines = []
-    >>> p = LineProgress(lines.append)
-    >>> p("reading a.osm ...")
-    >>> p.start(20, "fast"); p.advance(9); p.advance(); p.advance(10); p.done()
-    >>> lines
-    ['reading a.osm ...', 'fast: 9/20', 'fast: 10/20', 'fast: 20/20']
-    """
-
-    def __init__(self, say: Callable[[str], None] | None) -> None:
-        self.say = say
-        self.label = ""
-        self.total: int | None = None
-        self.pos = 0
-        self._shown = -1  # the count last printed
-        self._shown_at = 0.0
-        self._active = False
-
-    def __call__(self, message: str) -> None:
-        if self.say is not None:
-            self.say(message)
-
-    def _show(self) -> None:
-        self._shown, self._shown_at = self.pos, time.monotonic()
-        self(f"{self.label}: {self.pos}" + ("" if self.total is None else f"/{self.total}"))
-
-    def start(self, total: int | None, label: str) -> None:
-        self.label, self.total, self.pos, self._active = label, total, 0, True
-        self._shown, self._shown_at = 0, time.monotonic()
-
-    def advance(self, n: int = 1) -> None:
-        before, self.pos = self.pos, self.pos + n
-        if self.total is None:
-            due = time.monotonic() - self._shown_at >= _LINE_INTERVAL_S
-        else:
-            part = max(1, math.ceil(self.total / _LINE_PARTS))
-            due = self.pos // part > before // part or self.pos >= self.total > before
-        if due:
-            self._show()
-
-    def done(self) -> None:
-        if self._active and self._shown != self.pos:
-            self._show()
-        self._active = False
-
-
-def as_progress(progress: ProgressLike) -> Progress:
-    """``progress`` as a :class:`Progress`: a plain callback becomes a :class:`LineProgress`, None a silent one.
-
-    Examples
-    --------
-    >>> p = as_progress(print)
-    >>> p.start(2, "images"); p.advance(); p.advance(); p.done()
-    images: 1/2
-    images: 2/2
-    >>> as_progress(None).start(5, "nothing printed")
-    """
-    if isinstance(progress, Progress):
-        return progress
-    return LineProgress(progress)
 
 
 def creation_time() -> str:

@@ -157,7 +157,7 @@ def test_symlinked_output_is_written_through(files: dict[str, Path], tmp_path: P
     real.write_text("old\n")
     link = tmp_path / "latest.jsonl"
     link.symlink_to(real)
-    assert run("simulate", files["paper"], "-o", link, "--n", "2", "-q").exit_code == 0
+    assert run("simulate", files["paper"], "-o", link, "--n", "2", "-q", "--overwrite").exit_code == 0
     assert link.is_symlink() and len(real.read_text().splitlines()) == 2
 
 
@@ -281,7 +281,8 @@ def test_a_failing_command_leaves_no_output(files: dict[str, Path], tmp_path: Pa
     assert list(tmp_path.iterdir()) == []
     previous = tmp_path / "objects.csv"
     previous.write_text("earlier export\n")
-    assert_one_line_error(run("export", files["paper"], "-o", previous, "--bbox", "0,0,0.001,0.001"))
+    assert_one_line_error(run("export", files["paper"], "-o", previous, "--bbox", "0,0,0.001,0.001", "--overwrite"),
+                          "no objects")
     assert previous.read_text() == "earlier export\n"
     assert hidden_files(tmp_path) == []
 

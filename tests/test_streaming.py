@@ -168,7 +168,7 @@ def test_a_damaged_map_leaves_the_previous_answers_file_untouched(paper_setup, t
     out_path = tmp_path / "answers.jsonl"
     out_path.write_text("previous answers\n")
     for bad_map in (damaged, images_path):  # a damaged map, and a file that is no map at all
-        result = _run(str(bad_map), str(images_path), "-o", str(out_path))
+        result = _run(str(bad_map), str(images_path), "-o", str(out_path), "--overwrite")
         assert result.exit_code == 1 and result.output.startswith("mapdb: error: "), result.output
         assert len(result.output.splitlines()) == 1 and "Traceback" not in result.output
         assert out_path.read_text() == "previous answers\n"
@@ -176,7 +176,7 @@ def test_a_damaged_map_leaves_the_previous_answers_file_untouched(paper_setup, t
     # No answers file at all is created by a failed run, and a good run replaces the old one whole.
     fresh = tmp_path / "fresh.jsonl"
     assert _run(str(damaged), str(images_path), "-o", str(fresh)).exit_code == 1 and not fresh.exists()
-    assert _run(str(map_path), str(images_path), "-o", str(out_path)).exit_code == 0
+    assert _run(str(map_path), str(images_path), "-o", str(out_path), "--overwrite").exit_code == 0
     assert [json.loads(line)["status"] for line in out_path.read_text().splitlines()] == ["ok"] * 3
 
 

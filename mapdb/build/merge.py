@@ -43,7 +43,7 @@ from ..mapfile.reader import open_map
 from ..mapfile.writer import MapWriter
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress
-from .pipeline import _auto_crs, _projected_crs, _to_lonlat, file_sha256
+from .pipeline import _auto_crs, _fingerprint, _projected_crs, _to_lonlat, file_sha256
 
 __all__ = ["content_digest", "merge_maps"]
 
@@ -55,7 +55,8 @@ def merge_maps(inputs: Sequence[str | Path], output: str | Path, *, crs: str = "
     Parameters
     ----------
     inputs : sequence of paths
-        Map files with the same quantum and label table, in any CRSs.
+        Map files with the same quantum and label table, in any CRSs.  A map given twice (the same file, or
+        the same SHA-256 as an earlier one) is read once, with a warning, as ``build`` does for sources.
     output : path
         The merged map; written to a temporary file and renamed, so a failure (a full disk) leaves an
         earlier file of that name intact.
@@ -85,9 +86,11 @@ def merge_maps(inputs: Sequence[str | Path], output: str | Path, *, crs: str = "
     if not inputs:
         raise SourceError("no maps to merge")
     chosen = None if crs == "auto" else _projected_crs(crs)  # a bad --crs is refused before any reading
-    maps = [_read_input(Path(p), say) for p in inputs]
+    unique, warnings = _unique_inputs(inputs)
+    maps = [_read_input(path, say, sha) for path, sha in unique]
     quantum, labels = _common_layout(maps)
-    target, warnings = (chosen, []) if chosen else _output_crs(maps)
+    target, crs_warnings = (chosen, []) if chosen else _output_crs(maps)
+    warnings += crs_warnings
     parts, kept_counts, dropped = _deduplicated(maps, target, quantum, say)
     for read in maps:
         del read["objects_"]  # the objects kept are in ``parts``: the inputs' own copies can go
@@ -109,15 +112,41 @@ def merge_maps(inputs: Sequence[str | Path], output: str | Path, *, crs: str = "
             "duplicates": dropped, "warnings": warnings}
 
 
-def _read_input(path: Path, say: Any) -> dict[str, Any]:
-    """One input map's objects and what the merge needs of its header."""
+def _unique_inputs(inputs: Sequence[str | Path]) -> tuple[list[tuple[Path, str | None]], list[str]]:
+    """Each input map once, with its SHA-256 when it is a regular file; a warning for each one left out.
+
+    A map merged with itself would only have every object dropped as a duplicate: the second copy is not read.
+    """
+    unique: list[tuple[Path, str | None]] = []
+    warnings = []
+    seen: dict[Any, Path] = {}
+    for path in map(Path, inputs):
+        fingerprint = _fingerprint(path)  # None for what is not a regular file: open_map says what is wrong
+        if fingerprint is None:
+            unique.append((path, None))
+            continue
+        identity, sha = fingerprint
+        first = seen.get(identity)
+        if first is not None:
+            warnings.append(f"{path}: given twice; read once" if first == path else
+                            f"{path}: the same file as map {first}; read once")
+        elif sha in seen:
+            warnings.append(f"{path}: the same content as map {seen[sha]} (SHA-256 {sha[:16]}...); read once")
+        else:
+            seen[identity] = seen[sha] = path
+            unique.append((path, sha))
+    return unique, warnings
+
+
+def _read_input(path: Path, say: Any, sha: str | None = None) -> dict[str, Any]:
+    """One input map's objects and what the merge needs of its header (``sha``: its SHA-256, if known)."""
     say(f"reading {path} ...")
     with open_map(path) as m:
         objects = m.all()
         header = m.metadata
     sources = header.get("sources") if isinstance(header.get("sources"), list) else []
-    return {"path": path, "name": path.name, "sha256": file_sha256(path), "objects_": objects, "objects": len(objects),
-            "crs": objects.crs, "quantum": float(header["quantum"]), "labels": objects.labels,
+    return {"path": path, "name": path.name, "sha256": sha or file_sha256(path), "objects_": objects,
+            "objects": len(objects), "crs": objects.crs, "quantum": float(header["quantum"]), "labels": objects.labels,
             "sources": sources, "build": header.get("build")}
 
 
