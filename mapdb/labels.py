@@ -15,7 +15,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from .errors import LabelTableError, reading
+from .errors import LabelTableError, open_regular, reading
 
 __all__ = [
     "DEFAULT_LABELS_PATH",
@@ -81,7 +81,8 @@ class LabelTable:
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    with reading(path, "label file"), path.open("rb") as f:
+    """A label file or class table read as TOML: a regular file (a FIFO would block), size-capped, parsed."""
+    with reading(path, "label file"), open_regular(path, path, "label file") as f:
         text = f.read(MAX_LABEL_FILE_BYTES + 1)
     if len(text) > MAX_LABEL_FILE_BYTES:
         raise LabelTableError(f"{path}: a label file may hold at most {MAX_LABEL_FILE_BYTES:,} bytes")

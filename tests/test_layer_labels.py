@@ -84,3 +84,19 @@ def test_label_column_wins_over_label(tmp_path: Path) -> None:
     assert read_layer(path, LABELS, label="building").counts() == {"park": 1}
     with pytest.raises(LabelTableError):
         load_class_table(tmp_path / "labelled.gpkg", LABELS)
+
+
+@pytest.mark.parametrize("loader", ["mapdb.classmap:load_class_table:, ['building']", "mapdb.labels:load_label_table:"])
+def test_a_fifo_as_a_class_table_or_label_file_is_refused_not_waited_on(tmp_path: Path, loader: str) -> None:
+    # In a child process with a timeout: the old code blocked forever opening a FIFO with no writer.
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "classes.toml"
+    os.mkfifo(fifo)
+    module, name, more = loader.split(":")
+    code = (f"import sys; from {module} import {name}\n"
+            f"try:\n    {name}(sys.argv[1]{more})\nexcept Exception as exc:\n    print(type(exc).__name__, exc)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(fifo)], capture_output=True, text=True, timeout=60)
+    assert done.stdout.strip() == f"MapdbIOError {fifo}: is a FIFO, not a label file", done.stderr
