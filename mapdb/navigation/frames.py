@@ -89,6 +89,8 @@ MAX_SPEED_MPS = 1000.0
 # all read) is dropped with a note rather than copied into every output.
 MAX_ID_CHARS = 1000
 _MAX_ID_INT = 10**18
+# A reason quoted from the image reader is cut here (it may quote a value of thousands of characters).
+MAX_NOTE_CHARS = 300
 
 # The image keys handed to the localizer (the others are the autopilot's or the simulator's).
 _IMAGE_KEYS = ("id", "width", "height", "objects")
@@ -251,6 +253,9 @@ def _read_image(doc: dict[str, Any], frame: Frame, where: str) -> None:
     try:
         frame.image = parse_image(image, where)
     except ImageInputError as exc:
-        frame.notes.append(f"objects not used: {exc}")
+        message = str(exc)  # may quote the offending value: a record line stays short
+        if len(message) > MAX_NOTE_CHARS:
+            message = message[:MAX_NOTE_CHARS] + "..."
+        frame.notes.append(f"objects not used: {message}")
         return
     frame.width, frame.height = frame.image.width, frame.image.height
