@@ -332,6 +332,8 @@ class Navigator:
             return {"status": "none", "reason": "no objects in this or the previous frame"}
         if prev.to_map is None:
             return {"status": "none", "reason": "no heading or scale yet (attitude yaw, altitude and fov needed)"}
+        if min(prev.points.z.size, points.z.size) < 3:  # the matcher's own refusal, without the filter's estimate
+            return {"status": "none", "reason": str(match_frames(prev.points, points))}
         # A_cur = A_prev a: the turn and the altitude change since the previous frame, as the sensors say.
         to_map = self.orientation.to_map()
         a_guess = to_map / prev.to_map if to_map is not None else 1 + 0j
