@@ -10,7 +10,7 @@ import click
 from mapdb.detections.images import read_image_documents
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
-from mapdb.navigation.track import plot_track, track_geojson
+from mapdb.navigation.track import TrackRecord, plot_track, track_geojson
 from mapdb.outputs import atomic_open, atomic_path, dumps_strict
 
 from .evaluate import parse_plot
@@ -73,14 +73,17 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     runner-up candidates); each frame's query uses the filter's prediction as its prior.  Per frame:
     position (map CRS and lon/lat), velocity, heading, covariance, the fix used or why none, the time
     spent.  Frames are read as they arrive and each record is written, flushed, before the next frame is
-    read.  A bad frame (out of time order, no objects, a NaN sensor) is answered with its reason; only a
-    file that cannot be read at all is an error.
+    read.  A bad frame (out of time order, no objects, a NaN or out-of-range sensor, not JSON, a line over
+    16 MiB) is answered with its reason, and the next frames still are; only a file that cannot be read at
+    all is an error.  One record per non-blank line.
     """
     check_paths([output, geojson_file, plot_file],
                 [*with_index(map_file), _stdin_file() if flight_file == "-" else flight_file], overwrite=overwrite,
                 parents=parents)
     options = NavigatorOptions(particles=particles, attitude_std=attitude_std, seed=seed)
-    records = []
+    # Records are kept only for the GeoJSON and the picture: a stream alone runs in constant memory.
+    keep = bool(geojson_file or plot_file)
+    records, frames, placed = [], 0, 0
     with open_map(map_file) as m:
         navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m.crs))
         documents = read_image_documents(flight_file)
@@ -88,17 +91,28 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
             streaming = output == "-"
             for where, doc in documents:
                 record = navigator.step(doc, where)
-                out.write(json.dumps(record.to_json(), separators=(",", ":"), allow_nan=False) + "\n")
+                out.write(_line(record, where) + "\n")
                 if streaming:
                     out.flush()  # the record reaches a reader on a pipe before the next frame is read
-                records.append(record)
+                frames, placed = frames + 1, placed + record.placed
+                if keep:
+                    records.append(record)
         if geojson_file:
             with atomic_open(geojson_file) as f:
                 f.write(dumps_strict(track_geojson(records)) + "\n")
         if plot_file:
             # the temporary name keeps the ending, from which matplotlib picks the format
             with atomic_path(plot_file, keep_suffix=True) as tmp:
-                plot_track(records, m, tmp, title=f"{flight_file}: {len(records)} frames over {map_file}")
+                plot_track(records, m, tmp, title=f"{flight_file}: {frames} frames over {map_file}")
     if not quiet and output != "-":
-        placed = sum(r.placed for r in records)
-        print(f"{len(records)} frames, {placed} placed -> {output}", file=sys.stderr)
+        print(f"{frames} frames, {placed} placed -> {output}", file=sys.stderr)
+
+
+def _line(record: TrackRecord, where: str) -> str:
+    """The record's JSON line; a record that cannot be written becomes one that says so (the stream goes on)."""
+    try:
+        return json.dumps(record.to_json(), separators=(",", ":"), allow_nan=False)
+    except (ValueError, TypeError, OverflowError) as exc:
+        fallback = {"id": None, "time_s": None, "status": "skipped",
+                    "notes": [f"{where}: the frame's record could not be written ({type(exc).__name__})"]}
+        return json.dumps(fallback, separators=(",", ":"))

@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -142,6 +143,25 @@ class ParticleFilter:
         self.logw = np.full(self.n, -math.log(self.n))
         self.initialised = True
         self.velocity_known = velocity is not None
+
+    def snapshot(self) -> tuple[Any, ...]:
+        """The whole state, random generator included, for :meth:`restore` (copies: some updates are in place)."""
+        return (self.p.copy(), self.v.copy(), self.logw.copy(), self.initialised, self.velocity_known,
+                self.rng.bit_generator.state)
+
+    def restore(self, state: tuple[Any, ...]) -> None:
+        """Back to a :meth:`snapshot`: as if the updates since had not happened."""
+        self.p, self.v, self.logw, self.initialised, self.velocity_known, rng_state = state
+        self.rng.bit_generator.state = rng_state
+
+    def finite(self) -> bool:
+        """Whether every particle's position, velocity and weight is a finite number."""
+        return bool(np.isfinite(self.p).all() and np.isfinite(self.v).all() and np.isfinite(self.logw).all())
+
+    def reset(self) -> None:
+        """Forget the position and velocity: the filter waits for :meth:`initialise` again."""
+        self.initialised = False
+        self.velocity_known = False
 
     @property
     def weights(self) -> np.ndarray:

@@ -4,7 +4,12 @@ Per frame (:meth:`Navigator.step`), in this order:
 
 1. **Read** the frame: its time, objects, attitude (roll, pitch, yaw), barometric altitude and inertial
    velocity.  A sensor that is missing or not finite is ignored for this frame (a note says so); objects
-   that cannot be read leave a frame to predict from.  A frame not later than the previous one is skipped.
+   that cannot be read leave a frame to predict from.  Every value is bounded (:mod:`mapdb.navigation.frames`).
+   A frame not later than the previous one, or less than ``MIN_STEP_S`` after it, is skipped; so is a
+   frame more than ``MAX_STEP_S`` after it; if the next frame continues from that one, the clock jumped:
+   the filter restarts (no position until a new first fix), as after a long pause.  Whatever a
+   frame holds, it gets a record: a frame whose navigation fails leaves the navigator as it was and is
+   answered "skipped" with the reason, and the next frames are navigated.
 2. **Predict** the particles to the frame's time, turning their velocities by the autopilot's heading change.
 3. **Frame orientation**: the image-to-ground similarity ``A = s exp(-i heading)``.  The heading is the last
    applied fix's plus the autopilot's yaw change since (the frame-to-frame rotation where the yaw is
@@ -29,7 +34,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -39,7 +44,7 @@ from ..camera import Camera
 from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
 from .filter import FixComponent, ParticleFilter
-from .frames import Frame, read_frame
+from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
 from .track import TrackRecord
 from .velocity import FramePoints, frame_points, match_frames, velocity_from_motion
 
@@ -95,6 +100,8 @@ class _Previous:
     to_map: complex | None = None
     pending: list[tuple[float, complex]] = field(default_factory=list)  # rejected fixes: (time, place)
     misses: int = 0  # frames with objects and no applied fix
+    jump: float | None = None  # the time of a frame skipped for a step over MAX_STEP_S
+    extra_labels: dict[str, int] = field(default_factory=dict)  # the previous frame's labels not in the map
 
 
 def _wrap(deg: float) -> float:
@@ -127,22 +134,39 @@ class Navigator:
         self.orientation = _Orientation()
         self.previous = _Previous()
         self.last_velocity: complex | None = None
+        self._extra_labels: dict[str, int] = {}  # this frame's labels the map lacks (``_codes``)
         if initial is not None:
             self.filter.initialise(complex(initial[0], initial[1]), initial[2])
 
     # ------------------------------------------------------------------------------------- frames
 
     def step(self, doc: Any, where: str = "frame") -> TrackRecord:
-        """Navigate one frame document (or the :class:`ImageInputError` that replaced an unreadable line)."""
+        """Navigate one frame document (or the :class:`ImageInputError` that replaced an unreadable line).
+
+        Never raises for what a frame holds: a frame whose navigation fails (an exception, or a filter
+        left with non-finite particles) leaves the navigator as it was before the frame and is answered
+        "skipped" with the reason.  KeyboardInterrupt and SystemExit still end the stream.
+        """
         start = time.perf_counter()
+        saved = self._snapshot()
+        try:
+            record = self._step(doc, where, start)
+            if not self.filter.finite():
+                raise FloatingPointError("the filter's particles became non-finite")
+            return record
+        except Exception as exc:  # one frame never ends the stream: whatever it held, it gets a record
+            self._restore(saved)
+            return self._failed(doc, where, exc, start)
+
+    def _step(self, doc: Any, where: str, start: float) -> TrackRecord:
         frame = read_frame(doc, where)
         record = TrackRecord(id=frame.id, time_s=frame.time_s, status="predicting", notes=list(frame.notes))
-        previous_t = self.previous.time_s
-        if frame.time_s is None or (previous_t is not None and frame.time_s <= previous_t):
-            why = "no valid time_s" if frame.time_s is None else \
-                f"out of time order: time_s {frame.time_s:g} is not after {previous_t:g}"
+        why = self._timing_fault(frame, record)
+        if why is not None:
             record.notes.append(f"skipped: {why}")
             return self._finish(record, frame, "skipped", start, {})
+        previous_t = self.previous.time_s
+        assert frame.time_s is not None
         dt = 0.0 if previous_t is None else frame.time_s - previous_t
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
@@ -154,11 +178,69 @@ class Navigator:
         record.fix = self._fix(frame, record, timing)
         self.previous.time_s = frame.time_s
         self.previous.points = points
+        self.previous.extra_labels = self._extra_labels if points is not None else {}
         self.previous.to_map = self.orientation.to_map()
         used = record.fix.get("status") in ("used", "initialised")
         status = "fix" if used else ("dead-reckoning" if record.velocity_measurement.get("status") == "used"
                                      else "predicting")
         return self._finish(record, frame, status, start, timing)
+
+    def _timing_fault(self, frame: Frame, record: TrackRecord) -> str | None:
+        """Why the frame cannot be placed in the flight's time, or None (module docs, step 1).
+
+        A step over ``MAX_STEP_S`` is held back once: the frame is skipped, and a next frame continuing
+        from it (within ``MAX_STEP_S`` after it) confirms that the flight's clock jumped; the filter then
+        restarts, as after a long pause.  One frame with a wild time thus never strands the frames after it.
+        """
+        previous_t, jump = self.previous.time_s, self.previous.jump
+        if frame.time_s is None:
+            return "no valid time_s"
+        if previous_t is None:
+            return None
+        dt = frame.time_s - previous_t
+        if dt <= 0:
+            return f"out of time order: time_s {frame.time_s:g} is not after {previous_t:g}"
+        if dt < MIN_STEP_S:
+            return f"time step {dt:g} s is under {MIN_STEP_S:g} s: the same instant as the previous frame"
+        if dt <= MAX_STEP_S:
+            self.previous.jump = None
+            return None
+        if jump is not None and MIN_STEP_S <= frame.time_s - jump <= MAX_STEP_S:
+            self._restart()
+            record.notes.append(f"the flight resumes {dt:g} s after the previous frame (over {MAX_STEP_S:g} s): "
+                                "the filter restarts")
+            return None
+        self.previous.jump = frame.time_s
+        return (f"time step {dt:g} s is over {MAX_STEP_S:g} s (a next frame continuing from this one restarts "
+                "the filter)")
+
+    def _restart(self) -> None:
+        """After a jump of the clock: no position, no previous frame; heading and scale references stay."""
+        self.filter.reset()
+        self.previous = _Previous()
+        self.last_velocity = None
+
+    def _snapshot(self) -> tuple[Any, ...]:
+        previous = replace(self.previous, pending=list(self.previous.pending))
+        return (self.filter.snapshot(), replace(self.orientation), previous, self.last_velocity)
+
+    def _restore(self, saved: tuple[Any, ...]) -> None:
+        filter_state, self.orientation, self.previous, self.last_velocity = saved
+        self.filter.restore(filter_state)
+
+    def _failed(self, doc: Any, where: str, exc: Exception, start: float) -> TrackRecord:
+        """The record of a frame whose navigation failed: the estimate before it, and why."""
+        try:
+            frame = read_frame(doc, where)
+        except Exception:  # the frame itself is what failed: answer without its fields
+            frame = Frame(id=None)
+        reason = f"skipped: the frame could not be navigated ({type(exc).__name__}: {str(exc)[:200]})"
+        record = TrackRecord(id=frame.id, time_s=frame.time_s, status="skipped", notes=[*frame.notes, reason])
+        try:
+            return self._finish(record, frame, "skipped", start, {})
+        except Exception:  # the estimate itself cannot be given: the record says so without a position
+            return TrackRecord(id=frame.id, time_s=frame.time_s, status="skipped",
+                               notes=[*record.notes, "no estimate could be given"])
 
     def _finish(self, record: TrackRecord, frame: Frame, status: str, start: float,
                 timing: dict[str, float]) -> TrackRecord:
@@ -205,9 +287,32 @@ class Navigator:
     def _points(self, frame: Frame) -> FramePoints | None:
         if frame.image is None or len(frame.image) == 0:
             return None
-        codes = np.fromiter((self.labels.setdefault(str(n), len(self.labels)) for n in frame.image.names),
-                            np.int64, count=len(frame.image))
-        return frame_points(frame.image, codes, frame.roll, frame.pitch)
+        return frame_points(frame.image, self._codes(frame.image.names), frame.roll, frame.pitch)
+
+    def _codes(self, names: Any) -> np.ndarray:
+        """Label codes: the map's, then codes for labels the map lacks, shared with the previous frame only.
+
+        Frame-to-frame matching compares two frames, so a label the map lacks needs the same code in
+        both and no other; a table of every label ever seen would grow with the stream.
+        """
+        previous = self.previous.extra_labels
+        used = set(previous.values())
+        extra: dict[str, int] = {}
+        free = len(self.labels)
+        codes = np.empty(len(names), np.int64)
+        for i, raw in enumerate(names):
+            name = str(raw)
+            code = self.labels.get(name, extra.get(name, previous.get(name)))
+            if code is None:
+                while free in used:
+                    free += 1
+                code = free
+                used.add(code)
+            if name not in self.labels:
+                extra[name] = code
+            codes[i] = code
+        self._extra_labels = extra
+        return codes
 
     # --------------------------------------------------------------------------------- velocity
 
@@ -228,11 +333,15 @@ class Navigator:
             return {"status": "none", "reason": "no objects in this or the previous frame"}
         if prev.to_map is None:
             return {"status": "none", "reason": "no heading or scale yet (attitude yaw, altitude and fov needed)"}
+        if min(prev.points.z.size, points.z.size) < 3:  # the matcher's own refusal, without the filter's estimate
+            return {"status": "none", "reason": str(match_frames(prev.points, points))}
         # A_cur = A_prev a: the turn and the altitude change since the previous frame, as the sensors say.
         to_map = self.orientation.to_map()
         a_guess = to_map / prev.to_map if to_map is not None else 1 + 0j
         b_guess = self.filter.estimate()[1] * dt / prev.to_map if self.filter.velocity_known else None
-        motion = match_frames(prev.points, points, a_guess, b_guess, len(self.labels))
+        n_labels = max(len(self.labels), int(prev.points.codes.max(initial=-1)) + 1,
+                       int(points.codes.max(initial=-1)) + 1)
+        motion = match_frames(prev.points, points, a_guess, b_guess, n_labels)
         if isinstance(motion, str):
             return {"status": "none", "reason": motion}
         if frame.yaw is None and self.orientation.heading is not None:
@@ -243,6 +352,8 @@ class Navigator:
         vel = velocity_from_motion(motion, prev.to_map, dt, level_sigma_m=level,
                                    scale_rel_sigma=math.hypot(o.scale_rel_sigma, baro_rel),
                                    heading_sigma_deg=o.heading_sigma)
+        if not abs(vel.v) <= MAX_SPEED_MPS:  # a mismatch, or a scale from absurd sensors: not a velocity
+            return {"status": "none", "reason": f"measured speed {abs(vel.v):g} m/s is over {MAX_SPEED_MPS:g} m/s"}
         self.last_velocity = vel.v
         sigma = math.sqrt(float(np.max(np.linalg.eigvalsh(vel.cov))))
         used = self.filter.update_velocity(vel.v, vel.cov) if self.filter.initialised else False

@@ -14,7 +14,9 @@ One :class:`TrackRecord` per frame (``mapdb navigate`` writes its :meth:`TrackRe
 
 ``status`` is ``"fix"`` (a fix was applied), ``"dead-reckoning"`` (a velocity only), ``"predicting"``
 (neither), ``"not initialised"`` (no position yet: the position fields are null) or ``"skipped"`` (the
-frame could not be used, e.g. out of time order; the estimate is the previous one).  ``fix.status`` is
+frame could not be used: no valid time, out of time order, a step outside the bounds of
+:mod:`mapdb.navigation.frames`, a line that is not a frame, or its navigation failed; ``notes`` says why,
+and the estimate is the previous one).  ``fix.status`` is
 ``"used"``, ``"initialised"`` (the first fix placed the filter), ``"rejected"`` (an outlier: ``reason``
 says how far and how likely), ``"none"`` (``reason``: the matcher's, or why no query was made) or
 ``"withheld"`` (the flight withholds the map).
