@@ -4,6 +4,7 @@ and the fast matcher's top function calling its stages in order (import cycles: 
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 from importgraph import import_graph
@@ -12,8 +13,9 @@ ROOT = Path(__file__).resolve().parents[1]
 MATCH = ROOT / "mapdb" / "match"
 
 
+@functools.cache
 def match_graph(root: Path = ROOT) -> dict[str, set[str]]:
-    """The import graph restricted to ``mapdb.match`` and its subpackages."""
+    """The import graph restricted to ``mapdb.match`` and its subpackages (built once: the tests only read it)."""
     graph = import_graph(root)
     inside = {m for m in graph if m == "mapdb.match" or m.startswith("mapdb.match.")}
     return {m: graph[m] & inside for m in inside}
