@@ -33,7 +33,11 @@ Measurement models
   query's prior disc).  A wrong fix thus multiplies every particle by about the same floor and cannot drag
   the estimate; a fix whose runner-up is the filter's own place keeps the filter's mode alive.  The
   probability that the fix belongs to the estimate, ``P_in = (1 - beta) E[g] / ((1 - beta) E[g] + beta/A)``,
-  decides: below one half the fix is rejected as an outlier and not applied at all.
+  decides: below one half the fix is rejected as an outlier and not applied at all.  An accepted fix is
+  applied with that same ``P_in`` (``w' ∝ w (P_in g / E[g] + 1 - P_in)``), and the cloud is redrawn from
+  the fix when fewer than ``MIN_EFFECTIVE`` particles lie inside it: the gate widens the sigmas by
+  ``gate_sigma_m``, and an update recomputing the floor against the sharp ``g`` left a right fix 2-3 m from
+  every particle "used" with no weight changed (issue 29).
 * **Recovery**: particles drawn around a place (:meth:`inject`) join the cloud with a share of the weight;
   later fixes decide between the modes.  The navigator injects around fixes that were rejected several
   times in a row at mutually consistent places, which is how a filter started far off, or captured, gets
@@ -208,9 +212,12 @@ class ParticleFilter:
 
         ``gate_sigma_m`` widens the components when deciding whether the fix is an outlier (not when
         applying it): a cloud a little too confident must not turn away a right fix a metre or two off.
+        An accepted fix is then applied with the inlier probability the gate found,
+        ``w' ∝ w (P_in g / E[g] + 1 - P_in)`` with ``g`` the sharp mixture: recomputing the floor against
+        the sharp ``g`` would let a fix 2-3 m from every particle (``g`` far below the floor everywhere)
+        pass the gate, be reported used, and change no weight (issue 29).
         """
         w = self.weights
-        g = self._mixture(components, 0.0)
         inlier = (1.0 - self.beta) * float(np.sum(w * self._mixture(components, gate_sigma_m)))
         floor = self.beta / max(area_m2, 1.0)
         p_in = inlier / (inlier + floor)
@@ -218,13 +225,42 @@ class ParticleFilter:
         distance = abs(best - self.estimate()[0])
         if p_in < 0.5:
             return FixOutcome(False, p_in, distance)
-        loglik = np.log((1.0 - self.beta) * g + floor)
+        # In logs: a sharp fix a few metres from every particle underflows g itself.
+        logg = self._log_mixture(components)
+        logw = self.logw - float(np.max(self.logw))
+        top = float(np.max(logw + logg))
+        log_mean_g = top + math.log(float(np.sum(np.exp(logw + logg - top)) / np.sum(np.exp(logw))))
+        loglik = np.logaddexp(math.log(p_in) + logg - log_mean_g, math.log1p(-p_in) if p_in < 1.0 else -np.inf)
         after = np.exp(self.logw + loglik - np.max(self.logw + loglik))
-        if 1.0 / np.sum((after / after.sum()) ** 2) < MIN_EFFECTIVE:
+        if (self.n * self._coverage(components, w) < MIN_EFFECTIVE
+                or 1.0 / np.sum((after / after.sum()) ** 2) < MIN_EFFECTIVE):
             self._redraw(components, w)
         else:
             self._reweigh(loglik)
         return FixOutcome(True, p_in, distance)
+
+    def _coverage(self, components: list[FixComponent], w: np.ndarray) -> float:
+        """The cloud's weight inside the fix: ``sum_j pi_j sum_i w_i exp(-|p_i - c_j|^2 / 2 s_j^2)``.
+
+        Times ``n``, about how many particles describe the posterior near the fix.  A cloud tighter than
+        its error, a few metres from an accepted fix, has almost none there: reweighting would only pick
+        its particles nearest the fix, still metres off, so the cloud is redrawn from the fix instead.
+        """
+        total = sum(c.weight for c in components)
+        return float(sum((c.weight / total) * np.sum(w * np.exp(-0.5 * np.abs(self.p - c.centre) ** 2
+                                                                  / max(c.sigma_m**2, 1e-12)))
+                         for c in components))
+
+    def _log_mixture(self, components: list[FixComponent]) -> np.ndarray:
+        """``log sum_j pi_j N(p; c_j, s_j^2 I)`` at every particle, finite however far the particles are."""
+        total = sum(c.weight for c in components)
+        terms = np.empty((len(components), self.n))
+        for j, c in enumerate(components):
+            s2 = max(c.sigma_m**2, 1e-12)
+            terms[j] = (math.log(c.weight / total) - 0.5 * np.abs(self.p - c.centre) ** 2 / s2
+                        - math.log(2.0 * math.pi * s2))
+        top = terms.max(axis=0)
+        return np.asarray(top + np.log(np.exp(terms - top).sum(axis=0)))
 
     def _mixture(self, components: list[FixComponent], widen_m: float) -> np.ndarray:
         """``sum_j pi_j N(p; c_j, (s_j^2 + widen^2) I)`` at every particle."""
@@ -250,7 +286,9 @@ class ParticleFilter:
             near[j] = w * np.exp(-0.5 * np.abs(self.p - c.centre) ** 2 / s2) / s2
         mass = np.array([c.weight for c in components]) * near.sum(axis=1)
         if not np.isfinite(mass).all() or mass.sum() <= 0:
-            return
+            # Every component far beyond the kernel (an accepted fix, but the cloud elsewhere): the fix's own
+            # weights choose, rather than leaving the cloud unchanged behind a fix reported as applied.
+            mass = np.array([c.weight for c in components], float)
         which = self.rng.choice(len(components), size=self.n, p=mass / mass.sum())
         p_new = np.empty(self.n, np.complex128)
         v_new = np.empty(self.n, np.complex128)
