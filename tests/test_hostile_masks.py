@@ -14,17 +14,15 @@ import os
 import struct
 import subprocess
 import sys
-import warnings
 import zlib
 from pathlib import Path
 
 import numpy as np
 import pytest
-import rasterio
 import shapely
 from click.testing import CliRunner
 from mapdb_cli.main import cli
-from rasterio.errors import NotGeoreferencedWarning
+from maskfiles import write_mask
 from rasterio.transform import Affine
 from scipy import ndimage
 
@@ -38,16 +36,6 @@ def run(*args: str):
 
 def digest(*paths: Path) -> list[str]:
     return [hashlib.sha256(p.read_bytes()).hexdigest() for p in paths]
-
-
-def write_mask(path: Path, array: np.ndarray, **profile) -> Path:
-    driver = "PNG" if path.suffix == ".png" else "GTiff"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path, "w", driver=driver, width=array.shape[1], height=array.shape[0], count=1,
-                           dtype=array.dtype, **profile) as ds:
-            ds.write(array, 1)
-    return path
 
 
 def noisy_mask(height: int = 240, width: int = 320, seed: int = 1) -> np.ndarray:

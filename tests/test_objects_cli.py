@@ -5,33 +5,20 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import warnings
 from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
-import rasterio
 import shapely
 from click.testing import CliRunner
 from mapdb_cli.main import cli
-from rasterio.errors import NotGeoreferencedWarning
+from maskfiles import write_mask
 from rasterio.features import rasterize
 from rasterio.transform import Affine
 
 
 def run(*args: str):
     return CliRunner().invoke(cli, list(args), catch_exceptions=False)
-
-
-def write_mask(path: Path, array: np.ndarray, transform: Affine | None = None, crs: str | None = None) -> Path:
-    driver = "PNG" if path.suffix == ".png" else "GTiff"
-    extra = {"transform": transform, "crs": crs} if transform is not None else {}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path, "w", driver=driver, width=array.shape[1], height=array.shape[0], count=1,
-                           dtype=array.dtype, **extra) as ds:
-            ds.write(array, 1)
-    return path
 
 
 def lines(path: Path) -> list[dict]:

@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from mapdb_cli.main import COMMANDS, TWO_WORD_COMMANDS, cli
-from osmxml import OsmXml, square
+from osmxml import small_town
 
 from mapdb.build.merge import merge_maps
 from mapdb.mapfile.reader import open_map
@@ -81,11 +81,7 @@ def world(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     from PIL import Image
 
     d = tmp_path_factory.mktemp("rule")
-    doc = OsmXml()
-    for i in range(3):
-        doc.ring(square(40.0 * i, 0.0, 6.0), {"building": "yes"})
-    doc.ring(square(0.0, 80.0, 20.0), {"leisure": "park"})
-    town = doc.write(d / "town.osm")
+    town = small_town(d / "town.osm")
     files = {"town": town, "town_map": d / "town.mapdb", "paper": d / "paper.mapdb", "images": d / "images.jsonl",
              "flight": d / "flight.jsonl", "mask": d / "mask.png", "lattice": lattice_map(d / "lattice.mapdb")}
     assert run("build", town, "-o", files["town_map"], "-q").exit_code == 0

@@ -19,7 +19,7 @@ import pytest
 from clichecks import assert_one_line_error as one_line_error
 from click.testing import CliRunner
 from mapdb_cli.main import cli
-from osmxml import OsmXml, square
+from osmxml import small_town
 
 from mapdb.errors import MapdbIOError
 from mapdb.mapfile.reader import open_map
@@ -52,11 +52,7 @@ def hidden_files(directory: Path) -> list[str]:
 def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """town.osm and its map (built by the CLI), labels.toml, the paper's map and 4 images simulated on it."""
     d = tmp_path_factory.mktemp("outputs")
-    doc = OsmXml()
-    for i in range(3):
-        doc.ring(square(40.0 * i, 0.0, 6.0), {"building": "yes"})
-    doc.ring(square(0.0, 80.0, 20.0), {"leisure": "park"})
-    town = doc.write(d / "town.osm")
+    town = small_town(d / "town.osm")
     labels = d / "labels.toml"
     labels.write_text("")
     town_map = d / "town.mapdb"
