@@ -117,6 +117,7 @@ def test_build_draws_a_bar_on_a_terminal_and_an_error_erases_it(tmp_path: Path) 
     assert "build  [" in before and shown.startswith("\x1b[?25hmapdb: error: ") and "b.osm" in shown
 
 
+@pytest.mark.slow  # 2 s: the paper method on real images.
 def test_paper_query_reports_progress_on_stderr_only(sample, tmp_path: Path) -> None:
     map_path, _, images = sample
     two = tmp_path / "two.jsonl"

@@ -391,7 +391,10 @@ def _reference_patches(path: Path) -> list[tuple[str, float, float, float]]:
     return sorted(out)
 
 
-@pytest.mark.parametrize("tile", [None, (7, 100), (50, 37)])
+# The tiled reads of a whole real raster are slow (2-4 s each): the default run checks the untiled read, `-m slow`
+# the tilings too (small tilings are checked on generated rasters in every run).
+@pytest.mark.parametrize("tile", [None, pytest.param((7, 100), marks=pytest.mark.slow),
+                                  pytest.param((50, 37), marks=pytest.mark.slow)])
 @pytest.mark.parametrize("name", sorted(CORINE_FILES))
 def test_real_corine_rasters(name: str, tile) -> None:
     path = _real(name)

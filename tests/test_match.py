@@ -322,6 +322,7 @@ def test_paper_bound_never_undercounts_a_candidate() -> None:
         assert checked > 0 and pruned > 0  # the check covered candidates, and the bound did rule some out
 
 
+@pytest.mark.slow  # 2 s: the full test of the paper method, unpruned.
 def test_paper_pruning_gives_the_same_results_as_the_full_test() -> None:
     from mapdb.match.paper.algorithm import PaperOptions
 

@@ -259,6 +259,7 @@ def test_min_objects_redraws_positions_over_empty_ground() -> None:
         simulate_images(objects, 1, seed=0, min_objects=10_000, max_tries=50)
 
 
+@pytest.mark.slow  # 5 s: thousands of images drawn to test uniformity.
 def test_min_objects_positions_are_uniform_over_qualifying_places() -> None:
     # Two clusters of different density; a place qualifies if it shows >= 6 objects.  The share of images
     # over the left cluster must match the share of qualifying area there (found by brute force), not the
