@@ -43,7 +43,7 @@ from ..mapfile.reader import open_map
 from ..mapfile.writer import MapWriter
 from ..objects import Objects
 from ..outputs import ProgressLike, as_progress
-from .pipeline import _auto_crs, _fingerprint, _projected_crs, _to_lonlat, file_sha256
+from .pipeline import _auto_crs, _duplicate, _fingerprint, _projected_crs, _to_lonlat, file_sha256
 
 __all__ = ["content_digest", "merge_maps"]
 
@@ -122,19 +122,11 @@ def _unique_inputs(inputs: Sequence[str | Path]) -> tuple[list[tuple[Path, str |
     seen: dict[Any, Path] = {}
     for path in map(Path, inputs):
         fingerprint = _fingerprint(path)  # None for what is not a regular file: open_map says what is wrong
-        if fingerprint is None:
-            unique.append((path, None))
-            continue
-        identity, sha = fingerprint
-        first = seen.get(identity)
-        if first is not None:
-            warnings.append(f"{path}: given twice; read once" if first == path else
-                            f"{path}: the same file as map {first}; read once")
-        elif sha in seen:
-            warnings.append(f"{path}: the same content as map {seen[sha]} (SHA-256 {sha[:16]}...); read once")
+        duplicate = _duplicate(path, fingerprint, seen, "map")
+        if duplicate:
+            warnings.append(duplicate)
         else:
-            seen[identity] = seen[sha] = path
-            unique.append((path, sha))
+            unique.append((path, fingerprint[1] if fingerprint else None))
     return unique, warnings
 
 

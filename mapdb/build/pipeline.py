@@ -103,17 +103,20 @@ def _fingerprint(path: Path) -> tuple[tuple[int, int], str] | None:
         return None
 
 
-def _duplicate(path: Path, fingerprint: tuple[tuple[int, int], str] | None, seen: dict[Any, Path]) -> str | None:
-    """The warning for a source already given (the same file, or the same bytes), else None; ``seen`` learns it."""
+def _duplicate(path: Path, fingerprint: tuple[tuple[int, int], str] | None, seen: dict[Any, Path],
+               what: str = "source") -> str | None:
+    """The warning for an input already given (the same file, or the same bytes), else None; ``seen`` learns it.
+
+    Shared by ``build`` (sources) and ``merge`` (maps, ``what="map"``)."""
     if fingerprint is None:
         return None
     identity, sha = fingerprint
     if identity in seen:
         first = seen[identity]
         return f"{path}: given twice; read once" if first == path else \
-            f"{path}: the same file as source {first}; read once"
+            f"{path}: the same file as {what} {first}; read once"
     if sha in seen:
-        return f"{path}: the same content as source {seen[sha]} (SHA-256 {sha[:16]}...); read once"
+        return f"{path}: the same content as {what} {seen[sha]} (SHA-256 {sha[:16]}...); read once"
     seen[identity] = seen[sha] = path
     return None
 
