@@ -82,7 +82,7 @@ def _after_the_command(signum: int, frame: Any) -> None:
             stream.flush()
         except (OSError, ValueError):
             pass
-    os.write(2, f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left\n".encode())
+    os.write(2, f"{_interrupted_line(signum)}\n".encode())
     os._exit(128 + signum)
 
 
@@ -139,8 +139,13 @@ def _interrupted(signum: int) -> None:
     Every ``with`` block on the way here has removed its temporary files; outputs already renamed into place
     are complete.
     """
-    click.echo(f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left", err=True)
+    click.echo(_interrupted_line(signum), err=True)
     sys.exit(128 + signum)
+
+
+def _interrupted_line(signum: int) -> str:
+    """The one line a command ends with after SIGINT or SIGTERM."""
+    return f"mapdb: interrupted by {SIGNALS.get(signum, signum)}; no partial output left"
 
 
 class LazyGroup(click.Group):

@@ -6,7 +6,7 @@ with the traceback only under ``--debug``.
 
 Progress goes to stderr (stdout is for results): a ``click.progressbar`` when stderr is a terminal,
 plain lines when it is not (a log, a pipe), nothing with ``-q``.  The library reports through its
-:class:`mapdb.outputs.Progress` protocol and never imports click.
+:class:`mapdb.progress.Progress` protocol and never imports click.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from typing import Any
 import click
 
 from mapdb.errors import MapdbError
-from mapdb.outputs import LineProgress, Progress, check_outputs
+from mapdb.outputs import check_outputs
+from mapdb.progress import LineProgress, Progress
 
 
 class FiniteFloat(click.FloatRange):
@@ -149,7 +150,7 @@ _REDRAW_S = 0.1
 
 
 class TerminalProgress:
-    """:class:`mapdb.outputs.Progress` drawn with ``click.progressbar`` on a terminal.
+    """:class:`mapdb.progress.Progress` drawn with ``click.progressbar`` on a terminal.
 
     A count is a bar (position, percentage and time left; a moving mark and the position when the
     total is not known); messages are printed on lines of their own above it.
@@ -229,7 +230,7 @@ def _abandon_bars() -> None:
 def progress_printer(quiet: bool) -> Progress | None:
     """Where a command's progress goes: stderr (stdout is for results only), or nowhere with ``quiet``.
 
-    A bar on a terminal (:class:`TerminalProgress`), plain lines otherwise (:class:`mapdb.outputs.LineProgress`).
+    A bar on a terminal (:class:`TerminalProgress`), plain lines otherwise (:class:`mapdb.progress.LineProgress`).
     Either is also a plain message callback.
     """
     if quiet:

@@ -14,8 +14,8 @@ Every command that writes a file goes through this module:
 * An output in a directory that does not exist is refused, as GDAL does (``OUT: directory DIR does
   not exist``), unless the caller asks for missing directories to be made (``parents``, the CLI's
   ``--parents``, like ``mkdir -p``).
-* :class:`Progress`, :class:`LineProgress` and :func:`as_progress` (how long library functions report
-  to the user) live in :mod:`mapdb.progress` and are re-exported here.
+* :class:`~mapdb.progress.Progress` (how long library functions report to the user) lives in
+  :mod:`mapdb.progress`.
 
 Symlinked outputs are written through: the link stays and its target is replaced, as GDAL and
 rasterio do when they open an output path.
@@ -38,13 +38,8 @@ from pathlib import Path
 from typing import IO, Any
 
 from .errors import MapdbError, MapdbIOError, OutputClashError, OutputExistsError
-from .progress import LineProgress, Progress, ProgressLike, as_progress  # re-exported: imported from here
 
 __all__ = [
-    "LineProgress",
-    "Progress",
-    "ProgressLike",
-    "as_progress",
     "atomic_open",
     "atomic_path",
     "check_outputs",

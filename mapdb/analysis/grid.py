@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import AnalysisError, EmptyMapError
 from ..objects import Objects
-from ..outputs import ProgressLike, as_progress
+from ..progress import ProgressLike, as_progress
 
 __all__ = [
     "MAX_CELLS",

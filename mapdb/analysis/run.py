@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import __version__
 from ..cluster import run_tasks, worker_count
-from ..outputs import ProgressLike, as_progress
+from ..progress import ProgressLike, as_progress
 from .grid import CellCounts, Grid, analysis_area, cell_counts, check_labels, make_grid
 from .measures import MIN_VISIBLE, CellMeasures, SampleConfig, measure_cells
 

@@ -42,7 +42,7 @@ from ..errors import EmptyMapError, SourceError
 from ..mapfile.reader import open_map
 from ..mapfile.writer import MapWriter
 from ..objects import Objects
-from ..outputs import ProgressLike, as_progress
+from ..progress import ProgressLike, as_progress
 from .pipeline import _auto_crs, _duplicate, _fingerprint, _projected_crs, _to_lonlat, file_sha256
 
 __all__ = ["content_digest", "merge_maps"]

@@ -25,7 +25,7 @@ from ..geo import bbox_text, check_bbox, in_bbox
 from ..labels import LabelTable, load_label_table
 from ..mapfile.writer import MapWriter
 from ..objects import Objects
-from ..outputs import Progress, ProgressLike, as_progress
+from ..progress import Progress, ProgressLike, as_progress
 from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
@@ -219,7 +219,7 @@ def build_map(
         the one read in this process.  A source that fails fails the build, naming the source.
     progress : Progress or callable, optional
         Receives the stages as messages, and a count over the sources read, the projection and the
-        writing (see :class:`mapdb.outputs.Progress`).
+        writing (see :class:`mapdb.progress.Progress`).
 
     Returns
     -------

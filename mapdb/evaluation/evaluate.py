@@ -36,7 +36,7 @@ from ..answers import Answer
 from ..detections.images import read_image_documents
 from ..errors import ImageInputError, MapdbError, MapdbIOError, MapFormatError
 from ..mapfile.layout import DEFAULT_QUANTUM
-from ..outputs import Progress, ProgressLike, as_progress
+from ..progress import Progress, ProgressLike, as_progress
 
 __all__ = [
     "DEFAULT_FP_THRESHOLD_M",

@@ -19,7 +19,7 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from ..outputs import ProgressLike, as_progress
+from ..progress import ProgressLike, as_progress
 from ..simulation.simulate import paper_map, simulate_images
 from .evaluate import evaluate_images, summarize
 

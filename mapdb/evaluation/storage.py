@@ -40,7 +40,7 @@ from ..mapfile.codec import area_codes
 from ..mapfile.layout import MAGIC
 from ..mapfile.reader import MetaMap, open_map
 from ..objects import Objects
-from ..outputs import ProgressLike, as_progress
+from ..progress import ProgressLike, as_progress
 
 __all__ = ["DEFAULT_CELL_M", "DEFAULT_GSD_M", "DEFAULT_JPEG_BPP", "format_storage", "sorted_columns",
            "storage_report", "storage_reports", "storage_total"]

@@ -44,7 +44,7 @@ import numpy as np
 from .._scipy import cKDTree
 from ..camera import Camera, project_to_image
 from ..objects import Objects
-from ..outputs import ProgressLike, as_progress
+from ..progress import ProgressLike, as_progress
 from ..simulation.detector import Detector, detect, label_mix
 from ..simulation.documents import image_document, truth_entry
 from ..simulation.poses import Shot, placement_limits

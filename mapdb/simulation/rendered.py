@@ -33,7 +33,8 @@ import numpy as np
 from .._scipy import cKDTree
 from ..detections.masks import DEFAULT_MIN_AREA_PX, from_mask
 from ..errors import EmptyMapError
-from ..outputs import ProgressLike, as_progress, atomic_path
+from ..outputs import atomic_path
+from ..progress import ProgressLike, as_progress
 from .detector import Detector, confuse_labels, label_mix
 from .documents import add_hints, bound_entry, truth_entry
 from .outlines import Scene

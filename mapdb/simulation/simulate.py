@@ -27,7 +27,7 @@ from .._scipy import cKDTree
 from ..camera import Camera, Pose, project_to_image
 from ..errors import EmptyMapError
 from ..objects import Objects
-from ..outputs import ProgressLike, as_progress
+from ..progress import ProgressLike, as_progress
 from .detector import Detector, detect, label_mix
 from .documents import add_hints, bound_entry, image_document, truth_entry
 from .poses import Shot, camera_area, draw_shot, place_camera
@@ -189,7 +189,7 @@ def simulate_images(
     id_prefix : str
         Images are named ``f"{id_prefix}{i:06d}"``.
     progress : Progress or callable, optional
-        Counts the images made (:class:`mapdb.outputs.Progress`).
+        Counts the images made (:class:`mapdb.progress.Progress`).
 
     Returns
     -------
