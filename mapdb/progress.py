@@ -2,7 +2,7 @@
 
 :class:`Progress` is how long library functions report to the user (the CLI draws a bar on a terminal, plain
 lines otherwise); :class:`LineProgress` writes plain lines; :func:`as_progress` turns a plain message callback
-into a :class:`Progress`.  :mod:`mapdb.outputs` re-exports them, where they lived first.
+into a :class:`Progress`.
 """
 
 from __future__ import annotations

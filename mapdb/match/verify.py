@@ -15,13 +15,10 @@ import numpy as np
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, first_per_map_object, residual_sigmas
 from .geometry import fit_similarity_complex
-from .mapobjects.object_index import U_MAX, ObjectIndex
+from .mapobjects.object_index import ObjectIndex
 from .nfa import log10_nfa_curve
 
-__all__ = [
-    "GATE_SIGMAS", "U_MAX", "ObjectIndex", "decision_nfa", "first_per_map_object", "refine", "residual_sigmas",
-    "screen",
-]
+__all__ = ["ObjectIndex", "decision_nfa", "refine", "screen"]
 
 _POINTS = ImageEvidence()  # ideal centroids: point residuals only
 
