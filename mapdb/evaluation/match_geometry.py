@@ -143,8 +143,8 @@ def _nearest_of_label(world: np.ndarray, names: np.ndarray, objects: Objects) ->
 
 def _gate(distance: np.ndarray, expected: int) -> float:
     """The inlier gate from the ``expected`` smallest distances (the matcher's residual sigma and rule)."""
-    from ..match.refine import residual_sigma
     from ..match.evidence.points import GATE_SIGMAS
+    from ..match.refine import residual_sigma
 
     finite = np.sort(distance[np.isfinite(distance)])
     k = min(max(int(expected), 3), finite.size)
