@@ -37,6 +37,22 @@ def _placed(candidate: dict[str, Any]) -> bool:
     return _number(candidate.get("x")) is not None and _number(candidate.get("y")) is not None
 
 
+def _ring(corners: Any) -> list[list[float]]:
+    """A footprint's lon/lat corners as an RFC 7946 polygon ring: closed, counter-clockwise (exterior).
+
+    Examples
+    --------
+    >>> _ring([[0, 1], [1, 1], [1, 0], [0, 0]])  # clockwise corners, as a north-up image's are
+    [[0.0, 1.0], [0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]
+    """
+    ring = [[float(x), float(y)] for x, y in corners]
+    # Shoelace: positive twice-area for a counter-clockwise ring.
+    twice_area = sum(x0 * y1 - x1 * y0 for (x0, y0), (x1, y1) in zip(ring, ring[1:] + ring[:1], strict=True))
+    if twice_area < 0:
+        ring = ring[:1] + ring[:0:-1]
+    return ring + ring[:1]
+
+
 @dataclass(frozen=True)
 class Candidate:
     """A place the search found for the image: where the image centre would be, and its evidence."""
@@ -53,6 +69,10 @@ class Candidate:
 
 # Fields written only when they have a value, in this order, after the pose and before the time.
 _OPTIONAL = ("hypotheses", "skipped_labels", "notes", "error_std")
+# Where the image lies on the ground (:mod:`mapdb.localize.georef`), written after the pose when known.
+_GEOREF = ("width", "height", "transform", "transform_error_m", "footprint", "footprint_lonlat")
+# Fields that are not GeoJSON properties: lists (the geometry's own, and the candidates).
+_NOT_PROPERTIES = frozenset({"candidates", "transform", "footprint", "footprint_lonlat", "skipped_labels", "notes"})
 # The pose's fields, written (with None where unknown) for every accepted answer.
 _POSE = ("x", "y", "lon", "lat", "crs", "inliers", "heading_deg", "scale_m_per_px", "sigma_m", "score",
          "expected_false_alarms")
@@ -85,6 +105,12 @@ class Answer:
     notes: list[str] | None = None
     error_std: float | None = None
     time_ms: float = 0.0
+    width: float | None = None
+    height: float | None = None
+    transform: list[float] | None = None
+    transform_error_m: float | None = None
+    footprint: list[list[float]] | None = None
+    footprint_lonlat: list[list[float]] | None = None
 
     @property
     def ok(self) -> bool:
@@ -99,12 +125,40 @@ class Answer:
             if self.altitude_m is not None:
                 record["altitude_m"] = self.altitude_m
             record["levelled"] = bool(self.levelled)
+            record.update((name, getattr(self, name)) for name in _GEOREF if getattr(self, name) is not None)
         else:
             record["reason"] = self.reason
         record["candidates"] = [c.to_json() for c in self.candidates]
         record.update((name, getattr(self, name)) for name in _OPTIONAL if getattr(self, name) is not None)
         record["time_ms"] = self.time_ms
         return json_safe(record)
+
+    def properties(self) -> dict[str, Any]:
+        """The answer's fields as GeoJSON properties: those of :meth:`to_json` whose values are not lists or
+        objects (the footprint, the transform and the candidates are not: see ``mapdb query --footprints``),
+        with the notes joined by ``"; "``."""
+        record = self.to_json()
+        properties = {name: value for name, value in record.items() if name not in _NOT_PROPERTIES}
+        if self.notes:
+            properties["notes"] = "; ".join(self.notes)
+        return properties
+
+    @property
+    def __geo_interface__(self) -> dict[str, Any]:
+        """A GeoJSON Feature (RFC 7946): the image centre's point in lon/lat (None when rejected, or without a
+        CRS), and :meth:`properties`; shapely's ``shape()`` and geopandas' ``from_features`` read it."""
+        geometry = None
+        if self.ok and self.lon is not None and self.lat is not None:
+            geometry = {"type": "Point", "coordinates": [self.lon, self.lat]}
+        return {"type": "Feature", "geometry": geometry, "properties": self.properties()}
+
+    def footprint_feature(self) -> dict[str, Any] | None:
+        """The image's footprint as a GeoJSON Polygon Feature in lon/lat (the ring counter-clockwise, as
+        RFC 7946 asks) with :meth:`properties`; None without a footprint in lon/lat."""
+        if not self.ok or not self.footprint_lonlat:
+            return None
+        geometry = {"type": "Polygon", "coordinates": [_ring(self.footprint_lonlat)]}
+        return {"type": "Feature", "geometry": geometry, "properties": self.properties()}
 
     @classmethod
     def from_json(cls, record: dict[str, Any]) -> Answer:

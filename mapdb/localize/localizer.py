@@ -412,7 +412,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
                       None if levelled else im.area_px, outward)
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
-    return ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start)
+    return ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start, im)
 
 
 def _checked(image: dict[str, Any] | ImageObjects, crs: str, prior: tuple[float, float, float] | None,

@@ -7,6 +7,9 @@ writes::
     {"id": ..., "status": "ok", "x": ..., "y": ..., "lon": ..., "lat": ..., "crs": "EPSG:...",
      "inliers": 14, "heading_deg": ..., "scale_m_per_px": ..., "sigma_m": ..., "score": ...,
      "altitude_m": ...,                      # when the field of view is known
+     "levelled": false, "width": 640, "height": 480,
+     "transform": [a, b, c, d, e, f], "transform_error_m": 0.0,
+     "footprint": [[x, y], ...], "footprint_lonlat": [[lon, lat], ...],
      "candidates": [{"x": ..., "y": ..., "inliers": ..., "score": ...}, ...], "time_ms": ...}
     {"id": ..., "status": "rejected", "reason": "...", "candidates": [...], "time_ms": ...}
 
@@ -23,6 +26,15 @@ writes::
   means fewer than one chance in a thousand that so good a match arises from
   objects unrelated to the map.  None for the paper method, which has no such
   measure.  ``expected_false_alarms`` is that number, ``10 ** -score``.
+* ``width``, ``height``: the image's size in pixels (the document's), which the next fields are of.
+* ``transform``: the image-to-map affine ``(a, b, c, d, e, f)``, ``x = a col + b row + c``,
+  ``y = d col + e row + f`` for a pixel position ``(col, row)`` from the image's top-left corner
+  (rasterio's ``Affine`` order); for a levelled (tilted) image the best affine of the pinhole projection
+  over the image, ``transform_error_m`` the largest distance between the two (0 for a level image); see
+  :mod:`mapdb.localize.georef`.
+* ``footprint``: the ground points of the image's corners (top-left, top-right, bottom-right,
+  bottom-left) in the map's CRS; ``footprint_lonlat`` the same in lon/lat (without a CRS, left out).
+  Neither, nor the transform, when a tilted image's corners reach the horizon.
 """
 
 from __future__ import annotations
@@ -35,9 +47,11 @@ from typing import Any
 import numpy as np
 
 from ..answers import Answer, Candidate
+from ..detections.images import ImageObjects
+from .georef import georeference
 from .lonlat import to_lonlat
 
-__all__ = ["FoundPose", "RejectionError", "elapsed_ms", "finite", "ok_record", "rejected", "rounded"]
+__all__ = ["FoundPose", "RejectionError", "elapsed_ms", "finite", "georef_fields", "ok_record", "rejected", "rounded"]
 
 
 def rounded(value: float, digits: int) -> float:
@@ -83,9 +97,29 @@ def rejected(image_id: Any, reason: str, start: float, candidates: list[Candidat
                   time_ms=elapsed_ms(start))
 
 
+def georef_fields(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bool) -> dict[str, Any]:
+    """An accepted answer's ``width``, ``height``, ``transform``, ``transform_error_m``, ``footprint`` and
+    ``footprint_lonlat`` (module docs), rounded as the answer's other fields are."""
+    fields: dict[str, Any] = {"width": image.width, "height": image.height}
+    attitude = (image.fov_deg, image.roll_deg or 0.0, image.pitch_deg or 0.0) if levelled and image.fov_deg else None
+    where = georeference(a, b, image.width, image.height, attitude)
+    if where is None:
+        return fields
+    ta, tb, tc, td, te, tf = where.transform
+    # 1e-9 m a pixel is a micrometre across a 1000-pixel image; offsets to the 0.1 mm.
+    fields["transform"] = [rounded(ta, 9), rounded(tb, 9), rounded(tc, 4), rounded(td, 9), rounded(te, 9),
+                           rounded(tf, 4)]
+    fields["transform_error_m"] = rounded(where.error_m, 3)
+    fields["footprint"] = [[rounded(x, 3), rounded(y, 3)] for x, y in where.footprint]
+    corners = [to_lonlat(crs, float(x), float(y)) for x, y in where.footprint]
+    if all(lon is not None and lat is not None for lon, lat in corners):
+        fields["footprint_lonlat"] = [[lon, lat] for lon, lat in corners]
+    return fields
+
+
 def ok_record(image_id: Any, crs: str, pose: FoundPose, focal_px: float | None, levelled: bool,
-               start: float) -> Answer:
-    """The answer of a localized image (module docs)."""
+               start: float, image: ImageObjects | None = None) -> Answer:
+    """The answer of a localized image (module docs); where it lies on the ground when ``image`` is given."""
     a, b = pose.a, pose.b
     lon, lat = to_lonlat(crs, b.real, b.imag)
     return Answer(
@@ -109,5 +143,6 @@ def ok_record(image_id: Any, crs: str, pose: FoundPose, focal_px: float | None, 
         levelled=levelled,
         candidates=pose.candidates,
         **pose.extra,
+        **({} if image is None else georef_fields(crs, a, b, image, levelled)),
         time_ms=elapsed_ms(start),
     )

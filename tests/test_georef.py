@@ -1,0 +1,99 @@
+"""Georeferenced answers (issue 32): each accepted answer's footprint on the ground and image-to-map affine,
+checked against the simulator's camera (the truth the images were drawn from), and ``__geo_interface__``."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import shapely.geometry
+
+from mapdb.answers import Answer
+from mapdb.camera import Camera, Pose, footprint, image_to_ground
+from mapdb.localize import localize
+from mapdb.localize.georef import GRID, georeference, pixel_to_map
+from mapdb.localize.lonlat import to_lonlat
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.simulation.simulate import paper_map, simulate_images
+
+
+@pytest.fixture(scope="module")
+def paper() -> MemoryMap:
+    return MemoryMap(paper_map(seed=2))
+
+
+def _true_footprint(image: dict) -> np.ndarray:
+    t = image["truth"]
+    camera = Camera(image["width"], image["height"], t["fov_deg"])
+    pose = Pose(t["x"], t["y"], t["altitude_m"], t["heading_deg"], t["roll_deg"], t["pitch_deg"])
+    return footprint(pose, camera)
+
+
+def _apply(transform: list[float], col: float, row: float) -> tuple[float, float]:
+    a, b, c, d, e, f = transform
+    return a * col + b * row + c, d * col + e * row + f
+
+
+@pytest.mark.parametrize("tilted", [False, True], ids=["level", "tilted"])
+def test_answers_footprint_is_the_cameras(paper: MemoryMap, tilted: bool) -> None:
+    """The answer's corners lie where the simulated camera saw them (within the fix's error, well under 1 m);
+    the transform maps the corners onto them exactly for a level image, within transform_error_m tilted."""
+    extra = {"attitude_std": 5.0, "with_attitude": True} if tilted else {}
+    images = simulate_images(paper, 4, pixel_std=1.0, yaw="random", seed=3, **extra)
+    for image in images:
+        answer = localize(image, paper)
+        assert answer.ok, answer.reason
+        record = answer.to_json()
+        assert record["levelled"] is tilted
+        assert (record["width"], record["height"]) == (image["width"], image["height"])
+        corners = np.array(record["footprint"])
+        assert np.hypot(*(corners - _true_footprint(image)).T).max() < 0.5
+        w, h = image["width"], image["height"]
+        mapped = np.array([_apply(record["transform"], c, r) for c, r in [(0, 0), (w, 0), (w, h), (0, h)]])
+        gap = np.hypot(*(mapped - corners).T).max()
+        if tilted:
+            assert 0.1 < record["transform_error_m"] and gap <= record["transform_error_m"] + 1e-3
+        else:
+            assert record["transform_error_m"] == 0.0 and gap < 2e-3
+        lonlat = [to_lonlat(answer.crs, x, y) for x, y in corners]
+        # From the unrounded corners: within a millimetre's worth of degrees of the rounded ones'.
+        assert np.abs(np.array(record["footprint_lonlat"]) - np.array(lonlat)).max() < 1e-7
+        assert Answer.from_json(record).to_json() == record
+
+
+def test_the_geometry_is_the_pinhole_camera_exactly() -> None:
+    """With the true similarity of a levelled image (scale altitude / f, the heading's rotation, b the nadir),
+    every pixel lands where :func:`mapdb.camera.image_to_ground` puts it, and the best affine's error is the
+    largest gap over the grid it was fitted on."""
+    camera, pose = Camera(640, 480, 60.0), Pose(500.0, 800.0, 120.0, 30.0, 4.0, -7.0)
+    a = pose.altitude / camera.focal_px * complex(math.cos(math.radians(-30.0)), math.sin(math.radians(-30.0)))
+    b = complex(pose.x, pose.y)
+    attitude = (camera.fov_deg, pose.roll_deg, pose.pitch_deg)
+    cols, rows = np.meshgrid(np.linspace(0, 640, 9), np.linspace(0, 480, 7))
+    x, y = pixel_to_map(cols, rows, a, b, 640, 480, attitude)
+    tx, ty = image_to_ground(cols.ravel(), rows.ravel(), pose, camera)
+    assert np.allclose(x, tx, atol=1e-6) and np.allclose(y, ty, atol=1e-6)
+    g = georeference(a, b, 640, 480, attitude)
+    assert g is not None and np.allclose(g.footprint, footprint(pose, camera), atol=1e-6)
+    gc, gr = np.meshgrid(np.linspace(0, 640, GRID), np.linspace(0, 480, GRID))
+    gx, gy = pixel_to_map(gc, gr, a, b, 640, 480, attitude)
+    fx, fy = _apply(list(g.transform), gc.ravel(), gr.ravel())
+    assert g.error_m == pytest.approx(np.hypot(fx - gx, fy - gy).max())
+    # Looking at the horizon: no footprint to give.
+    assert georeference(a, b, 640, 480, (60.0, 0.0, 75.0)) is None
+
+
+def test_geo_interface_is_a_lonlat_point_feature(paper: MemoryMap) -> None:
+    (image,) = simulate_images(paper, 1, pixel_std=1.0, seed=5)
+    answer = localize(image, paper)
+    feature = answer.__geo_interface__
+    point = shapely.geometry.shape(answer)
+    assert feature["type"] == "Feature" and (point.x, point.y) == (answer.lon, answer.lat)
+    properties = feature["properties"]
+    assert properties["id"] == image["id"] and properties["heading_deg"] == answer.heading_deg
+    assert not any(isinstance(v, list | dict) for v in properties.values())
+    polygon = shapely.geometry.shape(answer.footprint_feature()["geometry"])
+    assert polygon.exterior.is_ccw and polygon.contains(point)
+    rejected = Answer(id="r", status="rejected", reason="no match")
+    assert rejected.__geo_interface__["geometry"] is None and rejected.footprint_feature() is None
