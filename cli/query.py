@@ -6,12 +6,14 @@ import json
 import os
 import stat
 import sys
+from contextlib import ExitStack
 
 import click
 
 from mapdb.detections.images import Prior, check_prior, read_image_documents
 from mapdb.errors import ImageInputError
 from mapdb.localize.batch import localize_documents
+from mapdb.localize.georef import FeatureWriter
 from mapdb.localize.localizer import METHODS
 from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions
@@ -122,12 +124,18 @@ def _stdin_file() -> str | None:
 @click.option("--min-score", type=finite_float(0.0, 300.0), default=-FastOptions().log10_epsilon, show_default=True,
               help="Accept an answer only above this score (-log10 of its expected false alarms; the default "
                    "was calibrated on real places not in the map, see the README).")
+@click.option("--geojson", "geojson_file", type=click.Path(), default=None, metavar="FIXES.geojson",
+              help="Also write each accepted image's position as a GeoJSON Point (RFC 7946, lon/lat) with the "
+                   "answer's fields as properties.")
+@click.option("--footprints", "footprints_file", type=click.Path(), default=None, metavar="FOOTPRINTS.geojson",
+              help="Also write each accepted image's footprint on the ground as a GeoJSON Polygon (lon/lat).")
 @overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
-def query(map_file, images_file, output, method, prior, prior_crs, min_score, overwrite, parents, quiet, debug):
+def query(map_file, images_file, output, method, prior, prior_crs, min_score, geojson_file, footprints_file,
+          overwrite, parents, quiet, debug):
     """Localize every image of IMAGES (JSON Lines; '-' for stdin) in MAP.
 
     Writes one JSON answer per image, in input order: status "ok" with the position (map CRS and
@@ -148,16 +156,24 @@ def query(map_file, images_file, output, method, prior, prior_crs, min_score, ov
     any earlier OUT.jsonl as it was.  An existing OUT.jsonl is replaced only with --overwrite, and never
     when it is MAP, MAP.qidx or IMAGES; its directory must exist unless --parents is given.
 
+    --geojson and --footprints write the accepted answers as GIS layers (QGIS, ogrinfo, geopandas read
+    them): one feature an accepted image, one geometry type a file, written like OUT.jsonl (whole at the
+    end, the same rules).
+
     Progress (--method paper only, on stderr): a bar on a terminal; plain lines when IMAGES is a
     file and stderr is not a terminal; nothing with -q.
     """
     checked = None if prior is None else checked_prior(prior, prior_crs == LONLAT)
-    check_paths([output], [*with_index(map_file), _stdin_file() if images_file == "-" else images_file],
+    check_paths([output, geojson_file, footprints_file],
+                [*with_index(map_file), _stdin_file() if images_file == "-" else images_file],
                 overwrite=overwrite, parents=parents)
     say = _progress(method, images_file, quiet)
-    with open_map(map_file) as m:
+    with open_map(map_file) as m, ExitStack() as layers:
         prior_arg = None if checked is None else _prior_argument(checked, prior_crs, m.crs)
         documents = read_image_documents(images_file)
+        # The layers' temporary files are renamed only once every answer is written, after OUT.jsonl's.
+        writers = [layers.enter_context(FeatureWriter(layers.enter_context(atomic_open(path)), kind))
+                   for path, kind in ((geojson_file, "fixes"), (footprints_file, "footprints")) if path]
         with atomic_open(output) as out:
             streaming = output == "-"
             # The answers and the bar share a terminal: the bar's line is erased before each answer.
@@ -169,6 +185,8 @@ def query(map_file, images_file, output, method, prior, prior_crs, min_score, ov
                 out.write(json.dumps(record.to_json(), separators=(",", ":"), allow_nan=False) + "\n")
                 if streaming:
                     out.flush()  # the answer reaches a reader on a pipe before the next line is read
+                for writer in writers:
+                    writer.write(record)
                 if say:
                     say.advance()
     if say:

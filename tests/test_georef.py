@@ -3,11 +3,18 @@ checked against the simulator's camera (the truth the images were drawn from), a
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
+import geopandas as gpd
 import numpy as np
+import pyogrio
 import pytest
+import shapely
 import shapely.geometry
+from click.testing import CliRunner
+from mapdb_cli.main import cli
 
 from mapdb.answers import Answer
 from mapdb.camera import Camera, Pose, footprint, image_to_ground
@@ -97,3 +104,40 @@ def test_geo_interface_is_a_lonlat_point_feature(paper: MemoryMap) -> None:
     assert polygon.exterior.is_ccw and polygon.contains(point)
     rejected = Answer(id="r", status="rejected", reason="no match")
     assert rejected.__geo_interface__["geometry"] is None and rejected.footprint_feature() is None
+
+
+def _query(*args: str):
+    return CliRunner().invoke(cli, ["query", *args], catch_exceptions=False)
+
+
+def test_query_writes_fixes_and_footprints_as_geojson(paper_setup, tmp_path: Path) -> None:
+    """--geojson and --footprints read back with pyogrio: one feature an accepted image, one geometry type a
+    file, the JSON answers' positions and fields; the output rule as for every command."""
+    map_path, images = paper_setup
+    lines = [json.dumps(images[0]), json.dumps({"id": "empty", "width": 640, "height": 480, "objects": []}),
+             json.dumps(images[1]), json.dumps(images[2])]
+    images_path, answers_path = tmp_path / "in.jsonl", tmp_path / "out.jsonl"
+    images_path.write_text("\n".join(lines) + "\n")
+    fixes, prints = tmp_path / "fixes.geojson", tmp_path / "footprints.geojson"
+    result = _query(str(map_path), str(images_path), "-o", str(answers_path), "--geojson", str(fixes),
+                    "--footprints", str(prints))
+    assert result.exit_code == 0, result.output
+    answers = [json.loads(line) for line in answers_path.read_text().splitlines()]
+    accepted = [a for a in answers if a["status"] == "ok"]
+    assert len(accepted) == 3 and answers[1]["status"] == "rejected"
+    points, polygons = gpd.read_file(fixes, engine="pyogrio"), gpd.read_file(prints, engine="pyogrio")
+    assert pyogrio.read_info(fixes)["geometry_type"] == "Point"
+    assert pyogrio.read_info(prints)["geometry_type"] == "Polygon"
+    assert points.crs.to_epsg() == 4326 and polygons.crs.to_epsg() == 4326
+    assert list(points["id"]) == list(polygons["id"]) == [a["id"] for a in accepted]
+    for answer, point, polygon, heading in zip(accepted, points.geometry, polygons.geometry, points["heading_deg"],
+                                               strict=True):
+        assert (point.x, point.y) == (answer["lon"], answer["lat"]) and heading == answer["heading_deg"]
+        assert shapely.Polygon(answer["footprint_lonlat"]).equals(polygon) and polygon.contains(point)
+    # The output rule: an existing layer is refused before any work (the answers file is not written either).
+    answers_path.unlink()
+    refused = _query(str(map_path), str(images_path), "-o", str(answers_path), "--geojson", str(fixes))
+    assert refused.exit_code == 1 and "exists; pass --overwrite" in refused.output and not answers_path.exists()
+    assert _query(str(map_path), str(images_path), "--geojson", str(fixes), "--overwrite").exit_code == 0
+    clash = _query(str(map_path), str(images_path), "--geojson", str(images_path), "--overwrite")
+    assert clash.exit_code == 1 and json.loads(images_path.read_text().splitlines()[0]) == images[0]
