@@ -39,6 +39,7 @@ COMMANDS = {
     "simulate": "Simulate camera images of a map, one JSON object per line (`simulate flight`: a whole flight).",
     "objects": "Image objects from segmentation masks (PNG, GeoTIFF) and COCO detections, for query.",
     "query": "Localize every image of a JSON Lines file (or stdin, streamed) in a map.",
+    "georef": "Place a localized camera image on the map: a world file and a GDAL .aux.xml beside it.",
     "evaluate": "Localize simulated images and measure the answers against their truth.",
     "analyze": "Where a map localizes: success, ambiguity, objects and storage per grid cell (GeoTIFF, PNG).",
     "show": "Draw one image's match over the map: inliers, outliers, footprint, truth, candidates.",

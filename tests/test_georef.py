@@ -6,11 +6,13 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import geopandas as gpd
 import numpy as np
 import pyogrio
 import pytest
+import rasterio
 import shapely
 import shapely.geometry
 from click.testing import CliRunner
@@ -141,3 +143,43 @@ def test_query_writes_fixes_and_footprints_as_geojson(paper_setup, tmp_path: Pat
     assert _query(str(map_path), str(images_path), "--geojson", str(fixes), "--overwrite").exit_code == 0
     clash = _query(str(map_path), str(images_path), "--geojson", str(images_path), "--overwrite")
     assert clash.exit_code == 1 and json.loads(images_path.read_text().splitlines()[0]) == images[0]
+
+
+def _placed(image: Path) -> tuple[Any, np.ndarray]:
+    """The CRS and the corners (4, 2) at which rasterio (GDAL) places ``image``."""
+    with rasterio.open(image) as ds:
+        t, w, h = ds.transform, ds.width, ds.height
+        return ds.crs, np.array([t @ (0, 0), t @ (w, 0), t @ (w, h), t @ (0, h)])
+
+
+@pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")  # the PNG, before its sidecars
+def test_georef_places_the_camera_image_on_the_map(paper_setup, tmp_path: Path) -> None:
+    """A PNG of the answer's size, georeferenced by ``mapdb georef``: rasterio reads its world file and
+    .aux.xml and puts its corners on the answer's footprint, in the map's CRS."""
+    map_path, images = paper_setup
+    images_path, answers_path = tmp_path / "in.jsonl", tmp_path / "out.jsonl"
+    images_path.write_text("".join(json.dumps(im) + "\n" for im in images))
+    assert _query(str(map_path), str(images_path), "-o", str(answers_path)).exit_code == 0
+    answer = json.loads(answers_path.read_text().splitlines()[1])
+    w, h = int(answer["width"]), int(answer["height"])
+    png, small = tmp_path / "frame.png", tmp_path / "small.png"
+    for path, width in ((png, w), (small, w - 1)):
+        with rasterio.open(path, "w", driver="PNG", width=width, height=h, count=1, dtype="uint8") as ds:
+            ds.write(np.full((1, h, width), 200, np.uint8))
+    runner = CliRunner()
+    result = runner.invoke(cli, ["georef", str(answers_path), str(png), "--id", answer["id"]])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "frame.pgw").is_file() and (tmp_path / "frame.png.aux.xml").is_file()
+    crs, corners = _placed(png)
+    assert crs.to_epsg() == 32631
+    assert np.hypot(*(corners - np.array(answer["footprint"])).T).max() < 0.01
+    # A camera image of another size: one line naming both sizes, exit 1, nothing written.
+    result = runner.invoke(cli, ["georef", str(answers_path), str(small), "--id", answer["id"]])
+    assert result.exit_code == 1 and result.output.count("\n") == 1
+    assert f"{w - 1}x{h}" in result.output and f"{w}x{h}" in result.output
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("small")) == ["small.png"]
+    # Several accepted answers and no --id: which one is asked for; existing sidecars need --overwrite.
+    result = runner.invoke(cli, ["georef", str(answers_path), str(png), "--overwrite"])
+    assert result.exit_code == 1 and "3 accepted answers; choose one with --id" in result.output
+    result = runner.invoke(cli, ["georef", str(answers_path), str(png), "--id", answer["id"]])
+    assert result.exit_code == 1 and "exists; pass --overwrite" in result.output
