@@ -58,11 +58,16 @@ def parse_plot(ctx: click.Context | None, param: click.Parameter | None, value: 
 @handle_errors
 def evaluate(map_file, images_file, method, jobs, fp_threshold, plot_file, outcomes_file, overwrite, parents, as_json,
              quiet, debug):
-    """Localize every image of IMAGES.jsonl (from `mapdb simulate`) in MAP and measure the answers.
+    """Localize every image of IMAGES.jsonl in MAP and measure the answers against each image's truth.
 
-    Reports the RMS, median and 95th-percentile error of correct answers, the fraction rejected, false
-    positives (accepted with error above --fp-threshold) as a fraction of accepted, the error of the fit
-    with the true correspondences (the bound), and time per image.
+    The truth is the document's "truth" (`mapdb simulate`), or else its "georef" (`mapdb objects` on a
+    georeferenced mask: the chip's centre, heading and pixel size, which must be in MAP's CRS).
+
+    Reports the RMS, median and 95th-percentile error of correct answers, their heading error, the
+    fraction rejected, false positives (accepted with error above --fp-threshold) as a fraction of
+    accepted, the error of the fit with the true correspondences (the bound: point detections only, as
+    the ideal simulator makes them; blobs from masks have no true correspondences and no bound), and time
+    per image.
     """
     check_paths([outcomes_file, plot_file], [*with_index(map_file), images_file], overwrite=overwrite, parents=parents)
     images = load_images(images_file)

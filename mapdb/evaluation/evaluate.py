@@ -5,8 +5,20 @@ An *outcome* is one image's result set against its truth: accepted (``status
 ``fp_threshold`` metres from the truth is a *false positive*; the others are
 *correct*.  The summary gives the error statistics of correct answers, the
 rejected fraction, false positives as a fraction of accepted answers (as the
-paper counts them: 30/393), the error of the least-squares fit with the true
-correspondences (the *bound*, from the simulator) and the time per image.
+paper counts them: 30/393), the heading error, the error of the least-squares fit
+with the true correspondences (the *bound*, from the simulator) and the time per image.
+
+**The truth** is the document's ``truth`` (``mapdb simulate``), or else its ``georef``: the centre,
+heading and pixel size of a georeferenced chip that ``mapdb objects mask.tif`` wrote (see
+:func:`truth_of`), in the map's CRS.
+
+**The bound** means something only for *point detections with known pixel noise*, the ideal simulator's
+images: each object is a point with a true map object behind it, and the least-squares fit through those
+true pairs is the best any matcher can do with that noise.  Objects from masks (``area_px``: rendered
+masks, real masks, COCO) are blobs: a blob's centroid is not its map object's (relief, cut blobs, merged
+buildings), so a fit through those pairs says nothing about what a matcher can reach (it was 64 m against
+answers 0.33 m off).  Such images carry no bound here, and the summary then has no bound line: their
+figure is the RMS against the truth (rendered or georef).
 
 Examples
 --------
@@ -44,7 +56,9 @@ __all__ = [
     "format_summary",
     "load_images",
     "outcome",
+    "check_truth_crs",
     "summarize",
+    "truth_of",
 ]
 
 # An accepted answer farther than this from the truth (metres) is a false positive.
@@ -61,13 +75,61 @@ def load_images(path: str | Path) -> list[dict[str, Any]]:
     for where, doc in read_image_documents(path):
         if isinstance(doc, ImageInputError):
             raise doc
-        truth = doc.get("truth") if isinstance(doc, dict) else None
-        if not isinstance(truth, dict) or not all(_is_number(truth.get(k)) for k in ("x", "y")):
-            raise ImageInputError(f"{where}: no truth x, y to evaluate against (simulate the images)")
-        images.append(doc)
+        truth = truth_of(doc) if isinstance(doc, dict) else None
+        if truth is None:
+            raise ImageInputError(f"{where}: no truth x, y to evaluate against (simulate the images, or give a "
+                                  "georef: mapdb objects on a georeferenced mask writes it)")
+        images.append(doc if truth is doc.get("truth") else {**doc, "truth": truth})
     if not images:
         raise ImageInputError(f"{path}: no images")
     return images
+
+
+def truth_of(doc: dict[str, Any]) -> dict[str, Any] | None:
+    """What an image document is scored against: its ``truth`` when it has x, y, else one made from its
+    ``georef`` (x, y, ``heading_deg``, ``m_per_px``, ``crs``; ``"from": "georef"``), else None.
+
+    Examples
+    --------
+    >>> truth_of({"georef": {"x": 1.0, "y": 2.0, "heading_deg": 0.0, "m_per_px": 0.5, "crs": "EPSG:32616"}})
+    {'x': 1.0, 'y': 2.0, 'heading_deg': 0.0, 'm_per_px': 0.5, 'crs': 'EPSG:32616', 'from': 'georef'}
+    """
+    truth = doc.get("truth")
+    if isinstance(truth, dict) and all(_is_number(truth.get(k)) for k in ("x", "y")):
+        return truth
+    georef = doc.get("georef")
+    if not isinstance(georef, dict) or not all(_is_number(georef.get(k)) for k in ("x", "y")):
+        return None
+    made = {k: georef[k] for k in ("x", "y", "heading_deg", "m_per_px") if _is_number(georef.get(k))}
+    if isinstance(georef.get("crs"), str):
+        made["crs"] = georef["crs"]
+    return {**made, "from": "georef"}
+
+
+def check_truth_crs(images: Sequence[dict[str, Any]], map_crs: str | None) -> None:
+    """Refuse a truth taken from a ``georef`` in a CRS other than the map's: its x, y and the answers' are not
+    comparable (:class:`~mapdb.errors.ImageInputError`, naming the first such image)."""
+    from pyproj import CRS
+
+    same: dict[str, bool] = {}
+    for image in images:
+        crs = image["truth"].get("crs") if image["truth"].get("from") == "georef" else None
+        if not crs or not map_crs:
+            continue
+        if crs not in same:
+            try:
+                same[crs] = CRS.from_user_input(crs).equals(CRS.from_user_input(map_crs))
+            except Exception:  # pyproj raises several kinds for text it cannot read
+                same[crs] = False
+        if not same[crs]:
+            raise ImageInputError(f"image {image.get('id')!r}: its georef is in {crs[:60]}, the map in "
+                                  f"{map_crs[:60]}: build the map in the chip's CRS to score it")
+
+
+def _meaningful_bound(image: dict[str, Any]) -> bool:
+    """Whether the truth's bound means something: point detections, not blobs from masks (module docs)."""
+    objects = image.get("objects") or ()
+    return not image["truth"].get("mask") and not any(isinstance(o, dict) and "area_px" in o for o in objects)
 
 
 def _is_number(value: Any) -> bool:
@@ -78,16 +140,20 @@ def outcome(image: dict[str, Any], result: Answer, time_ms: float) -> dict[str, 
     """One image's result compared with its truth.
 
     Returns a dict with ``id``, ``status`` ("ok", "rejected" or "error"), ``x``, ``y`` (None unless ok),
-    ``truth_x``, ``truth_y``, ``error_m`` (None unless ok), ``bound_error_m`` (None without a bound),
-    ``n_objects`` (in the image), ``n_true`` (of them from the map; None if unknown), ``time_ms``, ``reason``.
+    ``truth_x``, ``truth_y``, ``error_m`` (None unless ok), ``heading_error_deg`` (the answer's heading
+    minus the truth's, in [-180, 180); None unless ok with a true heading), ``bound_error_m`` (None without a
+    bound, or where it means nothing: module docs), ``n_objects`` (in the image), ``n_true`` (of them from
+    the map; None if unknown), ``time_ms``, ``reason``.
     """
-    truth = image["truth"]
+    truth = truth_of(image) or image["truth"]
     status = result.status
-    x, y, error = None, None, None
+    x, y, error, heading_error = None, None, None, None
     if result.ok and result.x is not None and result.y is not None:
         x, y = float(result.x), float(result.y)
         error = math.hypot(x - truth["x"], y - truth["y"])
-    bound = truth.get("bound")
+        if _is_number(truth.get("heading_deg")) and result.heading_deg is not None:
+            heading_error = (float(result.heading_deg) - truth["heading_deg"] + 180.0) % 360.0 - 180.0
+    bound = truth.get("bound") if _meaningful_bound({**image, "truth": truth}) else None
     index = truth.get("map_index")
     return {
         "id": image.get("id"),
@@ -97,6 +163,7 @@ def outcome(image: dict[str, Any], result: Answer, time_ms: float) -> dict[str, 
         "truth_x": float(truth["x"]),
         "truth_y": float(truth["y"]),
         "error_m": error,
+        "heading_error_deg": heading_error,
         "bound_error_m": None if not bound else float(bound["error_m"]),
         "n_objects": len(image.get("objects") or ()),
         "n_true": None if index is None else int(np.sum(np.asarray(index) >= 0)),
@@ -124,10 +191,12 @@ def summarize(
         ``images``; ``accepted``, ``rejected`` (includes errors), ``errors``, ``rejected_fraction``;
         ``false_positives`` (accepted with error > ``fp_threshold``) and ``false_positive_fraction`` (of
         accepted); ``correct``; ``rms_m``, ``median_m``, ``p95_m``, ``std_m``, ``max_m`` of correct answers;
+        ``heading_rms_deg``, ``heading_max_deg`` (largest absolute) of correct answers with a true heading;
         ``bound_rms_m`` (bound over all images that have one), ``bound_rms_correct_m`` (over the images
         answered correctly: the like-for-like reference for ``rms_m``) and ``rms_over_bound`` (None when
         that bound is under 1 mm, where the ratio measures output rounding, not matching);
-        ``rejected_fraction_min_objects`` over images with at least ``min_objects`` true objects;
+        ``rejected_fraction_min_objects`` over images with at least ``min_objects`` true objects (of the
+        ``images_true_counted`` that say how many they have: simulated ones);
         ``time_median_ms``, ``time_p95_ms``; ``objects_mean``.  Statistics of empty sets are None.
     """
     n = len(outcomes)
@@ -142,6 +211,9 @@ def summarize(
     n_true = np.array([-1 if o.get("n_true") is None else o["n_true"] for o in outcomes])
     enough = n_true >= min_objects
     rms = _rms(good)
+    heading = np.array([np.nan if o.get("heading_error_deg") is None else o["heading_error_deg"] for o in outcomes],
+                       dtype=np.float64)[correct]
+    heading = heading[np.isfinite(heading)]
     bound_correct = _rms(bound[correct & np.isfinite(bound)])
     return {
         "images": n,
@@ -158,11 +230,14 @@ def summarize(
         "p95_m": _pct(good, 95),
         "std_m": float(np.std(good)) if good.size else None,
         "max_m": float(good.max()) if good.size else None,
+        "heading_rms_deg": _rms(heading),
+        "heading_max_deg": float(np.abs(heading).max()) if heading.size else None,
         "bound_rms_m": _rms(bound[np.isfinite(bound)]),
         "bound_rms_correct_m": bound_correct,
         "rms_over_bound": rms / bound_correct if rms is not None and bound_correct and bound_correct >= 1e-3 else None,
         "min_objects": min_objects,
         "images_min_objects": int(enough.sum()),
+        "images_true_counted": int(np.sum(n_true >= 0)),
         "rejected_fraction_min_objects": float(1.0 - ok[enough].mean()) if enough.any() else None,
         "time_median_ms": _pct(times, 50),
         "time_p95_ms": _pct(times, 95),
@@ -309,6 +384,7 @@ def evaluate_images(
     outcomes, summary
         One :func:`outcome` per image localized (input order) and :func:`summarize` of them.
     """
+    check_truth_crs(images, getattr(map, "crs", None))
     say = as_progress(progress)
     jobs = max(1, min(jobs, len(images), os.cpu_count() or 1))
     say.start(len(images), method)
@@ -350,15 +426,24 @@ def format_summary(summary: dict[str, Any], title: str | None = None) -> str:
         f"images:            {s['images']}  ({_fmt(s['objects_mean'], '', 1)} objects per image)",
         f"accepted:          {acc}   rejected: {s['rejected']} ({_percent(s['rejected_fraction'])})"
         + (f", {s['errors']} errors" if s["errors"] else ""),
-        f"  with >= {s['min_objects']} true objects: {s['images_min_objects']} images, rejected "
-        f"{_percent(s['rejected_fraction_min_objects'])}",
         f"false positives:   {s['false_positives']}/{acc} accepted"
         f" ({_percent(s['false_positive_fraction'])};"
         f" error > {s['fp_threshold_m']:g} m)",
         f"error (correct):   RMS {_fmt(s['rms_m'], ' m', 3)}, median {_fmt(s['median_m'], ' m', 3)}, "
         f"95% {_fmt(s['p95_m'], ' m', 3)}, std {_fmt(s['std_m'], ' m', 3)}",
-        f"bound (true fit):  RMS {_fmt(s['bound_rms_m'], ' m', 3)} all, {_fmt(s['bound_rms_correct_m'], ' m', 3)}"
-        f" on the same images; RMS / bound {_fmt(s['rms_over_bound'], '', 2)}",
-        f"time per image:    median {_fmt(s['time_median_ms'], ' ms', 2)}, 95% {_fmt(s['time_p95_ms'], ' ms', 2)}",
     ]
+    if s.get("images_true_counted", 1):
+        # Only simulated images say which of their objects are the map's (a georef chip does not).
+        lines.insert(len(lines) - 2, f"  with >= {s['min_objects']} true objects: {s['images_min_objects']} images, "
+                                     f"rejected {_percent(s['rejected_fraction_min_objects'])}")
+    if s.get("heading_rms_deg") is not None:
+        lines.append(f"heading (correct): RMS {_fmt(s['heading_rms_deg'], ' deg', 3)}, "
+                     f"max {_fmt(s['heading_max_deg'], ' deg', 3)}")
+    if s["bound_rms_m"] is not None:
+        # Only images of point detections have a bound (module docs); blobs from masks have none to show.
+        lines.append(f"bound (true fit):  RMS {_fmt(s['bound_rms_m'], ' m', 3)} all, "
+                     f"{_fmt(s['bound_rms_correct_m'], ' m', 3)} on the same images; "
+                     f"RMS / bound {_fmt(s['rms_over_bound'], '', 2)}")
+    lines.append(f"time per image:    median {_fmt(s['time_median_ms'], ' ms', 2)}, "
+                 f"95% {_fmt(s['time_p95_ms'], ' ms', 2)}")
     return "\n".join(lines)
