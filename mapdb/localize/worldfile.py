@@ -3,11 +3,12 @@
 ``mapdb georef ANSWERS.jsonl IMAGE`` writes, beside ``IMAGE``:
 
 * the **world file** (ESRI's six lines, which GDAL, QGIS and ArcGIS read): ``A``, ``D``, ``B``, ``E``, ``C``,
-  ``F`` with ``x = A col + B row + C`` and ``y = D col + E row + F`` for the *centre* of pixel ``(col, row)``
-  (counted from 0), so ``C, F`` is the centre of the top-left pixel, half a pixel in from the answer's
-  ``transform`` (whose origin is the top-left *corner*).  Its name follows the image's: the first and last
-  letters of the extension and ``w`` (``.png`` -> ``.pgw``, ``.tif`` -> ``.tfw``, ``.jpg`` -> ``.jgw``),
-  ``.wld`` for an image without an extension of at least two letters.
+  ``F``, each the shortest decimal that reads back as the same double, with ``x = A col + B row + C`` and
+  ``y = D col + E row + F`` for the *centre* of pixel ``(col, row)`` (counted from 0), so ``C, F`` is the
+  centre of the top-left pixel, half a pixel in from the answer's ``transform`` (whose origin is the
+  top-left *corner*).  Its name follows the image's: the first and last letters of the extension and ``w``
+  (``.png`` -> ``.pgw``, ``.tif`` -> ``.tfw``, ``.jpg`` -> ``.jgw``), ``.wld`` for an image without an
+  extension of at least two letters.
 * the **GDAL PAM sidecar** ``IMAGE.aux.xml``: the map's CRS (``<SRS>``, which a world file cannot hold) and
   the same transform (``<GeoTransform>``).  GDAL reads PAM before a GeoTIFF's own tags, so even a GeoTIFF
   that carries a georeference of its own is placed where the answer says.
@@ -20,12 +21,12 @@ Examples
 >>> world_file_name("flight/frame-0001.png"), world_file_name("chip.tif"), world_file_name("raw")
 ('flight/frame-0001.pgw', 'chip.tfw', 'raw.wld')
 >>> print(world_file_text((0.5, 0.0, 840.0, 0.0, -0.5, 2120.0)), end="")
-0.500000000000
-0.000000000000
-0.000000000000
--0.500000000000
-840.250000000000
-2119.750000000000
+0.5
+0.0
+0.0
+-0.5
+840.25
+2119.75
 """
 
 from __future__ import annotations
@@ -59,7 +60,8 @@ def world_file_text(transform: Sequence[float]) -> str:
     """The six lines of a world file for a pixel-corner affine ``(a, b, c, d, e, f)`` (module docs)."""
     a, b, c, d, e, f = (float(t) for t in transform)
     centre_x, centre_y = c + 0.5 * a + 0.5 * b, f + 0.5 * d + 0.5 * e
-    return "".join(f"{value:.12f}\n" for value in (a, d, b, e, centre_x, centre_y))
+    # The shortest text that reads back as the same double: no digits of float noise, nothing lost.
+    return "".join(f"{value!r}\n" for value in (a, d, b, e, centre_x, centre_y))
 
 
 def aux_xml_text(crs: str, transform: Sequence[float]) -> str:
