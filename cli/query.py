@@ -164,6 +164,9 @@ def query(map_file, images_file, output, method, prior, prior_crs, min_score, ge
     file and stderr is not a terminal; nothing with -q.
     """
     checked = None if prior is None else checked_prior(prior, prior_crs == LONLAT)
+    for name, path in (("--geojson", geojson_file), ("--footprints", footprints_file)):
+        if path == "-":  # stdout is the answers'; a second document there would make neither readable
+            raise click.BadParameter("a layer is written to a file, not to stdout ('-')", param_hint=f"'{name}'")
     check_paths([output, geojson_file, footprints_file],
                 [*with_index(map_file), _stdin_file() if images_file == "-" else images_file],
                 overwrite=overwrite, parents=parents)

@@ -141,6 +141,8 @@ def test_query_writes_fixes_and_footprints_as_geojson(paper_setup, tmp_path: Pat
     refused = _query(str(map_path), str(images_path), "-o", str(answers_path), "--geojson", str(fixes))
     assert refused.exit_code == 1 and "exists; pass --overwrite" in refused.output and not answers_path.exists()
     assert _query(str(map_path), str(images_path), "--geojson", str(fixes), "--overwrite").exit_code == 0
+    to_stdout = _query(str(map_path), str(images_path), "--footprints", "-")
+    assert to_stdout.exit_code == 2 and "not to stdout" in to_stdout.output
     clash = _query(str(map_path), str(images_path), "--geojson", str(images_path), "--overwrite")
     assert clash.exit_code == 1 and json.loads(images_path.read_text().splitlines()[0]) == images[0]
 
