@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
+from contextlib import ExitStack
+from typing import Any
 
 import click
 
@@ -42,6 +45,42 @@ def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float
     return (float(x), float(y), checked.radius)
 
 
+def _parse_mavlink(ctx: click.Context | None, param: click.Parameter | None, value: str | None) -> str | None:
+    """``udpout:HOST:PORT``, checked for its form (whether it opens is checked before any frame is read)."""
+    if value is None:
+        return None
+    from mapdb.navigation.mavlink import parse_address
+
+    try:
+        parse_address(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+    return value
+
+
+def _open_mavlink(address: str | None, vision: bool, ground_alt: float, options: NavigatorOptions,
+                  stack: ExitStack) -> Any:
+    """The MAVLink output (None without ``--mavlink``), closed when ``stack`` closes."""
+    if address is None:
+        return None
+    from mapdb.navigation.mavlink import MavlinkOptions, MavlinkOut
+
+    out = MavlinkOut(address, MavlinkOptions(vision=vision, ground_alt_m=ground_alt,
+                                             vert_accuracy_m=options.baro_std_m,
+                                             attitude_std_deg=options.attitude_std))
+    stack.enter_context(out)
+    return out
+
+
+def _altitude(doc: Any) -> float | None:
+    """A frame's barometric height above ground, if it has a finite positive one (for the MAVLink altitude)."""
+    value = doc.get("altitude_m") if isinstance(doc, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) and value > 0 else None
+
+
 @click.command()
 @click.argument("map_file", metavar="MAP", type=click.Path())
 @click.argument("flight_file", metavar="FLIGHT.jsonl", type=click.Path())
@@ -60,13 +99,21 @@ def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float
 @click.option("--attitude-std", type=finite_float(0.0, 10.0), default=NavigatorOptions.attitude_std,
               show_default=True, help="Accuracy of the frames' roll, pitch and yaw, degrees.")
 @click.option("--seed", type=int, default=0, show_default=True, help="The filter's random draws.")
+@click.option("--mavlink", "mavlink", callback=_parse_mavlink, default=None, metavar="udpout:HOST:PORT",
+              help="Also send each record to an autopilot as MAVLink GPS_INPUT over UDP (needs "
+                   "'mapdb[mavlink]'; docs/mavlink.md).")
+@click.option("--mavlink-vision", is_flag=True,
+              help="With --mavlink, also send GLOBAL_VISION_POSITION_ESTIMATE with its covariance.")
+@click.option("--mavlink-ground-alt", type=finite_float(-1000.0, 10000.0), default=0.0, show_default=True,
+              metavar="M", help="With --mavlink, the ground's height above mean sea level, added to each "
+                                "frame's altitude_m (height above ground) for GPS_INPUT's altitude.")
 @overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, initial_crs, particles, attitude_std,
-             seed, overwrite, parents, quiet, debug):
+             seed, mavlink, mavlink_vision, mavlink_ground_alt, overwrite, parents, quiet, debug):
     """Navigate the frames of FLIGHT.jsonl ('-' for stdin) over MAP: one track record per frame.
 
     A particle filter fuses the velocity from frame to frame with absolute fixes (the answer and its
@@ -76,6 +123,9 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     read.  A bad frame (out of time order, no objects, a NaN or out-of-range sensor, not JSON, a line over
     16 MiB) is answered with its reason, and the next frames still are; only a file that cannot be read at
     all is an error.  One record per non-blank line.
+
+    With --mavlink each record is also sent to an autopilot as it is made; a receiver that goes away
+    does not stop the navigation: the messages it refused are counted and reported at the end.
     """
     check_paths([output, geojson_file, plot_file],
                 [*with_index(map_file), _stdin_file() if flight_file == "-" else flight_file], overwrite=overwrite,
@@ -84,7 +134,8 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     # Records are kept only for the GeoJSON and the picture: a stream alone runs in constant memory.
     keep = bool(geojson_file or plot_file)
     records, frames, placed = [], 0, 0
-    with open_map(map_file) as m:
+    with ExitStack() as stack, open_map(map_file) as m:
+        link = _open_mavlink(mavlink, mavlink_vision, mavlink_ground_alt, options, stack)  # before any frame
         navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m.crs))
         documents = read_image_documents(flight_file)
         with atomic_open(output) as out:
@@ -94,6 +145,8 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
                 out.write(_line(record, where) + "\n")
                 if streaming:
                     out.flush()  # the record reaches a reader on a pipe before the next frame is read
+                if link is not None:
+                    link.send(record, _altitude(doc))
                 frames, placed = frames + 1, placed + record.placed
                 if keep:
                     records.append(record)
@@ -106,6 +159,8 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
                 plot_track(records, m, tmp, title=f"{flight_file}: {frames} frames over {map_file}")
     if not quiet and output != "-":
         print(f"{frames} frames, {placed} placed -> {output}", file=sys.stderr)
+    if link is not None and (link.lost or link.untimed or not quiet):
+        print(link.summary(), file=sys.stderr)
 
 
 def _line(record: TrackRecord, where: str) -> str:
