@@ -13,7 +13,7 @@ import click
 from mapdb.detections.images import read_image_documents
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
-from mapdb.navigation.track import TrackRecord, plot_track, track_geojson
+from mapdb.navigation.track import TrackRecord, line_path, plot_track, track_geojson, track_line_geojson
 from mapdb.outputs import atomic_open, atomic_path, dumps_strict
 
 from .evaluate import parse_plot
@@ -30,16 +30,23 @@ from .options import (
 from .query import LONLAT, _stdin_file, checked_prior, parse_prior, parse_prior_crs
 
 
-def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float] | None:
-    """--initial in the map's CRS (converted from lon/lat with --initial-crs EPSG:4326)."""
+def _initial(prior, prior_crs, m: Any) -> tuple[float, float, float] | None:
+    """--initial in the map's CRS (converted from lon/lat with --initial-crs EPSG:4326; a warning when lon and lat
+    look swapped)."""
     if prior is None:
         return None
     checked = checked_prior(prior, prior_crs == LONLAT)
     if not checked.lonlat:
         return (checked.x, checked.y, checked.radius)
+    map_crs = m.crs
     if not map_crs:
         raise click.BadParameter("the map has no CRS to place a lon/lat position in", param_hint="'--initial'")
+    from mapdb.geo import swapped_lonlat
     from mapdb.localize.lonlat import transformer
+
+    swapped = swapped_lonlat(map_crs, m.bounds, checked.x, checked.y)
+    if swapped:
+        click.echo(f"mapdb: warning: --initial: {swapped}", err=True)
 
     x, y = transformer("EPSG:4326", map_crs).transform(checked.x, checked.y)
     return (float(x), float(y), checked.radius)
@@ -87,7 +94,8 @@ def _altitude(doc: Any) -> float | None:
 @click.option("-o", "--output", default="-", metavar="TRACK.jsonl",
               help="Track file, one JSON record per frame (default stdout, streamed).")
 @click.option("--geojson", "geojson_file", default=None, metavar="TRACK.geojson",
-              help="Also write the track as GeoJSON (RFC 7946, lon/lat).")
+              help="Also write the track as GeoJSON (RFC 7946, lon/lat): a point a frame in TRACK.geojson, the "
+                   "path as a LineString in TRACK_line.geojson (one geometry type a file).")
 @click.option("--plot", "plot_file", callback=parse_plot, default=None, metavar="TRACK.png",
               help="Also draw the track over the map.")
 @click.option("--initial", callback=parse_prior, metavar="X,Y,R",
@@ -127,7 +135,7 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     With --mavlink each record is also sent to an autopilot as it is made; a receiver that goes away
     does not stop the navigation: the messages it refused are counted and reported at the end.
     """
-    check_paths([output, geojson_file, plot_file],
+    check_paths([output, geojson_file, geojson_file and line_path(geojson_file), plot_file],
                 [*with_index(map_file), _stdin_file() if flight_file == "-" else flight_file], overwrite=overwrite,
                 parents=parents)
     options = NavigatorOptions(particles=particles, attitude_std=attitude_std, seed=seed)
@@ -136,7 +144,7 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     records, frames, placed = [], 0, 0
     with ExitStack() as stack, open_map(map_file) as m:
         link = _open_mavlink(mavlink, mavlink_vision, mavlink_ground_alt, options, stack)  # before any frame
-        navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m.crs))
+        navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m))
         documents = read_image_documents(flight_file)
         with atomic_open(output) as out:
             streaming = output == "-"
@@ -153,6 +161,8 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
         if geojson_file:
             with atomic_open(geojson_file) as f:
                 f.write(dumps_strict(track_geojson(records)) + "\n")
+            with atomic_open(line_path(geojson_file)) as f:
+                f.write(dumps_strict(track_line_geojson(records)) + "\n")
         if plot_file:
             # the temporary name keeps the ending, from which matplotlib picks the format
             with atomic_path(plot_file, keep_suffix=True) as tmp:
