@@ -22,7 +22,7 @@ def _output(given: str | None, option: str | None) -> str:
 
 @click.command()
 @click.argument("map_file", metavar="MAP", type=click.Path())
-@click.argument("output_argument", metavar="[OUTPUT]", required=False, type=click.Path(dir_okay=False,
+@click.argument("output", metavar="[OUTPUT]", required=False, type=click.Path(dir_okay=False,
                                                                                          allow_dash=True))
 @click.option("-o", "--output", "output_option", type=click.Path(dir_okay=False, allow_dash=True),
               help="Output file; the format follows its ending (.geojson .gpkg .parquet .fgb .csv .shp); '-' "
@@ -39,7 +39,7 @@ def _output(given: str | None, option: str | None) -> str:
 @parents_option
 @debug_option
 @handle_errors
-def export(map_file, output_argument, output_option, stream_format, crs, bbox, overwrite, parents, debug):
+def export(map_file, output, output_option, stream_format, crs, bbox, overwrite, parents, debug):
     """Export a map's objects as points with their label and area (m2), to OUTPUT ('-': standard output).
 
     Every format also keeps each object's position in the map's CRS (columns x, y, exact to the
@@ -47,7 +47,7 @@ def export(map_file, output_argument, output_option, stream_format, crs, bbox, o
     OUTPUT (or Shapefile part) is replaced only with --overwrite; its directory must exist unless --parents is
     given.
     """
-    output = _output(output_argument, output_option)
+    output = _output(output, output_option)
     if stream_format and output != "-":
         raise click.BadParameter("only for '-' (standard output): a file's ending says its format",
                                  param_hint="'--format'")
