@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
+from contextlib import ExitStack
+from typing import Any
 
 import click
 
 from mapdb.detections.images import read_image_documents
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
-from mapdb.navigation.track import TrackRecord, plot_track, track_geojson
+from mapdb.navigation.track import TrackRecord, line_path, plot_track, track_geojson, track_line_geojson
 from mapdb.outputs import atomic_open, atomic_path, dumps_strict
 
 from .evaluate import parse_plot
@@ -27,19 +30,62 @@ from .options import (
 from .query import LONLAT, _stdin_file, checked_prior, parse_prior, parse_prior_crs
 
 
-def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float] | None:
-    """--initial in the map's CRS (converted from lon/lat with --initial-crs EPSG:4326)."""
+def _initial(prior, prior_crs, m: Any) -> tuple[float, float, float] | None:
+    """--initial in the map's CRS (converted from lon/lat with --initial-crs EPSG:4326; a warning when lon and lat
+    look swapped)."""
     if prior is None:
         return None
     checked = checked_prior(prior, prior_crs == LONLAT)
     if not checked.lonlat:
         return (checked.x, checked.y, checked.radius)
+    map_crs = m.crs
     if not map_crs:
         raise click.BadParameter("the map has no CRS to place a lon/lat position in", param_hint="'--initial'")
+    from mapdb.geo import swapped_lonlat
     from mapdb.localize.lonlat import transformer
+
+    swapped = swapped_lonlat(map_crs, m.bounds, checked.x, checked.y)
+    if swapped:
+        click.echo(f"mapdb: warning: --initial: {swapped}", err=True)
 
     x, y = transformer("EPSG:4326", map_crs).transform(checked.x, checked.y)
     return (float(x), float(y), checked.radius)
+
+
+def _parse_mavlink(ctx: click.Context | None, param: click.Parameter | None, value: str | None) -> str | None:
+    """``udpout:HOST:PORT``, checked for its form (whether it opens is checked before any frame is read)."""
+    if value is None:
+        return None
+    from mapdb.navigation.mavlink import parse_address
+
+    try:
+        parse_address(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
+    return value
+
+
+def _open_mavlink(address: str | None, vision: bool, ground_alt: float, options: NavigatorOptions,
+                  stack: ExitStack) -> Any:
+    """The MAVLink output (None without ``--mavlink``), closed when ``stack`` closes."""
+    if address is None:
+        return None
+    from mapdb.navigation.mavlink import MavlinkOptions, MavlinkOut
+
+    out = MavlinkOut(address, MavlinkOptions(vision=vision, ground_alt_m=ground_alt,
+                                             vert_accuracy_m=options.baro_std_m,
+                                             attitude_std_deg=options.attitude_std))
+    stack.enter_context(out)
+    return out
+
+
+def _altitude(doc: Any) -> float | None:
+    """A frame's barometric height above ground, if it has a finite positive one (for the MAVLink altitude)."""
+    value = doc.get("altitude_m") if isinstance(doc, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    value = float(value)
+    return value if math.isfinite(value) and value > 0 else None
 
 
 @click.command()
@@ -48,7 +94,8 @@ def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float
 @click.option("-o", "--output", default="-", metavar="TRACK.jsonl",
               help="Track file, one JSON record per frame (default stdout, streamed).")
 @click.option("--geojson", "geojson_file", default=None, metavar="TRACK.geojson",
-              help="Also write the track as GeoJSON (RFC 7946, lon/lat).")
+              help="Also write the track as GeoJSON (RFC 7946, lon/lat): a point a frame in TRACK.geojson, the "
+                   "path as a LineString in TRACK_line.geojson (one geometry type a file).")
 @click.option("--plot", "plot_file", callback=parse_plot, default=None, metavar="TRACK.png",
               help="Also draw the track over the map.")
 @click.option("--initial", callback=parse_prior, metavar="X,Y,R",
@@ -60,13 +107,21 @@ def _initial(prior, prior_crs, map_crs: str | None) -> tuple[float, float, float
 @click.option("--attitude-std", type=finite_float(0.0, 10.0), default=NavigatorOptions.attitude_std,
               show_default=True, help="Accuracy of the frames' roll, pitch and yaw, degrees.")
 @click.option("--seed", type=int, default=0, show_default=True, help="The filter's random draws.")
+@click.option("--mavlink", "mavlink", callback=_parse_mavlink, default=None, metavar="udpout:HOST:PORT",
+              help="Also send each record to an autopilot as MAVLink GPS_INPUT over UDP (needs "
+                   "'mapdb[mavlink]'; docs/mavlink.md).")
+@click.option("--mavlink-vision", is_flag=True,
+              help="With --mavlink, also send GLOBAL_VISION_POSITION_ESTIMATE with its covariance.")
+@click.option("--mavlink-ground-alt", type=finite_float(-1000.0, 10000.0), default=0.0, show_default=True,
+              metavar="M", help="With --mavlink, the ground's height above mean sea level, added to each "
+                                "frame's altitude_m (height above ground) for GPS_INPUT's altitude.")
 @overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, initial_crs, particles, attitude_std,
-             seed, overwrite, parents, quiet, debug):
+             seed, mavlink, mavlink_vision, mavlink_ground_alt, overwrite, parents, quiet, debug):
     """Navigate the frames of FLIGHT.jsonl ('-' for stdin) over MAP: one track record per frame.
 
     A particle filter fuses the velocity from frame to frame with absolute fixes (the answer and its
@@ -76,16 +131,20 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     read.  A bad frame (out of time order, no objects, a NaN or out-of-range sensor, not JSON, a line over
     16 MiB) is answered with its reason, and the next frames still are; only a file that cannot be read at
     all is an error.  One record per non-blank line.
+
+    With --mavlink each record is also sent to an autopilot as it is made; a receiver that goes away
+    does not stop the navigation: the messages it refused are counted and reported at the end.
     """
-    check_paths([output, geojson_file, plot_file],
+    check_paths([output, geojson_file, geojson_file and line_path(geojson_file), plot_file],
                 [*with_index(map_file), _stdin_file() if flight_file == "-" else flight_file], overwrite=overwrite,
                 parents=parents)
     options = NavigatorOptions(particles=particles, attitude_std=attitude_std, seed=seed)
     # Records are kept only for the GeoJSON and the picture: a stream alone runs in constant memory.
     keep = bool(geojson_file or plot_file)
     records, frames, placed = [], 0, 0
-    with open_map(map_file) as m:
-        navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m.crs))
+    with ExitStack() as stack, open_map(map_file) as m:
+        link = _open_mavlink(mavlink, mavlink_vision, mavlink_ground_alt, options, stack)  # before any frame
+        navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m))
         documents = read_image_documents(flight_file)
         with atomic_open(output) as out:
             streaming = output == "-"
@@ -94,18 +153,24 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
                 out.write(_line(record, where) + "\n")
                 if streaming:
                     out.flush()  # the record reaches a reader on a pipe before the next frame is read
+                if link is not None:
+                    link.send(record, _altitude(doc))
                 frames, placed = frames + 1, placed + record.placed
                 if keep:
                     records.append(record)
         if geojson_file:
             with atomic_open(geojson_file) as f:
                 f.write(dumps_strict(track_geojson(records)) + "\n")
+            with atomic_open(line_path(geojson_file)) as f:
+                f.write(dumps_strict(track_line_geojson(records)) + "\n")
         if plot_file:
             # the temporary name keeps the ending, from which matplotlib picks the format
             with atomic_path(plot_file, keep_suffix=True) as tmp:
                 plot_track(records, m, tmp, title=f"{flight_file}: {frames} frames over {map_file}")
     if not quiet and output != "-":
         print(f"{frames} frames, {placed} placed -> {output}", file=sys.stderr)
+    if link is not None and (link.lost or link.untimed or not quiet):
+        print(link.summary(), file=sys.stderr)
 
 
 def _line(record: TrackRecord, where: str) -> str:

@@ -7,7 +7,7 @@ import click
 from mapdb.mapfile.reader import open_map
 from mapdb.simulation.documents import write_images
 from mapdb.simulation.poses import map_bbox_from_lonlat
-from mapdb.simulation.simulate import simulate_images
+from mapdb.simulation.simulate import simulate_images, sparse_images
 
 from .options import (
     MAX_ATTITUDE_STD,
@@ -115,6 +115,14 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
     if say:
         n_obj = sum(len(im["objects"]) for im in images)
         say(f"{len(images)} images, {n_obj / max(len(images), 1):.1f} objects per image -> {output}")
+    _warn_if_sparse(images, map_file)
+
+
+def _warn_if_sparse(images, map_file) -> None:
+    """A warning (even with -q: the images are written, and mostly useless) when most images show too little."""
+    sparse = sparse_images(images, map_file)
+    if sparse:
+        click.echo(f"mapdb: warning: {sparse}", err=True)
 
 
 def _check_render_options(source_file, masks_dir, pixel_std, spurious_rate) -> None:
@@ -161,3 +169,4 @@ def _simulate_masks(map_file, output, n_images, source_file, masks_dir, rule, qu
         n_obj = sum(len(im["objects"]) for im in images)
         say(f"{len(images)} images, {n_obj / max(len(images), 1):.1f} blobs per image -> {output}, "
             f"masks in {masks_dir}")
+    _warn_if_sparse(images, map_file)

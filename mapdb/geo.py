@@ -18,6 +18,9 @@ projection:
 2. the exact test, :func:`in_bbox`, on the objects' own longitudes and latitudes.
 
 The pre-filter only decides how much is read: it may keep too much, never too little.
+
+A single place given in lon/lat is checked by :func:`check_lonlat` (a latitude beyond the poles is refused),
+and :func:`swapped_lonlat` says when it looks given as lat, lon: off the map, while its swap is on it.
 """
 
 from __future__ import annotations
@@ -29,17 +32,23 @@ from typing import Any
 import numpy as np
 from pyproj import CRS, Transformer
 
+from .errors import MapdbError
+
 __all__ = [
     "WORLD",
     "BBox",
+    "LonLatError",
+    "SwappedLonLatWarning",
     "bbox_text",
     "central_longitude",
     "check_bbox",
+    "check_lonlat",
     "in_bbox",
     "intersect_bboxes",
     "lonlat_extent",
     "projected_window",
     "split_bbox",
+    "swapped_lonlat",
 ]
 
 BBox = tuple[float, float, float, float]
@@ -343,3 +352,67 @@ def _clip_box(box: BBox, limit: BBox) -> BBox | None:
         return None
     return clipped
 
+
+
+# ------------------------------------------------------------------------------------------ one place
+
+
+class LonLatError(MapdbError, ValueError):
+    """A longitude or latitude that is not a number within its range."""
+
+
+class SwappedLonLatWarning(UserWarning):
+    """A lon/lat that falls off the map while its swap falls on it: probably given as lat, lon."""
+
+
+def check_lonlat(lon: Any, lat: Any) -> tuple[float, float]:
+    """``(lon, lat)`` as floats, or :class:`LonLatError` for a value that is not a finite number within
+    [-180, 180] (longitude) or [-90, 90] (latitude).
+
+    Examples
+    --------
+    >>> check_lonlat(24.94, 60.17)
+    (24.94, 60.17)
+    >>> check_lonlat(100.0, 95.0)
+    Traceback (most recent call last):
+    mapdb.geo.LonLatError: latitude 95.0 must be a number in [-90, 90]
+    >>> check_lonlat(3.0, -120.0)
+    Traceback (most recent call last):
+    mapdb.geo.LonLatError: latitude -120.0 must be a number in [-90, 90] (lon, lat swapped? longitude comes first)
+    """
+    for name, value, limit in (("longitude", lon, 180.0), ("latitude", lat, 90.0)):
+        number = isinstance(value, int | float | np.number) and not isinstance(value, bool)
+        if not (number and math.isfinite(value) and abs(value) <= limit):
+            swapped = number and name == "latitude" and abs(lat) <= 180.0 and abs(lon) <= 90.0
+            hint = " (lon, lat swapped? longitude comes first)" if swapped else ""
+            raise LonLatError(f"{name} {value!r} must be a number in [{-limit:g}, {limit:g}]{hint}")
+    return float(lon), float(lat)
+
+
+def swapped_lonlat(crs: Any, bounds: Sequence[float], lon: float, lat: float) -> str | None:
+    """Why ``(lon, lat)`` looks swapped for a map of ``crs`` and ``bounds`` (minx, miny, maxx, maxy in its CRS),
+    or None: the place falls outside the bounds while ``(lat, lon)`` falls inside.
+
+    Examples
+    --------
+    >>> utm35 = "EPSG:32635"; helsinki = (385400.0, 6671400.0, 386500.0, 6673200.0)
+    >>> swapped_lonlat(utm35, helsinki, 60.166, 24.945)
+    'lon 60.166, lat 24.945 is off the map, and lon 24.945, lat 60.166 on it: lon and lat swapped?'
+    >>> swapped_lonlat(utm35, helsinki, 24.945, 60.166) is None
+    True
+    """
+    if not crs or abs(lon) > 90.0 or not all(math.isfinite(v) for v in bounds):
+        return None
+    x0, y0, x1, y1 = bounds
+    forward = _transformers(crs)[0]
+
+    def on_map(a: float, b: float) -> bool:
+        try:
+            x, y = forward.transform(a, b)
+        except Exception:  # pyproj raises several kinds for places a projection cannot take
+            return False
+        return bool(x0 <= x <= x1 and y0 <= y <= y1)
+
+    if on_map(lon, lat) or not on_map(lat, lon):
+        return None
+    return f"lon {lon:g}, lat {lat:g} is off the map, and lon {lat:g}, lat {lon:g} on it: lon and lat swapped?"

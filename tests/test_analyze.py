@@ -14,10 +14,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pyogrio
 import pytest
 from clichecks import assert_one_line_error
 from click.testing import CliRunner
 from mapdb_cli.main import cli
+from sqlwords import sql_keywords_among
 
 from mapdb.analysis import SampleConfig
 from mapdb.analysis.measures import measure_cells
@@ -87,7 +89,12 @@ def test_geotiff_reads_back_known_cells(analysed: Path) -> None:
         assert src.nodata == -9999.0
         assert src.res == (CELL, CELL)
         names = list(src.descriptions)
-        assert names[:5] == ["success", "false", "error_m", "ambiguity", "visible"]
+        assert names[:5] == ["success", "false_fixes", "error_m", "ambiguity", "visible"]
+        # GDAL's band units (gdalinfo's "Unit Type", QGIS's): every band has one, as the measures define it
+        assert all(src.units) and len(src.units) == len(names) == src.count
+        assert src.units[:3] == ("fraction", "fraction", "m")
+        assert src.units[names.index("visible_building")] == "objects"
+        assert sql_keywords_among(names) == []
         assert "visible_building" in names and "bytes_per_km2" in names
         bands = {name: src.read(k + 1) for k, name in enumerate(names)}
         empty = cell_at(src, SIDE + GAP / 2, SIDE / 2)     # middle of the gap: nothing within reach
@@ -130,6 +137,8 @@ def test_outputs_are_complete_and_nothing_is_left_beside(analysed: Path) -> None
     assert 0.2 < fraction < 0.8  # the town works, the lattice does not
     cells = geopandas.read_file(analysed / "cells.gpkg")
     assert cells.crs.to_epsg() == 32631 and {"success", "ambiguity", "bytes_per_km2"} <= set(cells.columns)
+    assert sql_keywords_among(cells.columns) == [] and "false_fixes" in cells.columns
+    assert [str(kind) for kind in pyogrio.list_layers(analysed / "cells.gpkg")[:, 1]] == ["Polygon"]
     assert np.allclose(cells.geometry.area, CELL * CELL)
     assert (analysed / "analysis.png").stat().st_size > 10_000
 

@@ -249,9 +249,11 @@ def test_simulate_flight_and_navigate_commands(world, tmp_path) -> None:
     records = [json.loads(x, parse_constant=pytest.fail) for x in track.read_text().splitlines()]
     assert len(records) == 31 and all(r["truth"]["error_m"] < 2.0 for r in records)
     assert records[-1]["crs"] == PAPER_CRS and 2.9 < records[-1]["lon"] < 3.1
-    doc = json.loads(geojson.read_text())
-    assert "crs" not in doc and doc["features"][0]["geometry"]["type"] == "LineString"
-    coords = np.array(doc["features"][0]["geometry"]["coordinates"])
+    # One geometry type a file: the frames as points, the path as a line beside them.
+    points, line = json.loads(geojson.read_text()), json.loads((tmp_path / "track_line.geojson").read_text())
+    assert "crs" not in points and {f["geometry"]["type"] for f in points["features"]} == {"Point"}
+    assert len(points["features"]) == 31 and [f["geometry"]["type"] for f in line["features"]] == ["LineString"]
+    coords = np.array(line["features"][0]["geometry"]["coordinates"])
     assert coords.shape == (31, 2) and np.all(np.abs(coords[:, 0] - 3.0) < 0.1) and np.all(coords[:, 1] > 45)
     assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # A file that cannot be read is the one error.

@@ -278,3 +278,28 @@ def test_min_objects_positions_are_uniform_over_qualifying_places() -> None:
     expected = probe_left[qualifies].mean()
     assert 0.2 < expected < 0.8  # both clusters matter
     assert abs(share - expected) < 0.06
+
+
+def test_first_contact_on_the_sample_map_warns_and_the_named_option_localizes(tmp_path: Path) -> None:
+    """``mapdb simulate MAP`` with the defaults over the sample map: images with too few objects to match (a
+    63 x 47 m view at 100 m and 35 degrees, positions uniform over the map's bounds) come with a warning naming
+    the median and ``--min-objects``; with that option every image can be localized."""
+    from mapdb.build.pipeline import build_map
+    from mapdb.simulation.simulate import USABLE_OBJECTS
+
+    map_path = tmp_path / "helsinki.mapdb"
+    build_map([Path(__file__).resolve().parents[1] / "sample_maps" / "helsinki.osm.pbf"], map_path)
+    plain, dense = tmp_path / "plain.jsonl", tmp_path / "dense.jsonl"
+    result = CliRunner().invoke(cli, ["simulate", str(map_path), "-o", str(plain), "--n", "20", "--seed", "2", "-q"])
+    assert result.exit_code == 0, result.output
+    counts = [len(json.loads(line)["objects"]) for line in plain.read_text().splitlines()]
+    median = float(np.median(counts))
+    assert median < USABLE_OBJECTS  # what the warning is about
+    assert f"mapdb: warning: {map_path}: a median of {median:g} objects an image" in result.stderr
+    assert "--min-objects 6" in result.stderr
+    result = CliRunner().invoke(cli, ["simulate", str(map_path), "-o", str(dense), "--n", "20", "--seed", "2", "-q",
+                                      "--min-objects", "6"])
+    assert result.exit_code == 0 and "warning" not in result.stderr
+    answers = CliRunner().invoke(cli, ["query", str(map_path), str(dense)])
+    localized = [json.loads(line)["status"] != "rejected" for line in answers.stdout.splitlines()]
+    assert len(localized) == 20 and sum(localized) >= 18, answers.stdout[-2000:]

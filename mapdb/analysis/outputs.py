@@ -135,6 +135,7 @@ def write_geotiff(path: str | os.PathLike[str], analysis: Analysis) -> None:
         for k, (name, values) in enumerate(bands.items(), start=1):
             dst.write(np.where(np.isnan(values), NODATA, values).astype(np.float32), k)
             dst.set_band_description(k, name)
+            dst.set_band_unit(k, analysis.units(name))  # GDAL's band unit, which QGIS and gdalinfo show
             dst.update_tags(k, units=analysis.units(name), description=analysis.description(name))
         dst.update_tags(**{"mapdb_analysis": json.dumps(parameters(analysis), sort_keys=True)})
 
@@ -154,7 +155,7 @@ def write_cells(path: str | os.PathLike[str], analyses: Sequence[Analysis]) -> N
         i, j = grid.absolute(rows, cols)
         c = grid.cell_m
         frame = geopandas.GeoDataFrame(
-            {"row": rows.astype(np.int32), "col": cols.astype(np.int32),
+            {"grid_row": rows.astype(np.int32), "grid_col": cols.astype(np.int32),
              **{name: values[rows, cols].astype(np.float64) for name, values in analysis.measures.items()}},
             geometry=shapely.box(i * c, j * c, (i + 1) * c, (j + 1) * c), crs=grid.crs)
         frame.to_file(path, layer=analysis.name or "cells", driver="GPKG", engine="pyogrio")
@@ -211,7 +212,7 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
     m = analysis.measures
     everywhere = np.ones(analysis.grid.shape, bool)
     bearing = analysis.counts.objects > 0
-    works, fooled = m["success"] >= SUCCESS_LEVEL, m["false"] > 0
+    works, fooled = m["success"] >= SUCCESS_LEVEL, m["false_fixes"] > 0
     amb = m["ambiguity"][~np.isnan(m["ambiguity"])]
     return {
         "success_at_least_95": {"fraction_of_area": _fraction(works, everywhere),

@@ -27,14 +27,14 @@ MAX_DOTS = 150_000
 PANELS: tuple[tuple[str, str, tuple[float, float] | None, str, float], ...] = (
     ("success", "RdYlGn", (0.0, 100.0), "success: images localized (%)", 100.0),
     ("ambiguity", "magma_r", (0.0, 1.0), "ambiguity (0 unique, 1 indistinguishable)", 1.0),
-    ("false", "Reds", (0.0, 100.0), "false: accepted at a wrong place (%)", 100.0),
+    ("false_fixes", "Reds", (0.0, 100.0), "false fixes: accepted at a wrong place (%)", 100.0),
     ("visible", "viridis", None, "objects in an image (median)", 1.0),
     ("error_m", "viridis", None, "error of correct answers, median (m)", 1.0),
     ("bytes_per_km2", "cividis", None, "map storage (kB/km²)", 1e-3),
 )
 SCENARIO_PANELS = ("success", "ambiguity", "visible")
 # Measures whose cells without a simulated image are drawn apart (in SPARSE_COLOUR), not as a measured 0.
-SPARSE_APART = ("success", "false")
+SPARSE_APART = ("success", "false_fixes")
 SPARSE_COLOUR = "#bdbdbd"
 # Measures of the map's own objects, shown only in the cells that hold some.
 PER_OBJECT = ("objects_per_km2", "bytes_per_km2")
@@ -160,8 +160,8 @@ def _note(analysis: Analysis, band: str) -> str:
         bearing = analysis.counts.objects > 0
         works = float((m["success"][bearing] >= 0.95).mean()) if bearing.any() else 0.0
         return f">= 95 % in {works:.0%} of the cells holding objects"
-    if band == "false":
-        wrong = float(np.nansum(m["false"] * analysis.config.samples))
+    if band == "false_fixes":
+        wrong = float(np.nansum(m["false_fixes"] * analysis.config.samples))
         return f"{wrong:,.0f} of {images:,.0f} images accepted at a wrong place"
     if band == "ambiguity":
         amb = m["ambiguity"][~np.isnan(m["ambiguity"])]

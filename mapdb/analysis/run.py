@@ -28,10 +28,11 @@ BLOCK_CELLS = 8
 WARMUP_CELLS = 24
 
 # Every measure (a GeoTIFF band, a GeoPackage column), in order: name -> (unit, description).  Per-label
-# ``visible_<label>`` bands follow these.
+# ``visible_<label>`` bands follow these.  No name is an SQL keyword (``false`` would read as the literal in
+# ``ogrinfo -sql``): tests/test_conventions.py checks every field mapdb writes.
 MEASURES: dict[str, tuple[str, str]] = {
     "success": ("fraction", "images localized within the false-positive threshold of the truth"),
-    "false": ("fraction", "images accepted farther than the false-positive threshold from the truth"),
+    "false_fixes": ("fraction", "images accepted farther than the false-positive threshold from the truth"),
     "error_m": ("m", "median error of the correctly localized images"),
     "ambiguity": ("0-1", "best wrong place's score over the true place's, lost-in-space search (0 unique, "
                          "1 indistinguishable)"),
@@ -182,7 +183,7 @@ def _empty_bands(grid: Grid, label_names: Sequence[str]) -> dict[str, np.ndarray
 
 
 def _place(bands: dict[str, np.ndarray], result: CellMeasures, rows: np.ndarray, cols: np.ndarray) -> None:
-    for band, values in (("success", result.success), ("false", result.false), ("error_m", result.error),
+    for band, values in (("success", result.success), ("false_fixes", result.false), ("error_m", result.error),
                          ("ambiguity", result.ambiguity), ("visible", result.visible),
                          ("simulated", result.simulated)):
         bands[band][rows, cols] = values

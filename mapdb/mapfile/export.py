@@ -4,12 +4,18 @@ Every format holds one point a object with the columns ``label``, ``area_m2`` an
 position in the map's CRS, exact to the quantum).  The geometry is in WGS 84 longitude/latitude for
 GeoJSON, as RFC 7946 requires (and as web maps and ``geopandas.read_file`` without a CRS assume), and in
 the map's CRS for GeoPackage, FlatGeobuf and GeoParquet, which name their CRS; either can be asked for.
-CSV has no geometry: it holds ``x``, ``y`` and ``lon``, ``lat``.
+CSV has no geometry: it holds ``x``, ``y`` and ``lon``, ``lat``.  A Shapefile (``.shp``, with its ``.shx``,
+``.dbf``, ``.prj`` and ``.cpg`` beside it) is in the map's CRS.  ``"-"`` writes GeoJSON or CSV to standard
+output (``stream_format``), whole once it is ready: an error leaves nothing written.
 """
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
+import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -23,7 +29,8 @@ from ..outputs import atomic_path
 from .queries import MapBase
 from .reader import MetaMap
 
-__all__ = ["EXPORT_CRS", "EXPORT_FORMATS", "default_export_crs", "export_map", "map_info", "select_lonlat"]
+__all__ = ["EXPORT_CRS", "EXPORT_FORMATS", "SHAPEFILE_PARTS", "STREAM_FORMATS", "default_export_crs", "export_map",
+           "map_info", "output_files", "select_lonlat"]
 
 # file ending -> pyogrio driver (None: written by pandas/pyarrow instead)
 EXPORT_FORMATS = {
@@ -33,7 +40,12 @@ EXPORT_FORMATS = {
     ".parquet": None,
     ".geoparquet": None,
     ".csv": None,
+    ".shp": "ESRI Shapefile",
 }
+# The files a Shapefile is beside its .shp (GDAL writes these for points with a CRS and UTF-8 text).
+SHAPEFILE_PARTS = (".shx", ".dbf", ".prj", ".cpg")
+# What "-" (standard output) can be: the text formats.
+STREAM_FORMATS = (".geojson", ".csv")
 # The CRS of an export's geometries: "lonlat" is WGS 84 longitude, latitude (EPSG:4326, x = longitude).
 EXPORT_CRS = ("lonlat", "map")
 LONLAT_CRS = "EPSG:4326"
@@ -41,15 +53,40 @@ LONLAT_CRS = "EPSG:4326"
 _CSV_DECIMALS = 8
 
 
-def default_export_crs(output: str | Path) -> str:
+def default_export_crs(output: str | Path, stream_format: str | None = None) -> str:
     """``"lonlat"`` for GeoJSON (RFC 7946 has no other CRS), ``"map"`` for the formats that name their CRS.
 
     Examples
     --------
     >>> default_export_crs("out.geojson"), default_export_crs("out.GPKG"), default_export_crs("out.csv")
     ('lonlat', 'map', 'map')
+    >>> default_export_crs("-", "geojson"), default_export_crs("-", "csv")
+    ('lonlat', 'map')
     """
-    return "lonlat" if Path(output).suffix.lower() == ".geojson" else "map"
+    return "lonlat" if _suffix(output, stream_format) == ".geojson" else "map"
+
+
+def _suffix(output: str | Path, stream_format: str | None) -> str:
+    """The format's file ending: the output's, or ``stream_format``'s for ``"-"`` (GeoJSON by default)."""
+    if str(output) == "-":
+        return "." + (stream_format or "geojson").lower().lstrip(".")
+    return Path(output).suffix.lower()
+
+
+def output_files(output: str | Path) -> list[str]:
+    """Every file an export to ``output`` writes: the file, and a Shapefile's parts beside it.
+
+    Examples
+    --------
+    >>> output_files("roads.shp")
+    ['roads.shp', 'roads.shx', 'roads.dbf', 'roads.prj', 'roads.cpg']
+    >>> output_files("roads.gpkg"), output_files("-")
+    (['roads.gpkg'], ['-'])
+    """
+    path = Path(output)
+    if str(output) == "-" or path.suffix.lower() != ".shp":
+        return [str(output)]
+    return [str(output), *(str(path.with_suffix(part)) for part in SHAPEFILE_PARTS)]
 
 
 def select_lonlat(m: MapBase, bbox: Sequence[float] | None) -> Objects:
@@ -61,7 +98,7 @@ def select_lonlat(m: MapBase, bbox: Sequence[float] | None) -> Objects:
 
 
 def export_map(m: MetaMap, output: str | Path, bbox: Sequence[float] | None = None, crs: str | None = None, *,
-               parents: bool = False) -> int:
+               parents: bool = False, stream_format: str | None = None) -> int:
     """Write a map's objects, as points, to a file whose format follows its ending.
 
     The file is written under a temporary name and renamed, so a failure leaves nothing.
@@ -71,7 +108,8 @@ def export_map(m: MetaMap, output: str | Path, bbox: Sequence[float] | None = No
     m : MetaMap
         An open map.
     output : str or Path
-        ``.geojson``, ``.gpkg``, ``.fgb``, ``.parquet`` / ``.geoparquet`` or ``.csv``.
+        ``.geojson``, ``.gpkg``, ``.fgb``, ``.parquet`` / ``.geoparquet``, ``.csv`` or ``.shp``; ``"-"``
+        for standard output.
     bbox : (minlon, minlat, maxlon, maxlat), optional
         Only the objects whose lon/lat falls in this box.
     crs : {"lonlat", "map"}, optional
@@ -81,6 +119,8 @@ def export_map(m: MetaMap, output: str | Path, bbox: Sequence[float] | None = No
         draft), which GDAL, QGIS and geopandas read.  CSV holds both.
     parents : bool
         Create the output's missing directories; without it a missing directory is an error, as in GDAL.
+    stream_format : {"geojson", "csv"}, optional
+        The format of ``"-"`` (default GeoJSON); ignored for a file, whose ending says.
 
     Returns
     -------
@@ -96,17 +136,29 @@ def export_map(m: MetaMap, output: str | Path, bbox: Sequence[float] | None = No
     ValueError
         If ``crs`` is not one of :data:`EXPORT_CRS`.
     """
-    output = Path(output)
-    suffix = output.suffix.lower()
-    if suffix not in EXPORT_FORMATS:
-        raise MapdbIOError(f"{output}: unknown export format (use {', '.join(EXPORT_FORMATS)})")
-    crs = default_export_crs(output) if crs is None else crs
+    suffix = _suffix(output, stream_format)
+    stream = str(output) == "-"
+    if suffix not in (STREAM_FORMATS if stream else EXPORT_FORMATS):
+        known = ", ".join(STREAM_FORMATS if stream else EXPORT_FORMATS)
+        raise MapdbIOError(f"{output}: unknown export format {suffix.lstrip('.')!r} (use {known})")
+    crs = default_export_crs(output, stream_format) if crs is None else crs
     if crs not in EXPORT_CRS:
         raise ValueError(f"export CRS {crs!r}: use one of {', '.join(EXPORT_CRS)}")
     objects = select_lonlat(m, bbox)
     if len(objects) == 0:
         raise EmptyMapError(f"{m.path}: no objects inside bbox {','.join(map(str, bbox or ()))}")
     frame, lon, lat = _frame(objects, crs)
+    if stream:
+        _write_stdout(frame, suffix, lon, lat)
+    elif suffix == ".shp":
+        _write_shapefile(frame, Path(output), lon, lat, parents)
+    else:
+        _write_file(frame, Path(output), lon, lat, parents)
+    return len(objects)
+
+
+def _write_file(frame: Any, output: Path, lon: np.ndarray, lat: np.ndarray, parents: bool) -> None:
+    """One file, written under a temporary name and renamed."""
     with atomic_path(output, keep_suffix=True, parents=parents) as tmp:
         if tmp.is_file():  # not a device given as output (/dev/null), only our empty temporary file
             tmp.unlink()  # some drivers refuse to write over an existing (empty) file
@@ -117,7 +169,46 @@ def export_map(m: MetaMap, output: str | Path, bbox: Sequence[float] | None = No
                 raise
             # (atomic_path puts the user's path in place of the temporary one the driver names)
             raise MapdbIOError(f"{output}: cannot write export ({exc})") from exc
-    return len(objects)
+
+
+def _write_stdout(frame: Any, suffix: str, lon: np.ndarray, lat: np.ndarray) -> None:
+    """GeoJSON or CSV on standard output, written whole to a temporary file first (no partial output)."""
+    with tempfile.TemporaryDirectory(prefix="mapdb-export-") as folder:
+        tmp = Path(folder) / f"objects{suffix}"
+        try:
+            _write_frame(frame, tmp, Path(f"objects{suffix}"), lon, lat)
+        except Exception as exc:
+            if isinstance(exc, MapdbError):
+                raise
+            raise MapdbIOError(f"-: cannot write export ({exc})") from exc
+        with open(tmp, "rb") as f:
+            shutil.copyfileobj(f, sys.stdout.buffer)
+        sys.stdout.buffer.flush()
+
+
+def _write_shapefile(frame: Any, output: Path, lon: np.ndarray, lat: np.ndarray, parents: bool) -> None:
+    """A Shapefile's parts written in a hidden folder beside ``output``, then each renamed into place (the
+    ``.shp`` last, so that a reader never finds it without its parts)."""
+    if parents:
+        output.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        folder = tempfile.mkdtemp(prefix=f".{output.name[:100]}.", suffix=".tmp", dir=output.parent)
+    except OSError as exc:
+        raise MapdbIOError(f"{output}: cannot write ({exc.strerror or exc})") from None
+    try:
+        tmp = Path(folder) / output.name
+        try:
+            _write_frame(frame, tmp, output, lon, lat)
+        except Exception as exc:
+            if isinstance(exc, MapdbError):
+                raise
+            raise MapdbIOError(f"{output}: cannot write export ({str(exc).replace(folder, str(output.parent))})") \
+                from exc
+        for part in (*SHAPEFILE_PARTS, output.suffix):
+            if tmp.with_suffix(part).exists():
+                os.replace(tmp.with_suffix(part), output.with_suffix(part))
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _frame(objects: Objects, crs: str) -> tuple[Any, np.ndarray, np.ndarray]:

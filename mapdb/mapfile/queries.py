@@ -7,6 +7,7 @@ A map file opened for queries is a :class:`~mapdb.mapfile.reader.MetaMap`, which
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
@@ -197,12 +198,15 @@ class MapBase:
         Returns
         -------
         Objects
-            In the map's CRS; empty when the place is off the map.
+            In the map's CRS; empty when the place is off the map, with a
+            :class:`~mapdb.geo.SwappedLonLatWarning` when ``(lat, lon)`` would have been on it.
 
         Raises
         ------
+        LonLatError
+            (a ``ValueError``) If lon or lat is out of range or not finite (lon and lat swapped often ends here).
         ValueError
-            If a number is out of range or not finite (lon and lat swapped often ends here).
+            If the radius is negative or not finite.
 
         Examples
         --------
@@ -216,19 +220,27 @@ class MapBase:
         0
         >>> m.query_lonlat(42.0, 95.0, 100.0)
         Traceback (most recent call last):
-        ValueError: latitude 95.0 must be a number in [-90, 90]
+        mapdb.geo.LonLatError: latitude 95.0 must be a number in [-90, 90] (lon, lat swapped? longitude comes first)
+        >>> import warnings
+        >>> with warnings.catch_warnings(record=True) as caught:
+        ...     warnings.simplefilter("always")
+        ...     len(m.query_lonlat(42.0, 3.0, 100.0)), str(caught[0].message)
+        (0, 'lon 42, lat 3 is off the map, and lon 3, lat 42 on it: lon and lat swapped?')
         """
         from pyproj import Geod
 
-        checks = (("longitude", lon, -180.0, 180.0), ("latitude", lat, -90.0, 90.0),
-                  ("radius_m", radius_m, 0.0, math.inf))
-        for name, value, low, high in checks:
-            if not (isinstance(value, int | float | np.number) and low <= value <= high and math.isfinite(value)):
-                raise ValueError(f"{name} {value!r} must be a number in [{low:g}, {high:g}]"
-                                 if name != "radius_m" else f"radius_m {value!r} must be a finite number >= 0")
-        lon, lat, radius_m = float(lon), float(lat), float(radius_m)
+        from ..geo import SwappedLonLatWarning, check_lonlat, swapped_lonlat
+
+        lon, lat = check_lonlat(lon, lat)
+        if not (isinstance(radius_m, int | float | np.number) and 0.0 <= radius_m < math.inf):
+            raise ValueError(f"radius_m {radius_m!r} must be a finite number >= 0")
+        radius_m = float(radius_m)
         found, found_lon, found_lat = self._in_lonlat_bbox(self._disc_bbox(lon, lat, radius_m), labels)
         n = len(found)
+        if not n:
+            swapped = swapped_lonlat(self.crs, self.bounds, lon, lat)
+            if swapped:
+                warnings.warn(swapped, SwappedLonLatWarning, stacklevel=2)
         _, _, distance = Geod(ellps="WGS84").inv(np.full(n, lon), np.full(n, lat), found_lon, found_lat)
         return found.take(np.asarray(distance) <= radius_m)
 

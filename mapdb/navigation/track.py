@@ -21,7 +21,10 @@ and the estimate is the previous one).  ``fix.status`` is
 says how far and how likely), ``"none"`` (``reason``: the matcher's, or why no query was made) or
 ``"withheld"`` (the flight withholds the map).
 
-:func:`track_geojson` gives the track as RFC 7946 GeoJSON (lon/lat); :func:`plot_track` draws it.
+:func:`track_geojson` gives the track's frames as RFC 7946 GeoJSON points (lon/lat), :func:`track_line_geojson`
+its path as a LineString, each a FeatureCollection of one geometry type (a GIS layer has one: ``ogrinfo``
+reads a mixed file as "Unknown (any)"); ``mapdb navigate --geojson TRACK.geojson`` writes the points there and
+the line beside it, in ``TRACK_line.geojson`` (:func:`line_path`).  :func:`plot_track` draws the track.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ import numpy as np
 
 from ..outputs import json_safe
 
-__all__ = ["TrackRecord", "plot_track", "track_geojson"]
+__all__ = ["TrackRecord", "line_path", "plot_track", "track_geojson", "track_line_geojson"]
 
 
 def _r(value: float | None, digits: int) -> float | None:
@@ -101,16 +104,39 @@ class TrackRecord:
         return json_safe(record)
 
 
-def track_geojson(records: Sequence[TrackRecord]) -> dict[str, Any]:
-    """The track as an RFC 7946 FeatureCollection in lon/lat: the estimated path as a LineString, and each
-    placed frame as a Point with its time, status, 1-sigma and fix status."""
-    placed = [r for r in records if r.placed and r.lon is not None and r.lat is not None]
+def _placed(records: Sequence[TrackRecord]) -> list[TrackRecord]:
+    return [r for r in records if r.placed and r.lon is not None and r.lat is not None]
+
+
+def line_path(path: str | Path) -> str:
+    """Where the track's line goes beside its points: ``TRACK.geojson`` -> ``TRACK_line.geojson``.
+
+    Examples
+    --------
+    >>> line_path("out/track.geojson"), line_path("track")
+    ('out/track_line.geojson', 'track_line.geojson')
+    """
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}_line{p.suffix or '.geojson'}"))
+
+
+def track_line_geojson(records: Sequence[TrackRecord]) -> dict[str, Any]:
+    """The estimated path as an RFC 7946 FeatureCollection in lon/lat: one LineString through the placed frames
+    (no feature with fewer than two)."""
+    placed = _placed(records)
     features: list[dict[str, Any]] = []
     if len(placed) >= 2:
-        features.append({"type": "Feature", "properties": {"name": "estimated track", "frames": len(placed)},
+        features.append({"type": "Feature", "properties": {"track": "estimated", "frames": len(placed)},
                          "geometry": {"type": "LineString",
                                       "coordinates": [[r.lon, r.lat] for r in placed]}})
-    for r in placed:
+    return json_safe({"type": "FeatureCollection", "features": features})
+
+
+def track_geojson(records: Sequence[TrackRecord]) -> dict[str, Any]:
+    """The track's frames as an RFC 7946 FeatureCollection in lon/lat: each placed frame a Point with its time,
+    status, 1-sigma and fix status (the path is :func:`track_line_geojson`)."""
+    features: list[dict[str, Any]] = []
+    for r in _placed(records):
         properties = {"id": r.id, "time_s": r.time_s, "status": r.status, "sigma_m": _r(r.sigma_m, 3),
                       "fix": r.fix.get("status"), "heading_deg": _r(r.heading_deg, 2)}
         features.append({"type": "Feature", "properties": properties,

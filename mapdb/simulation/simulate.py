@@ -19,6 +19,7 @@ Examples
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -35,18 +36,22 @@ from .poses import Shot, camera_area, draw_shot, place_camera
 __all__ = [
     "PAPER_CRS",
     "PAPER_ORIGIN",
+    "USABLE_OBJECTS",
     "check_simulate_args",
     "objects_of_map",
     "paper_density",
     "paper_map",
     "simulate_image_at",
     "simulate_images",
+    "sparse_images",
 ]
 
 # The paper's map is abstract; it gets real-looking UTM metres so that every tool treats it like any
 # other map (lon/lat output, CRS checks).  UTM 31N at about 45.1 N, 3 E.
 PAPER_CRS = "EPSG:32631"
 PAPER_ORIGIN = (500_000.0, 5_000_000.0)
+# The fewest objects from which the fast matcher finds a place (one quad; analysis.measures.MIN_VISIBLE).
+USABLE_OBJECTS = 4
 
 
 def paper_density(objects_per_image: float = 17.0, altitude: float = 100.0, camera: Camera | None = None) -> float:
@@ -292,3 +297,27 @@ def simulate_image_at(
     add_hints(rng, image, shot, pose.x, pose.y, with_prior, False, False)
     image["truth"] = truth_entry(shot, pose.x, pose.y, int(seen.sum()), index, bound)
     return image
+
+
+def sparse_images(images: Sequence[dict[str, Any]], map_name: str) -> str | None:
+    """Why most of ``images`` cannot be localized, or None: a median below :data:`USABLE_OBJECTS` objects an image.
+
+    Camera positions are uniform over the map's bounds (or the bbox) unless ``min_objects`` is given: over an
+    extract that is mostly empty ground (mountains, sea) or with a narrow view, most images show nothing to
+    match.  The message names the median and the option that fixes it.
+
+    Examples
+    --------
+    >>> print(sparse_images([{"objects": [1]}, {"objects": []}, {"objects": [1, 2]}], "a.mapdb"))  # doctest: +ELLIPSIS
+    a.mapdb: a median of 1 objects an image (3 of 3 images show fewer than 4, ... --min-objects 6 draws them ...
+    >>> sparse_images([{"objects": [1, 2, 3, 4]}], "a.mapdb") is None
+    True
+    """
+    counts = np.array([len(im.get("objects", ())) for im in images])
+    if not counts.size or float(np.median(counts)) >= USABLE_OBJECTS:
+        return None
+    few = int((counts < USABLE_OBJECTS).sum())
+    return (f"{map_name}: a median of {float(np.median(counts)):g} objects an image ({few} of {counts.size} images "
+            f"show fewer than {USABLE_OBJECTS}, the fewest the matcher localizes from): camera positions are drawn "
+            "uniformly over the map's bounds, where most places show no object at this altitude and field of view; "
+            "--min-objects 6 draws them where 6 objects are in view (or widen the view: --altitude, --fov)")

@@ -1,0 +1,349 @@
+"""A navigated track sent to an autopilot over MAVLink: ``GPS_INPUT`` and ``GLOBAL_VISION_POSITION_ESTIMATE``.
+
+Each :class:`~mapdb.navigation.track.TrackRecord` becomes one ``GPS_INPUT`` message (and, with
+``vision=True``, one ``GLOBAL_VISION_POSITION_ESTIMATE``), sent over UDP as soon as the record is made.
+``docs/mavlink.md`` documents every field; in short:
+
+* position: the record's lon/lat in 1e-7 degree (``lat``, ``lon``); altitude the frame's barometric height
+  above ground plus the ground's height above mean sea level (``ground_alt_m``);
+* velocity: the track's (map grid) velocity turned to true north and scaled to ground metres;
+* accuracies: ``horiz_accuracy`` the 1-sigma of the position covariance's major axis; ``speed_accuracy``
+  the frame-to-frame velocity's stated 1-sigma, or ``sqrt(2) sigma / dt`` without one; ``vert_accuracy``
+  the barometer's accuracy the navigator trusts;
+* time: the record's ``time_s`` as GPS week and milliseconds (a Unix time, or seconds since the start of
+  the flight, counted from the moment the output was opened).
+
+UDP has no acknowledgement: a receiver that went away is seen only through the "port unreachable" the
+kernel reports on the next send.  Such messages are counted as lost (:attr:`MavlinkOut.lost`) and the
+sending goes on, so that navigation never stops for the link.
+
+pymavlink is an optional dependency (``pip install 'mapdb[mavlink]'``), imported only when an output is
+opened.
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..errors import MapdbError, MapdbIOError
+from .track import TrackRecord
+
+__all__ = [
+    "GPS_EPOCH_UNIX_S",
+    "GPS_LEAP_S",
+    "MavlinkMissingError",
+    "MavlinkOptions",
+    "MavlinkOut",
+    "ground_frame",
+    "gps_input_fields",
+    "gps_time",
+    "parse_address",
+    "vision_fields",
+]
+
+# 1980-01-06T00:00:00Z, the start of GPS time, as a Unix time.
+GPS_EPOCH_UNIX_S = 315_964_800
+# GPS time runs ahead of UTC by the leap seconds since 1980: 18 since 2017-01-01 (none announced since).
+GPS_LEAP_S = 18
+_WEEK_S = 604_800
+# GPS_INPUT's fix_type (MAVLink GPS_FIX_TYPE): no position (the source is alive), a 3D position.
+FIX_NONE, FIX_3D = 1, 3
+# GPS_INPUT_IGNORE_FLAGS bits.
+IGNORE_ALT, IGNORE_HDOP, IGNORE_VDOP = 1, 2, 4
+IGNORE_VEL_HORIZ, IGNORE_VEL_VERT, IGNORE_SPEED_ACCURACY = 8, 16, 32
+IGNORE_HORIZ_ACCURACY, IGNORE_VERT_ACCURACY = 64, 128
+# A map fix has no satellite geometry: DOP 1.0 says the geometry adds nothing (the accuracies carry the
+# error), and ten "satellites" pass the autopilots' GPS checks (ArduPilot's EKF wants 6).  Not measurements.
+NOMINAL_DOP = 1.0
+NOMINAL_SATELLITES = 10
+# MAV_COMP_ID_ONBOARD_COMPUTER: a companion computer beside the autopilot.
+COMPANION_COMPONENT = 191
+# How long close() waits for the kernel to report the last datagram refused (loopback answers at once).
+_LAST_CHECK_S = 0.05
+
+
+class MavlinkMissingError(MapdbError, ImportError):
+    """``--mavlink`` was asked for and pymavlink is not installed."""
+
+
+@dataclass(frozen=True)
+class MavlinkOptions:
+    """What the messages carry beyond the record (module docs).
+
+    ``ground_alt_m``: the ground's height above mean sea level, added to each frame's barometric height
+    above ground for ``GPS_INPUT.alt``.  ``vert_accuracy_m``: the altitude's 1-sigma (the barometer's).
+    ``attitude_std_deg``: the 1-sigma of roll, pitch and yaw in the vision message's covariance.
+    """
+
+    vision: bool = False
+    ground_alt_m: float = 0.0
+    vert_accuracy_m: float = 1.0
+    attitude_std_deg: float = 1.0
+    system: int = 1
+    component: int = COMPANION_COMPONENT
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``udpout:HOST:PORT`` -> ``(HOST, PORT)``; ``ValueError`` for anything else.
+
+    Examples
+    --------
+    >>> parse_address("udpout:127.0.0.1:14550"), parse_address("udpout:[::1]:14551")
+    (('127.0.0.1', 14550), ('::1', 14551))
+    >>> parse_address("udp:127.0.0.1:14550")
+    Traceback (most recent call last):
+    ValueError: 'udp:127.0.0.1:14550' is not udpout:HOST:PORT
+    """
+    kind, _, rest = text.partition(":")
+    host, _, port = rest.rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if kind != "udpout" or not host or not port.isdigit():
+        raise ValueError(f"{text!r} is not udpout:HOST:PORT")
+    if not 0 < int(port) < 65536:
+        raise ValueError(f"{text!r}: port {port} is not within 1-65535")
+    return host, int(port)
+
+
+def gps_time(unix_s: float) -> tuple[int, int]:
+    """A Unix time as GPS week and milliseconds into the week.
+
+    Examples
+    --------
+    >>> gps_time(GPS_EPOCH_UNIX_S - GPS_LEAP_S + 7 * 86400 + 1.5)
+    (1, 1500)
+    """
+    gps_s = unix_s - GPS_EPOCH_UNIX_S + GPS_LEAP_S
+    week = int(gps_s // _WEEK_S)
+    ms = int(round((gps_s - week * _WEEK_S) * 1000.0))
+    if ms >= _WEEK_S * 1000:  # rounded up into the next week
+        week, ms = week + 1, ms - _WEEK_S * 1000
+    return week, ms
+
+
+def ground_frame(record: TrackRecord) -> np.ndarray:
+    """The 2x2 matrix from the map grid's (east, north) metres to true (north, east) ground metres at the
+    record's position: the meridian convergence and the projection's scale, measured by pyproj."""
+    from pyproj import Geod
+
+    from ..localize.lonlat import transformer
+
+    assert record.x is not None and record.y is not None and record.crs
+    to_lonlat = transformer(record.crs, "EPSG:4326")
+    lon0, lat0 = to_lonlat.transform(record.x, record.y)
+    columns = []
+    for dx, dy in ((1.0, 0.0), (0.0, 1.0)):  # one grid metre east, then north
+        lon1, lat1 = to_lonlat.transform(record.x + dx, record.y + dy)
+        azimuth, _, distance = Geod(ellps="WGS84").inv(lon0, lat0, lon1, lat1)
+        a = math.radians(azimuth)
+        columns.append((distance * math.cos(a), distance * math.sin(a)))
+    return np.array(columns).T  # [[n/east, n/north], [e/east, e/north]]
+
+
+def _time_unix(record: TrackRecord, start_unix: float) -> float:
+    """The record's time as a Unix time: ``time_s`` itself once past 1980, else seconds since ``start_unix``."""
+    assert record.time_s is not None
+    return record.time_s if record.time_s >= GPS_EPOCH_UNIX_S else start_unix + record.time_s
+
+
+def _speed_accuracy(record: TrackRecord, dt: float | None) -> float | None:
+    """The frame-to-frame velocity's stated 1-sigma, else that of a velocity from two positions ``dt`` apart."""
+    measured = record.velocity_measurement
+    if measured.get("status") == "used" and isinstance(measured.get("sigma_mps"), int | float):
+        return float(measured["sigma_mps"])
+    sigma = record.sigma_m
+    if sigma is None or not dt or dt <= 0:
+        return None
+    return math.sqrt(2.0) * sigma / dt
+
+
+def gps_input_fields(record: TrackRecord, altitude_m: float | None, options: MavlinkOptions, start_unix: float,
+                     dt: float | None = None) -> dict[str, Any]:
+    """The ``GPS_INPUT`` fields of a record (module docs; ``docs/mavlink.md``).
+
+    ``altitude_m``: the frame's barometric height above ground (None: altitude ignored); ``dt``: seconds
+    since the previous record (for the speed accuracy without a measured velocity).
+    """
+    unix = _time_unix(record, start_unix)
+    week, week_ms = gps_time(unix)
+    fields: dict[str, Any] = {
+        "time_usec": int(round(unix * 1e6)), "gps_id": 0, "time_week_ms": week_ms, "time_week": week,
+        "fix_type": FIX_NONE, "lat": 0, "lon": 0, "alt": 0.0, "hdop": 0.0, "vdop": 0.0, "vn": 0.0, "ve": 0.0,
+        "vd": 0.0, "speed_accuracy": 0.0, "horiz_accuracy": 0.0, "vert_accuracy": 0.0, "satellites_visible": 0,
+        "yaw": 0,  # 0: not available (the image heading is not the aircraft's yaw)
+        "ignore_flags": 255,
+    }
+    if not record.placed or record.lon is None or record.lat is None or record.cov is None:
+        return fields
+    ignore = IGNORE_VEL_VERT
+    fields.update(fix_type=FIX_3D, lat=int(round(record.lat * 1e7)), lon=int(round(record.lon * 1e7)),
+                  hdop=NOMINAL_DOP, vdop=NOMINAL_DOP, satellites_visible=NOMINAL_SATELLITES,
+                  horiz_accuracy=float(record.sigma_m or 0.0))
+    if altitude_m is None:
+        ignore |= IGNORE_ALT | IGNORE_VERT_ACCURACY
+    else:
+        fields.update(alt=float(options.ground_alt_m + altitude_m), vert_accuracy=float(options.vert_accuracy_m))
+    if record.velocity is None:
+        ignore |= IGNORE_VEL_HORIZ | IGNORE_SPEED_ACCURACY
+    else:
+        north, east = ground_frame(record) @ np.array([record.velocity.real, record.velocity.imag])
+        fields.update(vn=float(north), ve=float(east))
+        speed_accuracy = _speed_accuracy(record, dt)
+        if speed_accuracy is None:
+            ignore |= IGNORE_SPEED_ACCURACY
+        else:
+            fields["speed_accuracy"] = float(speed_accuracy)
+    fields["ignore_flags"] = ignore
+    return fields
+
+
+def _upper_triangle(matrix: np.ndarray) -> list[float]:
+    """A symmetric 6x6 matrix's upper-right triangle, row by row (MAVLink's 21-float covariance)."""
+    return [float(matrix[i, j]) for i in range(6) for j in range(i, 6)]
+
+
+def vision_fields(record: TrackRecord, altitude_m: float | None, origin: tuple[float, float, float],
+                  options: MavlinkOptions, start_unix: float, reset_counter: int) -> dict[str, Any]:
+    """The ``GLOBAL_VISION_POSITION_ESTIMATE`` fields of a placed record: metres north, east and down of
+    ``origin`` (lon, lat, altitude above ground of the first placed record), with the 6x6 covariance."""
+    from ..localize.lonlat import transformer
+
+    assert record.lon is not None and record.lat is not None and record.cov is not None
+    lon0, lat0, alt0 = origin
+    local = f"+proj=aeqd +lat_0={lat0!r} +lon_0={lon0!r} +datum=WGS84 +units=m"
+    east, north = transformer("EPSG:4326", local).transform(record.lon, record.lat)
+    frame = ground_frame(record)
+    cov = np.zeros((6, 6))
+    cov[:2, :2] = frame @ record.cov @ frame.T  # grid (east, north) -> ground (north, east)
+    cov[2, 2] = options.vert_accuracy_m**2 if altitude_m is not None else 0.0
+    cov[3, 3] = cov[4, 4] = cov[5, 5] = math.radians(options.attitude_std_deg) ** 2
+    yaw = math.radians(record.heading_deg) if record.heading_deg is not None else 0.0
+    return {"usec": int(round(_time_unix(record, start_unix) * 1e6)), "x": float(north), "y": float(east),
+            "z": -float((altitude_m if altitude_m is not None else alt0) - alt0),
+            "roll": 0.0, "pitch": 0.0, "yaw": float(math.atan2(math.sin(yaw), math.cos(yaw))),
+            "covariance": _upper_triangle(cov), "reset_counter": reset_counter % 256}
+
+
+def _dialect() -> Any:
+    try:
+        from pymavlink.dialects.v20 import common
+    except ImportError:
+        raise MavlinkMissingError("--mavlink needs pymavlink: pip install 'mapdb[mavlink]'") from None
+    return common
+
+
+class _Link:
+    """A connected UDP socket that counts the datagrams the receiver refused (module docs)."""
+
+    def __init__(self, address: str) -> None:
+        try:
+            host, port = parse_address(address)
+        except ValueError as exc:
+            raise MapdbIOError(f"{address}: cannot open MAVLink output ({exc})") from None
+        try:
+            family, kind, proto, _, where = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+            self.sock = socket.socket(family, kind, proto)
+        except OSError as exc:
+            raise MapdbIOError(f"{address}: cannot open MAVLink output ({exc.strerror or exc})") from None
+        try:
+            self.sock.connect(where)  # connected: the kernel reports a refused datagram on the next send
+        except OSError as exc:
+            self.sock.close()
+            raise MapdbIOError(f"{address}: cannot open MAVLink output ({exc.strerror or exc})") from None
+        self.address, self.lost, self.pending = address, 0, False
+
+    def write(self, data: bytes) -> None:
+        """Send one datagram; a refusal reported for the previous one counts it lost, and this one is retried."""
+        for _ in range(2):
+            try:
+                self.sock.send(data)
+            except ConnectionRefusedError:  # the previous datagram met a closed port
+                self.lost += int(self.pending)
+                self.pending = False
+                continue
+            except OSError:  # no route, no buffer: this datagram is lost
+                self.lost += 1
+                self.pending = False
+                return
+            self.pending = True
+            return
+        self.lost += 1
+
+    def close(self) -> None:
+        """Close, counting the last datagram if the receiver refused it."""
+        if self.pending:
+            time.sleep(_LAST_CHECK_S)
+            if self.sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR) == errno.ECONNREFUSED:
+                self.lost += 1
+        self.sock.close()
+
+
+class MavlinkOut:
+    """The track's MAVLink output to ``udpout:HOST:PORT`` (module docs).
+
+    Opened at once (an address that cannot be opened raises :class:`~mapdb.errors.MapdbIOError` before any
+    frame is read); :meth:`send` one record at a time; :meth:`close` and :meth:`summary` at the end.
+    """
+
+    def __init__(self, address: str, options: MavlinkOptions | None = None,
+                 clock: Callable[[], float] = time.time) -> None:
+        self.options = options or MavlinkOptions()
+        dialect = _dialect()
+        self.link = _Link(address)
+        self.mav = dialect.MAVLink(self.link, srcSystem=self.options.system, srcComponent=self.options.component)
+        self.start_unix = clock()
+        self.sent = self.untimed = 0
+        self.previous_time: float | None = None
+        self.origin: tuple[float, float, float] | None = None
+        self.resets, self.was_placed = 0, False
+
+    @property
+    def lost(self) -> int:
+        """Messages the receiver refused (or that could not be sent)."""
+        return self.link.lost
+
+    def send(self, record: TrackRecord, altitude_m: float | None = None) -> None:
+        """Send a record as ``GPS_INPUT`` (and the vision estimate); a record without a time is not sent."""
+        if record.time_s is None:
+            self.untimed += 1
+            return
+        dt = None if self.previous_time is None else record.time_s - self.previous_time
+        self.previous_time = record.time_s
+        self.mav.gps_input_send(**gps_input_fields(record, altitude_m, self.options, self.start_unix, dt))
+        self.sent += 1
+        placed = record.placed and record.cov is not None and record.lon is not None and record.lat is not None
+        if placed and not self.was_placed and self.origin is not None:
+            self.resets += 1  # the filter restarted: the vision estimate's frame starts again
+        self.was_placed = placed
+        if self.options.vision and placed:
+            if self.origin is None:
+                assert record.lon is not None and record.lat is not None
+                self.origin = (record.lon, record.lat, altitude_m or 0.0)
+            self.mav.global_vision_position_estimate_send(
+                **vision_fields(record, altitude_m, self.origin, self.options, self.start_unix, self.resets))
+            self.sent += 1
+
+    def close(self) -> None:
+        self.link.close()
+
+    def summary(self) -> str:
+        """One line for stderr: what was sent, and what was lost."""
+        line = f"{self.link.address}: {self.sent} MAVLink messages sent"
+        if self.lost:
+            line += f", {self.lost} lost (the receiver refused them: is it still listening?)"
+        if self.untimed:
+            line += f"; {self.untimed} records without a time not sent"
+        return line
+
+    def __enter__(self) -> MavlinkOut:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
