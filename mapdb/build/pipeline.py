@@ -30,6 +30,7 @@ from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, release_freed_memory
+from .blocks import BLOCK_LABEL, BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
@@ -177,7 +178,8 @@ def build_map(
     min_area_m2: float = 10_000.0, label_column: str = "label", layer_crs: str | None = None,
     label: str | None = None, label_map: str | Path | None = None, node_index: str = "auto",
     index_dir: str | Path | None = None, spool: str = "auto", jobs: int | None = None,
-    scheduler: str | None = None, progress: ProgressLike = None,
+    scheduler: str | None = None, progress: ProgressLike = None, blocks: bool = True,
+    block_gap: float = DEFAULT_GAP_M,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -220,6 +222,12 @@ def build_map(
     progress : Progress or callable, optional
         Receives the stages as messages, and a count over the sources read, the projection and the
         writing (see :class:`mapdb.progress.Progress`).
+    blocks : bool
+        Also store, for each source, every group of two or more buildings whose footprints touch or lie
+        within ``block_gap`` metres as one object labelled ``building_block`` (:mod:`mapdb.build.blocks`:
+        what a segmentation mask shows as one blob).  Needs both labels in the label table.
+    block_gap : float
+        The gap in metres, in [0, 5] (default 0.75).
 
     Returns
     -------
@@ -241,11 +249,12 @@ def build_map(
         If no object survives (for example a bbox over empty ground).
     """
     quantum, min_area_m2, bbox, target, table = _checked_arguments(sources, quantum, min_area_m2, bbox, crs, labels)
+    gap = _check_number("block_gap", block_gap, 0.0, MAX_GAP_M, low_open=False) if blocks else None
     say = as_progress(progress)
     say.start(len(sources) + 2, "build")  # one count: each source read, then the projection, then the writing
     read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
                     "label_column": label_column, "layer_crs": layer_crs, "label": label,
-                    "label_map": _label_map(label_map, label, table)}
+                    "label_map": _label_map(label_map, label, table), "block_gap": gap}
     osm_options = {"node_index": _checked_node_index(node_index), "index_dir": index_dir}
     if jobs is not None and scheduler is not None:
         raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")
@@ -259,7 +268,7 @@ def build_map(
             "labels_sha256": file_sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
             "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs, "label": label,
             "label_map": Path(label_map).name if label_map else None,
-            "label_map_sha256": file_sha256(Path(label_map)) if label_map else None})
+            "label_map_sha256": file_sha256(Path(label_map)) if label_map else None, "block_gap_m": gap})
 
 
 def _built(output: str | Path, read: _Read, table: LabelTable, quantum: float, say: Progress,
@@ -477,18 +486,24 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     is held in memory.
     """
     counts: Counter[str] = Counter()
-    read_options, osm_options = options
+    read_options, osm_options = dict(options[0]), options[1]
+    gap = read_options.pop("block_gap", None)
+    outlines = BuildingOutlines(table.code(BUILDING_LABEL)) if _forms_blocks(table, gap) else None
     if source_kind(path) == "osm":
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
-                                  spool_dir=spool_dir, **osm_options)
+                                  spool_dir=spool_dir, outlines=outlines.add_wkb if outlines is not None else None,
+                                  **osm_options)
         small = path.stat().st_size < TRIM_INPUT_BYTES
     else:
-        objects = read_source(path, table, progress=say, counts=counts, **read_options)
+        objects = read_source(path, table, progress=say, counts=counts,
+                              outlines=outlines.add_geometries if outlines is not None else None, **read_options)
         lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
         spools = [ObjectSpool(objects.labels, "EPSG:4326")]
         spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
         del objects
         small = False  # a raster's windows or a layer's features may have taken much more than the file
+    if outlines is not None and gap is not None:
+        spools.append(_blocks_spool(outlines, table, gap, read_options["bbox"], say))
     if not small:
         release_freed_memory()
     # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
@@ -499,6 +514,23 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
 
 
 _EARTH = (-180.0, -90.0, 180.0, 90.0)
+
+
+def _forms_blocks(table: LabelTable, gap: float | None) -> bool:
+    """Whether a source is to form blocks: asked for (a gap), and the table has both labels."""
+    return gap is not None and BUILDING_LABEL in table.labels and BLOCK_LABEL in table.labels
+
+
+def _blocks_spool(outlines: BuildingOutlines, table: LabelTable, gap: float,
+                  bbox: tuple[float, float, float, float] | None, say: Progress | None) -> ObjectSpool:
+    """The blocks of a source's building footprints (:mod:`mapdb.build.blocks`), as one more spool."""
+    blocks = outlines.blocks(table.labels, gap, bbox)
+    if say is not None:
+        say(f"  {len(blocks):,} blocks of touching buildings (gap {gap:g} m) from {len(outlines):,} footprints")
+    outlines.wkb.clear()  # the footprints are not needed any more
+    spool = ObjectSpool(table.labels, "EPSG:4326")
+    spool.add(blocks)
+    return spool
 
 
 def _on_earth(block: Objects) -> np.ndarray:
