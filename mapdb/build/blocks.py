@@ -35,15 +35,14 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from ..geo import in_bbox
+from ..labels import BLOCK_LABEL, BUILDING_LABEL
 from ..objects import Objects
 
 __all__ = ["BLOCK_LABEL", "BUILDING_LABEL", "DEFAULT_GAP_M", "MAX_GAP_M", "BuildingOutlines", "block_members",
            "blocks_of"]
 
-# The label of blocks (declared in mapdb/data/labels.toml, after every other so that no code moves), and the
-# label whose footprints form them.
-BLOCK_LABEL = "building_block"
-BUILDING_LABEL = "building"
+# BLOCK_LABEL, the label of blocks, is declared in mapdb/data/labels.toml after every other, so that no code
+# moves; BUILDING_LABEL's footprints form them.
 # Footprints this close (metres) join one block (module docs); the largest gap accepted.
 DEFAULT_GAP_M = 0.75
 MAX_GAP_M = 5.0

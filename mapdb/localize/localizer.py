@@ -28,6 +28,7 @@ from ..match.evidence.blobs import outward_normals
 from ..match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from ..match.hypotheses import PRIOR_SLACK
 from ..match.index.stored import StoredQuadIndex
+from ..match.mapobjects.blocks_view import BlocksView, has_blocks, wants_blocks
 from ..match.mapobjects.paged_objects import PAGED_FROM_OBJECTS, WholeMapObjects
 from ..match.paper.algorithm import PaperOptions, match_paper
 from ..match.quads import near_only
@@ -147,6 +148,11 @@ class Localizer:
         The method's tuning (defaults when None or of the other method).
     prior : (x, y, radius), optional
         Map-CRS metres; used for images that carry no prior of their own.
+    blocks : bool
+        For a map holding blocks of touching buildings (``mapdb build --blocks``): match the images whose
+        buildings come with pixel areas (mask blobs) against buildings and blocks, the others against
+        buildings alone (:mod:`mapdb.match.mapobjects.blocks_view`).  False: every image against buildings
+        alone, as if the map had no blocks.
 
     Examples
     --------
@@ -158,7 +164,7 @@ class Localizer:
     """
 
     def __init__(self, map: Any, method: str = "fast", options: FastOptions | PaperOptions | None = None,
-                 prior: tuple[float, float, float] | None = None) -> None:
+                 prior: tuple[float, float, float] | None = None, blocks: bool = True) -> None:
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
         self.map = map
@@ -174,6 +180,24 @@ class Localizer:
         # Says why the map's stored index is not used (once): a callable taking one line.
         self.warn: Callable[[str], None] = _warn_stderr
         self._stored_failed = False
+        # A map with blocks is searched through a view (blocks folded into buildings, or left out), each with
+        # its own localizer and indexes, made when an image first needs it.
+        self.blocks = blocks
+        self._has_blocks = has_blocks(map)
+        self._views: dict[bool, Localizer] = {}
+
+    def matcher_for(self, codes: np.ndarray, area_px: np.ndarray | None) -> Localizer:
+        """The localizer whose indexes an image is matched in: this one for a map without blocks, else the one
+        of the view the image needs (:func:`~mapdb.match.mapobjects.blocks_view.wants_blocks`)."""
+        if not self._has_blocks:
+            return self
+        fold = self.blocks and wants_blocks(codes, tuple(self.map.labels), area_px)
+        view = self._views.get(fold)
+        if view is None:
+            view = Localizer(BlocksView(self.map, fold), self.method, self.options, self.prior)
+            view.warn = self.warn
+            self._views[fold] = view
+        return view
 
     def localize(self, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None = None, *,
                  source: str = "image") -> Answer:
@@ -408,7 +432,8 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         anchorable = None if im.border is None else ~im.border
         # A levelled image's pixel areas and boxes are not the level camera's: they are left out.
         outward = None if im.bbox is None or levelled else outward_normals(im.bbox, im.width, im.height)
-        pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
+        matcher = localizer.matcher_for(codes, im.area_px)  # a map's blocks, for mask blobs only
+        pose = _match(matcher, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
                       None if levelled else im.area_px, outward)
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
