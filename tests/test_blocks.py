@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import shapely
 from click.testing import CliRunner
-from osmxml import OsmXml, metres, square
+from mapdb_cli.main import cli
+from osmxml import OsmXml, square
 
 from mapdb.build.blocks import DEFAULT_GAP_M, block_members, blocks_of
 from mapdb.build.pipeline import build_map
@@ -21,7 +22,6 @@ from mapdb.mapfile.reader import open_map
 from mapdb.match.mapobjects.blocks_view import BlocksView, wants_blocks
 from mapdb.objects import Objects
 from mapdb.simulation.simulate import simulate_images
-from mapdb_cli.main import cli
 
 # A terrace of three 10 m houses side by side (the middle one 0.5 m from the first, within the gap; touching
 # the third), and a lone house 5 m away: one block of three.  Metres east/north of the test origin.
