@@ -28,10 +28,11 @@ from ..match.evidence.blobs import outward_normals
 from ..match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from ..match.hypotheses import PRIOR_SLACK
 from ..match.index.stored import StoredQuadIndex
-from ..match.mapobjects.blocks_view import BlocksView, has_blocks, wants_blocks
+from ..match.mapobjects.blocks_view import BlocksView, block_quads, has_blocks, wants_blocks
 from ..match.mapobjects.paged_objects import PAGED_FROM_OBJECTS, WholeMapObjects
 from ..match.paper.algorithm import PaperOptions, match_paper
 from ..match.quads import near_only
+from ..objects import Objects
 from .image_points import image_points, known_objects, scale_hints
 from .priors import outside_bounds, prior_margin, resolve_prior
 from .records import FoundPose, RejectionError, finite, ok_record, rejected, rounded
@@ -234,8 +235,7 @@ class Localizer:
         """
         if self._whole_quads is None:
             stored = self._stored_index()
-            self._whole_quads = (StoredQuads(stored) if stored is not None
-                                 else QuadIndex(self.map.all(), self.fast_options.map_neighbours))
+            self._whole_quads = StoredQuads(stored) if stored is not None else self._quad_index(self._quad_objects())
         return self._objects(lost_in_space=True), self._whole_quads
 
     def _objects(self, lost_in_space: bool) -> ObjectIndex:
@@ -344,16 +344,31 @@ class Localizer:
         quads = self._block_quads.get(block, lambda: QuadIndex.merged([self._tile(ix, iy) for ix, iy in cells]))
         return objects, [NearQuads(quads, centre, anchor_reach)]
 
+    def _folds_blocks(self) -> bool:
+        return isinstance(self.map, BlocksView) and self.map.fold
+
+    def _quad_objects(self, box: tuple[float, float, float, float] | None = None) -> Objects:
+        """The objects quads are made of, the whole map's or a box's: a view folding blocks hands its map's
+        own (blocks under their label), which :func:`block_quads` makes its two worlds of."""
+        source = self.map.raw if self._folds_blocks() else self.map
+        return source.all() if box is None else source.query_bbox(*box)
+
+    def _quad_index(self, objects: Objects, anchors: np.ndarray | None = None, positions: bool = False) -> QuadIndex:
+        """A quad index over :meth:`_quad_objects`' objects."""
+        if self._folds_blocks():
+            return block_quads(objects, self.fast_options.map_neighbours, anchors=anchors, positions=positions)
+        return QuadIndex(objects, self.fast_options.map_neighbours, anchors=anchors, positions=positions)
+
     def _tile(self, ix: int, iy: int) -> QuadIndex:
         """Quads anchored in one tile; neighbours are read from a margin around it."""
 
         def build() -> QuadIndex:
             t, pad = TILE_SIZE_M, TILE_PAD_M
             x0, y0 = ix * t, iy * t
-            objects = self.map.query_bbox(x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad)
+            objects = self._quad_objects((x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad))
             # Half-open tiles: an object on a shared edge anchors its quads in one tile only.
             anchors = (objects.x >= x0) & (objects.x < x0 + t) & (objects.y >= y0) & (objects.y < y0 + t)
-            return QuadIndex(objects, self.fast_options.map_neighbours, anchors=anchors, positions=True)
+            return self._quad_index(objects, anchors=anchors, positions=True)
 
         return self._tiles.get((ix, iy), build)
 
