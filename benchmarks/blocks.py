@@ -15,6 +15,9 @@ tables:
    the order alternating image by image.  Columns: buildings in blocks (the map's), blobs an image (mean),
    blobs standing for a block (``truth.block``, mean), localized (correct answers within 2 m / images) with
    and without blocks and their difference in points, answers more than 2 m off with and without.
+   Then, for the gap: of the whole blobs (not touching the border) that cover two or more buildings (each
+   with at least a tenth of the blob's pixels), the share whose buildings all fall in one block at each gap;
+   and the same in as many images rendered flat (no relief: the merges a mask's pixels alone make).
 4. **Wrong places**: each extract's masks against the *other* extract's map, with its blocks and without:
    every answer accepted there is a false positive.
 5. **Ideal centroids**: images of the ideal simulator (map objects at their projected centroids) of the map
@@ -90,10 +93,10 @@ def storage_table(cache: Path) -> None:
               f"{size / size0 - 1:>+11.1%}")
 
 
-def masks(m: Any, scene: Any, n: int, altitude: float, seed: int) -> list[dict]:
+def masks(m: Any, scene: Any, n: int, altitude: float, seed: int, heights: bool = True) -> list[dict]:
     from mapdb.simulation.rendered import simulate_masks
 
-    return [doc for doc, _ in simulate_masks(m, scene, n, altitude=altitude, seed=seed, heights=True, **CAMERA)]
+    return [doc for doc, _ in simulate_masks(m, scene, n, altitude=altitude, seed=seed, heights=heights, **CAMERA)]
 
 
 def answer_both(m: Any, images: list[dict]) -> dict[bool, list[Any]]:
@@ -137,6 +140,46 @@ def mask_rows(maps: dict[str, Path], scenes: dict[str, Any], n: int, seed: int, 
                       f"{good / n:>7.1%} {good0 / n:>7.1%} {100 * (good - good0) / n:>+6.1f}  "
                       f"{_errors(off)} / {_errors(off0)}")
     return made
+
+
+def merges_explained(maps: dict[str, Path], scenes: dict[str, Any], made: dict[str, dict[float, list[dict]]],
+                     seed: int) -> None:
+    """Whole merged blobs whose buildings are one block, at each gap (the gap's measure), in the images with
+    heights and in as many rendered flat."""
+    from mapdb.mapfile.reader import open_map
+
+    flat: dict[str, dict[float, list[dict]]] = {}
+    for name, rows in made.items():
+        with open_map(maps[name]) as m:
+            flat[name] = {a: masks(m, scenes[name], len(images), a, seed, heights=False) for a, images in rows.items()}
+    for title, images in (("with heights", made), ("flat", flat)):
+        _merges_table(scenes, images, title)
+
+
+def _merges_table(scenes: dict[str, Any], made: dict[str, dict[float, list[dict]]], title: str) -> None:
+    import numpy as np
+
+    from mapdb.build.blocks import block_members
+    from mapdb.simulation.outlines import LAYER_BUILDING
+
+    print(f"\nWhole blobs covering two or more buildings, rendered {title}: share whose buildings are one block, "
+          "by gap\n")
+    print(f"{'extract':<9} {'alt m':>5} {'merged':>6} " + " ".join(f"{f'{g:g} m':>7}" for g in GAPS))
+    for name, rows in made.items():
+        scene = scenes[name]
+        shapes = np.flatnonzero((scene.layer == LAYER_BUILDING) & (scene.map_index >= 0))
+        groups = {g: dict(zip(scene.map_index[shapes].tolist(), block_members(scene.geometry[shapes], g).tolist(),
+                              strict=True)) for g in GAPS}
+        for altitude, images in rows.items():
+            merged = []
+            for im in images:
+                for o, covers, px in zip(im["objects"], im["truth"]["covers"], im["truth"]["cover_px"], strict=True):
+                    big = [j for j, p in zip(covers, px, strict=True) if j in groups[GAPS[0]] and p >= 0.1 * sum(px)]
+                    if not o.get("border") and len(big) >= 2:
+                        merged.append(big)
+            shares = [sum(len({groups[g][j] for j in big}) == 1 and groups[g][big[0]] >= 0 for big in merged)
+                      / max(len(merged), 1) for g in GAPS]
+            print(f"{name:<9} {altitude:>5.0f} {len(merged):>6} " + " ".join(f"{v:>7.1%}" for v in shares))
 
 
 def _buildings_in_blocks(scene: Any) -> float:
@@ -204,6 +247,7 @@ def main() -> None:
     gap_table(scenes)
     storage_table(cache)
     made = mask_rows(maps, scenes, args.n, args.seed, altitudes)
+    merges_explained(maps, scenes, made, args.seed)
     wrong_places(maps, made)
     ideal(cache, args.n, args.seed, altitudes)
 
