@@ -37,9 +37,11 @@ from scipy.sparse.csgraph import connected_components
 from ..geo import in_bbox
 from ..labels import BLOCK_LABEL, BUILDING_LABEL
 from ..objects import Objects
+from ..progress import Progress
+from ..sources.spool import ObjectSpool
 
 __all__ = ["BLOCK_LABEL", "BUILDING_LABEL", "DEFAULT_GAP_M", "MAX_GAP_M", "BuildingOutlines", "block_members",
-           "blocks_of"]
+           "blocks_of", "blocks_spool", "forms_blocks"]
 
 # BLOCK_LABEL, the label of blocks, is declared in mapdb/data/labels.toml after every other, so that no code
 # moves; BUILDING_LABEL's footprints form them.
@@ -196,3 +198,21 @@ class BuildingOutlines:
             keep &= in_bbox(bbox, block_lon, block_lat)
         code = np.full(int(keep.sum()), labels.index(BLOCK_LABEL), np.int32)
         return Objects(block_lon[keep], block_lat[keep], code, area[keep], labels, "EPSG:4326")
+
+
+def forms_blocks(labels: Sequence[str], gap: float | None) -> bool:
+    """Whether a source is to form blocks: asked for (a gap), and the label table has both labels."""
+    return gap is not None and BUILDING_LABEL in labels and BLOCK_LABEL in labels
+
+
+def blocks_spool(outlines: BuildingOutlines, labels: Sequence[str], gap: float,
+                 bbox: tuple[float, float, float, float] | None, say: Progress | None) -> ObjectSpool:
+    """The blocks of a source's building footprints, as one more spool of the source's objects (in memory:
+    blocks are a few percent of the objects); the footprints are then dropped."""
+    blocks = outlines.blocks(labels, gap, bbox)
+    if say is not None:
+        say(f"  {len(blocks):,} blocks of touching buildings (gap {gap:g} m) from {len(outlines):,} footprints")
+    outlines.wkb.clear()
+    spool = ObjectSpool(labels, "EPSG:4326")
+    spool.add(blocks)
+    return spool

@@ -30,7 +30,7 @@ from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, release_freed_memory
-from .blocks import BLOCK_LABEL, BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines
+from .blocks import BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines, blocks_spool, forms_blocks
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
@@ -222,12 +222,9 @@ def build_map(
     progress : Progress or callable, optional
         Receives the stages as messages, and a count over the sources read, the projection and the
         writing (see :class:`mapdb.progress.Progress`).
-    blocks : bool
-        Also store, for each source, every group of two or more buildings whose footprints touch or lie
-        within ``block_gap`` metres as one object labelled ``building_block`` (:mod:`mapdb.build.blocks`:
-        what a segmentation mask shows as one blob).  Needs both labels in the label table.
-    block_gap : float
-        The gap in metres, in [0, 5] (default 0.75).
+    blocks, block_gap : bool, float
+        Also store each group of two or more buildings of a source whose footprints lie within ``block_gap``
+        metres (in [0, 5]) as a ``building_block`` object (:mod:`mapdb.build.blocks`: a mask's merged blob).
 
     Returns
     -------
@@ -488,11 +485,11 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     counts: Counter[str] = Counter()
     read_options, osm_options = dict(options[0]), options[1]
     gap = read_options.pop("block_gap", None)
-    outlines = BuildingOutlines(table.code(BUILDING_LABEL)) if _forms_blocks(table, gap) else None
+    outlines = BuildingOutlines(table.code(BUILDING_LABEL)) if forms_blocks(table.labels, gap) else None
     if source_kind(path) == "osm":
+        wkb = outlines.add_wkb if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
-                                  spool_dir=spool_dir, outlines=outlines.add_wkb if outlines is not None else None,
-                                  **osm_options)
+                                  spool_dir=spool_dir, outlines=wkb, **osm_options)
         small = path.stat().st_size < TRIM_INPUT_BYTES
     else:
         objects = read_source(path, table, progress=say, counts=counts,
@@ -503,7 +500,7 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
         del objects
         small = False  # a raster's windows or a layer's features may have taken much more than the file
     if outlines is not None and gap is not None:
-        spools.append(_blocks_spool(outlines, table, gap, read_options["bbox"], say))
+        spools.append(blocks_spool(outlines, table.labels, gap, read_options["bbox"], say))
     if not small:
         release_freed_memory()
     # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
@@ -515,22 +512,6 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
 
 _EARTH = (-180.0, -90.0, 180.0, 90.0)
 
-
-def _forms_blocks(table: LabelTable, gap: float | None) -> bool:
-    """Whether a source is to form blocks: asked for (a gap), and the table has both labels."""
-    return gap is not None and BUILDING_LABEL in table.labels and BLOCK_LABEL in table.labels
-
-
-def _blocks_spool(outlines: BuildingOutlines, table: LabelTable, gap: float,
-                  bbox: tuple[float, float, float, float] | None, say: Progress | None) -> ObjectSpool:
-    """The blocks of a source's building footprints (:mod:`mapdb.build.blocks`), as one more spool."""
-    blocks = outlines.blocks(table.labels, gap, bbox)
-    if say is not None:
-        say(f"  {len(blocks):,} blocks of touching buildings (gap {gap:g} m) from {len(outlines):,} footprints")
-    outlines.wkb.clear()  # the footprints are not needed any more
-    spool = ObjectSpool(table.labels, "EPSG:4326")
-    spool.add(blocks)
-    return spool
 
 
 def _on_earth(block: Objects) -> np.ndarray:

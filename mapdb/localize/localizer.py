@@ -27,6 +27,7 @@ from ..mapfile.reader import MetaMap
 from ..match.evidence.blobs import outward_normals
 from ..match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from ..match.hypotheses import PRIOR_SLACK
+from ..match.index.layout import index_path
 from ..match.index.stored import StoredQuadIndex
 from ..match.mapobjects.blocks_view import BlocksView, block_quads, has_blocks, wants_blocks
 from ..match.mapobjects.paged_objects import PAGED_FROM_OBJECTS, WholeMapObjects
@@ -195,6 +196,8 @@ class Localizer:
         fold = self.blocks and wants_blocks(codes, tuple(self.map.labels), area_px)
         view = self._views.get(fold)
         if view is None:
+            if not self._views:
+                self._no_stored_index_for_blocks()
             view = Localizer(BlocksView(self.map, fold), self.method, self.options, self.prior)
             view.warn = self.warn
             self._views[fold] = view
@@ -212,6 +215,14 @@ class Localizer:
         except _StoredIndexError as exc:
             self._drop_stored(str(exc))
             return _answer(self, image, self.prior if prior is None else prior, source)
+
+    def _no_stored_index_for_blocks(self) -> None:
+        """Say once that a stored index beside a map with blocks is not used: its quads mix blocks and buildings
+        in one world, which neither view searches (:mod:`mapdb.match.mapobjects.blocks_view`)."""
+        path = getattr(self.map, "path", None)
+        if self.method == "fast" and path is not None and index_path(path).exists():
+            self.warn(f"{index_path(path)}: not used for a map with blocks of buildings (answering with the in-memory "
+                      "search); build the map with --no-blocks to use a stored index")
 
     @property
     def fast_options(self) -> FastOptions:

@@ -219,6 +219,7 @@ def block_quads(objects: Objects, neighbours: int, anchors: np.ndarray | None = 
 
 def _rows(index: QuadIndex, rows: np.ndarray) -> QuadIndex:
     """An index holding only these quads of ``index`` (its tree's rows and map points)."""
+    assert index.tree is not None  # block_quads keeps only indexes that hold quads
     part = QuadIndex.__new__(QuadIndex)
     part.labels, part.positions = index.labels, index.positions
     part.tree = _DataOnly(index.tree.data[rows])
