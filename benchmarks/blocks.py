@@ -27,6 +27,7 @@ Run from the repository root::
 
     python benchmarks/blocks.py --n 60                  # 60 images a row
     python benchmarks/blocks.py --n 20 --altitudes 120  # quick
+    python benchmarks/blocks.py --n 60 --gap 2          # maps whose blocks join buildings up to 2 m apart
 """
 
 from __future__ import annotations
@@ -51,14 +52,18 @@ GAPS = (0.0, 0.5, 0.75, 1.0, 2.0)
 CAMERA = {"fov_deg": 60.0, "size": (640, 480), "yaw": "random", "min_objects": 8}
 
 
+GAP = DEFAULT_GAP = 0.75  # the blocks' gap (metres) of the maps built: --gap
+
+
 def build(cache: Path, name: str, blocks: bool) -> Path:
-    """The extract's map with or without blocks, built once into ``cache`` (dates fixed: the bytes are the build's)."""
+    """The extract's map with or without blocks (of gap :data:`GAP`), built once into ``cache`` (dates fixed: the
+    bytes are the build's)."""
     from mapdb.build.pipeline import build_map
 
-    path = cache / f"{name}-{'blocks' if blocks else 'plain'}.mapdb"
+    path = cache / f"{name}-{f'blocks-{GAP:g}' if blocks else 'plain'}.mapdb"
     if not path.exists():
         os.environ.setdefault("SOURCE_DATE_EPOCH", "1700000000")
-        build_map([DATA / EXTRACTS[name]], path, blocks=blocks)
+        build_map([DATA / EXTRACTS[name]], path, blocks=blocks, block_gap=GAP)
     return path
 
 
@@ -229,7 +234,10 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=60, help="images a row")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--altitudes", type=float, nargs="+", default=list(ALTITUDES))
+    parser.add_argument("--gap", type=float, default=DEFAULT_GAP, help="the blocks' gap of the maps, metres")
     args = parser.parse_args()
+    global GAP
+    GAP = args.gap
     missing = [p for p in EXTRACTS.values() if not (DATA / p).exists()]
     if missing:
         sys.exit(f"real data not found in {DATA}: {', '.join(missing)}")
