@@ -190,3 +190,18 @@ def test_rendered_truth_names_the_block_a_merged_blob_stands_for(tmp_path: Path)
                 assert len(covers) == 2 and all(names[j] == "building" for j in covers)
                 assert objects.x[index] == pytest.approx(objects.x[covers].mean(), abs=0.2)
     assert flagged >= 5
+
+
+def test_evaluate_counts_the_blobs_standing_for_blocks() -> None:
+    from mapdb.answers import Answer
+    from mapdb.evaluation.evaluate import format_summary, outcome, summarize
+
+    image = {"id": "a", "objects": [{}, {}, {}], "truth": {"x": 0.0, "y": 0.0, "map_index": [4, 7, -1],
+                                                        "block": [False, True, False]}}
+    plain = {"id": "b", "objects": [{}], "truth": {"x": 0.0, "y": 0.0, "map_index": [3]}}
+    rejected = Answer.from_json({"id": "a", "status": "rejected", "reason": "no"})
+    outcomes = [outcome(image, rejected, 1.0), outcome(plain, rejected, 1.0)]
+    assert [o["n_blocks"] for o in outcomes] == [1, None]
+    summary = summarize(outcomes)
+    assert summary["blocks_mean"] == 1.0 and "1.0 of them blocks" in format_summary(summary)
+    assert summarize(outcomes[1:])["blocks_mean"] is None
