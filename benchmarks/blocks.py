@@ -191,7 +191,7 @@ def _buildings_in_blocks(scene: Any) -> float:
     from mapdb.build.blocks import block_members
     from mapdb.simulation.outlines import LAYER_BUILDING
 
-    return float((block_members(scene.geometry[scene.layer == LAYER_BUILDING]) >= 0).mean())
+    return float((block_members(scene.geometry[scene.layer == LAYER_BUILDING], GAP) >= 0).mean())
 
 
 def _errors(errors: list[float]) -> str:
