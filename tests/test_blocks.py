@@ -205,3 +205,14 @@ def test_evaluate_counts_the_blobs_standing_for_blocks() -> None:
     summary = summarize(outcomes)
     assert summary["blocks_mean"] == 1.0 and "1.0 of them blocks" in format_summary(summary)
     assert summarize(outcomes[1:])["blocks_mean"] is None
+
+
+def test_whole_map_indexes_of_a_map_with_blocks_are_its_views() -> None:
+    town = _town_with_blocks()
+    loc = Localizer(town)
+    objects, quads = loc.whole_map_indexes()
+    assert BLOCK_LABEL not in {town.labels[c] for c in np.flatnonzero(objects.counts)}  # the view without blocks
+    assert sorted(loc._views) == [False, True] and loc.whole_map_ready(1.0)
+    folded, _ = loc._views[True].whole_map_indexes()
+    assert folded.counts[town.labels.index("building")] == objects.counts[town.labels.index("building")] + \
+        town.label_counts[BLOCK_LABEL]

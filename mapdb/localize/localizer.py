@@ -193,7 +193,10 @@ class Localizer:
         of the view the image needs (:func:`~mapdb.match.mapobjects.blocks_view.wants_blocks`)."""
         if not self._has_blocks:
             return self
-        fold = self.blocks and wants_blocks(codes, tuple(self.map.labels), area_px)
+        return self._view(self.blocks and wants_blocks(codes, tuple(self.map.labels), area_px))
+
+    def _view(self, fold: bool) -> Localizer:
+        """The localizer of a map with blocks seen with them folded into buildings, or left out."""
         view = self._views.get(fold)
         if view is None:
             if not self._views:
@@ -243,7 +246,13 @@ class Localizer:
         opened in milliseconds, read as needed), else a quad index built in memory on first use.  Objects:
         for a big map file, read page by page where the answers need them until the whole index, built in
         the background from the second answer on, is ready (:class:`WholeMapObjects`); the same answers.
+
+        A map with blocks is searched through its views: theirs are built (both when blocks are used) and the
+        view without blocks' returned.
         """
+        if self._has_blocks:
+            views = [self._view(fold) for fold in ((True, False) if self.blocks else (False,))]
+            return [view.whole_map_indexes() for view in views][-1]
         if self._whole_quads is None:
             stored = self._stored_index()
             self._whole_quads = StoredQuads(stored) if stored is not None else self._quad_index(self._quad_objects())
@@ -264,6 +273,9 @@ class Localizer:
         """Build the whole map's object index now (in the background for a big map file) and wait up to
         ``timeout`` seconds for it: True once lost-in-space answers use it.  A long-running process that
         expects many lost-in-space images calls it at start-up; the answers are the same either way."""
+        if self._has_blocks:
+            return all([self._view(fold).whole_map_ready(timeout) for fold in ((True, False) if self.blocks
+                                                                                else (False,))])
         self.whole_map_indexes()
         assert self._whole_objects is not None
         self._whole_objects.start()
