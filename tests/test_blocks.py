@@ -216,3 +216,12 @@ def test_whole_map_indexes_of_a_map_with_blocks_are_its_views() -> None:
     folded, _ = loc._views[True].whole_map_indexes()
     assert folded.counts[town.labels.index("building")] == objects.counts[town.labels.index("building")] + \
         town.label_counts[BLOCK_LABEL]
+
+
+def test_a_footprint_crossing_itself_still_joins_its_block(tmp_path: Path) -> None:
+    doc = OsmXml()
+    doc.ring(square(0.0, 0.0, 5.0), {"building": "yes"})
+    doc.ring([(5.0, -5.0), (15.0, 5.0), (15.0, -5.0), (5.0, 5.0)], {"building": "yes"})  # a bow tie touching it
+    doc.ring(square(0.0, 80.0, 20.0), {"leisure": "park"})
+    summary = build_map([doc.write(tmp_path / "bow.osm")], tmp_path / "b.mapdb")
+    assert summary["labels"].get(BLOCK_LABEL) == 1 and summary["skipped"].get("repaired_geometries") == 1

@@ -190,6 +190,9 @@ class BuildingOutlines:
                 "+datum=WGS84 +units=m +no_defs")
         to_zone = Transformer.from_crs("EPSG:4326", zone, always_xy=True)
         metric = shapely.transform(geoms, lambda xy: np.column_stack(to_zone.transform(xy[:, 0], xy[:, 1])))
+        invalid = ~shapely.is_valid(metric)  # a ring crossing itself: GEOS's predicates may refuse it as it is
+        if invalid.any():
+            metric[invalid] = shapely.make_valid(metric[invalid], method="structure", keep_collapsed=False)
         xy, area, _ = blocks_of(metric, gap)
         if not len(area):
             return empty
