@@ -18,6 +18,8 @@ from typing import Any
 from .errors import LabelTableError, open_regular, reading
 
 __all__ = [
+    "BLOCK_LABEL",
+    "BUILDING_LABEL",
     "DEFAULT_LABELS_PATH",
     "MAX_LABEL_FILE_BYTES",
     "MAX_MERGE_DISTANCE_M",
@@ -30,6 +32,10 @@ __all__ = [
 ]
 
 DEFAULT_LABELS_PATH = Path(str(resources.files("mapdb") / "data" / "labels.toml"))
+# Blocks of touching buildings (mapdb.build.blocks) are objects of their own label, made by the builder from
+# the footprints of the building label; mask images match them as buildings, point detections never.
+BUILDING_LABEL = "building"
+BLOCK_LABEL = "building_block"
 _GEOMETRIES = {"area", "node", "way"}
 
 

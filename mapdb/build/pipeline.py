@@ -30,6 +30,7 @@ from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, release_freed_memory
+from .blocks import BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines, blocks_spool, forms_blocks
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
@@ -177,7 +178,8 @@ def build_map(
     min_area_m2: float = 10_000.0, label_column: str = "label", layer_crs: str | None = None,
     label: str | None = None, label_map: str | Path | None = None, node_index: str = "auto",
     index_dir: str | Path | None = None, spool: str = "auto", jobs: int | None = None,
-    scheduler: str | None = None, progress: ProgressLike = None,
+    scheduler: str | None = None, progress: ProgressLike = None, blocks: bool = True,
+    block_gap: float = DEFAULT_GAP_M,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -220,6 +222,9 @@ def build_map(
     progress : Progress or callable, optional
         Receives the stages as messages, and a count over the sources read, the projection and the
         writing (see :class:`mapdb.progress.Progress`).
+    blocks, block_gap : bool, float
+        Also store each group of two or more buildings of a source whose footprints lie within ``block_gap``
+        metres (in [0, 5]) as a ``building_block`` object (:mod:`mapdb.build.blocks`: a mask's merged blob).
 
     Returns
     -------
@@ -241,11 +246,12 @@ def build_map(
         If no object survives (for example a bbox over empty ground).
     """
     quantum, min_area_m2, bbox, target, table = _checked_arguments(sources, quantum, min_area_m2, bbox, crs, labels)
+    gap = _check_number("block_gap", block_gap, 0.0, MAX_GAP_M, low_open=False) if blocks else None
     say = as_progress(progress)
     say.start(len(sources) + 2, "build")  # one count: each source read, then the projection, then the writing
     read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
                     "label_column": label_column, "layer_crs": layer_crs, "label": label,
-                    "label_map": _label_map(label_map, label, table)}
+                    "label_map": _label_map(label_map, label, table), "block_gap": gap}
     osm_options = {"node_index": _checked_node_index(node_index), "index_dir": index_dir}
     if jobs is not None and scheduler is not None:
         raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")
@@ -259,7 +265,7 @@ def build_map(
             "labels_sha256": file_sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
             "min_area_m2": min_area_m2, "label_column": label_column, "layer_crs": layer_crs, "label": label,
             "label_map": Path(label_map).name if label_map else None,
-            "label_map_sha256": file_sha256(Path(label_map)) if label_map else None})
+            "label_map_sha256": file_sha256(Path(label_map)) if label_map else None, "block_gap_m": gap})
 
 
 def _built(output: str | Path, read: _Read, table: LabelTable, quantum: float, say: Progress,
@@ -477,18 +483,24 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     is held in memory.
     """
     counts: Counter[str] = Counter()
-    read_options, osm_options = options
+    read_options, osm_options = dict(options[0]), options[1]
+    gap = read_options.pop("block_gap", None)
+    outlines = BuildingOutlines(table.code(BUILDING_LABEL)) if forms_blocks(table.labels, gap) else None
     if source_kind(path) == "osm":
+        wkb = outlines.add_wkb if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
-                                  spool_dir=spool_dir, **osm_options)
+                                  spool_dir=spool_dir, outlines=wkb, **osm_options)
         small = path.stat().st_size < TRIM_INPUT_BYTES
     else:
-        objects = read_source(path, table, progress=say, counts=counts, **read_options)
+        objects = read_source(path, table, progress=say, counts=counts,
+                              outlines=outlines.add_geometries if outlines is not None else None, **read_options)
         lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
         spools = [ObjectSpool(objects.labels, "EPSG:4326")]
         spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
         del objects
         small = False  # a raster's windows or a layer's features may have taken much more than the file
+    if outlines is not None and gap is not None:
+        spools.append(blocks_spool(outlines, table.labels, gap, read_options["bbox"], say))
     if not small:
         release_freed_memory()
     # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
@@ -499,6 +511,7 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
 
 
 _EARTH = (-180.0, -90.0, 180.0, 90.0)
+
 
 
 def _on_earth(block: Objects) -> np.ndarray:

@@ -143,7 +143,8 @@ def outcome(image: dict[str, Any], result: Answer, time_ms: float) -> dict[str, 
     ``truth_x``, ``truth_y``, ``error_m`` (None unless ok), ``heading_error_deg`` (the answer's heading
     minus the truth's, in [-180, 180); None unless ok with a true heading), ``bound_error_m`` (None without a
     bound, or where it means nothing: module docs), ``n_objects`` (in the image), ``n_true`` (of them from
-    the map; None if unknown), ``time_ms``, ``reason``.
+    the map; None if unknown), ``n_blocks`` (of them blobs standing for a block of touching buildings,
+    ``truth.block``; None if unknown), ``time_ms``, ``reason``.
     """
     truth = truth_of(image) or image["truth"]
     status = result.status
@@ -167,9 +168,17 @@ def outcome(image: dict[str, Any], result: Answer, time_ms: float) -> dict[str, 
         "bound_error_m": None if not bound else float(bound["error_m"]),
         "n_objects": len(image.get("objects") or ()),
         "n_true": None if index is None else int(np.sum(np.asarray(index) >= 0)),
+        # Rendered masks of a map with blocks: the blobs whose map object is a block of touching buildings.
+        "n_blocks": int(sum(truth["block"])) if "block" in truth else None,
         "time_ms": float(time_ms),
         "reason": result.reason,
     }
+
+
+def _mean_known(outcomes: Sequence[dict[str, Any]], key: str) -> float | None:
+    """The mean of ``key`` over the outcomes that know it (None if none does)."""
+    known = [o[key] for o in outcomes if o.get(key) is not None]
+    return float(np.mean(known)) if known else None
 
 
 def _rms(values: np.ndarray) -> float | None:
@@ -197,7 +206,8 @@ def summarize(
         that bound is under 1 mm, where the ratio measures output rounding, not matching);
         ``rejected_fraction_min_objects`` over images with at least ``min_objects`` true objects (of the
         ``images_true_counted`` that say how many they have: simulated ones);
-        ``time_median_ms``, ``time_p95_ms``; ``objects_mean``.  Statistics of empty sets are None.
+        ``time_median_ms``, ``time_p95_ms``; ``objects_mean``; ``blocks_mean`` (blobs standing for blocks an
+        image, over the images whose truth says).  Statistics of empty sets are None.
     """
     n = len(outcomes)
     status = np.array([o["status"] for o in outcomes], dtype=object)
@@ -242,6 +252,7 @@ def summarize(
         "time_median_ms": _pct(times, 50),
         "time_p95_ms": _pct(times, 95),
         "objects_mean": float(np.mean([o.get("n_objects", 0) for o in outcomes])) if n else None,
+        "blocks_mean": _mean_known(outcomes, "n_blocks"),
     }
 
 
@@ -423,7 +434,8 @@ def format_summary(summary: dict[str, Any], title: str | None = None) -> str:
     acc = s["accepted"]
     lines = [title] if title else []
     lines += [
-        f"images:            {s['images']}  ({_fmt(s['objects_mean'], '', 1)} objects per image)",
+        f"images:            {s['images']}  ({_fmt(s['objects_mean'], '', 1)} objects per image"
+        + (f", {s['blocks_mean']:.1f} of them blocks of touching buildings" if s.get("blocks_mean") else "") + ")",
         f"accepted:          {acc}   rejected: {s['rejected']} ({_percent(s['rejected_fraction'])})"
         + (f", {s['errors']} errors" if s["errors"] else ""),
         f"false positives:   {s['false_positives']}/{acc} accepted"

@@ -27,10 +27,13 @@ from ..mapfile.reader import MetaMap
 from ..match.evidence.blobs import outward_normals
 from ..match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from ..match.hypotheses import PRIOR_SLACK
+from ..match.index.layout import index_path
 from ..match.index.stored import StoredQuadIndex
+from ..match.mapobjects.blocks_view import BlocksView, block_quads, has_blocks, wants_blocks
 from ..match.mapobjects.paged_objects import PAGED_FROM_OBJECTS, WholeMapObjects
 from ..match.paper.algorithm import PaperOptions, match_paper
 from ..match.quads import near_only
+from ..objects import Objects
 from .image_points import image_points, known_objects, scale_hints
 from .priors import outside_bounds, prior_margin, resolve_prior
 from .records import FoundPose, RejectionError, finite, ok_record, rejected, rounded
@@ -147,6 +150,11 @@ class Localizer:
         The method's tuning (defaults when None or of the other method).
     prior : (x, y, radius), optional
         Map-CRS metres; used for images that carry no prior of their own.
+    blocks : bool
+        For a map holding blocks of touching buildings (``mapdb build --blocks``): match the images whose
+        buildings come with pixel areas (mask blobs) against buildings and blocks, the others against
+        buildings alone (:mod:`mapdb.match.mapobjects.blocks_view`).  False: every image against buildings
+        alone, as if the map had no blocks.
 
     Examples
     --------
@@ -158,7 +166,7 @@ class Localizer:
     """
 
     def __init__(self, map: Any, method: str = "fast", options: FastOptions | PaperOptions | None = None,
-                 prior: tuple[float, float, float] | None = None) -> None:
+                 prior: tuple[float, float, float] | None = None, blocks: bool = True) -> None:
         if method not in METHODS:
             raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
         self.map = map
@@ -174,6 +182,29 @@ class Localizer:
         # Says why the map's stored index is not used (once): a callable taking one line.
         self.warn: Callable[[str], None] = _warn_stderr
         self._stored_failed = False
+        # A map with blocks is searched through a view (blocks folded into buildings, or left out), each with
+        # its own localizer and indexes, made when an image first needs it.
+        self.blocks = blocks
+        self._has_blocks = has_blocks(map)
+        self._views: dict[bool, Localizer] = {}
+
+    def matcher_for(self, codes: np.ndarray, area_px: np.ndarray | None) -> Localizer:
+        """The localizer whose indexes an image is matched in: this one for a map without blocks, else the one
+        of the view the image needs (:func:`~mapdb.match.mapobjects.blocks_view.wants_blocks`)."""
+        if not self._has_blocks:
+            return self
+        return self._view(self.blocks and wants_blocks(codes, tuple(self.map.labels), area_px))
+
+    def _view(self, fold: bool) -> Localizer:
+        """The localizer of a map with blocks seen with them folded into buildings, or left out."""
+        view = self._views.get(fold)
+        if view is None:
+            if not self._views:
+                self._no_stored_index_for_blocks()
+            view = Localizer(BlocksView(self.map, fold), self.method, self.options, self.prior)
+            view.warn = self.warn
+            self._views[fold] = view
+        return view
 
     def localize(self, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None = None, *,
                  source: str = "image") -> Answer:
@@ -187,6 +218,14 @@ class Localizer:
         except _StoredIndexError as exc:
             self._drop_stored(str(exc))
             return _answer(self, image, self.prior if prior is None else prior, source)
+
+    def _no_stored_index_for_blocks(self) -> None:
+        """Say once that a stored index beside a map with blocks is not used: its quads mix blocks and buildings
+        in one world, which neither view searches (:mod:`mapdb.match.mapobjects.blocks_view`)."""
+        path = getattr(self.map, "path", None)
+        if self.method == "fast" and path is not None and index_path(path).exists():
+            self.warn(f"{index_path(path)}: not used for a map with blocks of buildings (answering with the in-memory "
+                      "search); build the map with --no-blocks to use a stored index")
 
     @property
     def fast_options(self) -> FastOptions:
@@ -207,11 +246,16 @@ class Localizer:
         opened in milliseconds, read as needed), else a quad index built in memory on first use.  Objects:
         for a big map file, read page by page where the answers need them until the whole index, built in
         the background from the second answer on, is ready (:class:`WholeMapObjects`); the same answers.
+
+        A map with blocks is searched through its views: theirs are built (both when blocks are used) and the
+        view without blocks' returned.
         """
+        if self._has_blocks:
+            views = [self._view(fold) for fold in ((True, False) if self.blocks else (False,))]
+            return [view.whole_map_indexes() for view in views][-1]
         if self._whole_quads is None:
             stored = self._stored_index()
-            self._whole_quads = (StoredQuads(stored) if stored is not None
-                                 else QuadIndex(self.map.all(), self.fast_options.map_neighbours))
+            self._whole_quads = StoredQuads(stored) if stored is not None else self._quad_index(self._quad_objects())
         return self._objects(lost_in_space=True), self._whole_quads
 
     def _objects(self, lost_in_space: bool) -> ObjectIndex:
@@ -229,6 +273,9 @@ class Localizer:
         """Build the whole map's object index now (in the background for a big map file) and wait up to
         ``timeout`` seconds for it: True once lost-in-space answers use it.  A long-running process that
         expects many lost-in-space images calls it at start-up; the answers are the same either way."""
+        if self._has_blocks:
+            return all([self._view(fold).whole_map_ready(timeout) for fold in ((True, False) if self.blocks
+                                                                                else (False,))])
         self.whole_map_indexes()
         assert self._whole_objects is not None
         self._whole_objects.start()
@@ -320,16 +367,31 @@ class Localizer:
         quads = self._block_quads.get(block, lambda: QuadIndex.merged([self._tile(ix, iy) for ix, iy in cells]))
         return objects, [NearQuads(quads, centre, anchor_reach)]
 
+    def _folds_blocks(self) -> bool:
+        return isinstance(self.map, BlocksView) and self.map.fold
+
+    def _quad_objects(self, box: tuple[float, float, float, float] | None = None) -> Objects:
+        """The objects quads are made of, the whole map's or a box's: a view folding blocks hands its map's
+        own (blocks under their label), which :func:`block_quads` makes its two worlds of."""
+        source = self.map.raw if self._folds_blocks() else self.map
+        return source.all() if box is None else source.query_bbox(*box)
+
+    def _quad_index(self, objects: Objects, anchors: np.ndarray | None = None, positions: bool = False) -> QuadIndex:
+        """A quad index over :meth:`_quad_objects`' objects."""
+        if self._folds_blocks():
+            return block_quads(objects, self.fast_options.map_neighbours, anchors=anchors, positions=positions)
+        return QuadIndex(objects, self.fast_options.map_neighbours, anchors=anchors, positions=positions)
+
     def _tile(self, ix: int, iy: int) -> QuadIndex:
         """Quads anchored in one tile; neighbours are read from a margin around it."""
 
         def build() -> QuadIndex:
             t, pad = TILE_SIZE_M, TILE_PAD_M
             x0, y0 = ix * t, iy * t
-            objects = self.map.query_bbox(x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad)
+            objects = self._quad_objects((x0 - pad, y0 - pad, x0 + t + pad, y0 + t + pad))
             # Half-open tiles: an object on a shared edge anchors its quads in one tile only.
             anchors = (objects.x >= x0) & (objects.x < x0 + t) & (objects.y >= y0) & (objects.y < y0 + t)
-            return QuadIndex(objects, self.fast_options.map_neighbours, anchors=anchors, positions=True)
+            return self._quad_index(objects, anchors=anchors, positions=True)
 
         return self._tiles.get((ix, iy), build)
 
@@ -408,7 +470,8 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         anchorable = None if im.border is None else ~im.border
         # A levelled image's pixel areas and boxes are not the level camera's: they are left out.
         outward = None if im.bbox is None or levelled else outward_normals(im.bbox, im.width, im.height)
-        pose = _match(localizer, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
+        matcher = localizer.matcher_for(codes, im.area_px)  # a map's blocks, for mask blobs only
+        pose = _match(matcher, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
                       None if levelled else im.area_px, outward)
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})

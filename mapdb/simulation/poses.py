@@ -16,6 +16,7 @@ import numpy as np
 from .._scipy import cKDTree
 from ..camera import Camera, Pose, footprint, image_to_ground, project_to_image
 from ..errors import EmptyMapError
+from ..labels import BLOCK_LABEL
 from ..objects import Objects
 
 __all__ = [
@@ -122,9 +123,14 @@ def place_camera(
     map_name: str,
     i: int,
 ) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
-    """Camera position and the map objects in its image: ``(x, y, map_index, u, v)``."""
+    """Camera position and the map objects in its image: ``(x, y, map_index, u, v)``.
+
+    A map's blocks of touching buildings (:mod:`mapdb.build.blocks`) are never seen: a camera sees their
+    buildings, and only a mask merges them (:mod:`mapdb.simulation.rendered` says which blobs stand for blocks).
+    """
     width, height = shot.camera.width, shot.camera.height
     lo, hi, reach = placement_limits(shot, area, keep_inside)
+    block = objects.labels.index(BLOCK_LABEL) if BLOCK_LABEL in objects.labels else -1
     for _attempt in range(max_tries if min_objects > 0 else 1):
         if min_objects > 0:
             # Sparse maps: propose a camera that puts a random map object at a random pixel, so that
@@ -132,6 +138,8 @@ def place_camera(
             # number of objects in view, n; accepting with probability min_objects / n makes the
             # accepted positions uniform over those showing at least min_objects objects.
             anchor = int(rng.integers(len(objects)))
+            if objects.label[anchor] == block:
+                continue  # proposals anchored on what a camera sees, so that they stay uniform over it
             off_x, off_y = image_to_ground(rng.random() * width, rng.random() * height, shot.pose(), shot.camera)
             cam_x = float(objects.x[anchor] - off_x[0])
             cam_y = float(objects.y[anchor] - off_y[0])
@@ -145,7 +153,7 @@ def place_camera(
         near = np.asarray(tree.query_ball_point([cam_x, cam_y], reach * 1.001 + 1e-6), dtype=np.int64)
         near.sort()
         u, v = project_to_image(objects.x[near], objects.y[near], shot.pose(cam_x, cam_y), shot.camera)
-        seen = np.isfinite(u) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        seen = np.isfinite(u) & (u >= 0) & (u < width) & (v >= 0) & (v < height) & (objects.label[near] != block)
         n_seen = int(seen.sum())
         if min_objects == 0 or (n_seen >= min_objects and rng.random() * n_seen < min_objects):
             return cam_x, cam_y, near[seen], u[seen], v[seen]

@@ -8,9 +8,11 @@ exactly as ``mapdb objects`` does (:func:`mapdb.detections.masks.from_mask`).  T
 field of view, heading, attitude, position), the hints and the ``truth`` keys are the ideal
 simulator's, so ``mapdb evaluate`` scores these images the same way.
 
-Truth per object: ``truth.map_index[k]`` is the map object covering most of blob ``k``'s pixels (-1
-when none does), ``truth.covers[k]`` all the map objects it covers, most pixels first, with their pixel
-counts in ``truth.cover_px[k]``; ``truth.n_visible`` counts the map objects with at least one pixel in
+Truth per object: ``truth.map_index[k]`` is the map object blob ``k`` stands for: in a map with blocks of
+touching buildings (:mod:`mapdb.build.blocks`), the block when the blob covers two or more of its buildings
+(``truth.block[k]`` true), else the map object covering most of its pixels (-1 when none does);
+``truth.covers[k]`` all the map objects it covers, most pixels first, with their pixel counts in
+``truth.cover_px[k]``; ``truth.n_visible`` counts the map objects with at least one pixel in
 the mask; ``truth.bound`` is the true-correspondence fit of the blobs onto their ``map_index`` objects
 (relief and cut blobs make it worse than the ideal simulator's); ``truth.mask`` names the mask file.
 
@@ -31,18 +33,21 @@ from typing import Any
 import numpy as np
 
 from .._scipy import cKDTree
+from ..build.blocks import DEFAULT_GAP_M, block_members, blocks_of
 from ..detections.masks import DEFAULT_MIN_AREA_PX, from_mask
 from ..errors import EmptyMapError
+from ..labels import BLOCK_LABEL
+from ..objects import Objects
 from ..outputs import atomic_path
 from ..progress import ProgressLike, as_progress
 from .detector import Detector, confuse_labels, label_mix
 from .documents import add_hints, bound_entry, truth_entry
-from .outlines import Scene
+from .outlines import LAYER_BUILDING, Scene
 from .poses import Shot, camera_area, draw_shot, place_camera
 from .render import Rendering, blob_sources, render_mask
 from .simulate import check_simulate_args, objects_of_map
 
-__all__ = ["MAX_RENDERS", "RenderedImage", "png_bytes", "simulate_masks", "write_masks"]
+__all__ = ["MAX_RENDERS", "RenderedImage", "blocks_of_buildings", "png_bytes", "simulate_masks", "write_masks"]
 
 MAX_RENDERS = 200
 
@@ -75,12 +80,15 @@ def _rendered_truth(
     covers = blob_sources(rendering, scene.map_index, doc, connectivity=render["connectivity"],
                           min_area=render["min_area"])
     index = np.array([c[0][0] if c else -1 for c in covers], np.int64)
+    block = np.array([_block_of(c, render["block_of"]) for c in covers], np.int64)
+    index = np.where(block >= 0, block, index)
     seen = np.unique(rendering.instance)
     seen_map = np.unique(scene.map_index[seen[seen > 0] - 1])
     u = np.array([o["x"] for o in doc["objects"]], np.float64)
     v = np.array([o["y"] for o in doc["objects"]], np.float64)
     bound = bound_entry(objects, index, u, v, shot, cam_x, cam_y, with_attitude)
     truth = truth_entry(shot, cam_x, cam_y, int((seen_map >= 0).sum()), index, bound)
+    truth["block"] = (block >= 0).tolist()
     truth["covers"] = [[j for j, _ in c] for c in covers]
     truth["cover_px"] = [[px for _, px in c] for c in covers]
     truth["mask"] = f"{doc['id']}.png"
@@ -130,7 +138,7 @@ def simulate_masks(
     area, keep_inside = camera_area(objects, bbox, map_name)
     place = {"area": area, "keep_inside": keep_inside, "max_tries": max_tries}
     render = {"heights": heights, "mask_noise_px": float(mask_noise_px), "miss_rate": float(miss_rate),
-              "connectivity": connectivity, "min_area": min_area}
+              "connectivity": connectivity, "min_area": min_area, "block_of": blocks_of_buildings(map, objects, scene)}
     return _generate(objects, tree, scene, n, (altitude, fov_deg, size, yaw, attitude_std), place, render,
                      confusion, (with_prior, with_attitude, with_altitude), min_objects, seed, id_prefix,
                      map_name, as_progress(progress))
@@ -157,6 +165,40 @@ def _generate(objects: Any, tree: cKDTree, scene: Scene, n: int, camera: tuple[A
         yield doc, rendering.mask
         say.advance()
     say.done()
+
+
+def blocks_of_buildings(map_: Any, objects: Objects, scene: Scene) -> dict[int, int]:
+    """The map's block (index in ``objects``, :func:`~mapdb.simulation.simulate.objects_of_map`) of every building
+    of the scene that is in one: the scene's building outlines grouped as the builder groups footprints
+    (:func:`mapdb.build.blocks.block_members`, with the gap the map was built with), each group matched to the
+    map's block at its union's centroid (within a metre).  Empty for a map without blocks."""
+    if BLOCK_LABEL not in objects.labels:
+        return {}
+    blocks = np.flatnonzero(objects.label == objects.labels.index(BLOCK_LABEL))
+    building = np.flatnonzero((scene.layer == LAYER_BUILDING) & (scene.map_index >= 0))
+    if not blocks.size or building.size < 2:
+        return {}
+    gap = (getattr(map_, "metadata", None) or {}).get("build", {}).get("block_gap_m") or DEFAULT_GAP_M
+    group = block_members(scene.geometry[building], float(gap))
+    inside = group >= 0
+    if not inside.any():
+        return {}
+    centre, _, _ = blocks_of(scene.geometry[building], float(gap))
+    dist, nearest = cKDTree(np.column_stack([objects.x[blocks], objects.y[blocks]])).query(centre)
+    found = np.where(dist <= 1.0, blocks[np.minimum(nearest, blocks.size - 1)], -1)[group[inside]]
+    members = scene.map_index[building[inside]]
+    return {int(m): int(b) for m, b in zip(members.tolist(), found.tolist(), strict=True) if b >= 0}
+
+
+def _block_of(covered: list[tuple[int, int]], block_of: dict[int, int]) -> int:
+    """The block a blob stands for: the one two or more of the buildings it covers belong to (the one
+    covering most pixels, if several), else -1."""
+    pixels: dict[int, list[int]] = {}
+    for j, px in covered:
+        if j in block_of:
+            pixels.setdefault(block_of[j], []).append(px)
+    best = max(((sum(px), b) for b, px in pixels.items() if len(px) >= 2), default=(0, -1))
+    return best[1]
 
 
 def png_bytes(mask: np.ndarray) -> bytes:

@@ -27,6 +27,7 @@ import numpy as np
 from .._scipy import cKDTree
 from ..camera import Camera, Pose, project_to_image
 from ..errors import EmptyMapError
+from ..labels import BLOCK_LABEL
 from ..objects import Objects
 from ..progress import ProgressLike, as_progress
 from .detector import Detector, detect, label_mix
@@ -90,11 +91,17 @@ def paper_map(
 
 
 def objects_of_map(map_: Any) -> tuple[Objects, dict[str, int]]:
-    """All objects of a map (MetaMap-like or :class:`Objects`) and its label counts."""
+    """All objects of a map (MetaMap-like or :class:`Objects`) and the label counts a detector's errors draw from.
+
+    The objects keep the map's order (``truth.map_index`` indexes ``map.all()``), blocks of touching buildings
+    included; the counts leave the blocks out: a detector sees buildings, so neither a spurious object nor a
+    confused label is ever a block.
+    """
     objects = map_ if isinstance(map_, Objects) else map_.all()
     if not len(objects):
         raise EmptyMapError(f"{getattr(map_, 'path', None) or 'map'}: the map has no objects to simulate images of")
     counts = objects.counts()
+    counts.pop(BLOCK_LABEL, None)
     return objects, counts
 
 
@@ -285,11 +292,14 @@ def simulate_image_at(
     """
     check_simulate_args(1, 0.0, 0.0, pixel_std, miss_rate, spurious_rate, label_noise, 0, 1)
     # (with no objects at all nothing is ever drawn from the mix; a placeholder keeps it well defined)
-    names, mix = label_mix(label_counts or objects.counts() or {"": 1})
+    own = {name: n for name, n in objects.counts().items() if name != BLOCK_LABEL}  # blocks are never detected
+    names, mix = label_mix(label_counts or own or {"": 1})
     detector = Detector(pixel_std, miss_rate, spurious_rate, label_noise, names, mix)
     shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
     u, v = project_to_image(objects.x, objects.y, pose, camera)
     seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    if BLOCK_LABEL in objects.labels:  # a camera sees the buildings of a block, never the block (place_camera)
+        seen &= objects.label != objects.labels.index(BLOCK_LABEL)
     index = np.flatnonzero(seen).astype(np.int64)
     index, u, v, label_names = detect(rng, objects, index, u[seen], v[seen], camera, detector)
     bound = bound_entry(objects, index, u, v, shot, pose.x, pose.y, False)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from ..errors import SourceError
 from ..labels import LabelTable
 from ..objects import Objects
-from .layers import LAYER_SUFFIXES, read_layer
+from .layers import LAYER_SUFFIXES, LayerOutlineSink, read_layer
 from .osm.files import OSM_SUFFIXES
 from .osm.reader import read_osm
 from .suffixes import RASTER_SUFFIXES
@@ -74,11 +74,14 @@ def read_source(
     label_map: ClassTable | None = None,
     progress: Callable[[str], None] | None = None,
     counts: Counter[str] | None = None,
+    outlines: LayerOutlineSink | None = None,
 ) -> Objects:
     """Read one source of any kind, labelled with ``table``; each reader checks its own file.
 
     ``label`` and ``label_map`` label a layer's features (:func:`~mapdb.sources.layers.read_layer`).
     ``counts`` is incremented with what the reader skipped or repaired (keys of :data:`SKIPPED_KINDS`).
+    ``outlines`` is handed a layer's geometries (:func:`~mapdb.sources.layers.read_layer`); an OSM source's
+    go through :func:`~mapdb.sources.osm.reader.read_osm_spooled`, a raster has none.
     """
     kind = source_kind(path)
     if kind == "osm":
@@ -89,4 +92,4 @@ def read_source(
         return read_landcover(path, table, classes=raster_classes, min_area_m2=min_area_m2, bbox=bbox,
                               progress=progress)
     return read_layer(path, table.labels, label_column=label_column, crs=layer_crs, bbox=bbox, counts=counts,
-                      label=label, label_map=label_map)
+                      label=label, label_map=label_map, outlines=outlines)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,7 +51,10 @@ from ..errors import MapdbIOError, SourceError
 from ..geo import check_bbox, in_bbox
 from ..objects import Objects
 
-__all__ = ["LAYER_SUFFIXES", "is_layer_path", "read_layer"]
+__all__ = ["LAYER_SUFFIXES", "LayerOutlineSink", "is_layer_path", "read_layer"]
+
+# What is handed a layer's geometries when asked: the geometries, their label names, the layer's CRS.
+LayerOutlineSink = Callable[[np.ndarray, np.ndarray, CRS], None]
 
 LAYER_SUFFIXES = (".geojson", ".json", ".gpkg", ".parquet", ".geoparquet", ".shp", ".fgb", ".csv")
 _PARQUET_SUFFIXES = (".parquet", ".geoparquet")
@@ -72,7 +75,7 @@ def is_layer_path(path: str | os.PathLike[str]) -> bool:
 def read_layer(path: str | os.PathLike[str], labels: Sequence[str], label_column: str = "label",
                crs: str | None = None, bbox: tuple[float, float, float, float] | None = None,
                counts: Counter[str] | None = None, *, label: str | None = None,
-               label_map: ClassTable | None = None) -> Objects:
+               label_map: ClassTable | None = None, outlines: LayerOutlineSink | None = None) -> Objects:
     """Read a labelled point or polygon layer as objects.
 
     Parameters
@@ -98,6 +101,9 @@ def read_layer(path: str | os.PathLike[str], labels: Sequence[str], label_column
     label_map : ClassTable, optional
         Translates the values of its ``column`` (else ``label_column``) to labels; values it does not
         list are skipped and counted as ``"unmapped_labels"``.
+    outlines : callable, optional
+        Handed the layer's sound polygonal and point geometries, their label names and the layer's CRS once
+        read (the builder's blocks of touching buildings, :class:`mapdb.build.blocks.BuildingOutlines`).
 
     Returns
     -------
@@ -129,7 +135,7 @@ def read_layer(path: str | os.PathLike[str], labels: Sequence[str], label_column
     read = _read_csv if path.suffix.lower() == ".csv" else _read_vector
     rule = _LabelRule(label_map.column or label_column if label_map else label_column, label,
                       _map_lookup(label_map) if label_map else None)
-    x, y, names, area, layer_crs = read(path, rule, crs, counts)
+    x, y, names, area, layer_crs = read(path, rule, crs, counts, outlines)
     _check_labels(path, names, labels, rule.column)
     objects = Objects.from_names(x, y, names, area=area, crs=layer_crs.to_string(), labels=labels)
     if bbox is not None and len(objects):
@@ -222,8 +228,9 @@ def _label_strings(values: Any) -> tuple[np.ndarray, np.ndarray]:
     return names, series.notna().to_numpy() & (names != "")
 
 
-def _read_csv(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[str]
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CRS]:
+def _read_csv(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[str],
+              outlines: LayerOutlineSink | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CRS]:
+    """A CSV layer's points (``outlines`` is never called: a CSV has no outlines)."""
     import pandas as pd
 
     try:
@@ -257,7 +264,8 @@ def _read_csv(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[str
     return x, y, names[keep], np.zeros(x.size), layer_crs
 
 
-def _read_vector(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[str]
+def _read_vector(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[str],
+                 outlines: LayerOutlineSink | None = None
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, CRS]:
     gdf = _read_frame(path, counts)
     names, keep = _feature_labels(path, gdf, rule, [str(c) for c in gdf.columns if c != gdf.geometry.name], counts)
@@ -272,6 +280,8 @@ def _read_vector(path: Path, rule: _LabelRule, crs: str | None, counts: Counter[
     keep &= ~(shapely.is_missing(geoms) | shapely.is_empty(geoms))
     geoms, names = geoms[keep], names[keep]
     geoms, names = _sound_geometries(geoms, names, layer_crs, counts)
+    if outlines is not None:
+        outlines(geoms, names, layer_crs)
 
     # Multipoints become one object per point; everything else one object per feature.
     kind = shapely.get_type_id(geoms)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from array import array
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,10 @@ from .index import _defined, _Workspace
 from .intersections import _RoadNetwork
 from .progress import _PROGRESS_STRIDE, Progress, _ByteProgress
 
-__all__ = ["AREA_BLOCK", "POINT_BLOCK"]
+__all__ = ["AREA_BLOCK", "POINT_BLOCK", "OutlineSink"]
+
+# What is handed each block of areas' outlines, when asked: their WKB (hex, lon/lat) and label codes.
+OutlineSink = Callable[[list[str], list[int]], None]
 
 # The relations libosmium assembles into areas (with at least one way member).
 _AREA_RELATION_TYPES = frozenset({"multipolygon", "boundary"})
@@ -81,6 +84,9 @@ class _Collected:
         # Areas osmium assembled from relations: the labelled relations it was given that never came out
         # are the ones it could not complete (see _LabelledRelations).
         self.relation_areas = 0
+        # Who else wants each block of areas' outlines before they are dropped (the builder's blocks of
+        # touching buildings, mapdb.build.blocks): called with the block's WKB and label codes.
+        self.outlines: OutlineSink | None = None
 
     def add_area(self, wkb: str, code: int) -> None:
         self.area_wkb.append(wkb)
@@ -91,6 +97,8 @@ class _Collected:
     def finish_areas(self) -> None:
         """Centroids and areas of the current block of areas, to the sink; the geometries are dropped."""
         if self.area_wkb:
+            if self.outlines is not None:
+                self.outlines(self.area_wkb, self.area_code)
             self.sink.add(1, _area_objects(self.area_wkb, self.area_code, self.labels, self.counts))
             self.area_wkb, self.area_code = [], []
 
