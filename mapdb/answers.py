@@ -52,7 +52,7 @@ class Candidate:
 
 
 # Fields written only when they have a value, in this order, after the pose and before the time.
-_OPTIONAL = ("hypotheses", "skipped_labels", "notes", "error_std")
+_OPTIONAL = ("rejected_by", "score_without_areas", "hypotheses", "skipped_labels", "notes", "error_std")
 # The pose's fields, written (with None where unknown) for every accepted answer.
 _POSE = ("x", "y", "lon", "lat", "crs", "inliers", "heading_deg", "scale_m_per_px", "sigma_m", "score",
          "expected_false_alarms")
@@ -80,6 +80,8 @@ class Answer:
     altitude_m: float | None = None
     levelled: bool | None = None
     candidates: list[Candidate] = field(default_factory=list)
+    rejected_by: str | None = None
+    score_without_areas: float | None = None
     hypotheses: int | None = None
     skipped_labels: dict[str, int] | None = None
     notes: list[str] | None = None

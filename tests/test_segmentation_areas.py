@@ -6,7 +6,9 @@ rectangular buildings rasterized here (no shared data: the default run covers it
 from __future__ import annotations
 
 import json
+import math
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +23,15 @@ from rasterio.features import rasterize
 from scipy import ndimage
 from shapely.affinity import rotate, translate
 from shapely.geometry import box, mapping
+
+from mapdb.answers import Answer
+from mapdb.localize import records
+from mapdb.localize.localizer import localize
+from mapdb.mapfile.queries import MemoryMap
+from mapdb.mapfile.writer import write_map
+from mapdb.match.evidence.areas import POINTS_SHARE, points_floor
+from mapdb.match.options import FastOptions
+from mapdb.objects import Objects
 
 _RELATIVE = Path(__file__).resolve().parents[2] / "shared" / "data"
 SHARED = _RELATIVE if _RELATIVE.is_dir() else Path("/work/shared/data")
@@ -120,3 +131,70 @@ def test_generated_town_with_segmentation_error_localizes(generated, tmp_path: P
     answer = localize_mask(tmp_path, map_path, segmentation_error(mask, px), f"town{px:+d}")
     assert answer["status"] == "ok", answer
     assert abs(complex(answer["x"], answer["y"]) - centre) < 0.1, answer
+
+
+def test_points_floor_never_costs_more_than_its_share() -> None:
+    # Whatever the two tests say, the decision is at most the points-only test plus log10(1 / share) and at
+    # most the area test plus log10(1 / (1 - share)): the areas can only lift a right answer over the threshold.
+    rng = np.random.default_rng(0)
+    with_areas, points = rng.uniform(-50, 10, 1000), rng.uniform(-50, 10, 1000)
+    nfa = points_floor(with_areas, points)
+    assert np.all(nfa <= points - math.log10(POINTS_SHARE) + 1e-12)
+    assert np.all(nfa <= with_areas - math.log10(1 - POINTS_SHARE) + 1e-12)
+    assert np.all((nfa == points - math.log10(POINTS_SHARE)) | (nfa == with_areas - math.log10(1 - POINTS_SHARE)))
+
+
+def _town_view(area_factor: float) -> tuple[Objects, dict]:
+    """A random town's 800x800 image at 0.4 m/px as an image document, every blob ``area_factor`` times its
+    building's area (10: no building near has a compatible area)."""
+    rng = np.random.default_rng(5)
+    n = 400
+    x, y = rng.uniform(0, 1000, n), rng.uniform(0, 1000, n)
+    area = np.exp(rng.normal(math.log(200.0), 1.0, n))
+    objects = Objects.from_names(x, y, np.full(n, "building"), area=area)
+    pix = (x + 1j * y - (500 + 500j)) / 0.4
+    keep = np.flatnonzero((np.abs(pix.real) < 390) & (np.abs(pix.imag) < 390))[:12]
+    doc = {"width": 800, "height": 800, "objects": [
+        {"label": "building", "x": 400 + pix[k].real, "y": 400 - pix[k].imag, "area_px": area_factor * area[k] / 0.16,
+         "border": False} for k in keep]}
+    return objects, doc
+
+
+def test_a_rejection_the_areas_decided_says_so() -> None:
+    objects, doc = _town_view(10.0)
+    m = MemoryMap(objects)
+    first = localize(doc, m).to_json()
+    assert first["status"] == "ok" and abs(complex(first["x"], first["y"]) - (500 + 500j)) < 0.5, first
+    without = localize(doc, m, options=FastOptions(areas=False)).to_json()
+    # A threshold the positions alone pass but the areas' wrong sizes do not: half a unit above their score.
+    strict = FastOptions(log10_epsilon=-(without["score"] - 0.5))
+    rejected = localize(doc, m, options=strict).to_json()
+    assert rejected["status"] == "rejected", rejected
+    assert rejected["rejected_by"] == "areas" and rejected["score_without_areas"] == pytest.approx(without["score"],
+                                                                                                   abs=0.02)
+    accepted = localize(doc, m, options=replace(strict, areas=False)).to_json()
+    assert accepted["status"] == "ok" and accepted["x"] == without["x"]
+    # Areas that fit: the same threshold is passed, and nothing says "rejected_by".
+    _, right = _town_view(1.0)
+    fitting = localize(right, m, options=strict).to_json()
+    assert fitting["status"] == "ok" and "rejected_by" not in fitting, fitting
+    # A rejection the areas did not decide (a threshold the positions alone do not pass) says nothing either.
+    hopeless = localize(doc, m, options=FastOptions(log10_epsilon=-(without["score"] + 5.0))).to_json()
+    assert hopeless["status"] == "rejected" and "rejected_by" not in hopeless
+
+
+def test_query_no_areas_and_the_record_fields(tmp_path: Path) -> None:
+    objects, doc = _town_view(10.0)
+    map_path, images = tmp_path / "town.mapdb", tmp_path / "images.jsonl"
+    write_map(map_path, replace(objects, crs="EPSG:32616"))
+    images.write_text(json.dumps(doc) + "\n")
+    free = json.loads(run("query", str(map_path), str(images), "--no-areas"))
+    strict = f"{free['score'] - 0.5:.2f}"
+    rejected = json.loads(run("query", str(map_path), str(images), "--min-score", strict))
+    accepted = json.loads(run("query", str(map_path), str(images), "--min-score", strict, "--no-areas"))
+    assert rejected["status"] == "rejected" and rejected["rejected_by"] == "areas"
+    assert rejected["score_without_areas"] > float(strict) and accepted["status"] == "ok"
+    # The record's documentation names both fields (mapdb.localize.records), and the answer reads them back.
+    for name in ("rejected_by", "score_without_areas"):
+        assert f"``{name}``" in records.__doc__
+    assert Answer.from_json(rejected).rejected_by == "areas"

@@ -67,8 +67,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "CUT_RATIO_HIGH", "RATIO_HIGH", "RATIO_LOW", "SOLID_LABELS", "ImageAreas", "bands", "compatible", "disc_chances",
-    "sample_evidence", "solid_objects",
+    "CUT_RATIO_HIGH", "POINTS_SHARE", "RATIO_HIGH", "RATIO_LOW", "SOLID_LABELS", "ImageAreas", "bands", "compatible",
+    "disc_chances", "points_floor", "sample_evidence", "solid_objects",
 ]
 
 # Blob area (at the hypothesis's scale) over its map object's area: the bands of the module docs.  A whole
@@ -76,6 +76,10 @@ __all__ = [
 RATIO_LOW = 0.85
 RATIO_HIGH = 2.2
 CUT_RATIO_HIGH = 5.0
+# The share of the decision's false-alarm budget spent on the points-only test that floors the area evidence
+# (:func:`points_floor`; module docs, "Segmentation errors"): the test with areas pays log10(1 / (1 - share)),
+# 0.004, the points-only one log10(1 / share), 2.
+POINTS_SHARE = 0.01
 # Labels whose whole blobs show the whole object (a roof and walls), so that a blob bounds its map
 # object's area from above as well as from below.
 SOLID_LABELS = frozenset({"building"})
@@ -203,3 +207,19 @@ def sample_evidence(sample_compatible: np.ndarray, sample_share: np.ndarray) -> 
     """
     log_q = np.log10(np.clip(sample_share, 1e-300, 1.0)).sum(axis=1)
     return np.where(sample_compatible.all(axis=1), log_q, 0.0) + np.log10(2.0 - 10.0**log_q)
+
+
+def points_floor(with_areas: np.ndarray, points: np.ndarray, share: float = POINTS_SHARE) -> np.ndarray:
+    """The decision's log10 NFA: the test with areas, floored by the same test on positions alone (``(H,)`` each).
+
+    The two tests of a hypothesis share the false-alarm budget (Bonferroni: ``NFA = min(NFA_areas / (1 - share),
+    NFA_points / share)``), so the number of false alarms stays honest whichever decides, and an image whose
+    areas are off (a mask eroded by a few pixels, merged blobs) is still accepted when its positions alone beat
+    the threshold by ``log10(1 / share)``.
+
+    Examples
+    --------
+    >>> points_floor(np.array([-10.0, -1.0]), np.array([-3.0, -8.0])).round(3).tolist()
+    [-9.996, -6.0]
+    """
+    return np.minimum(np.asarray(with_areas) - math.log10(1.0 - share), np.asarray(points) - math.log10(share))
