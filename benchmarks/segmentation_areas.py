@@ -3,7 +3,8 @@
 Images of ``../shared/data/osm`` Andorra and Monaco rendered as ``benchmarks/rendered_masks.py`` renders them
 (640x480, 60 degree field of view, random heading, level camera, buildings extruded to their heights unless
 ``--flat``, at least 8 blobs), then the building class of each mask eroded or dilated by ``--errors`` pixels
-(``scipy.ndimage``, the cross structure; eroded pixels become background, dilated ones cover what was there) and
+(``scipy.ndimage``, the cross structure, the image's outside counted as building so that an eroded cut building
+still touches the border; eroded pixels become background, dilated ones cover what was there) and
 the objects extracted again exactly as ``mapdb objects`` does.  Each image is localized with no prior by this
 tree's matcher with its areas, the same with ``FastOptions(areas=False)`` (``mapdb query --no-areas``), and
 with ``--baseline REV``'s matcher, image by image in turn (the order alternating), so that the times compare.
@@ -46,8 +47,9 @@ def segmentation_error(mask: np.ndarray, code: int, px: int) -> np.ndarray:
 
     layer = mask == code
     if px < 0:
-        grown = ndimage.binary_erosion(layer, iterations=-px)
-        return np.where(layer & ~grown, 0, mask)
+        # Outside the image counts as building: a model's erosion does not pull a cut building off the border.
+        shrunk = ndimage.binary_erosion(layer, iterations=-px, border_value=1)
+        return np.where(layer & ~shrunk, 0, mask)
     if px > 0:
         return np.where(ndimage.binary_dilation(layer, iterations=px), code, mask)
     return mask
