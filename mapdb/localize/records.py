@@ -24,9 +24,9 @@ writes::
   objects unrelated to the map.  None for the paper method, which has no such
   measure.  ``expected_false_alarms`` is that number, ``10 ** -score``.
 * ``rejected_by`` (rejected answers, fast method, objects with ``area_px``): ``"areas"`` when the objects'
-  areas are what rejected the image: the same test on the positions alone would have accepted it, with
-  the score ``score_without_areas`` (:func:`mapdb.match.evidence.areas.points_floor`: the area test is floored
-  by the points-only test, which must then beat the threshold by 1).  ``mapdb query --no-areas``
+  areas are what rejected the image as not certain enough: the same test on the positions alone scored
+  ``score_without_areas``, above the threshold (:func:`mapdb.match.evidence.areas.points_floor`: the area test
+  is floored by the positions-only test, which must then beat the threshold by 2).  ``mapdb query --no-areas``
   (``FastOptions(areas=False)``) answers as if the objects carried no areas.
 """
 
