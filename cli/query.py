@@ -129,13 +129,16 @@ def _stdin_file() -> str | None:
                    "answer's fields as properties.")
 @click.option("--footprints", "footprints_file", type=click.Path(), default=None, metavar="FOOTPRINTS.geojson",
               help="Also write each accepted image's footprint on the ground as a GeoJSON Polygon (lon/lat).")
+@click.option("--no-areas", is_flag=True,
+              help="Leave the objects' pixel areas (area_px) out of the evidence: answer as if they had none "
+                   "(an answer rejected because of them says \"rejected_by\": \"areas\").")
 @overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def query(map_file, images_file, output, method, prior, prior_crs, min_score, geojson_file, footprints_file,
-          overwrite, parents, quiet, debug):
+          no_areas, overwrite, parents, quiet, debug):
     """Localize every image of IMAGES (JSON Lines; '-' for stdin) in MAP.
 
     Writes one JSON answer per image, in input order: status "ok" with the position (map CRS and
@@ -181,7 +184,7 @@ def query(map_file, images_file, output, method, prior, prior_crs, min_score, ge
             streaming = output == "-"
             # The answers and the bar share a terminal: the bar's line is erased before each answer.
             erase = say.clear if isinstance(say, TerminalProgress) and streaming and sys.stdout.isatty() else None
-            options = FastOptions(log10_epsilon=-min_score) if method == "fast" else None
+            options = FastOptions(log10_epsilon=-min_score, areas=not no_areas) if method == "fast" else None
             for record in localize_documents(documents, m, method, prior_arg, options=options):
                 if erase:
                     erase()

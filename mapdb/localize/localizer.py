@@ -503,6 +503,8 @@ def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: floa
         if notes:
             extra["notes"] = notes
         if found.best is None:
+            if found.rejected_by is not None and found.log10_nfa_points is not None:
+                extra.update(rejected_by=found.rejected_by, score_without_areas=finite(-found.log10_nfa_points, 2))
             raise RejectionError(found.reason or "no match", candidates, **extra)
         best = found.best
         return FoundPose(best.a, best.b, best.inliers, best.sigma_m, rounded(best.score, 2), candidates, extra)

@@ -35,6 +35,11 @@ writes::
 * ``footprint``: the ground points of the image's corners (top-left, top-right, bottom-right,
   bottom-left) in the map's CRS; ``footprint_lonlat`` the same in lon/lat (without a CRS, left out).
   Neither, nor the transform, when a tilted image's corners reach the horizon.
+* ``rejected_by`` (rejected answers, fast method, objects with ``area_px``): ``"areas"`` when the objects'
+  areas are what rejected the image as not certain enough: the same test on the positions alone scored
+  ``score_without_areas``, above the threshold (:func:`mapdb.match.evidence.areas.points_floor`: the area test
+  is floored by the positions-only test, which must then beat the threshold by 2).  ``mapdb query --no-areas``
+  (``FastOptions(areas=False)``) answers as if the objects carried no areas.
 """
 
 from __future__ import annotations

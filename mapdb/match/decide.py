@@ -5,7 +5,9 @@ candidates best first; each check here takes the previous stage's result and eit
 :class:`MatchResult` that rejects the image:
 
 * :func:`uncertain` - no candidate, or the best one's number of false alarms (:mod:`mapdb.match.nfa`) is
-  not below ``10**log10_epsilon``;
+  not below ``10**log10_epsilon``; when a candidate's test without the objects' areas is below it (the
+  areas' share of the budget is what rejected it, :func:`~mapdb.match.evidence.areas.points_floor`), the
+  result says so (``rejected_by = "areas"``, with that test's log10 NFA);
 * :func:`ambiguous` - after the rivals (:mod:`~mapdb.match.rivals`), a distinct place comes within
   ``ambiguity_margin`` of the winner's score;
 * :func:`answer` - after the final fit (:func:`~mapdb.match.refine.polish`), the answer's estimated error
@@ -24,13 +26,17 @@ __all__ = ["MatchResult", "ambiguous", "answer", "uncertain"]
 
 @dataclass
 class MatchResult:
-    """What :func:`match_fast` found: ``best`` is None when the image is rejected (``reason`` says why)."""
+    """What :func:`match_fast` found: ``best`` is None when the image is rejected (``reason`` says why;
+    ``rejected_by`` is ``"areas"`` when the test without the objects' areas would have accepted, whose best
+    log10 NFA is ``log10_nfa_points``)."""
 
     best: Candidate | None
     candidates: list[Candidate]
     reason: str | None
     n_hypotheses: int
     rounds: int
+    rejected_by: str | None = None
+    log10_nfa_points: float | None = None
 
 
 def uncertain(pool: list[Candidate], opts: FastOptions, n_tests: int, rounds: int) -> MatchResult | None:
@@ -41,7 +47,10 @@ def uncertain(pool: list[Candidate], opts: FastOptions, n_tests: int, rounds: in
     if best.log10_nfa >= opts.log10_epsilon:
         reason = (f"no match is certain enough (best log10 NFA {best.log10_nfa:.1f} with {best.inliers} inliers; "
                   f"needs < {opts.log10_epsilon:g})")
-        return MatchResult(None, pool[: opts.max_candidates], reason, n_tests, rounds)
+        points = [c.log10_nfa_points for c in pool if c.log10_nfa_points is not None]
+        by_areas = bool(points) and min(points) < opts.log10_epsilon
+        return MatchResult(None, pool[: opts.max_candidates], reason, n_tests, rounds, "areas" if by_areas else None,
+                           min(points) if by_areas else None)
     return None
 
 

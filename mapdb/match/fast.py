@@ -135,6 +135,7 @@ def match_fast(
     area_px : float array (n,), optional
         Pixel area of each object (NaN where unknown): the decision then also asks each object's map object
         for a compatible stored area (:mod:`mapdb.match.evidence.areas`; ``anchorable`` says which blobs are whole).
+        Ignored when ``options.areas`` is False.
     outward : complex array (n,), optional
         Unit outward normal (y up) of the image border each object touches, 0 for whole ones
         (:func:`mapdb.match.evidence.blobs.outward_normals` of the objects' boxes).  With it and ``anchorable`` the
@@ -147,6 +148,8 @@ def match_fast(
     MatchResult
     """
     opts = options or FastOptions()
+    if not opts.areas:
+        area_px = None  # the objects answered as if they carried no areas
     z, img_label, anchorable, area_px, outward = _central_objects(z, img_label, opts.max_objects, anchorable,
                                                                   area_px, outward)
     reason = _unmatchable(z.size, objects, quads)

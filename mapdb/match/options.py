@@ -78,6 +78,10 @@ class FastOptions:
     ambiguity_places : int
         At most this many other places (runner-ups, repeats, look-up hits; those where most image objects
         land near a map object first) are refitted beside the winner.
+    areas : bool
+        Weigh the objects' pixel areas (``area_px``) against the map's stored areas
+        (:mod:`mapdb.match.evidence.areas`); False answers as if the objects carried no areas (``mapdb query
+        --no-areas``).
     """
 
     map_neighbours: int = 8
@@ -101,3 +105,4 @@ class FastOptions:
     max_batches: int = 8
     ambiguity_anchors: int = 0
     ambiguity_places: int = 8
+    areas: bool = True

@@ -36,6 +36,8 @@ class Candidate:
     sigma_axis_m: float
     variance_factor: float
     pairs: np.ndarray = field(repr=False)  # (k, 2): image index, map index
+    # The decision's log10 NFA without the objects' areas (None: the image has none, or not computed).
+    log10_nfa_points: float | None = None
 
     @property
     def score(self) -> float:
@@ -48,8 +50,9 @@ class Candidate:
 
 
 def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray, mid: np.ndarray,
-               dist: np.ndarray, z: np.ndarray) -> list[Candidate]:
-    """Refined hypotheses with at least three inliers as :class:`Candidate` s."""
+               dist: np.ndarray, z: np.ndarray, nfa_points: np.ndarray | None = None) -> list[Candidate]:
+    """Refined hypotheses with at least three inliers as :class:`Candidate` s (``nfa_points``: their decision's
+    log10 NFA without areas, when it has them)."""
     out = []
     for j in range(len(a)):
         k = int(inlier[j].sum())
@@ -63,6 +66,7 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
             sigma_axis_m=residual_sigma(dist[j, inlier[j]]),
             variance_factor=float(prediction_variance_factor(z[inlier[j]])),
             pairs=np.column_stack([np.flatnonzero(inlier[j]), mid[j, inlier[j]]]),
+            log10_nfa_points=None if nfa_points is None else float(nfa_points[j]),
         ))
     return out
 
@@ -169,7 +173,7 @@ def polish(
         return cand
     sigma_axis, variance = evidence.error(z, index, pairs, fit, scale)
     return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
-                     variance_factor=variance, pairs=pairs)
+                     variance_factor=variance, pairs=pairs, log10_nfa_points=cand.log10_nfa_points)
 
 
 def pose_shift(a: Any, b: Any, a0: complex, b0: complex, diag_px: float) -> Any:

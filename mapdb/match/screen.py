@@ -10,6 +10,7 @@ A round's hypotheses (:class:`~mapdb.match.hypotheses.Hypotheses`) go through, i
 3. **decide** each place: the same test with the label densities around it and the image's evidence models
    (:class:`~mapdb.match.evidence.image.ImageEvidence`: areas, cut blobs), taken on the hypotheses as they came
    from their quads (AC-RANSAC's rule: a model refitted to its own inliers looks better than chance says);
+   with areas, floored by the same test without them (:func:`~mapdb.match.evidence.areas.points_floor`);
 4. **refine** (:func:`~mapdb.match.verify.refine`): re-association and refit, which only improves the position.
 
 Hypotheses whose coarse pose another one shares (:func:`~mapdb.match.hypotheses.pose_votes`) go through first:
@@ -18,9 +19,12 @@ a right place is found by several image quads, a chance hit of the index by one.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from .._scipy import cKDTree
+from .evidence.areas import points_floor
 from .evidence.image import ImageEvidence
 from .hypotheses import Hypotheses, pose_votes, prioritise
 from .options import FastOptions
@@ -87,5 +91,11 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
     density = index.local_density(hyps.b, radius)
     nfa = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
                        opts.density_neighbours, evidence, radius)
+    points = None
+    if evidence is not None and evidence.areas is not None:
+        # The areas may add evidence, never take away a place the positions alone make certain.
+        points = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
+                              opts.density_neighbours, replace(evidence, areas=None), radius)
+        nfa = points_floor(nfa, points)
     a, b, _, inlier, mid, dist = refine(hyps.a, hyps.b, z, img_label, index, density, log10_tests, 2)
-    return candidates(a, b, nfa, inlier, mid, dist, z)
+    return candidates(a, b, nfa, inlier, mid, dist, z, points)
