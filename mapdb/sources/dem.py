@@ -152,8 +152,9 @@ def _sample_file(src: Any, x: np.ndarray, y: np.ndarray, crs: str) -> tuple[np.n
 
     to_dem = Transformer.from_crs(crs, src.crs.to_wkt(), always_xy=True)
     dx, dy = to_dem.transform(x, y)
-    inverse = ~src.transform
-    col, row = inverse * (np.asarray(dx), np.asarray(dy))
+    inv = ~src.transform
+    dx, dy = np.asarray(dx, np.float64), np.asarray(dy, np.float64)
+    col, row = inv.a * dx + inv.b * dy + inv.c, inv.d * dx + inv.e * dy + inv.f
     # Posts at pixel centres: fractional post coordinates
     col, row = np.asarray(col, np.float64) - 0.5, np.asarray(row, np.float64) - 0.5
     inside = np.isfinite(col) & np.isfinite(row) & (col >= -0.5) & (row >= -0.5) & \
