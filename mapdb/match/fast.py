@@ -73,6 +73,7 @@ the tight pass.  Every hypothesis of every round counts as a test.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -83,6 +84,7 @@ from .cut_quads import cut_batches, cut_round_hypotheses
 from .decide import MatchResult, ambiguous, answer, uncertain
 from .evidence.blobs import BlobErrors
 from .evidence.image import ImageEvidence
+from .evidence.terrain import TerrainModel
 from .hypotheses import anchor_batches, round_hypotheses
 from .options import FastOptions
 from .quads import QuadIndex
@@ -107,6 +109,8 @@ def match_fast(
     anchorable: np.ndarray | None = None,
     area_px: np.ndarray | None = None,
     outward: np.ndarray | None = None,
+    focal_px: float | None = None,
+    altitude_m: float | None = None,
 ) -> MatchResult:
     """Match image objects against a map's indexes.
 
@@ -142,6 +146,11 @@ def match_fast(
         the whole blobs' quads find nothing, quads holding cut blobs are looked up
         (:mod:`mapdb.match.cut_quads`).
 
+    focal_px, altitude_m : float, optional
+        The camera's focal length (pixels) and height above the ground under it (metres), when the image gives
+        them: over a map with elevation the decision and the final fit then cast each ray onto the objects'
+        heights (:mod:`mapdb.match.evidence.terrain`).
+
     Returns
     -------
     MatchResult
@@ -153,6 +162,9 @@ def match_fast(
     if reason is not None:
         return MatchResult(None, [], reason, 0, 0)
     evidence = ImageEvidence.of(z, img_label, objects.labels, anchorable, area_px, outward)
+    terrain = TerrainModel.of(objects, focal_px, altitude_m)
+    if terrain is not None:
+        evidence = dataclasses.replace(evidence, terrain=terrain)
     # 1-2. Hypotheses, screened and verified round by round (each round's places decided and refined) until
     # a round brings a certain one: candidates best first.
     pool, n_tests, rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range, evidence)

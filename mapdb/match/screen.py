@@ -87,5 +87,6 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
     density = index.local_density(hyps.b, radius)
     nfa = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
                        opts.density_neighbours, evidence, radius)
-    a, b, _, inlier, mid, dist = refine(hyps.a, hyps.b, z, img_label, index, density, log10_tests, 2)
+    a, b, _, inlier, mid, dist = refine(hyps.a, hyps.b, z, img_label, index, density, log10_tests, 2, evidence,
+                                        hyps.map_z)
     return candidates(a, b, nfa, inlier, mid, dist, z)
