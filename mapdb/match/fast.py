@@ -177,7 +177,7 @@ def match_fast(
     # places too; a place keeps its better score.  (Before the final fit: rivals are compared with the winner
     # as the search refined it.)
     rivals = find_rivals(best, rest, z, img_label, objects, quads, diag_px, opts, math.log10(max(n_tests, 1)),
-                         prior, scale_range)
+                         prior, scale_range, evidence.terrain)
     rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates]
     rejected = ambiguous(best, rest, opts, n_tests, rounds)
     if rejected is not None:

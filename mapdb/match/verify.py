@@ -84,7 +84,7 @@ def decision_nfa(
     object's own area puts it (:func:`~mapdb.match.evidence.blobs.cut_area_residuals`).
     """
     h, n = len(a), z.size
-    w = a[:, None] * z[None, :] + b[:, None] if evidence is None else evidence.project(a, b, z, map_z)
+    w = a[:, None] * z[None, :] + b[:, None] if evidence is None else evidence.project(a, b, z)
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
     r2, share, from_sample = (evidence or _POINTS).residuals(w, a, b, img_ids, map_z, z, img_label, index, density,

@@ -130,6 +130,16 @@ class TerrainModel:
             w = b[:, None] + ray * np.maximum(depth[:, None] - (h - g[:, None]), 1.0)
         return w
 
+    def requad(self, a: np.ndarray, b: np.ndarray, zq: np.ndarray, map_z: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Hypotheses refitted to their own quads (image points ``zq``, map points ``map_z``, ``(H, 4)``) with
+        the rays onto the quad's map objects' heights: the pose its quad gives over terrain, at the nadir
+        ground's scale (still only the quad's own points: the decision's a-contrario rule holds)."""
+        depth = self.depth(a, b, map_z)[:, None]
+        rise = self.ground(map_z) - self.ground(b)[:, None]
+        a_new, b_new = fit_similarity_complex(zq * np.maximum(depth - rise, 1.0) / depth, map_z)
+        ok = np.isfinite(a_new) & np.isfinite(b_new)
+        return np.where(ok, a_new, a), np.where(ok, b_new, b)
+
     def fit_sources(self, z: np.ndarray, dst: np.ndarray, b: complex, scale: float,
                     elevation: np.ndarray) -> np.ndarray:
         """Image points rescaled to the nadir ground's scale for the rays onto their map objects' ``elevation``
