@@ -12,8 +12,8 @@ scale), so a similarity predicts the far objects metres off and the final fit is
 view given (``f``) and the image levelled (roll and pitch given, or a level camera), :class:`TerrainModel`:
 
 * **predicts** each image object where its ray meets the ground (:meth:`TerrainModel.project`): from the
-  hypothesis's ``b`` and heading, the ground's elevation ``g`` under the nadir, and the camera's height above
-  it ``D = H - g``, the object's map position ``w = b + u z (D - (h - g)) / f`` with ``h`` the ground's
+  hypothesis's ``b`` and ``a`` (heading, and the scale ``D / f`` at the ground under the nadir, of elevation
+  ``g``, ``D = H - g``), the object's map position ``w = b + a z (D - (h - g)) / D`` with ``h`` the ground's
   elevation where the ray lands, found by casting twice from the flat prediction (``h`` read from the map
   objects around the landing point, inverse-distance weighted, so an object's own elevation once the ray lands
   on it).  ``D`` is the image's ``altitude_m`` (the camera's height above the ground under it) when given;
@@ -118,12 +118,16 @@ class TerrainModel:
 
     def project(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, ref: np.ndarray | None = None) -> np.ndarray:
         """Where hypotheses ``(a, b)`` (``(H,)``) put the image objects ``z`` (``(n,)``) once each ray is cast
-        onto the ground: ``(H, n)`` map positions."""
+        onto the ground: ``(H, n)`` map positions.  ``a`` is the scale at the nadir's ground, or at ``ref``'s
+        (the map points each hypothesis was fitted to, ``(H, k)``) when given."""
         a, b = np.atleast_1d(a), np.atleast_1d(b)
-        heading = a / np.maximum(np.abs(a), 1e-300)
         g = self.ground(b)
         depth = self.depth(a, b, ref)
-        ray = heading[:, None] * z[None, :] / self.focal  # metres on the ground per metre of depth
+        if ref is not None:  # the similarity's scale is its map points': the nadir ground's is larger by this
+            a = a * depth / np.maximum(depth - (self.ground(ref).mean(axis=-1) - g), 1.0)
+        # The scale comes from the hypothesis (fitted to the map), the depth only into the ratio of each ray's
+        # drop to the nadir's: an error of a few metres in the ground under the nadir stays second order.
+        ray = a[:, None] * z[None, :] / depth[:, None]
         w = a[:, None] * z[None, :] + b[:, None]
         for _ in range(_CASTS):
             h = self.ground(w)
