@@ -154,3 +154,76 @@ def test_monaco_with_the_shared_srtm_tile(tmp_path: Path) -> None:
     assert z is not None and not np.isnan(z).any()
     assert -2 <= z.min() and z.max() <= 172 and 40 <= np.median(z) <= 65  # SOURCES.md: -1..171 m, median 53
     assert grew <= len(z)  # at most a byte an object more
+
+
+def _one_page_map(tmp_path: Path) -> tuple[Path, dict]:
+    """A version 2 map of one page, and where its fields are."""
+    from mapdb.mapfile.writer import write_map
+    from mapdb.objects import Objects
+
+    o = Objects.from_names([500000.0, 500100.0, 500050.0, 500300.0], [6e6, 6e6, 6e6 + 80, 6e6 + 10],
+                           ["building", "building", "park", "building"], crs="EPSG:32635")
+    path = tmp_path / "one.mapdb"
+    write_map(path, o.with_elevation(np.array([10.0, 14.0, 12.0, 30.0])))
+    data = path.read_bytes()
+    length = int.from_bytes(data[12:16], "little")
+    header = json.loads(__import__("zlib").decompress(data[16:16 + length], -15))
+    return path, {"length": length, "header": header, "directory": 20 + length}
+
+
+def _rewritten(path: Path, fields: dict, *, header: dict | None = None, page_bits: tuple[int, int, int] | None = None
+               ) -> None:
+    """The map with its header replaced or ``page_bits`` = (bit, width, value) set in its page, every checksum
+    recomputed (a crafted file, not a damaged one)."""
+    import struct
+    import zlib
+
+    data = bytearray(path.read_bytes())
+    directory = bytearray(data[fields["directory"]:fields["directory"] + 36])
+    page = bytearray(data[fields["directory"] + 36:])
+    if page_bits is not None:
+        bit, width, value = page_bits
+        bits = "".join(f"{b:08b}" for b in page)
+        bits = bits[:bit] + format(value, f"0{width}b") + bits[bit + width:]
+        page = bytearray(int(bits[i:i + 8], 2) for i in range(0, len(bits), 8))
+    struct.pack_into("<I", directory, 32, zlib.crc32(page))
+    h = dict(header or fields["header"])
+    h["directory_crc32"] = zlib.crc32(directory)
+    packer = zlib.compressobj(9, zlib.DEFLATED, -15)
+    deflated = packer.compress(json.dumps(h).encode()) + packer.flush()
+    prefix = bytes(data[:8]) + struct.pack("<HHI", 2, 0, len(deflated)) + deflated
+    path.write_bytes(prefix + struct.pack("<I", zlib.crc32(prefix)) + bytes(directory) + bytes(page))
+
+
+@pytest.mark.parametrize("kind", ["cells_one_more", "no_cells", "no_cell_field", "step_not_a_number"])
+def test_crafted_version_2_maps_are_refused_in_one_line(tmp_path: Path, kind: str) -> None:
+    from mapdb.errors import MapFormatError
+
+    path, fields = _one_page_map(tmp_path)
+    with open_map(path) as m:
+        table = m.page_directory
+        assert len(table) == 1
+        ex, ey = int(table["ex"][0]), int(table["ey"][0])
+    key_bits = max(1, ((ex + 1) * (ey + 1) - 1).bit_length())
+    k_field = 8 + 2 * (8 + 16 + key_bits + 16) + 16  # the run count byte, two run heads, then E: K
+    header = dict(fields["header"])
+    if kind == "cells_one_more":
+        _rewritten(path, fields, page_bits=(k_field, 16, 4))  # fewer cells (128 m) hold the 4 objects
+        problem = "page 0: "  # the stream no longer adds up: refused, whichever rule it breaks first
+    elif kind == "no_cells":
+        _rewritten(path, fields, page_bits=(k_field, 16, 0))
+        problem = "0 elevation cells for 4 objects"
+    elif kind == "no_cell_field":
+        del header["elevation_cell"]
+        _rewritten(path, fields, header=header)
+        problem = "lacks the field 'elevation_cell'"
+    else:
+        header["elevation_step_m"] = "1"
+        _rewritten(path, fields, header=header)
+        problem = "'elevation_step_m' must be"
+    with pytest.raises(MapFormatError, match=problem) as caught:
+        with open_map(path) as m:
+            m.all()
+    assert "\n" not in str(caught.value)
+    result = run("info", path)
+    assert_one_line_error(result, str(path), problem.split("'")[0])
