@@ -102,7 +102,8 @@ def row(map_path: Path, altitude: float, n: int, seed: int, with_altitude: bool,
     ok = np.isfinite(error)
     good = ok & (error <= 2.0)
     return {"images": len(outcomes), "within_2m": int(good.sum()),
-            "off_2_5": int((ok & (error > 2) & (error <= 5)).sum()), "off_5": int((ok & (error > 5)).sum()), "rejected": int((~ok).sum()),
+            "off_2_5": int((ok & (error > 2) & (error <= 5)).sum()), "off_5": int((ok & (error > 5)).sum()),
+            "rejected": int((~ok).sum()),
             "rms": float(np.sqrt(np.mean(error[good] ** 2))) if good.any() else float("nan"),
             "time_ms": statistics.median(o["time_ms"] for o in outcomes)}
 
