@@ -226,7 +226,7 @@ def _search(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, quads: S
     batches = anchor_batches(z, opts, evidence.anchors)
     # Each round: its pixel error, its image quads and, for the cut blobs' rounds, their errors and which are whole.
     plan: list[tuple[float, np.ndarray, tuple[BlobErrors, np.ndarray] | None]] = [
-        (sigma_px, batch, None) for sigma_px in opts.pixel_sigmas for batch in batches]
+        (sigma_px, batch, None) for sigma_px in _sigmas(opts, evidence) for batch in batches]
     if evidence.errors is not None and evidence.whole is not None:
         blobs = evidence.errors, evidence.whole
         plan += [(opts.pixel_sigmas[-1], batch, blobs) for batch in cut_batches(z, evidence.whole, opts)]
@@ -247,3 +247,16 @@ def _search(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, quads: S
         if pool and pool[0].log10_nfa < opts.log10_epsilon:
             break
     return pool, n_tests, done_rounds
+
+
+# Over terrain a last lookup pass this wide (pixels): relief bends an image quad's shape (its objects at
+# different heights are seen at different scales) beyond the flat passes' tolerance when its objects lie far
+# apart, as in images of few objects.
+TERRAIN_PIXEL_SIGMA = 10.0
+
+
+def _sigmas(opts: FastOptions, evidence: ImageEvidence) -> tuple[float, ...]:
+    """The lookup passes' pixel errors: the options', and over terrain a wider last one."""
+    if evidence.terrain is None or max(opts.pixel_sigmas) >= TERRAIN_PIXEL_SIGMA:
+        return tuple(opts.pixel_sigmas)
+    return (*opts.pixel_sigmas, TERRAIN_PIXEL_SIGMA)
