@@ -155,17 +155,27 @@ class ImageEvidence:
             return None
         src, dst = self.sources(z, index, pairs, scale), index.z[pairs[:, 1]]
         if self.terrain is not None and index.elevation is not None:
-            src = self.terrain.fit_sources(src, dst, nadir, scale, index.elevation[pairs[:, 1]])
+            src = self.terrain.fit_sources(src, dst, nadir, scale, index.elevation[pairs[:, 1]])[0]
         return fit_with_relief(src, dst)
 
     def error(self, z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, fit: ReliefFit,
               scale: float) -> tuple[float, float]:
-        """The final fit's per-axis sigma and variance factor: its model's, or with ``jackknife`` the variance
-        factor raised to the jackknife's (:func:`~mapdb.match.evidence.relief.leave_one_out_sigma`) when larger."""
+        """The final fit's per-axis sigma and variance factor: its model's (over ``terrain`` with the variance
+        the search of the camera's height adds, :meth:`~mapdb.match.evidence.terrain.TerrainModel.fit_sources`),
+        or with ``jackknife`` the variance factor raised to the jackknife's
+        (:func:`~mapdb.match.evidence.relief.leave_one_out_sigma`) when larger."""
         sigma_axis, variance = fit.sigma_axis, fit.variance_factor
-        if not self.jackknife:
+        if not self.jackknife and self.terrain is None:
             return sigma_axis, variance
         used = self.fitted(pairs)
         sigma_axis = max(sigma_axis, 1e-12)  # an exact fit (no residual) must not hide an infinite jackknife
-        src = self.sources(z, index, used, scale)
-        return sigma_axis, max(variance, (leave_one_out_sigma(src, index.z[used[:, 1]], fit) / sigma_axis) ** 2)
+        src, dst = self.sources(z, index, used, scale), index.z[used[:, 1]]
+        depth_variance = 0.0
+        if self.terrain is not None and index.elevation is not None:
+            # Over terrain the fit also chose the camera's height: its uncertainty moves the position (most
+            # where the objects lie to one side of the nadir).
+            src, depth_variance = self.terrain.fit_sources(src, dst, fit.b, scale, index.elevation[used[:, 1]])
+            variance += depth_variance / sigma_axis**2
+            if not self.jackknife:
+                return sigma_axis, variance
+        return sigma_axis, max(variance, (leave_one_out_sigma(src, dst, fit) / sigma_axis) ** 2)

@@ -145,18 +145,39 @@ class TerrainModel:
         return np.where(ok, a_new, a), np.where(ok, b_new, b)
 
     def fit_sources(self, z: np.ndarray, dst: np.ndarray, b: complex, scale: float,
-                    elevation: np.ndarray) -> np.ndarray:
+                    elevation: np.ndarray) -> tuple[np.ndarray, float]:
         """Image points rescaled to the nadir ground's scale for the rays onto their map objects' ``elevation``
-        (``dst`` their positions): ``z (D - (h - g)) / D``, ``D`` searched for the best similarity fit."""
+        (``dst`` their positions): ``z (D - (h - g)) / D``, ``D`` searched for the best similarity fit; and the
+        per-axis variance (m^2) the search's uncertainty in ``D`` adds to the position.
+
+        That variance is ``|db/dD|^2 / 2 var(D)``, ``var(D) = sigma^2 / c`` from the curvature ``c`` of the
+        residual's sum of squares around its minimum (a parabola through the best depth and its neighbours) and
+        ``sigma^2`` the residual variance (``2n - 5`` degrees of freedom): where the objects lie to one side of
+        the nadir (a camera over a slope without objects), the position leans on the depth, and says so."""
         g = float(self.ground(np.array([b]))[0])
         rise = np.where(np.isfinite(elevation), elevation - g, 0.0)
         first = float(self.altitude) if self.altitude is not None else max(scale * self.focal, 1.0)
         low, high, steps = _WITH_ALTITUDE if self.altitude is not None else _WITHOUT_ALTITUDE
-        best, best_cost = first, math.inf
-        for depth in first * np.exp(np.linspace(math.log(low), math.log(high), steps)):
-            src = z * np.maximum(depth - rise, 1.0) / depth
-            a_fit, b_fit = fit_similarity_complex(src, dst)
-            cost = float(np.sum(np.abs(a_fit * src + b_fit - dst) ** 2))
-            if cost < best_cost:
-                best, best_cost = float(depth), cost
-        return z * np.maximum(best - rise, 1.0) / best
+        depths = first * np.exp(np.linspace(math.log(low), math.log(high), steps))
+        src = z[None, :] * np.maximum(depths[:, None] - rise[None, :], 1.0) / depths[:, None]
+        a_fit, b_fit = fit_similarity_complex(src, np.broadcast_to(dst, src.shape))
+        cost = np.sum(np.abs(a_fit[:, None] * src + b_fit[:, None] - dst[None, :]) ** 2, axis=1)
+        cost = np.where(np.isfinite(cost), cost, np.inf)
+        k = int(np.argmin(cost))
+        return src[k], _depth_variance(depths, cost, b_fit, k, z.size)
+
+
+def _depth_variance(depths: np.ndarray, cost: np.ndarray, b: np.ndarray, k: int, n: int) -> float:
+    """The per-axis variance (m^2) of the position from the depth search's uncertainty (see
+    :meth:`TerrainModel.fit_sources`); the whole searched range's when the best depth is at its edge."""
+    if n <= 3 or not np.isfinite(cost[k]):
+        return math.inf
+    sigma2 = float(cost[k]) / max(2 * n - 5, 1)
+    if 0 < k < depths.size - 1:
+        near = slice(k - 1, k + 2)
+        curvature = float(np.polyfit(depths[near], cost[near], 2)[0])
+        slope = abs(complex(b[k + 1] - b[k - 1])) / float(depths[k + 1] - depths[k - 1])
+        if curvature > 0 and math.isfinite(slope):
+            return slope**2 / 2.0 * sigma2 / curvature
+    finite = np.isfinite(b)
+    return float(np.max(np.abs(b[finite] - b[k])) ** 2) / 2.0 if finite.any() else math.inf
