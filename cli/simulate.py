@@ -107,6 +107,8 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
     the map's elevation.
     """
     if render == "masks":
+        if dems or flat or altitude_above != "ground":
+            raise click.UsageError("--dem, --flat and --altitude-above apply to --render centroids")
         _check_render_options(source_file, masks_dir, pixel_std, spurious_rate)
         rule = (overwrite, parents)
         return _simulate_masks(map_file, output, n_images, source_file, masks_dir, rule, quiet, seed, bbox,

@@ -75,6 +75,8 @@ class Terrain:
         z = dem.sample(objects.x, objects.y, self.crs)[0] if dem is not None else objects.elevation
         known = np.isfinite(z) if z is not None else np.zeros(len(objects), bool)
         if not known.any():
+            if dem is not None:
+                raise EmptyMapError(f"{', '.join(map(str, dem.paths))}: the DEM covers none of the map's objects")
             raise EmptyMapError("no map object has an elevation: build the map with --dem, or give the simulator "
                                 "a --dem under it")
         assert z is not None
