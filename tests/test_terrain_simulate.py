@@ -81,3 +81,18 @@ def test_a_map_without_elevation_cannot_make_terrain() -> None:
     o = Objects.from_names([0.0, 1.0], [0.0, 1.0], ["a", "a"], crs="EPSG:32631")
     with pytest.raises(ValueError, match="no map object has an elevation"):
         Terrain(o)
+
+
+def test_analyze_counts_the_relief_each_cell_sees(tmp_path: Path) -> None:
+    from mapdb.analysis.grid import cell_counts, make_grid
+
+    with open_map(hill_map(tmp_path)) as m, open_map(hill_map(tmp_path, elevation=False)) as flat:
+        grid = make_grid(m.bounds, 100.0, m.crs)
+        relief = cell_counts(m, grid, None, 150.0).relief
+        assert cell_counts(flat, grid, None, 150.0).relief is None  # a flat map: no relief band
+    assert relief is not None
+    # The ground rises 20 m every 100 m east; a cell sees objects within 2 cells each way: 5 cells, up to ~100 m
+    # of ground (less at the map's edges).
+    inner = relief[2:-2, 2:-2]
+    assert np.all((inner >= 79.0) & (inner <= 101.0)) and np.nanmax(relief) == pytest.approx(100.0, abs=1.5)
+    assert np.nanmin(relief) < np.nanmin(inner)  # the edges see less of the slope
