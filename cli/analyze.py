@@ -69,8 +69,9 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
     """Simulate images over every cell of a grid on MAP and measure where they localize.
 
     Per cell: objects in view, success, false positives, error, ambiguity (0: the cell's pattern is
-    unique, 1: indistinguishable from another place), objects and map bytes per km². Cells from which
-    no image can show 4 objects are decided without simulating. Writes a GeoTIFF (a band per measure),
+    unique, 1: indistinguishable from another place), objects and map bytes per km², and for a map with
+    elevation the relief in view (relief_m). Cells from which no image can show 4 objects are decided
+    without simulating. Writes a GeoTIFF (a band per measure),
     a PNG, a GeoPackage of the cells and summary.json into OUTDIR, which appears only when complete.
     """
     if jobs is not None and scheduler is not None:

@@ -49,6 +49,9 @@ from .options import (
 @click.option("--spool", type=click.Choice(SPOOL_CHOICES), default="auto", show_default=True,
               help="Where objects read from OSM wait for the writer: auto (memory below 64 MiB of OSM input, "
                    "temporary files in --index-dir from there), memory, or file.  The map is the same.")
+@click.option("--dem", "dems", multiple=True, type=click.Path(), metavar="DEM",
+              help="Elevation raster (GeoTIFF or SRTM .hgt, any CRS; repeatable, a mosaic in the order given): "
+                   "the map stores each object's ground elevation (format version 2).")
 @click.option("--jobs", type=click.IntRange(1, 1024), default=None, metavar="N",
               help="Read the sources in parallel on a local Dask cluster of N processes.")
 @click.option("--scheduler", metavar="tcp://HOST:PORT",
@@ -64,8 +67,8 @@ from .options import (
 @debug_option
 @handle_errors
 def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_area, label_column, layer_crs,
-          layer_label, label_map, node_index, index_dir, spool, jobs, scheduler, blocks, block_gap, overwrite,
-          parents, quiet, debug):
+          layer_label, label_map, node_index, index_dir, spool, dems, jobs, scheduler, blocks, block_gap,
+          overwrite, parents, quiet, debug):
     """Build a map from OSM extracts, land-cover rasters and point/polygon layers.
 
     Prints a JSON summary (object counts per label, and "warnings") on stdout.  An existing OUTPUT is
@@ -81,6 +84,10 @@ def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_
     values are mapped to labels (values not listed are skipped and counted); a layer without the
     column gets --label NAME for every feature.
 
+    Elevation: with --dem each object's ground elevation is sampled (bilinear) from the DEMs; objects
+    outside them or on their nodata are counted in one warning, and DEMs covering none of the objects,
+    without a CRS, in feet, or an SRTM .hgt tile renamed away from its tile name are refused.
+
     Large extracts: node locations go to a temporary file (--node-index, --index-dir) and progress
     says how much of the input is read and about how long is left.  With --jobs N or --scheduler the
     sources are read in parallel (one Dask task a source); the map is the same as without.
@@ -92,11 +99,12 @@ def build(sources, output, labels_file, crs, bbox, quantum, raster_classes, min_
     """
     if jobs is not None and scheduler is not None:
         raise click.UsageError("give --jobs (a local cluster) or --scheduler (an existing one), not both")
-    check_paths([output], [*sources, labels_file, label_map], overwrite=overwrite, parents=parents, what="map")
+    check_paths([output], [*sources, labels_file, label_map, *dems], overwrite=overwrite, parents=parents,
+                what="map")
     summary = build_map(sources, output, labels=labels_file, crs=crs, bbox=bbox, quantum=quantum,
                         raster_classes=raster_classes, min_area_m2=min_area, label_column=label_column,
                         layer_crs=layer_crs, label=layer_label, label_map=label_map, node_index=node_index,
-                        index_dir=index_dir, spool=spool, jobs=jobs, scheduler=scheduler,
+                        index_dir=index_dir, spool=spool, jobs=jobs, scheduler=scheduler, dem=dems,
                         progress=progress_printer(quiet), blocks=blocks, block_gap=block_gap)
     for warning in summary["warnings"]:
         click.echo(f"mapdb: warning: {warning}", err=True)

@@ -34,6 +34,7 @@ def info(map_file, as_json, debug):
     lines += [
         f"objects:      {facts['objects']} in {facts['pages']} pages",
         f"file:         {facts['file_bytes']} bytes, {facts['bytes_per_object']} bytes/object",
+        *_elevation_lines(facts.get("elevation")),
         "labels:",
         *(f"  {name:<20} {count:>9}" for name, count in facts["labels"].items()),
         "sources:",
@@ -42,3 +43,13 @@ def info(map_file, as_json, debug):
         "build options: " + ", ".join(f"{k}={v}" for k, v in facts["build"].items() if v is not None),
     ]
     click.echo("\n".join(lines))
+
+
+def _elevation_lines(elevation: dict | None) -> list[str]:
+    """The elevation line of a map that holds it (none for a flat map)."""
+    if elevation is None:
+        return []
+    span = ("none known" if elevation["known"] == 0 else
+            f"{elevation['min_m']:.1f} - {elevation['max_m']:.1f} m (median {elevation['median_m']:.1f})")
+    return [f"elevation:    {span}, step {elevation['step_m']} m, {elevation['known']} objects with, "
+            f"{elevation['unknown']} without"]

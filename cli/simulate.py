@@ -8,6 +8,7 @@ from mapdb.mapfile.reader import open_map
 from mapdb.simulation.documents import write_images
 from mapdb.simulation.poses import map_bbox_from_lonlat
 from mapdb.simulation.simulate import simulate_images, sparse_images
+from mapdb.simulation.terrain import terrain_of
 
 from .options import (
     MAX_ATTITUDE_STD,
@@ -71,6 +72,13 @@ from .options import (
 @click.option("--mask-noise", type=finite_float(0.0, MAX_MASK_NOISE_PX), default=0.0, show_default=True,
               metavar="PX", help="With --render masks: grow or shrink each object's image by up to PX pixels.")
 @click.option("--no-heights", is_flag=True, help="With --render masks: draw buildings flat (no relief).")
+@click.option("--dem", "dems", multiple=True, type=click.Path(), metavar="DEM",
+              help="Elevation raster(s) giving the objects' and the ground's heights (else the map's own, if it "
+                   "holds elevation).")
+@click.option("--altitude-above", type=click.Choice(["ground", "datum"]), default="ground", show_default=True,
+              help="Over terrain: --altitude is the camera's height above the ground under it, or above the "
+                   "datum (a barometric altitude).")
+@click.option("--flat", is_flag=True, help="Ignore the map's elevation: every object on one plane.")
 @bbox_option
 @overwrite_option
 @parents_option
@@ -79,7 +87,8 @@ from .options import (
 @handle_errors
 def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std, pixel_std, miss_rate,
              spurious_rate, label_noise, with_prior, with_attitude, with_altitude, min_objects, seed, render,
-             source_file, masks_dir, mask_noise, no_heights, bbox, overwrite, parents, quiet, debug):
+             source_file, masks_dir, mask_noise, no_heights, dems, altitude_above, flat, bbox, overwrite, parents,
+             quiet, debug):
     """Simulate downward-looking camera images of MAP, one JSON object per line.
 
     Camera positions are uniform over the map (or --bbox), keeping the image footprint inside it. Each
@@ -90,8 +99,16 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
     extruded to their heights) and its objects are extracted as `mapdb objects` does; --miss-rate then
     leaves objects out of the mask, --min-objects counts blobs, and the truth says which map objects
     each blob covers.
+
+    Terrain: over a map that holds elevation (mapdb build --dem), or with --dem, every object stands at
+    its ground elevation and the camera flies --altitude above the ground under it, or above the datum
+    with --altitude-above datum.  The document's altitude_m (--with-altitude) is always the camera's
+    height above the ground under it; the truth adds ground_m and altitude_datum_m.  --flat ignores
+    the map's elevation.
     """
     if render == "masks":
+        if dems or flat or altitude_above != "ground":
+            raise click.UsageError("--dem, --flat and --altitude-above apply to --render centroids")
         _check_render_options(source_file, masks_dir, pixel_std, spurious_rate)
         rule = (overwrite, parents)
         return _simulate_masks(map_file, output, n_images, source_file, masks_dir, rule, quiet, seed, bbox,
@@ -101,15 +118,18 @@ def simulate(map_file, output, n_images, altitude, fov, size, yaw, attitude_std,
                                     with_altitude=with_altitude, min_objects=min_objects, seed=seed))
     if source_file is not None or masks_dir is not None or mask_noise or no_heights:
         raise click.UsageError("--source, --masks-dir, --mask-noise and --no-heights need --render masks")
-    check_paths([output], [map_file], overwrite=overwrite, parents=parents)
+    if flat and dems:
+        raise click.UsageError("--flat and --dem contradict each other")
+    check_paths([output], [map_file, *dems], overwrite=overwrite, parents=parents)
     say = progress_printer(quiet)
     with open_map(map_file) as m:
         area = map_bbox_from_lonlat(m.crs, bbox, within=m.bounds) if bbox else None
+        terrain = None if flat else terrain_of(m, dems, altitude_above)
         images = simulate_images(
             m, n_images, altitude=altitude, fov_deg=fov, size=size, yaw=yaw, attitude_std=attitude_std,
             pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
             with_prior=with_prior, with_attitude=with_attitude, with_altitude=with_altitude, bbox=area,
-            min_objects=min_objects, seed=seed, progress=say,
+            min_objects=min_objects, seed=seed, progress=say, terrain=terrain,
         )
     write_images(images, output)
     if say:

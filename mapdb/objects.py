@@ -37,6 +37,9 @@ class Objects:
         Label names; ``labels[label[i]]`` is the name of object ``i``.
     crs : str or None
         Anything pyproj understands (``"EPSG:32631"``, WKT), or None if unknown.
+    elevation : array_like of float, optional
+        The ground's height under each object (metres above the DEM's datum; NaN where unknown), or None
+        for objects of a map without elevation (flat ground).
 
     Examples
     --------
@@ -53,6 +56,7 @@ class Objects:
     area: np.ndarray
     labels: tuple[str, ...] = ()
     crs: str | None = None
+    elevation: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         x = np.ascontiguousarray(self.x, dtype=np.float64).reshape(-1)
@@ -69,6 +73,11 @@ class Objects:
         object.__setattr__(self, "label", label)
         object.__setattr__(self, "area", area)
         object.__setattr__(self, "labels", tuple(self.labels))
+        if self.elevation is not None:
+            elevation = np.ascontiguousarray(self.elevation, dtype=np.float64).reshape(-1)
+            if elevation.size != n:
+                raise ValueError(f"elevation has {elevation.size} values for {n} objects")
+            object.__setattr__(self, "elevation", elevation)
 
     @classmethod
     def empty(cls, labels: Sequence[str] = (), crs: str | None = None) -> Objects:
@@ -107,7 +116,12 @@ class Objects:
 
     def take(self, index: np.ndarray) -> Objects:
         """The subset selected by an integer or boolean index."""
-        return Objects(self.x[index], self.y[index], self.label[index], self.area[index], self.labels, self.crs)
+        return Objects(self.x[index], self.y[index], self.label[index], self.area[index], self.labels, self.crs,
+                       None if self.elevation is None else self.elevation[index])
+
+    def with_elevation(self, elevation: np.ndarray | None) -> Objects:
+        """The same objects with these ground elevations (metres, NaN where unknown; None: none)."""
+        return Objects(self.x, self.y, self.label, self.area, self.labels, self.crs, elevation)
 
     def relabel(self, labels: Sequence[str]) -> Objects:
         """The same objects with codes into another label table that contains all names used here."""
@@ -120,7 +134,7 @@ class Objects:
         if missing:
             raise ValueError(f"labels {missing} are not in the target table")
         lut = np.array([index.get(name, -1) for name in self.labels] or [0], dtype=np.int32)
-        return Objects(self.x, self.y, lut[self.label], self.area, labels, self.crs)
+        return Objects(self.x, self.y, lut[self.label], self.area, labels, self.crs, self.elevation)
 
     def to_geodataframe(self) -> geopandas.GeoDataFrame:
         """The objects as a GeoDataFrame of points in their CRS, one row an object.
@@ -183,6 +197,9 @@ def concat(parts: Sequence[Objects], labels: Sequence[str] | None = None) -> Obj
     if len(crs) > 1:
         raise ValueError(f"cannot concatenate objects in different CRSs: {sorted(map(str, crs))}")
     parts = [p.relabel(labels) for p in parts]
+    # Elevation is kept when any part has it; the objects of parts without it are unknown (NaN).
+    elevation = None if all(p.elevation is None for p in parts) else np.concatenate(
+        [np.full(len(p), np.nan) if p.elevation is None else p.elevation for p in parts])
     return Objects(
         np.concatenate([p.x for p in parts]),
         np.concatenate([p.y for p in parts]),
@@ -190,4 +207,5 @@ def concat(parts: Sequence[Objects], labels: Sequence[str] | None = None) -> Obj
         np.concatenate([p.area for p in parts]),
         tuple(labels),
         crs.pop() if crs else parts[0].crs,
+        elevation,
     )

@@ -26,7 +26,7 @@ from pyproj import CRS
 MAGIC = b"\x89MAPDB\r\n"
 PREFIX = struct.Struct("<8sHHI")  # magic, u16 version, u16 flags, u32 H
 DIRECTORY_RECORD = struct.Struct("<qqIIIII")  # origin x, y; extent x, y; count; length; crc32
-GAP_BLOCK, AREA_BLOCK, K_BITS = 32, 256, 6
+GAP_BLOCK, AREA_BLOCK, K_BITS, ELEVATION_BLOCK = 32, 256, 6, 32
 MAX_AREA_CODE = 8320
 
 
@@ -40,6 +40,7 @@ class DecodedPage:
     qx: list[int]
     qy: list[int]
     area_code: list[int]
+    elevation_code: list[int | None] | None = None  # version 2: None where unknown
 
 
 class Bits:
@@ -66,7 +67,9 @@ def unzigzag(z: int) -> int:
     return z // 2 if z % 2 == 0 else -(z + 1) // 2
 
 
-def decode_page(payload: bytes, extent_x: int, extent_y: int, count: int, n_labels: int) -> DecodedPage:
+def decode_page(payload: bytes, extent_x: int, extent_y: int, count: int, n_labels: int,
+                elevation_cell: int | None = None, origin: tuple[int, int] = (0, 0)) -> DecodedPage:
+    """One page; a version 2 page when ``elevation_cell`` (the header's, in quanta) is given."""
     runs = payload[0]
     bits = Bits(payload[1:])
     key_bits = max(1, ((extent_x + 1) * (extent_y + 1) - 1).bit_length())
@@ -80,6 +83,11 @@ def decode_page(payload: bytes, extent_x: int, extent_y: int, count: int, n_labe
     # The 2R sequences: key gaps of each run, then area residuals of each run; blocks of 32 and 256.
     lengths = [n - 1 for _, n, _, _ in heads] + [n for _, n, _, _ in heads]
     blocks = [GAP_BLOCK] * runs + [AREA_BLOCK] * runs
+    if elevation_cell is not None:  # version 2: E, K; then K - 1 base steps and count residuals, blocks of 32
+        first_base, cells = bits.read(16) - 32768, bits.read(16)
+        assert 1 <= cells <= count
+        lengths += [cells - 1, count]
+        blocks += [ELEVATION_BLOCK, ELEVATION_BLOCK]
     parameters = [[bits.read(K_BITS) for _ in range(math.ceil(length / block))]
                   for length, block in zip(lengths, blocks)]
     assert all(k <= 48 for ks in parameters for k in ks)
@@ -106,7 +114,26 @@ def decode_page(payload: bytes, extent_x: int, extent_y: int, count: int, n_labe
             page.area_code.append(reference + unzigzag(residual))
     assert min(page.qx) == 0 and max(page.qx) == extent_x and min(page.qy) == 0 and max(page.qy) == extent_y
     assert all(0 <= c <= MAX_AREA_CODE for c in page.area_code)
+    if elevation_cell is not None:
+        page.elevation_code = elevations(page, origin, elevation_cell, first_base, cells, sequences[-2],
+                                         sequences[-1])
     return page
+
+
+def elevations(page: DecodedPage, origin: tuple[int, int], cell: int, first_base: int, cells: int,
+               steps: list[int], residuals: list[int]) -> list[int | None]:
+    """Version 2: each object's elevation code from its cell's base (cells in ascending (cell y, cell x))."""
+    of_object = [((origin[1] + qy) // cell, (origin[0] + qx) // cell) for qx, qy in zip(page.qx, page.qy)]
+    order = sorted(set(of_object))
+    assert len(order) == cells, "K must count the page's distinct cells"
+    bases = [first_base]
+    for step in steps:
+        bases.append(bases[-1] + unzigzag(step))
+    assert all(-32768 <= b <= 32767 for b in bases)
+    base_of = dict(zip(order, bases))
+    codes = [None if r == 0 else base_of[c] + unzigzag(r - 1) for c, r in zip(of_object, residuals)]
+    assert all(c is None or -32768 <= c <= 32767 for c in codes)
+    return codes
 
 
 def area_of(code: int) -> float:
@@ -116,7 +143,7 @@ def area_of(code: int) -> float:
 def decode_map(data: bytes) -> tuple[dict, list[DecodedPage]]:
     """The header and every page of a map file, every checksum and layout rule checked on the way."""
     magic, version, flags, header_length = PREFIX.unpack_from(data)
-    assert magic == MAGIC and version == 1 and flags == 0
+    assert magic == MAGIC and version in (1, 2) and flags == 0
     (header_crc,) = struct.unpack_from("<I", data, 16 + header_length)
     assert zlib.crc32(data[: 16 + header_length]) == header_crc
     inflater = zlib.decompressobj(-15)  # raw DEFLATE, no zlib header
@@ -134,7 +161,9 @@ def decode_map(data: bytes) -> tuple[dict, list[DecodedPage]]:
         payload = data[offset : offset + length]
         offset += length
         assert len(payload) == length and zlib.crc32(payload) == crc, f"page {i}"
-        page = decode_page(payload, ex, ey, count, len(header["labels"]))
+        assert header["format_version"] == version
+        page = decode_page(payload, ex, ey, count, len(header["labels"]), header.get("elevation_cell")
+                           if version == 2 else None, (ox, oy))
         page.origin_x, page.origin_y = ox, oy
         decoded.append(page)
     assert offset == len(data), "the pages must fill the rest of the file exactly"
@@ -158,7 +187,12 @@ def is_number(v: object) -> bool:
 def check_header(header: dict, pages: list[DecodedPage]) -> None:
     """Every field of the header table, with its stated type and rule."""
     assert header["format"] == "mapdb"
-    assert is_int(header["format_version"]) and header["format_version"] == 1
+    assert is_int(header["format_version"]) and header["format_version"] in (1, 2)
+    if header["format_version"] == 2:
+        assert is_number(header["elevation_step_m"]) and 0 < header["elevation_step_m"] <= 1000
+        assert is_int(header["elevation_cell"]) and 1 <= header["elevation_cell"] <= 1 << 24
+    else:
+        assert "elevation_step_m" not in header and "elevation_cell" not in header
     assert isinstance(header["crs"], str) and 1 <= len(header["crs"]) <= 4096
     wkt = header.get("crs_wkt")
     assert wkt is None or (isinstance(wkt, str) and len(wkt) <= 1 << 20)
@@ -208,7 +242,10 @@ from mapdb.objects import Objects  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "format.md"
 SAMPLE = REPO / "sample_maps" / "helsinki.osm.pbf"
-OSM = REPO.parent / "shared" / "data" / "osm"
+# ../shared/data beside the checkout; a worktree elsewhere falls back on the machine's copy
+SHARED = next((p for p in (REPO.parent / "shared" / "data", Path("/work/shared/data")) if p.is_dir()),
+              REPO.parent / "shared" / "data")
+OSM = SHARED / "osm"
 EXTRACTS = ["monaco-2021-12-03.osm.pbf", "andorra-2021-06-22.osm.pbf", "liechtenstein-2013-08-03.osm.pbf"]
 
 
@@ -232,6 +269,12 @@ def assert_decodes_like_mapdb(path: Path) -> tuple[dict, list[DecodedPage]]:
         area = np.array([area_of(c) for c in page.area_code])
         # both decode the same area code: equal up to float rounding, far inside the format's 4.4 %
         assert np.allclose(area, part.area, rtol=1e-12, atol=0), f"page {i} areas"
+        if page.elevation_code is None:
+            assert part.elevation is None
+        else:
+            step = header["elevation_step_m"]
+            z = np.array([np.nan if c is None else c * step for c in page.elevation_code])
+            assert np.array_equal(z, part.elevation, equal_nan=True), f"page {i} elevations"
     assert start == len(reference)
     return header, pages
 
@@ -301,3 +344,65 @@ def test_the_worked_example_of_the_document_decodes_as_stated(tmp_path: Path) ->
                                  area=[100.0, 0.0, 5000.0], crs="EPSG:32631", labels=["building", "park"])
     write_map(tmp_path / "example.mapdb", objects, quantum=1.0)
     assert (tmp_path / "example.mapdb").read_bytes()[-17:] == payload
+
+
+DEM = OSM.parent / "dem" / "N43E007.hgt"
+
+
+def test_spec_decodes_a_map_with_elevation_from_the_shared_dem(tmp_path: Path) -> None:
+    """Version 2: Monaco with the shared SRTM tile, decoded independently, elevations as the DEM's."""
+    source = OSM / EXTRACTS[0]
+    if not source.is_file() or not DEM.is_file():
+        pytest.skip(f"real data absent: {source} or {DEM} (expected ../shared/data beside the checkout)")
+    out = tmp_path / "monaco.mapdb"
+    build_map([source], out, dem=[DEM])
+    header, pages = assert_decodes_like_mapdb(out)
+    assert header["format_version"] == 2 and len(pages) > 1
+    codes = [c for p in pages for c in p.elevation_code or []]
+    assert None not in codes and -2 <= min(codes) and max(codes) <= 175  # SOURCES.md: -1..171 m
+
+
+def test_spec_decodes_elevation_with_unknowns_negatives_and_many_cells(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    n = 2500
+    x, y = rng.uniform(0, 5000, n) + 500_000.0, rng.uniform(0, 5000, n) - 3000.0  # negative y: floor division
+    z = -50 + 0.2 * (x - 500_000.0) + rng.normal(0, 3, n)
+    z[::13] = np.nan
+    objects = Objects.from_names(x, y, rng.choice(["a", "b"], n), crs="EPSG:32631").with_elevation(z)
+    out = tmp_path / "relief.mapdb"
+    write_map(out, objects, page_capacity=200)
+    header, pages = assert_decodes_like_mapdb(out)
+    assert header["format_version"] == 2 and header["elevation_step_m"] == 1.0 and len(pages) >= 10
+    with open_map(out) as m:
+        back = m.all()
+    got = {(round(a, 1), round(b, 1)): e for a, b, e in zip(back.x, back.y, back.elevation)}
+    stored = np.array([got[(round(a, 1), round(b, 1))] for a, b in zip(np.rint(x * 10) / 10, np.rint(y * 10) / 10)])
+    assert np.array_equal(np.isnan(stored), np.isnan(z))
+    assert np.nanmax(np.abs(stored - z)) <= 0.5 + 1e-9  # half a step
+
+
+def test_the_worked_elevation_example_of_the_document(tmp_path: Path) -> None:
+    text = " ".join(DOC.read_text(encoding="utf-8").split())
+    assert "K = 1, E = 32768 + 53" in text and "are zigzag(0) + 1 = 1, 0 and zigzag(2) + 1 = 5" in text
+    objects = Objects.from_names([10.0, 12.0, 11.0], [20.0, 21.0, 20.0], ["building", "building", "park"],
+                                 area=[100.0, 0.0, 5000.0], crs="EPSG:32631", labels=["building", "park"])
+    out = tmp_path / "example2.mapdb"
+    from mapdb.mapfile.writer import MapWriter
+
+    with MapWriter(out, quantum=1.0, elevation_step=1.0, elevation_cell_m=10.0) as writer:
+        writer.add(objects.with_elevation(np.array([53.0, np.nan, 55.0])))
+        writer.finish()
+    header, pages = assert_decodes_like_mapdb(out)
+    assert header["elevation_cell"] == 10 and len(pages) == 1
+    assert pages[0].elevation_code == [53, None, 55]
+    # the page after the version 1 run heads: E = 32768 + 53 and K = 1, as the document says
+    head_bits = "".join(f"{b:08b}" for b in out.read_bytes()[-pages_length(out):][1:])
+    run_heads = 2 * (8 + 16 + 3 + 16)
+    assert int(head_bits[run_heads:run_heads + 16], 2) == 32768 + 53 and int(head_bits[run_heads + 16:
+                                                                                       run_heads + 32], 2) == 1
+
+
+def pages_length(path: Path) -> int:
+    """The one page's length, from the directory record at the end of a one-page map's prefix."""
+    with open_map(path) as m:
+        return int(m.page_directory["length"][0])

@@ -530,7 +530,8 @@ REQUIRED = ("format", "format_version", "crs", "quantum", "count", "labels", "bo
 KINDS: dict[str, tuple[Callable[[Parts], bytes], str | None]] = {
     # --- the prefix and the frame around the header
     "version_0": (genuine_kind(lambda p: setattr(p, "version", 0)), r"not a valid map \(format version 0\)"),
-    "version_2": (genuine_kind(lambda p: setattr(p, "version", 2)), r"newer map format \(version 2\)"),
+    "version_3": (genuine_kind(lambda p: setattr(p, "version", 3)), r"newer map format \(version 3\)"),
+    "version_2_header_1": (genuine_kind(lambda p: setattr(p, "version", 2)), r"'format_version' must be 2"),
     "version_65535": (genuine_kind(lambda p: setattr(p, "version", 65535)), r"not a valid map \(format version 65535"),
     "version_byte_flipped": (genuine_kind(flipped_version), r"header checksum mismatch"),
     "flags_set": (genuine_kind(lambda p: setattr(p, "flags", 1)), r"not a valid map \(flags 0x0001"),

@@ -222,10 +222,14 @@ def with_version(data: bytes, version: int, fix_crc: bool = True) -> bytes:
 
 
 def test_versions(written):
-    """Newer only when plausible: a version 2..255 whose header checksum holds; else damage or not a map."""
+    """Newer only when plausible: a version 3..255 whose header checksum holds; else damage or not a map.
+    Version 2 (elevation) is read: a version 1 header under it breaks the header's version rule."""
     path, _ = written
     data = path.read_bytes()
-    for version in (2, 99, 255):
+    path.write_bytes(with_version(data, 2))
+    with pytest.raises(MapFormatError, match="'format_version' must be 2"):
+        open_map(path)
+    for version in (3, 99, 255):
         path.write_bytes(with_version(data, version))
         with pytest.raises(MapVersionError, match=f"newer map format \\(version {version}\\)"):
             open_map(path)

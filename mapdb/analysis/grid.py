@@ -157,12 +157,15 @@ class CellCounts:
     ``objects``: map objects (all labels) in the cell; ``bytes``: the map bytes they stand for (each page's
     bytes and directory record shared equally by its objects, the header by all objects);
     ``within_reach``: objects of the analysed labels that an image taken from a point of the cell could
-    see at most (those in the cells around it within the footprint's reach), an upper bound.
+    see at most (those in the cells around it within the footprint's reach), an upper bound; ``relief``
+    (a map with elevation, else None): the span (metres) of the elevations of the objects an image from the
+    cell could see (those within reach, as ``within_reach``), NaN where there are none.
     """
 
     objects: np.ndarray
     bytes: np.ndarray
     within_reach: np.ndarray
+    relief: np.ndarray | None = None
 
 
 def cell_counts(m: Any, grid: Grid, labels: Sequence[str] | None, reach_m: float,
@@ -174,6 +177,7 @@ def cell_counts(m: Any, grid: Grid, labels: Sequence[str] | None, reach_m: float
     stored = np.zeros(grid.shape, np.float64)
     say = as_progress(progress)
     share = _ObjectBytes(m)
+    low, high = np.full(grid.shape, np.inf), np.full(grid.shape, -np.inf)  # elevations in each cell
     x0, _, x1, _ = grid.bounds
     top = grid.bounds[3]
     for r0 in range(0, grid.nrows, _STRIP_ROWS):
@@ -186,12 +190,27 @@ def cell_counts(m: Any, grid: Grid, labels: Sequence[str] | None, reach_m: float
         np.add.at(stored, (row, col), share(found))
         pick = np.ones(len(found), bool) if codes is None else np.isin(found.label, codes)
         np.add.at(chosen, (row[pick], col[pick]), 1)
+        if found.elevation is not None:
+            known = np.isfinite(found.elevation)
+            np.minimum.at(low, (row[known], col[known]), found.elevation[known])
+            np.maximum.at(high, (row[known], col[known]), found.elevation[known])
     say(f"{int(objects.sum()):,} objects in {grid.size:,} cells of {grid.cell_m:g} m")
     # An image from a point of a cell sees only objects within ``reach`` of that point: less than
     # ``cell / 2 + reach`` from the cell's centre along each axis, so in the cells fewer than
     # ``1 + reach / cell`` cells away in rows and in columns.
     k = math.ceil(reach_m / grid.cell_m)
-    return CellCounts(objects, stored, _window_sums(chosen, k))
+    relief = _window_span(low, high, k) if getattr(m, "has_elevation", False) else None
+    return CellCounts(objects, stored, _window_sums(chosen, k), relief)
+
+
+def _window_span(low: np.ndarray, high: np.ndarray, k: int) -> np.ndarray:
+    """The highest less the lowest value over the (2k + 1)-square window around every cell (NaN: none)."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    size = 2 * k + 1
+    span = maximum_filter(high, size, mode="constant", cval=-np.inf) - minimum_filter(low, size, mode="constant",
+                                                                                     cval=np.inf)
+    return np.where(np.isfinite(span), span, np.nan).astype(np.float32)
 
 
 def _window_sums(counts: np.ndarray, k: int) -> np.ndarray:

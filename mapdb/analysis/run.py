@@ -41,6 +41,10 @@ MEASURES: dict[str, tuple[str, str]] = {
     "bytes_per_km2": ("bytes/km2", "map file bytes per square kilometre (its objects' share of their pages)"),
     "simulated": ("images", "images simulated and localized (the others showed too few objects)"),
 }
+# A map with elevation (format version 2) adds these bands after the per-label ones.
+TERRAIN_MEASURES: dict[str, tuple[str, str]] = {
+    "relief_m": ("m", "span of the elevations of the map objects an image from the cell could see"),
+}
 
 
 @dataclass
@@ -63,11 +67,13 @@ class Analysis:
         return self.counts.within_reach > 0
 
     def units(self, band: str) -> str:
-        return MEASURES[band][0] if band in MEASURES else "objects"
+        return MEASURES[band][0] if band in MEASURES else TERRAIN_MEASURES.get(band, ("objects",))[0]
 
     def description(self, band: str) -> str:
         if band in MEASURES:
             return MEASURES[band][1]
+        if band in TERRAIN_MEASURES:
+            return TERRAIN_MEASURES[band][1]
         return f"median map objects labelled {band.removeprefix('visible_')} in an image"
 
 
@@ -194,6 +200,8 @@ def _place(bands: dict[str, np.ndarray], result: CellMeasures, rows: np.ndarray,
 def _density_bands(bands: dict[str, np.ndarray], counts: CellCounts, grid: Grid) -> None:
     bands["objects_per_km2"][:] = counts.objects / grid.cell_km2
     bands["bytes_per_km2"][:] = counts.bytes / grid.cell_km2
+    if counts.relief is not None:  # a map with elevation: one more band, last (flat maps' outputs unchanged)
+        bands["relief_m"] = counts.relief
 
 
 def _warmup_cells(heavy: np.ndarray) -> np.ndarray:

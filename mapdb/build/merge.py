@@ -226,7 +226,7 @@ def _reprojected(objects: Objects, target: str) -> Objects:
     x, y = Transformer.from_crs(objects.crs, target, always_xy=True).transform(objects.x, objects.y)
     x, y = np.asarray(x, float), np.asarray(y, float)
     finite = np.isfinite(x) & np.isfinite(y)
-    return Objects(x, y, objects.label, objects.area, objects.labels, target).take(finite)
+    return Objects(x, y, objects.label, objects.area, objects.labels, target, objects.elevation).take(finite)
 
 
 def content_digest(path: str | Path) -> str:

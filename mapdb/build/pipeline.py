@@ -32,6 +32,7 @@ from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, release_freed_memory
 from .blocks import BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines, blocks_spool, forms_blocks
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
+from .elevation import ElevationTally
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
            "utm_crs_for"]
@@ -179,7 +180,7 @@ def build_map(
     label: str | None = None, label_map: str | Path | None = None, node_index: str = "auto",
     index_dir: str | Path | None = None, spool: str = "auto", jobs: int | None = None,
     scheduler: str | None = None, progress: ProgressLike = None, blocks: bool = True,
-    block_gap: float = DEFAULT_GAP_M,
+    block_gap: float = DEFAULT_GAP_M, dem: Sequence[str | Path] = (),
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -219,6 +220,10 @@ def build_map(
         Read the sources in parallel, one Dask task a source, on a local cluster of ``jobs`` worker
         processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
         the one read in this process.  A source that fails fails the build, naming the source.
+    dem : sequence of paths
+        Elevation rasters (GeoTIFF or SRTM ``.hgt``, any CRS, a mosaic in the order given): the map stores
+        each object's ground elevation (:mod:`mapdb.build.elevation`; a version 2 map).  Objects off the DEMs
+        are counted in one warning; DEMs under none of them are refused.
     progress : Progress or callable, optional
         Receives the stages as messages, and a count over the sources read, the projection and the
         writing (see :class:`mapdb.progress.Progress`).
@@ -247,6 +252,7 @@ def build_map(
     """
     quantum, min_area_m2, bbox, target, table = _checked_arguments(sources, quantum, min_area_m2, bbox, crs, labels)
     gap = _check_number("block_gap", block_gap, 0.0, MAX_GAP_M, low_open=False) if blocks else None
+    elevation = ElevationTally(dem) if dem else None  # the DEMs checked before any source is read
     say = as_progress(progress)
     say.start(len(sources) + 2, "build")  # one count: each source read, then the projection, then the writing
     read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
@@ -259,7 +265,7 @@ def build_map(
         raise SourceError(f"spool {spool!r}: not one of {', '.join(SPOOL_CHOICES)}")
     with open_client(jobs, scheduler) as client, _scratch(index_dir) as directory:
         read = _gather(sources, table, (read_options, osm_options), target, say, client, _Spooling(directory, spool))
-        return _built(output, read, table, quantum, say, {
+        return _built(output, read, table, quantum, say, elevation, {
             "crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
             "labels_file": Path(labels).name if labels else None,
             "labels_sha256": file_sha256(Path(labels)) if labels else None, "raster_classes": raster_classes,
@@ -269,9 +275,9 @@ def build_map(
 
 
 def _built(output: str | Path, read: _Read, table: LabelTable, quantum: float, say: Progress,
-           build: dict[str, Any]) -> dict[str, Any]:
+           elevation: ElevationTally | None, build: dict[str, Any]) -> dict[str, Any]:
     """Write the map of what was read, and say what came of it (:func:`build_map`'s result)."""
-    written, label_counts, totals = _write(output, read, table, quantum, build, say)
+    written, label_counts, totals = _write(output, read, table, quantum, build, say, elevation)
     return {"output": str(output), "crs": read.target, "count": written, "labels": label_counts,
             "skipped": {kind: n for kind, n in sorted(totals.items()) if n}, "warnings": read.warnings}
 
@@ -347,18 +353,23 @@ def _kept(spools: list[ObjectSpool], keep: Callable[[Objects], np.ndarray],
 
 
 def _write(output: str | Path, read: _Read, table: LabelTable, quantum: float, build: dict[str, Any],
-           say: Progress) -> tuple[int, dict[str, int], Counter[str]]:
+           say: Progress, elevation: ElevationTally | None = None) -> tuple[int, dict[str, int], Counter[str]]:
     """Project the sources' objects block by block into a streaming map writer, which holds a bounded number
     of them, and write the map: the objects written, the count per label, and what was skipped in all
     (merged duplicates included)."""
     total = sum(map(_count, read.parts))
     say(f"projecting {total} objects to {read.target} ...")
     with MapWriter(output, quantum=quantum) as writer:
-        for block in _project(read.parts, read.skipped, read.target, table):
+        blocks = _project(read.parts, read.skipped, read.target, table)
+        for block in elevation.sampled(blocks) if elevation else blocks:
             writer.add(block)
         say.advance()
         if writer.count == 0:
             raise EmptyMapError(f"{read.names}: no object projects into {read.target}")
+        if elevation:
+            elevation.check()
+            build = {**build, "dem": elevation.record()}
+            read.warnings.extend(filter(None, [elevation.warning()]))
         totals = _tally_skipped(read.described, read.skipped, say)
         say(f"writing {writer.count} objects to {output} ({read.target}, quantum {quantum} m) ...")
         written = writer.finish({"sources": read.described, "build": build})

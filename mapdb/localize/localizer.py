@@ -472,7 +472,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         outward = None if im.bbox is None or levelled else outward_normals(im.bbox, im.width, im.height)
         matcher = localizer.matcher_for(codes, im.area_px)  # a map's blocks, for mask blobs only
         pose = _match(matcher, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
-                      None if levelled else im.area_px, outward)
+                      None if levelled else im.area_px, outward, (focal_px, im.altitude_m))
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
     return ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start, im)
@@ -488,12 +488,15 @@ def _checked(image: dict[str, Any] | ImageObjects, crs: str, prior: tuple[float,
 def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: float,
            prior: tuple[float, float, float] | None, margin: float, scale_range: tuple[float, float] | None,
            notes: list[str], skipped: dict[str, Any], anchorable: np.ndarray | None = None,
-           area_px: np.ndarray | None = None, outward: np.ndarray | None = None) -> FoundPose:
-    """Run the localizer's method on the image plane; the pose, or a :class:`~mapdb.localize.records.RejectionError`."""
+           area_px: np.ndarray | None = None, outward: np.ndarray | None = None,
+           camera: tuple[float | None, float | None] = (None, None)) -> FoundPose:
+    """Run the localizer's method on the image plane; the pose, or a :class:`~mapdb.localize.records.RejectionError`.
+    ``camera`` is the focal length (pixels) and the altitude above ground, when the image gives them (terrain)."""
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
-                           scale_range=scale_range, anchorable=anchorable, area_px=area_px, outward=outward)
+                           scale_range=scale_range, anchorable=anchorable, area_px=area_px, outward=outward,
+                           focal_px=camera[0], altitude_m=camera[1])
         candidates = [
             Candidate(x=rounded(c.b.real, 3), y=rounded(c.b.imag, 3), inliers=c.inliers,
                       score=finite(c.score, 2), sigma_m=finite(c.sigma_m, 3))

@@ -218,9 +218,13 @@ def _frame(objects: Objects, crs: str) -> tuple[Any, np.ndarray, np.ndarray]:
     to_lonlat = Transformer.from_crs(objects.crs, LONLAT_CRS, always_xy=True)
     lon, lat = (np.asarray(v) for v in to_lonlat.transform(objects.x, objects.y))
     frame = objects.to_geodataframe().assign(x=objects.x, y=objects.y)
+    columns = ["label", "area_m2", "x", "y", "geometry"]
+    if objects.elevation is not None:  # a map with elevation (version 2): the ground's height, empty if unknown
+        frame = frame.assign(elevation_m=objects.elevation)
+        columns.insert(2, "elevation_m")
     if crs == "lonlat":
         frame = frame.set_geometry(gpd.points_from_xy(lon, lat), crs=LONLAT_CRS)
-    return frame[["label", "area_m2", "x", "y", "geometry"]], lon, lat
+    return frame[columns], lon, lat
 
 
 def _write_frame(frame: Any, tmp: Path, output: Path, lon: np.ndarray, lat: np.ndarray) -> None:
@@ -249,6 +253,21 @@ def map_info(m: MetaMap, verify: bool = True) -> dict[str, Any]:
     if verify:
         m.verify()
     header = m.metadata
+    return {**_basic_info(m, header), **({"elevation": elevation_info(m)} if m.has_elevation else {})}
+
+
+def elevation_info(m: MetaMap) -> dict[str, Any]:
+    """A map's elevation (version 2): its code step and cell (metres), the objects with and without an
+    elevation, and the lowest, median and highest one (metres; None when no object has one)."""
+    z = np.concatenate([np.zeros(0), *(o.elevation for o in m.scan() if o.elevation is not None)])
+    known = z[np.isfinite(z)]
+    low, mid, high = (float(v) for v in np.percentile(known, [0, 50, 100])) if known.size else (None,) * 3
+    return {"step_m": m.elevation_step, "cell_m": float(m.metadata["elevation_cell"]) * m.quantum,
+            "known": int(known.size), "unknown": int(z.size - known.size), "min_m": low, "median_m": mid,
+            "max_m": high}
+
+
+def _basic_info(m: MetaMap, header: dict[str, Any]) -> dict[str, Any]:
     return {
         "path": str(m.path),
         "format_version": header["format_version"],

@@ -35,6 +35,7 @@ from .layout import (
     _MIN_PAGE_BITS,
     _PILE,
     _PREFIX,
+    FLAT_FORMAT_VERSION,
     FORMAT_VERSION,
     MAGIC,
 )
@@ -66,13 +67,14 @@ def _lonlat_bounds(crs: CRS, bounds: tuple[float, float, float, float]) -> list[
 
 
 def _map_header(crs: CRS, labels: tuple[str, ...], counts: np.ndarray, table: np.ndarray, quantum: float,
-                page_capacity: int, merged: int, metadata: dict[str, Any] | None) -> dict[str, Any]:
+                page_capacity: int, merged: int, metadata: dict[str, Any] | None,
+                elevation: tuple[float, int] | None = None) -> dict[str, Any]:
     """The header of a map of these pages and objects per label code; ``metadata`` adds entries but replaces
-    none."""
+    none; ``elevation`` (step in metres, cell side in quanta) makes it a version 2 map's."""
     bounds = _page_span(table, quantum)
     header = {
         "format": "mapdb",
-        "format_version": FORMAT_VERSION,
+        "format_version": FLAT_FORMAT_VERSION if elevation is None else FORMAT_VERSION,
         "crs": crs.to_string(),
         # An authority code names the CRS exactly; WKT (about a kilobyte) only when there is none.
         "crs_wkt": None if crs.to_epsg() else crs.to_wkt(),
@@ -90,6 +92,8 @@ def _map_header(crs: CRS, labels: tuple[str, ...], counts: np.ndarray, table: np
         "software": f"mapdb {__version__}",
         "created": creation_time(),
     }
+    if elevation is not None:
+        header["elevation_step_m"], header["elevation_cell"] = elevation
     for key, value in (metadata or {}).items():
         header.setdefault(key, value)
     return header
@@ -104,11 +108,11 @@ def _pack_prefix(path: Path, header: dict[str, Any], table: np.ndarray, quantum:
     try:
         if len(header_json) > _header_json_limit(len(header_bytes)):
             raise MapFormatError(f"{path}: header of {len(header_json)} bytes is too long")
-        _check_header(_parse_header_json(header_json, str(path)), str(path), FORMAT_VERSION)
+        _check_header(_parse_header_json(header_json, str(path)), str(path), header["format_version"])
         _check_directory(table, quantum, tuple(header["bounds"]), int(header["count"]), str(path))
     except MapFormatError as exc:
         raise ValueError(f"cannot write a valid map: {exc}") from None
-    prefix = _PREFIX.pack(MAGIC, FORMAT_VERSION, 0, len(header_bytes)) + header_bytes
+    prefix = _PREFIX.pack(MAGIC, header["format_version"], 0, len(header_bytes)) + header_bytes
     return prefix + struct.pack("<I", zlib.crc32(prefix))
 
 
@@ -287,7 +291,19 @@ def _check_header(header: Any, where: str, version: int) -> dict[str, Any]:
     crs_wkt = _field(header, "crs_wkt", where, lambda v: isinstance(v, str) and len(v) <= 1 << 20,
                      "null or WKT text", required=False)
     return {"quantum": quantum, "count": count, "pages": pages, "directory_crc32": crc,
-            "bounds": tuple(float(v) for v in bounds), "labels": tuple(names), "crs": _check_crs(crs, crs_wkt, where)}
+            "bounds": tuple(float(v) for v in bounds), "labels": tuple(names), "crs": _check_crs(crs, crs_wkt, where),
+            **_elevation_fields(header, where, version)}
+
+
+def _elevation_fields(header: dict[str, Any], where: str, version: int) -> dict[str, Any]:
+    """A version 2 header's elevation code step (metres) and cell side (quanta); nothing for version 1."""
+    if version < 2:
+        return {}
+    step = _field(header, "elevation_step_m", where, lambda v: _is_number(v) and 0 < v <= 1000,
+                  "a number in (0, 1000]")
+    cell = _field(header, "elevation_cell", where, lambda v: _is_int(v) and 1 <= v <= _MAX_EXTENT + 1,
+                  f"an integer in [1, {_MAX_EXTENT + 1}]")
+    return {"elevation_step_m": float(step), "elevation_cell": int(cell)}
 
 
 def _page_span(table: np.ndarray, quantum: float) -> tuple[float, float, float, float]:

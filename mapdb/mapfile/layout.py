@@ -37,13 +37,23 @@ import struct
 import numpy as np
 
 __all__ = [
+    "DEFAULT_ELEVATION_CELL_M",
+    "DEFAULT_ELEVATION_STEP",
     "DEFAULT_QUANTUM",
+    "FLAT_FORMAT_VERSION",
     "FORMAT_VERSION",
     "MAGIC",
 ]
 
 MAGIC = b"\x89MAPDB\r\n"
-FORMAT_VERSION = 1
+# The newest version (2: objects with their ground elevation); a map without elevation is written as version 1,
+# byte for byte as before version 2 existed.
+FORMAT_VERSION = 2
+FLAT_FORMAT_VERSION = 1
+# Version 2: elevation codes of this many metres, relative to bases per cell of this side (metres; rounded to
+# whole quanta): see docs/format.md, "Elevation".
+DEFAULT_ELEVATION_STEP = 1.0
+DEFAULT_ELEVATION_CELL_M = 128.0
 # Stored resolution of coordinates (metres) unless a map is built with another.
 DEFAULT_QUANTUM = 0.1
 # A version number above this is not a newer format but a damaged or foreign file.

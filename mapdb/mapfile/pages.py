@@ -37,6 +37,12 @@ from .layout import _M2_PER_OBJECT, _MAX_EXTENT, _PILE
 
 __all__: list[str] = []
 
+# Version 2 (elevation): an unknown elevation, as the writer holds it; the bias of the page's first cell base
+# (a u16: codes -32768..32767); the block of the elevation sequences' Rice parameters (adapts to the relief).
+NO_ELEVATION = np.iinfo(np.int32).min
+_ELEVATION_BIAS = 1 << 15
+_ELEVATION_BLOCK = 32
+
 
 class _BadPageError(Exception):
     """A page of a batch breaks a rule of the format: its position in the batch, and the problem."""
@@ -53,8 +59,11 @@ def _key_bits(ex: Any, ey: Any) -> Any:
     return np.maximum(1, np.frexp(largest.astype(np.float64))[1])  # exact: the largest key is below 2**48
 
 
-def _encode_page(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, code: np.ndarray) -> tuple[bytes, tuple]:
-    """A page's bytes and its directory record, from its objects' positions (quanta), labels and area codes."""
+def _encode_page(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, code: np.ndarray,
+                 elevation: tuple[np.ndarray, int] | None = None) -> tuple[bytes, tuple]:
+    """A page's bytes and its directory record, from its objects' positions (quanta), labels and area codes;
+    with ``elevation`` (each object's elevation code, :data:`NO_ELEVATION` where unknown, and the cell side in
+    quanta) a version 2 page, else a version 1 page."""
     ox, oy = int(qx.min()), int(qy.min())
     ex, ey = int(qx.max()) - ox, int(qy.max()) - oy
     keys = (qy - oy).astype(np.uint64) * np.uint64(ex + 1) + (qx - ox).astype(np.uint64)
@@ -69,13 +78,49 @@ def _encode_page(qx: np.ndarray, qy: np.ndarray, label: np.ndarray, code: np.nda
     sequences = [np.diff(keys[r]) for r in runs] + [_zigzag(area_code[r] - m) for r, m in
                                                      zip(runs, medians.astype(np.int64), strict=True)]
     blocks = [_GAP_BLOCK] * len(runs) + [_AREA_BLOCK] * len(runs)
-    bits = np.concatenate([_bits_of(heads.reshape(-1), widths), *_rice_streams(sequences, blocks)])
+    head_bits = _bits_of(heads.reshape(-1), widths)
+    if elevation is not None:
+        e_head, e_sequences = _elevation_sequences(qx[order], qy[order], elevation[0][order], elevation[1])
+        head_bits = np.concatenate([head_bits, _bits_of(e_head, np.array([16, 16]))])
+        sequences += e_sequences
+        blocks += [_ELEVATION_BLOCK, _ELEVATION_BLOCK]
+    bits = np.concatenate([head_bits, *_rice_streams(sequences, blocks)])
     payload = bytes([codes.size]) + np.packbits(bits).tobytes()
     return payload, (ox, oy, ex, ey, int(qx.size), len(payload), zlib.crc32(payload))
 
 
-def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int) -> tuple[np.ndarray, ...]:
-    """Decode a batch of pages in one vectorised pass: (qx, qy, label code, area) of their objects, page by page.
+def _cells_of(qx: np.ndarray, qy: np.ndarray, cell: int) -> tuple[np.ndarray, np.ndarray]:
+    """The elevation cells (row-major ``(cy, cx)`` order, as a rank) of objects at map positions in quanta."""
+    cy, cx = np.floor_divide(qy, cell), np.floor_divide(qx, cell)
+    occupied, rank = np.unique(np.column_stack([cy, cx]), axis=0, return_inverse=True)
+    return rank.reshape(-1), occupied
+
+
+def _elevation_sequences(qx: np.ndarray, qy: np.ndarray, elevation: np.ndarray,
+                         cell: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """A version 2 page's elevation head (``E``, ``K``) and its two sequences (cell base steps, residuals),
+    the objects given in the page's order (``docs/format.md``, "Elevation")."""
+    rank, occupied = _cells_of(qx.astype(np.int64), qy.astype(np.int64), cell)
+    known = elevation != NO_ELEVATION
+    # Each cell's base: the lower median of its known codes (sorted by cell, then code).
+    order = np.lexsort((elevation[known], rank[known]))
+    cells, first, count = np.unique(rank[known][order], return_index=True, return_counts=True)
+    base = np.full(len(occupied), NO_ELEVATION, np.int64)
+    base[cells] = elevation[known][order][first + (count - 1) // 2]
+    # A cell of unknowns only repeats the previous base (a step of 0 costs the least), the first one 0.
+    have = np.where(base != NO_ELEVATION, np.arange(base.size), -1)
+    filled = np.maximum.accumulate(have)
+    base = np.where(filled >= 0, base[np.maximum(filled, 0)], 0)
+    residual = np.where(known, _zigzag(elevation - base[rank]).astype(np.int64) + 1, 0).astype(np.uint64)
+    head = np.array([int(base[0]) + _ELEVATION_BIAS, len(occupied)], np.uint64)
+    return head, [_zigzag(np.diff(base)), residual]
+
+
+def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int,
+                  cell: int | None = None) -> tuple[Any, ...]:
+    """Decode a batch of pages in one vectorised pass: (qx, qy, label code, area, elevation code) of their
+    objects, page by page; the elevation codes (:data:`NO_ELEVATION` where unknown) of version 2 pages, whose
+    elevation cell side (quanta) is ``cell``, else None.
 
     ``table`` holds the pages' directory records (checked when the map was opened).  Every rule of the page
     layout is checked on the way, stage by stage, before anything the stage's values promise is allocated:
@@ -87,15 +132,73 @@ def _decode_pages(payloads: list[bytes], table: np.ndarray, n_labels: int) -> tu
     first_byte = np.cumsum(length) - length
     b = _Batch(buf=np.frombuffer(b"".join(payloads) + bytes(8), np.uint8), first_byte=first_byte,
                end=8 * (first_byte + length), objects=table["count"].astype(np.int64),
-               ex=table["ex"].astype(np.int64), ey=table["ey"].astype(np.int64), every_page=np.arange(len(payloads)))
+               ex=table["ex"].astype(np.int64), ey=table["ey"].astype(np.int64), every_page=np.arange(len(payloads)),
+               elevated=cell is not None)
     runs, run_page, code, n, first, median, head_end = _read_run_heads(b, n_labels)
-    k_end, k = _read_rice_parameters(b, runs, run_page, n, head_end)
-    gaps, residual = _read_rice_values(b, runs, k_end, k)
+    e_head = _read_elevation_heads(b, head_end) if b.elevated else None
+    if e_head is not None:
+        head_end = head_end + 32
+    k_end, k = _read_rice_parameters(b, runs, run_page, n, head_end, e_head)
+    gaps, residual, steps, e_residual = _read_rice_values(b, runs, k_end, k, e_head)
     qx, qy, run_of, object_page = _decode_positions(b, run_page, n, first, gaps)
     area_code = median[run_of] + _unzigzag(residual)
     _refuse((area_code < 0) | (area_code > _MAX_AREA_CODE), object_page, "page area code out of range")
-    return (qx + table["ox"][object_page], qy + table["oy"][object_page], code[run_of].astype(np.int32),
-            _area_decode(area_code))
+    qx, qy = qx + table["ox"][object_page], qy + table["oy"][object_page]
+    elevation = None
+    if e_head is not None and cell is not None:
+        elevation = _decode_elevation(b, qx, qy, object_page, cell, e_head, steps, e_residual)
+    return qx, qy, code[run_of].astype(np.int32), _area_decode(area_code), elevation
+
+
+def _read_elevation_heads(b: _Batch, head_end: np.ndarray) -> np.ndarray:
+    """Each version 2 page's elevation head: its first cell base (bias removed) and its occupied cells ``K``."""
+    _refuse(head_end + 32 > b.end, b.every_page, _SHORT)
+    fields = _read_fields(b.buf, np.repeat(head_end, 2) + np.tile([0, 16], head_end.size), np.full(2 * head_end.size,
+                                                                                                   16))
+    e_head = fields.astype(np.int64).reshape(-1, 2)
+    e_head[:, 0] -= _ELEVATION_BIAS
+    _refuse((e_head[:, 1] < 1) | (e_head[:, 1] > b.objects), b.every_page,
+            lambda i: f"{e_head[i, 1]} elevation cells for {b.objects[i]} objects")
+    return e_head
+
+
+def _decode_elevation(b: _Batch, qx: np.ndarray, qy: np.ndarray, object_page: np.ndarray, cell: int,
+                      e_head: np.ndarray, steps: np.ndarray, e_residual: np.ndarray) -> np.ndarray:
+    """The elevation codes of a batch's objects (map positions in quanta), from each page's head, cell base
+    steps and residuals, checked: the occupied cells are as many as the head says, every code in range."""
+    cy, cx = np.floor_divide(qy, cell), np.floor_divide(qx, cell)
+    order = np.lexsort((cx, cy, object_page))
+    key = np.column_stack([object_page[order], cy[order], cx[order]])
+    new = np.ones(order.size, bool)
+    new[1:] = np.any(key[1:] != key[:-1], axis=1)
+    cell_page = object_page[order][new]
+    _refuse(np.bincount(cell_page, minlength=b.every_page.size) != e_head[:, 1], b.every_page,
+            "elevation cells do not match the page's objects")
+    rank = np.empty(order.size, np.int64)
+    rank[order] = np.cumsum(new) - 1  # each object's cell, numbered over the batch
+    step = _unzigzag(steps)
+    _refuse(np.abs(step) > 2 * _ELEVATION_BIAS, cell_page[_not_first(cell_page)], "elevation step out of range")
+    # Each page's bases: its first cell's, then a running sum of its steps (exact: each step below 2**17).
+    start = np.flatnonzero(~_not_first(cell_page))
+    increments = np.zeros(cell_page.size, np.int64)
+    increments[_not_first(cell_page)] = step
+    increments[start] = e_head[:, 0]
+    total = np.cumsum(increments)
+    base = total - np.repeat(total[start] - e_head[:, 0], np.diff(np.append(start, cell_page.size)))
+    _refuse(np.abs(base + 0.5) > _ELEVATION_BIAS, cell_page, "elevation base out of range")
+    known = e_residual > 0
+    code = np.full(qx.size, NO_ELEVATION, np.int64)
+    code[known] = base[rank[known]] + _unzigzag(e_residual[known] - np.uint64(1))
+    _refuse(known & (np.abs(code + 0.5) > _ELEVATION_BIAS), object_page, "elevation code out of range")
+    return code
+
+
+def _not_first(page_of: np.ndarray) -> np.ndarray:
+    """Whether each item (grouped by page) is not its page's first."""
+    out = np.ones(page_of.size, bool)
+    out[0:1] = False
+    out[1:] = page_of[1:] == page_of[:-1]
+    return out
 
 
 class _Batch(NamedTuple):
@@ -108,6 +211,7 @@ class _Batch(NamedTuple):
     ex: np.ndarray
     ey: np.ndarray
     every_page: np.ndarray  # 0, 1, ... (the page of each page, for the page-wise checks)
+    elevated: bool = False  # version 2 pages (elevation)
 
 
 _SHORT = "page data is shorter than its counts"
@@ -147,17 +251,25 @@ def _read_run_heads(b: _Batch, n_labels: int) -> tuple[np.ndarray, ...]:
 
 
 def _read_rice_parameters(b: _Batch, runs: np.ndarray, run_page: np.ndarray, n: np.ndarray,
-                          head_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                          head_end: np.ndarray, e_head: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The bit where each page's Rice parameters end, and the Rice parameter of each value of the batch."""
-    # Rice sequences of each page: the key gaps of each run, then the area residuals of each run; then
-    # their blocks, and a 6-bit parameter per block.
-    order = np.argsort(np.concatenate([run_page, run_page]), kind="stable")
-    seq_len = np.concatenate([n - 1, n])[order]
-    seq_block = np.concatenate([np.full(n.size, _GAP_BLOCK), np.full(n.size, _AREA_BLOCK)])[order]
+    # Rice sequences of each page: the key gaps of each run, then the area residuals of each run (then, in
+    # version 2, the cell base steps and the elevation residuals); their blocks, and a 6-bit parameter a block.
+    pages = [run_page, run_page]
+    lengths = [n - 1, n]
+    sizes = [np.full(n.size, _GAP_BLOCK), np.full(n.size, _AREA_BLOCK)]
+    if e_head is not None:
+        pages += [b.every_page, b.every_page]
+        lengths += [e_head[:, 1] - 1, b.objects]
+        sizes += [np.full(b.every_page.size, _ELEVATION_BLOCK)] * 2
+    order = np.argsort(np.concatenate(pages), kind="stable")
+    seq_len = np.concatenate(lengths)[order]
+    seq_block = np.concatenate(sizes)[order]
+    seq_page = np.concatenate(pages)[order]
     n_blocks = -(-seq_len // seq_block)
     of_block = np.repeat(np.arange(seq_len.size), n_blocks)
     size = np.minimum(seq_block[of_block], seq_len[of_block] - seq_block[of_block] * _ranks(n_blocks))
-    page_blocks = _sums(n_blocks, 2 * runs)
+    page_blocks = np.bincount(seq_page, weights=n_blocks, minlength=b.every_page.size).astype(np.int64)
     k_end = head_end + _K_BITS * page_blocks
     _refuse(k_end > b.end, b.every_page, _SHORT)
     block_page = np.repeat(b.every_page, page_blocks)
@@ -167,11 +279,14 @@ def _read_rice_parameters(b: _Batch, runs: np.ndarray, run_page: np.ndarray, n: 
     return k_end, np.repeat(k_block, size)
 
 
-def _read_rice_values(b: _Batch, runs: np.ndarray, k_end: np.ndarray,
-                      k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The Rice-coded values of each page, split into key gaps and area residuals (zigzagged)."""
+def _read_rice_values(b: _Batch, runs: np.ndarray, k_end: np.ndarray, k: np.ndarray,
+                      e_head: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+    """The Rice-coded values of each page, split into key gaps and area residuals (zigzagged), and in version
+    2 the cell base steps (zigzagged) and the elevation residuals (else empty)."""
     # Unary quotients: the first `values` zero bits after the parameters, found by rank (zeros before a bit).
     values = 2 * b.objects - runs
+    if e_head is not None:
+        values = values + e_head[:, 1] - 1 + b.objects
     value_page = np.repeat(b.every_page, values)
     zeros = np.concatenate([[0], np.cumsum(_ZEROS_IN_BYTE[b.buf[:-8]])])
 
@@ -199,10 +314,13 @@ def _read_rice_values(b: _Batch, runs: np.ndarray, k_end: np.ndarray,
     padding = _read_fields(b.buf, rem_end, np.minimum(rest, 7))
     _refuse((rest >= 8) | (padding != 0), b.every_page, "page contents do not match its directory record")
     coded = (quotient.astype(np.uint64) << k.astype(np.uint64)) | remainder
-    is_gap = _ranks(values) < np.repeat(b.objects - runs, values)
-    gaps, residual = coded[is_gap], coded[~is_gap]
-    _refuse(gaps < 1, value_page[is_gap], "two objects of one label at one position")
-    return gaps, residual
+    rank = _ranks(values)
+    ends = np.cumsum(np.column_stack([b.objects - runs, b.objects, *(
+        [e_head[:, 1] - 1, b.objects] if e_head is not None else [])]), axis=1)
+    part = (rank[:, None] >= np.repeat(ends, values, axis=0)).sum(axis=1)  # 0 gap, 1 area, 2 step, 3 elevation
+    gaps = coded[part == 0]
+    _refuse(gaps < 1, value_page[part == 0], "two objects of one label at one position")
+    return gaps, coded[part == 1], coded[part == 2], coded[part == 3]
 
 
 def _decode_positions(b: _Batch, run_page: np.ndarray, n: np.ndarray, first: np.ndarray,

@@ -39,6 +39,11 @@ class MapBase:
         self._derived: dict[str, Any] = {}
 
     @property
+    def has_elevation(self) -> bool:
+        """Whether the map holds its objects' ground elevation (``Objects.elevation``; a version 2 file)."""
+        return getattr(self, "elevation_step", None) is not None
+
+    @property
     def label_counts(self) -> dict[str, int]:
         return {d["name"]: d["count"] for d in self.metadata["labels"] if d["count"]}
 
@@ -314,7 +319,8 @@ class MemoryMap(MapBase):
         self.labels = objects.labels
         x = np.rint(objects.x / quantum) * quantum
         y = np.rint(objects.y / quantum) * quantum
-        self._objects = Objects(x, y, objects.label, objects.area, objects.labels, objects.crs)
+        self._objects = Objects(x, y, objects.label, objects.area, objects.labels, objects.crs, objects.elevation)
+        self.elevation_step: float | None = None if objects.elevation is None else 0.0  # held exactly
         self.bounds = (float(x.min()), float(y.min()), float(x.max()), float(y.max())) if len(objects) else (
             0.0, 0.0, 0.0, 0.0)
         counts = np.bincount(objects.label, minlength=len(self.labels))

@@ -14,6 +14,7 @@ import zlib
 from collections import OrderedDict
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import shapely
@@ -23,7 +24,7 @@ from ..errors import MapFormatError, MapVersionError, open_regular, reading
 from ..objects import Objects
 from .header import _MAX_HEADER, _check_directory, _check_header, _header_json_limit, _one_line, _parse_header_json
 from .layout import _DIR_DTYPE, _MAX_QUANTA, _MAX_VERSION, _PREFIX, FORMAT_VERSION, MAGIC
-from .pages import _BadPageError, _decode_pages
+from .pages import NO_ELEVATION, _BadPageError, _decode_pages
 from .queries import MapBase
 
 __all__ = [
@@ -82,10 +83,15 @@ class MetaMap(MapBase):
                 f"this mapdb {__version__} reads up to version {FORMAT_VERSION}"
             )
         if flags != 0:
-            raise MapFormatError(f"{where}: not a valid map (flags {flags:#06x}; version 1 defines none)")
+            raise MapFormatError(f"{where}: not a valid map (flags {flags:#06x}; version {version} defines none)")
         header = _parse_header_json(self._inflate_header(header_bytes, where), where)
         fields = _check_header(header, where, version)
         n_pages, self.quantum, self.crs = fields["pages"], fields["quantum"], fields["crs"]
+        self.format_version = version
+        # Version 2 holds each object's ground elevation: codes of elevation_step_m metres, cells of
+        # elevation_cell quanta (docs/format.md, "Elevation").
+        self.elevation_step: float | None = fields.get("elevation_step_m")
+        self._cell: int | None = fields.get("elevation_cell")
         self.labels, self.bounds = fields["labels"], fields["bounds"]
         dir_start = _PREFIX.size + header_len + 4
         dir_len = n_pages * _DIR_DTYPE.itemsize
@@ -182,10 +188,10 @@ class MetaMap(MapBase):
 
     def _decode_batch(self, indices: list[int]) -> list[tuple[int, tuple[np.ndarray, ...]]]:
         records = self._table[indices]
-        x, y, label, area = self._read_batch(indices)
+        columns = self._read_batch(indices)
         done = []
         cuts = np.cumsum(records["count"].astype(np.int64))[:-1]
-        for i, page in zip(indices, zip(*(np.split(a, cuts) for a in (x, y, label, area)), strict=True),
+        for i, page in zip(indices, zip(*(np.split(a, cuts) for a in columns if a is not None), strict=True),
                            strict=True):
             self._cache[i] = page
             self._cached_objects += page[2].size
@@ -195,8 +201,9 @@ class MetaMap(MapBase):
             self._cached_objects -= old[2].size
         return done
 
-    def _read_batch(self, indices: list[int]) -> tuple[np.ndarray, ...]:
-        """(x, y, label code, area) of the pages' objects, read, checked and decoded; the cache untouched."""
+    def _read_batch(self, indices: list[int]) -> tuple[Any, ...]:
+        """(x, y, label code, area, elevation) of the pages' objects, read, checked and decoded (elevation in
+        metres, NaN where unknown; None for a map without elevation); the cache untouched."""
         records = self._table[indices]
         payloads = []
         for i, record in zip(indices, records, strict=True):
@@ -209,7 +216,7 @@ class MetaMap(MapBase):
                 raise MapFormatError(f"{self.path} page {i}: checksum mismatch (file is corrupt)")
             payloads.append(payload)
         try:
-            qx, qy, label, area = _decode_pages(payloads, records, len(self.labels))
+            qx, qy, label, area, code = _decode_pages(payloads, records, len(self.labels), self._cell)
         except _BadPageError as bad:
             raise MapFormatError(f"{self.path} page {indices[bad.index]}: {bad.problem}") from None
         except (ValueError, IndexError, OverflowError, TypeError) as exc:
@@ -217,7 +224,10 @@ class MetaMap(MapBase):
             # are still reported as what they are, bad pages, and not as a crash.
             raise MapFormatError(f"{self.path} pages {indices[0]} to {indices[-1]}: malformed page data "
                                  f"({_one_line(exc, 80)})") from None
-        return qx * self.quantum, qy * self.quantum, label, area
+        elevation = None
+        if code is not None and self.elevation_step is not None:
+            elevation = np.where(code == NO_ELEVATION, np.nan, code * self.elevation_step)
+        return qx * self.quantum, qy * self.quantum, label, area, elevation
 
     def scan(self) -> Iterator[Objects]:
         """Every page's objects in page order, in batches of about 64k objects, checked as every read is.
@@ -232,8 +242,8 @@ class MetaMap(MapBase):
             while (stop < self.page_count and size + lengths[stop] <= _BATCH_BYTES
                    and objects + counts[stop] <= _BATCH_OBJECTS):
                 size, objects, stop = size + int(lengths[stop]), objects + int(counts[stop]), stop + 1
-            x, y, label, area = self._read_batch(list(range(start, stop)))
-            yield Objects(x, y, label, area, self.labels, self.crs)
+            x, y, label, area, elevation = self._read_batch(list(range(start, stop)))
+            yield Objects(x, y, label, area, self.labels, self.crs, elevation)
             start = stop
 
     def _page(self, i: int) -> tuple[np.ndarray, ...]:
@@ -248,8 +258,8 @@ class MetaMap(MapBase):
         parts = [page for _, page in self._pages(pages)]
         if not parts:
             return Objects.empty(self.labels, self.crs)
-        x, y, label, area = (np.concatenate(p) for p in zip(*parts, strict=True))
-        return Objects(x, y, label, area, self.labels, self.crs)
+        x, y, label, area, *elevation = (np.concatenate(p) for p in zip(*parts, strict=True))
+        return Objects(x, y, label, area, self.labels, self.crs, elevation[0] if elevation else None)
 
     def verify(self) -> None:
         """Read and check every page; raises :class:`MapFormatError` at the first bad one.

@@ -2,7 +2,7 @@
 
 The writer takes objects in chunks and holds a bounded number of them (``memory_objects``), whatever the map's
 size: past that bound they wait in temporary files beside the output, as compact records (quantized position,
-label code, area code: 19 bytes an object).  Here are those files (:class:`_Scratch`, :class:`_Spill`,
+label code, area code, elevation code: 23 bytes an object).  Here are those files (:class:`_Scratch`, :class:`_Spill`,
 :class:`_PageSink`), the duplicate merge by buckets (:func:`_unique_records`, :func:`_bucket_of`) and the
 histogram passes that find a median cut in a part too big to sort in memory (:func:`_select`).  How the
 writer uses them is in :mod:`~mapdb.mapfile.writer`.
@@ -25,7 +25,8 @@ from .layout import _DIR_DTYPE, _MAX_QUANTA
 
 __all__: list[str] = []
 
-_RECORD = np.dtype([("x", "<i8"), ("y", "<i8"), ("label", "u1"), ("code", "<u2")])  # packed: 19 bytes
+# packed: 23 bytes; "elev" is the elevation code (NO_ELEVATION where unknown, and in maps without elevation)
+_RECORD = np.dtype([("x", "<i8"), ("y", "<i8"), ("label", "u1"), ("code", "<u2"), ("elev", "<i4")])
 _PAGE_BYTES_IN_MEMORY = 32 << 20  # encoded pages kept in memory before they go to a temporary file
 _HISTOGRAM_BINS = 1 << 16  # bins of a pass that narrows down the median of a part too big to sort in memory
 

@@ -22,8 +22,17 @@ from ..objects import Objects
 from ..outputs import atomic_open
 from .codec import _area_encode
 from .header import _check_crs, _map_header, _pack_prefix
-from .layout import _MAX_EXTENT, _MAX_LABELS, _MAX_PAGE_OBJECTS, _MAX_QUANTA, _PILE, DEFAULT_QUANTUM
-from .pages import _encode_page, _split_pages
+from .layout import (
+    _MAX_EXTENT,
+    _MAX_LABELS,
+    _MAX_PAGE_OBJECTS,
+    _MAX_QUANTA,
+    _PILE,
+    DEFAULT_ELEVATION_CELL_M,
+    DEFAULT_ELEVATION_STEP,
+    DEFAULT_QUANTUM,
+)
+from .pages import _ELEVATION_BIAS, NO_ELEVATION, _encode_page, _split_pages
 from .spill import _RECORD, _bucket_of, _PageSink, _Scratch, _select, _Spill, _unique_records
 
 __all__ = [
@@ -48,7 +57,7 @@ class MapWriter:
     into place (as :func:`write_map`, which is this writer given one chunk).  The map is the one
     :func:`write_map` writes of all the chunks' objects together, byte for byte, whatever the chunks.
 
-    Memory: the writer holds at most ``memory_objects`` objects at once (19 bytes each while they wait, and
+    Memory: the writer holds at most ``memory_objects`` objects at once (23 bytes each while they wait, and
     about 100 bytes each while a part of the map is cut into pages and encoded), plus 36 bytes a page of
     directory and up to 32 MiB of encoded pages; the caller's chunk comes on top.  Past that, objects wait in
     a temporary directory beside the output (``.NAME.PID.XXXX.spill``, at most about 40 bytes of disk an
@@ -67,6 +76,10 @@ class MapWriter:
         As for :func:`write_map`.
     memory_objects : int
         Most objects held in memory at once (at least the page capacity and 256).
+    elevation_step, elevation_cell_m : float
+        When a chunk carries ``elevation`` the map is a version 2 map holding each object's ground elevation
+        in codes of ``elevation_step`` metres, relative to a base per cell of ``elevation_cell_m`` metres
+        (``docs/format.md``, "Elevation"); objects of chunks without it, or NaN, are stored as unknown.
 
     Raises
     ------
@@ -88,9 +101,16 @@ class MapWriter:
     """
 
     def __init__(self, path: str | Path, *, quantum: float = DEFAULT_QUANTUM, metadata: dict[str, Any] | None = None,
-                 page_capacity: int = DEFAULT_PAGE_CAPACITY, memory_objects: int = DEFAULT_MEMORY_OBJECTS) -> None:
+                 page_capacity: int = DEFAULT_PAGE_CAPACITY, memory_objects: int = DEFAULT_MEMORY_OBJECTS,
+                 elevation_step: float = DEFAULT_ELEVATION_STEP,
+                 elevation_cell_m: float = DEFAULT_ELEVATION_CELL_M) -> None:
         if not (0 < quantum <= 1000) or not (1 <= page_capacity <= _MAX_PAGE_OBJECTS):
             raise ValueError(f"quantum must be in (0, 1000] m and page capacity in [1, {_MAX_PAGE_OBJECTS}]")
+        if not (0 < elevation_step <= 1000) or not (0 < elevation_cell_m <= 1e6):
+            raise ValueError("elevation step must be in (0, 1000] m and elevation cell in (0, 1e6] m")
+        self.elevation_step = elevation_step
+        self._cell = int(min(max(round(elevation_cell_m / quantum), 1), _MAX_EXTENT + 1))
+        self.elevated = False  # whether any chunk carried elevation: the map is then version 2
         self.path = Path(path)
         self.quantum, self.page_capacity, self.metadata = quantum, page_capacity, dict(metadata or {})
         self.label_counts: dict[str, int] = {}
@@ -133,6 +153,13 @@ class MapWriter:
         records = np.empty(len(objects), _RECORD)
         records["x"], records["y"], records["label"] = fx, fy, objects.label
         records["code"] = _area_encode(np.where(np.isfinite(objects.area) & (objects.area > 0), objects.area, 0.0))
+        records["elev"] = NO_ELEVATION
+        if objects.elevation is not None:
+            self.elevated = True
+            code = np.rint(objects.elevation / self.elevation_step)
+            # Beyond the format's codes (+-32 km at 1 m) a height is no ground's: stored as unknown.
+            ok = np.isfinite(code) & (np.abs(code + 0.5) <= _ELEVATION_BIAS)
+            records["elev"][ok] = code[ok].astype(np.int32)
         self._objects.append(records)
 
     def _check_chunk(self, objects: Objects) -> None:
@@ -174,7 +201,8 @@ class MapWriter:
             self._cut_pages(unique, pages)
             table = pages.table()
             header = _map_header(self.crs, self.labels, per_label, table, self.quantum, self.page_capacity,
-                                 added - int(per_label.sum()), {**self.metadata, **(metadata or {})})
+                                 added - int(per_label.sum()), {**self.metadata, **(metadata or {})},
+                                 (self.elevation_step, self._cell) if self.elevated else None)
             prefix = _pack_prefix(self.path, header, table, self.quantum)
             with atomic_open(self.path, "wb") as f:
                 f.write(prefix)
@@ -225,10 +253,12 @@ class MapWriter:
             part = stack.pop()
             if part.count <= self.memory_objects:
                 records = part.load()
-                qx, qy, label, code = (np.ascontiguousarray(records[k]) for k in ("x", "y", "label", "code"))
+                qx, qy, label, code, elev = (np.ascontiguousarray(records[k]) for k in ("x", "y", "label", "code",
+                                                                                        "elev"))
                 del records
                 for idx in _split_pages(qx, qy, self.page_capacity, self.quantum):
-                    pages.add(*_encode_page(qx[idx], qy[idx], label[idx], code[idx]))
+                    elevation = (elev[idx].astype(np.int64), self._cell) if self.elevated else None
+                    pages.add(*_encode_page(qx[idx], qy[idx], label[idx], code[idx], elevation))
                 continue
             axis = "x" if part.high[0] - part.low[0] >= part.high[1] - part.low[1] else "y"
             half = part.count // 2

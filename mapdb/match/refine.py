@@ -125,13 +125,13 @@ def polish(
     """
     evidence = evidence or ImageEvidence()
     a, b = cand.a, cand.b
-    farthest = float(np.max(np.abs(a * z[cand.pairs[:, 0]] + b - index.z[cand.pairs[:, 1]])))
+    farthest = float(np.max(np.abs(_projected(evidence, a, b, z)[cand.pairs[:, 0]] - index.z[cand.pairs[:, 1]])))
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
     fit: ReliefFit | None = None
     scale = abs(a)
     for _ in range(iterations):
-        w = a * z + b
+        w = _projected(evidence, a, b, z)
         rows, cols, costs = index.within(w, img_label, gate, 3)
         if not rows.size:
             return cand
@@ -140,7 +140,7 @@ def polish(
                 break  # the pairs of the last fit: fitting them again gives it again
             pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign
             scale = abs(a)  # the scale cut blobs are placed at, the jackknife's too
-            fit = evidence.fit(z, index, pairs, scale)
+            fit = evidence.fit(z, index, pairs, scale, b)
             if fit is None:
                 return cand
             a, b = fit.a, fit.b
@@ -165,7 +165,7 @@ def polish(
             break
         pairs = assigned
         scale = abs(a)
-        fit = evidence.fit(z, index, pairs, scale)
+        fit = evidence.fit(z, index, pairs, scale, b)
         if fit is None:
             return cand
         a, b = fit.a, fit.b
@@ -174,6 +174,14 @@ def polish(
     sigma_axis, variance = evidence.error(z, index, pairs, fit, scale)
     return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
                      variance_factor=variance, pairs=pairs, log10_nfa_points=cand.log10_nfa_points)
+
+
+def _projected(evidence: ImageEvidence, a: complex, b: complex, z: np.ndarray) -> np.ndarray:
+    """The image objects where pose ``(a, b)`` puts them: ``a z + b``, or over terrain each ray cast onto the
+    ground (:meth:`~mapdb.match.evidence.image.ImageEvidence.project`)."""
+    if evidence.terrain is None:
+        return a * z + b
+    return evidence.project(np.array([a]), np.array([b]), z)[0]
 
 
 def pose_shift(a: Any, b: Any, a0: complex, b0: complex, diag_px: float) -> Any:

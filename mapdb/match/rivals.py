@@ -36,6 +36,8 @@ from itertools import combinations
 
 import numpy as np
 
+from .evidence.image import ImageEvidence
+from .evidence.terrain import TerrainModel
 from .hypotheses import allowed_poses, round_hypotheses
 from .options import FastOptions
 from .quads import QuadIndex
@@ -64,6 +66,7 @@ def find_rivals(
     log10_tests: float,
     prior: tuple[float, float, float] | None = None,
     scale_range: tuple[float, float] | None = None,
+    terrain: TerrainModel | None = None,
 ) -> list[Candidate]:
     """Other places that explain the image, best first, each scored on the winner's scale.
 
@@ -105,7 +108,7 @@ def find_rivals(
     keep = np.flatnonzero(ok)[np.argsort(-near[ok], kind="stable")][: opts.ambiguity_places]
     if not keep.size:
         return []
-    return _compared(best, a[keep], b[keep], z, img_label, index, diag_px, opts, log10_tests)
+    return _compared(best, a[keep], b[keep], z, img_label, index, diag_px, opts, log10_tests, terrain)
 
 
 def inlier_quads(z: np.ndarray, inliers: np.ndarray, neighbours: int, anchors: int) -> np.ndarray:
@@ -195,9 +198,11 @@ def _near_counts(a: np.ndarray, b: np.ndarray, best: Candidate, z: np.ndarray, i
 
 
 def _compared(best: Candidate, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,
-              index: ObjectIndex, diag_px: float, opts: FastOptions, log10_tests: float) -> list[Candidate]:
+              index: ObjectIndex, diag_px: float, opts: FastOptions, log10_tests: float,
+              terrain: TerrainModel | None = None) -> list[Candidate]:
     """The places ``(a, b)`` refitted beside the winner under common densities, as candidates on the
-    winner's scale (those that converged onto the winner left out)."""
+    winner's scale (those that converged onto the winner left out); over ``terrain`` both with rays cast onto
+    the objects' heights, as the winner was scored."""
     h = a.size
     radius = opts.density_radius_factor * diag_px / 2.0
     own = index.local_density(np.array([best.b]), np.array([abs(best.a) * radius]))
@@ -206,7 +211,7 @@ def _compared(best: Candidate, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_
     rows_a = np.concatenate([np.full(h, best.a), a])
     rows_b = np.concatenate([np.full(h, best.b), b])
     ra, rb, nfa, inlier, mid, dist = refine(rows_a, rows_b, z, img_label, index, np.concatenate([common, common]),
-                                            log10_tests, 1)
+                                            log10_tests, 1, None if terrain is None else ImageEvidence(terrain=terrain))
     worse = nfa[h:] - nfa[:h]
     keep = np.flatnonzero(_elsewhere(ra[h:], rb[h:], best, diag_px) & np.isfinite(worse))
     found = candidates(ra[h:][keep], rb[h:][keep], best.log10_nfa + np.maximum(worse[keep], 0.0),

@@ -89,13 +89,16 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
     # better than chance says); refinement then only improves the position.
     radius = opts.density_radius_factor * np.abs(hyps.a) * diag_px / 2.0
     density = index.local_density(hyps.b, radius)
-    nfa = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
+    a, b = hyps.a, hyps.b
+    if evidence is not None and evidence.terrain is not None:  # over terrain: each quad's rays on its heights
+        a, b = evidence.terrain.requad(a, b, z[hyps.img_ids], hyps.map_z)
+    nfa = decision_nfa(a, b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
                        opts.density_neighbours, evidence, radius)
     points = None
     if evidence is not None and evidence.areas is not None:
         # The areas may add evidence, never take away a place the positions alone make certain.
-        points = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
+        points = decision_nfa(a, b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
                               opts.density_neighbours, replace(evidence, areas=None), radius)
         nfa = points_floor(nfa, points)
-    a, b, _, inlier, mid, dist = refine(hyps.a, hyps.b, z, img_label, index, density, log10_tests, 2)
+    a, b, _, inlier, mid, dist = refine(a, b, z, img_label, index, density, log10_tests, 2, evidence)
     return candidates(a, b, nfa, inlier, mid, dist, z, points)

@@ -9,6 +9,7 @@ hypotheses cheaply, :func:`decision_nfa` is the full test, :func:`refine` re-ass
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ def decision_nfa(
     object's own area puts it (:func:`~mapdb.match.evidence.blobs.cut_area_residuals`).
     """
     h, n = len(a), z.size
-    w = a[:, None] * z[None, :] + b[:, None]
+    w = a[:, None] * z[None, :] + b[:, None] if evidence is None else evidence.project(a, b, z)
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
     r2, share, from_sample = (evidence or _POINTS).residuals(w, a, b, img_ids, map_z, z, img_label, index, density,
@@ -114,13 +115,19 @@ def refine(
     density: np.ndarray,
     log10_tests: float,
     iterations: int,
+    evidence: ImageEvidence | None = None,
+    map_z: np.ndarray | None = None,
 ) -> tuple[np.ndarray, ...]:
-    """Re-associate and refit ``H`` hypotheses; returns a, b, log10 NFA, inlier mask, map ids, distances."""
+    """Re-associate and refit ``H`` hypotheses; returns a, b, log10 NFA, inlier mask, map ids, distances.
+
+    Over terrain (``evidence.terrain``) each ray is cast onto the ground (``map_z``: the map points each
+    hypothesis was fitted to) and the refit takes the image points rescaled for their map objects' heights."""
     h, n = len(a), z.size
     rows = np.arange(h)
     previous: tuple[np.ndarray, np.ndarray] | None = None
+    terrain = None if evidence is None else evidence.terrain
     for it in range(iterations + 1):
-        w = a[:, None] * z[None, :] + b[:, None]
+        w = a[:, None] * z[None, :] + b[:, None] if terrain is None else terrain.project(a, b, z, map_z)
         dist, mid = index.nearest(w, img_label, density)
         lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
         u = lam * math.pi * dist**2
@@ -141,8 +148,20 @@ def refine(
             break
         previous = inlier, mid
         target = index.z[np.maximum(mid, 0)]
-        a_new, b_new = fit_similarity_complex(z[None, :], target, inlier)
+        src = z[None, :] if terrain is None or index.elevation is None else _rescaled(
+            terrain, a, b, z, map_z, index.elevation[np.maximum(mid, 0)])
+        a_new, b_new = fit_similarity_complex(src, target, inlier)
+        map_z = None  # the refit's scale is the nadir ground's
         ok = np.isfinite(a_new) & (inlier.sum(axis=1) >= 3)
         a = np.where(ok, a_new, a)
         b = np.where(ok, b_new, b)
     return a, b, nfa, inlier, mid, dist
+
+
+def _rescaled(terrain: Any, a: np.ndarray, b: np.ndarray, z: np.ndarray, map_z: np.ndarray | None,
+              elevation: np.ndarray) -> np.ndarray:
+    """Image points rescaled to each hypothesis's nadir ground for the rays onto their map objects'
+    ``elevation`` (``(H, n)``): ``z (D - (h - g)) / D`` (:mod:`~mapdb.match.evidence.terrain`)."""
+    depth = terrain.depth(a, b, map_z)[:, None]
+    rise = np.where(np.isfinite(elevation), elevation - terrain.ground(b)[:, None], 0.0)
+    return z[None, :] * np.maximum(depth - rise, 1.0) / depth

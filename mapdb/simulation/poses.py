@@ -10,14 +10,18 @@ map (:func:`place_camera`).  The camera model and its conventions are :mod:`mapd
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._scipy import cKDTree
-from ..camera import Camera, Pose, footprint, image_to_ground, project_to_image
+from ..camera import Camera, Pose, footprint, image_to_ground, project_points, project_to_image
 from ..errors import EmptyMapError
 from ..labels import BLOCK_LABEL
 from ..objects import Objects
+
+if TYPE_CHECKING:
+    from .terrain import Terrain
 
 __all__ = [
     "Shot",
@@ -122,16 +126,20 @@ def place_camera(
     max_tries: int,
     map_name: str,
     i: int,
+    terrain: Terrain | None = None,
 ) -> tuple[float, float, np.ndarray, np.ndarray, np.ndarray]:
-    """Camera position and the map objects in its image: ``(x, y, map_index, u, v)``.
+    """Camera position and the map objects in its image: ``(x, y, map_index, u, v)``; with ``terrain`` the
+    objects at their heights and the camera above the ground or the datum (:mod:`~mapdb.simulation.terrain`).
 
     A map's blocks of touching buildings (:mod:`mapdb.build.blocks`) are never seen: a camera sees their
     buildings, and only a mask merges them (:mod:`mapdb.simulation.rendered` says which blobs stand for blocks).
     """
     width, height = shot.camera.width, shot.camera.height
     lo, hi, reach = placement_limits(shot, area, keep_inside)
+    if terrain is not None:  # ground below the nadir's is seen farther out
+        reach *= 1.0 + float(np.ptp(terrain.z)) / shot.altitude
     block = objects.labels.index(BLOCK_LABEL) if BLOCK_LABEL in objects.labels else -1
-    for _attempt in range(max_tries if min_objects > 0 else 1):
+    for _attempt in range(max_tries if min_objects > 0 or terrain is not None else 1):
         if min_objects > 0:
             # Sparse maps: propose a camera that puts a random map object at a random pixel, so that
             # proposals land where there is something to see.  Their density is proportional to the
@@ -152,7 +160,14 @@ def place_camera(
             cam_x, cam_y = float(cam_x), float(cam_y)
         near = np.asarray(tree.query_ball_point([cam_x, cam_y], reach * 1.001 + 1e-6), dtype=np.int64)
         near.sort()
-        u, v = project_to_image(objects.x[near], objects.y[near], shot.pose(cam_x, cam_y), shot.camera)
+        if terrain is None:
+            u, v = project_to_image(objects.x[near], objects.y[near], shot.pose(cam_x, cam_y), shot.camera)
+        else:
+            placed = terrain.placed(shot.altitude, cam_x, cam_y)
+            if placed is None:  # a datum altitude too close to the ground here: another place
+                continue
+            pose = Pose(cam_x, cam_y, placed[1], shot.heading, shot.roll, shot.pitch)
+            u, v = project_points(objects.x[near], objects.y[near], terrain.z[near], pose, shot.camera)
         seen = np.isfinite(u) & (u >= 0) & (u < width) & (v >= 0) & (v < height) & (objects.label[near] != block)
         n_seen = int(seen.sum())
         if min_objects == 0 or (n_seen >= min_objects and rng.random() * n_seen < min_objects):

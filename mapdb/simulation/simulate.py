@@ -20,7 +20,8 @@ Examples
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from ..progress import ProgressLike, as_progress
 from .detector import Detector, detect, label_mix
 from .documents import add_hints, bound_entry, image_document, truth_entry
 from .poses import Shot, camera_area, draw_shot, place_camera
+
+if TYPE_CHECKING:
+    from .terrain import Terrain
 
 __all__ = [
     "PAPER_CRS",
@@ -152,6 +156,7 @@ def simulate_images(
     seed: int = 0,
     id_prefix: str = "sim-",
     progress: ProgressLike = None,
+    terrain: Terrain | None = None,
 ) -> list[dict[str, Any]]:
     """Simulated image-objects documents over a map, each with its truth.
 
@@ -202,6 +207,10 @@ def simulate_images(
         Images are named ``f"{id_prefix}{i:06d}"``.
     progress : Progress or callable, optional
         Counts the images made (:class:`mapdb.progress.Progress`).
+    terrain : Terrain, optional
+        Objects at their ground elevations and ``altitude`` above the ground under the camera or above the
+        datum (:mod:`mapdb.simulation.terrain`); the documents' ``altitude_m`` is then the camera's height
+        above the ground under it, and the truth adds ``ground_m`` and ``altitude_datum_m``.
 
     Returns
     -------
@@ -227,14 +236,19 @@ def simulate_images(
         rng = np.random.default_rng([seed, i])
         shot = draw_shot(rng, altitude, fov_deg, size, yaw, attitude_std)
         cam_x, cam_y, index, u, v = place_camera(
-            rng, objects, tree, shot, area, keep_inside, min_objects, max_tries, map_name, i
+            rng, objects, tree, shot, area, keep_inside, min_objects, max_tries, map_name, i, terrain
         )
+        placed = terrain.placed(shot.altitude, cam_x, cam_y) if terrain is not None else None
+        if placed is not None:  # what an altimeter over this ground reads: the height above it
+            shot = replace(shot, altitude=placed[1] - placed[0])
         n_visible = index.size
         index, u, v, label_names = detect(rng, objects, index, u, v, shot.camera, detector)
         bound = bound_entry(objects, index, u, v, shot, cam_x, cam_y, with_attitude)
         image = image_document(f"{id_prefix}{i:06d}", shot.camera, label_names, u, v)
         add_hints(rng, image, shot, cam_x, cam_y, with_prior, with_attitude, with_altitude)
         image["truth"] = truth_entry(shot, cam_x, cam_y, n_visible, index, bound)
+        if placed is not None:
+            image["truth"].update(ground_m=placed[0], altitude_datum_m=placed[1])
         images.append(image)
         say.advance()
     say.done()

@@ -17,7 +17,9 @@ and each extra model reads its part of :class:`ImageEvidence`:
 * ``whole`` and ``anchors``: which blobs are whole (the cut rounds' quads), and which may build the first
   rounds' quads and the final fit (:mod:`~mapdb.match.evidence.relief`);
 * ``jackknife``: the final fit's error is the larger of its model's and the jackknife's (blobs' errors are
-  not alike).
+  not alike);
+* ``terrain`` (:mod:`~mapdb.match.evidence.terrain`): a map with elevation and an image with its field of view:
+  the decision's predictions and the final fit cast each ray onto the objects' heights.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import numpy as np
 from .areas import ImageAreas, bands, compatible, disc_chances, sample_evidence, solid_objects
 from .blobs import BlobErrors, cut_area_residuals, placed_sources
 from .relief import ReliefFit, fit_with_relief, leave_one_out_sigma
+from .terrain import TerrainModel
 
 if TYPE_CHECKING:
     from ..mapobjects.object_index import ObjectIndex
@@ -54,6 +57,8 @@ class ImageEvidence:
         else None (all).
     jackknife : bool
         The final fit's error includes the jackknife's (objects extracted from masks).
+    terrain : TerrainModel or None
+        Rays cast onto the map objects' heights (a map with elevation, an image with its field of view).
     """
 
     areas: ImageAreas | None = None
@@ -61,6 +66,15 @@ class ImageEvidence:
     whole: np.ndarray | None = None
     anchors: np.ndarray | None = None
     jackknife: bool = False
+    terrain: TerrainModel | None = None
+
+    def project(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, ref: np.ndarray | None = None) -> np.ndarray:
+        """Where hypotheses ``z -> a z + b`` (``(H,)``) put the image objects: ``(H, n)``; over terrain each ray
+        cast onto the ground (:meth:`~mapdb.match.evidence.terrain.TerrainModel.project`, ``ref`` the map points
+        each hypothesis was fitted to)."""
+        if self.terrain is None:
+            return a[:, None] * z[None, :] + b[:, None]
+        return self.terrain.project(a, b, z, ref)
 
     @classmethod
     def of(cls, z: np.ndarray, img_label: np.ndarray, labels: tuple[str, ...], anchorable: np.ndarray | None = None,
@@ -130,22 +144,38 @@ class ImageEvidence:
         ``scale`` metres per pixel), else the objects' own."""
         return z[pairs[:, 0]] if self.errors is None else placed_sources(self.errors, z, pairs, index, scale)
 
-    def fit(self, z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, scale: float = 1.0) -> ReliefFit | None:
+    def fit(self, z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, scale: float = 1.0,
+            nadir: complex = 0j) -> ReliefFit | None:
         """The similarity fitted to ``pairs`` (:meth:`fitted` of them), relief weighed radially
-        (:func:`~mapdb.match.evidence.relief.fit_with_relief`), or None when they cannot fix one."""
+        (:func:`~mapdb.match.evidence.relief.fit_with_relief`), or None when they cannot fix one.  Over terrain
+        the image points are first rescaled for their map objects' heights around ``nadir``
+        (:meth:`~mapdb.match.evidence.terrain.TerrainModel.fit_sources`)."""
         pairs = self.fitted(pairs)
         if len(pairs) < 3:
             return None
-        return fit_with_relief(self.sources(z, index, pairs, scale), index.z[pairs[:, 1]])
+        src, dst = self.sources(z, index, pairs, scale), index.z[pairs[:, 1]]
+        if self.terrain is not None and index.elevation is not None:
+            src = self.terrain.fit_sources(src, dst, nadir, scale, index.elevation[pairs[:, 1]])[0]
+        return fit_with_relief(src, dst)
 
     def error(self, z: np.ndarray, index: ObjectIndex, pairs: np.ndarray, fit: ReliefFit,
               scale: float) -> tuple[float, float]:
-        """The final fit's per-axis sigma and variance factor: its model's, or with ``jackknife`` the variance
-        factor raised to the jackknife's (:func:`~mapdb.match.evidence.relief.leave_one_out_sigma`) when larger."""
+        """The final fit's per-axis sigma and variance factor: its model's (over ``terrain`` with the variance
+        the search of the camera's height adds, :meth:`~mapdb.match.evidence.terrain.TerrainModel.fit_sources`),
+        or with ``jackknife`` the variance factor raised to the jackknife's
+        (:func:`~mapdb.match.evidence.relief.leave_one_out_sigma`) when larger."""
         sigma_axis, variance = fit.sigma_axis, fit.variance_factor
-        if not self.jackknife:
+        if not self.jackknife and self.terrain is None:
             return sigma_axis, variance
         used = self.fitted(pairs)
         sigma_axis = max(sigma_axis, 1e-12)  # an exact fit (no residual) must not hide an infinite jackknife
-        src = self.sources(z, index, used, scale)
-        return sigma_axis, max(variance, (leave_one_out_sigma(src, index.z[used[:, 1]], fit) / sigma_axis) ** 2)
+        src, dst = self.sources(z, index, used, scale), index.z[used[:, 1]]
+        depth_variance = 0.0
+        if self.terrain is not None and index.elevation is not None:
+            # Over terrain the fit also chose the camera's height: its uncertainty moves the position (most
+            # where the objects lie to one side of the nadir).
+            src, depth_variance = self.terrain.fit_sources(src, dst, fit.b, scale, index.elevation[used[:, 1]])
+            variance += depth_variance / sigma_axis**2
+            if not self.jackknife:
+                return sigma_axis, variance
+        return sigma_axis, max(variance, (leave_one_out_sigma(src, dst, fit) / sigma_axis) ** 2)

@@ -106,7 +106,8 @@ class BlocksView:
         if not self.fold:
             return objects.take(~is_block)
         label = np.where(is_block, self._building, objects.label)
-        return Objects(objects.x, objects.y, label, objects.area, objects.labels, objects.crs)
+        return Objects(objects.x, objects.y, label, objects.area, objects.labels, objects.crs,
+                       elevation=objects.elevation)
 
     @property
     def label_counts(self) -> dict[str, int]:

@@ -81,6 +81,10 @@ class ObjectIndex:
         self.tree = quick_tree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
         self._area = objects.area
         self._log_area: np.ndarray | None = None  # made on first use: only images with areas need it
+        # Each object's ground elevation (metres; NaN unknown), None for a flat map: the terrain evidence's
+        # (:mod:`mapdb.match.evidence.terrain`), which keeps its tree in ``terrain``.
+        self.elevation = objects.elevation
+        self.terrain: object | None = None
 
     def __len__(self) -> int:
         return int(self.z.size)

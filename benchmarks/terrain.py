@@ -1,0 +1,143 @@
+"""Terrain: Monaco with the shared SRTM tile, single images localized over relief (issue 33).
+
+The project's own Monaco map is built twice from ``../shared/data/osm/monaco-2021-12-03.osm.pbf``: with
+``--dem ../shared/data/dem/N43E007.hgt`` (each object at its ground elevation) and without (flat).  Images
+are simulated as the issue measured them: a level camera (yaw random) at 120 m and at 300 m above the ground
+under it, 60 degree field of view, 640x480, 1 px detector noise, at least 6 objects in view, field of view and
+attitude given, no prior; with and without ``altitude_m`` (the camera's height above the ground under it).
+The control is the same configuration over the flat map (every object at one height).  Each image is
+localized against the map it was simulated from (the one with elevation for the terrain rows).
+
+Run from the repository root::
+
+    python benchmarks/terrain.py --n 500            # the issue's table, 500 images a row
+    python benchmarks/terrain.py --n 50 --rows 120  # a quick look
+    python benchmarks/terrain.py --sizes            # bytes an object that elevation adds (Monaco, Andorra)
+
+Prints, per row: images, localized within 2 m, accepted 2-5 m off, accepted more than 5 m off, rejected, the
+RMS of the localized (within 2 m), and the median time per image.  ``--sizes`` builds Monaco with the SRTM
+tile and Andorra with a synthetic DEM of its relief (900-2,900 m, 3 arc-second posts: no tile of Andorra is
+shared), each against its flat build.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = next((p for p in (ROOT.parent / "shared" / "data", Path("/work/shared/data")) if p.is_dir()),
+              ROOT.parent / "shared" / "data")
+MONACO = SHARED / "osm" / "monaco-2021-12-03.osm.pbf"
+ANDORRA = SHARED / "osm" / "andorra-2021-06-22.osm.pbf"
+DEM = SHARED / "dem" / "N43E007.hgt"
+CACHE = Path(tempfile.gettempdir()) / "mapdb-bench-terrain"
+
+
+def build(source: Path, out: Path, dem: Path | None = None) -> Path:
+    """A map of ``source`` (with ``dem``), built once into the cache."""
+    from mapdb.build.pipeline import build_map
+
+    if not out.exists():
+        build_map([source], out, dem=[dem] if dem else ())
+    return out
+
+
+def synthetic_andorra_dem(path: Path) -> Path:
+    """An Andorra-like DEM: smooth relief from 900 to 2,900 m and 15 m of roughness, 3 arc-second posts."""
+    import rasterio
+    from rasterio.transform import from_origin
+    from scipy.ndimage import gaussian_filter
+
+    if path.exists():
+        return path
+    rng = np.random.default_rng(7)
+    f = gaussian_filter(rng.standard_normal((1201, 1201)), 25)
+    f = (f - f.min()) / (f.max() - f.min())
+    g = gaussian_filter(rng.standard_normal((1201, 1201)), 4)
+    z = 900 + 2000 * f + 15 * g / g.std()
+    with rasterio.open(path, "w", driver="GTiff", width=1201, height=1201, count=1, dtype="int16", crs="EPSG:4326",
+                       transform=from_origin(1.0 - 1 / 2400, 43.0 + 1 / 2400, 1 / 1200, 1 / 1200),
+                       nodata=-32768) as out:
+        out.write(np.rint(z).astype(np.int16), 1)
+    return path
+
+
+def sizes() -> None:
+    """Bytes an object that elevation adds to Monaco's and Andorra's maps."""
+    print("| map | objects | flat bytes | with elevation | bytes an object more |")
+    print("|---|---|---|---|---|")
+    for name, source, dem in (("Monaco (SRTM N43E007)", MONACO, DEM),
+                              ("Andorra (synthetic DEM)", ANDORRA, synthetic_andorra_dem(CACHE / "andorra.tif"))):
+        flat = build(source, CACHE / f"{source.stem}.flat.mapdb")
+        high = build(source, CACHE / f"{source.stem}.dem.mapdb", dem)
+        from mapdb.mapfile.reader import open_map
+
+        with open_map(high) as m:
+            n = len(m)
+        grew = high.stat().st_size - flat.stat().st_size
+        print(f"| {name} | {n} | {flat.stat().st_size} | {high.stat().st_size} | {grew / n:.3f} |")
+
+
+def row(map_path: Path, altitude: float, n: int, seed: int, with_altitude: bool, terrain: bool,
+        jobs: int) -> dict:
+    """Simulate and localize one row of the table."""
+    from mapdb.evaluation.evaluate import evaluate_images
+    from mapdb.mapfile.reader import open_map
+    from mapdb.simulation.simulate import simulate_images
+    from mapdb.simulation.terrain import terrain_of
+
+    with open_map(map_path) as m:
+        images = simulate_images(m, n, altitude=altitude, fov_deg=60.0, size=(640, 480), yaw="random",
+                                 pixel_std=1.0, with_attitude=True, with_altitude=with_altitude, min_objects=6,
+                                 seed=seed, terrain=terrain_of(m, (DEM,)) if terrain else None)
+        outcomes, _ = evaluate_images(m, images, jobs=jobs)
+    error = np.array([o["error_m"] if o["status"] == "ok" else np.nan for o in outcomes])
+    ok = np.isfinite(error)
+    good = ok & (error <= 2.0)
+    return {"images": len(outcomes), "within_2m": int(good.sum()),
+            "off_2_5": int((ok & (error > 2) & (error <= 5)).sum()), "off_5": int((ok & (error > 5)).sum()),
+            "rejected": int((~ok).sum()),
+            "rms": float(np.sqrt(np.mean(error[good] ** 2))) if good.any() else float("nan"),
+            "time_ms": statistics.median(o["time_ms"] for o in outcomes)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--n", type=int, default=500, help="images a row")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rows", nargs="*", type=float, default=[120.0, 300.0], help="altitudes above ground")
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
+    parser.add_argument("--no-altitude", action="store_true", help="also the rows without altitude_m")
+    parser.add_argument("--sizes", action="store_true", help="only the map sizes")
+    args = parser.parse_args()
+    CACHE.mkdir(parents=True, exist_ok=True)
+    if not MONACO.is_file() or not DEM.is_file():
+        sys.exit(f"real data absent: {MONACO} or {DEM} (see ../shared/data/SOURCES.md)")
+    if args.sizes:
+        sizes()
+        return
+    high = build(MONACO, CACHE / "monaco.dem.mapdb", DEM)
+    flat = build(MONACO, CACHE / "monaco.flat.mapdb")
+    print(f"| {args.n} images a row | localized within 2 m | accepted 2-5 m off | accepted > 5 m off | rejected "
+          "| RMS of the localized | median time |")
+    print("|---|---|---|---|---|---|---|")
+    for with_altitude in [True, False] if args.no_altitude else [True]:
+        for altitude in args.rows:
+            for terrain, path in ((True, high), (False, flat)):
+                r = row(path, altitude, args.n, args.seed, with_altitude, terrain, args.jobs)
+                what = "objects at their DEM heights" if terrain else "control: every object at one height"
+                alt = "altitude given" if with_altitude else "no altitude"
+                print(f"| {altitude:.0f} m, {what}, {alt} | {100 * r['within_2m'] / r['images']:.1f} % | "
+                      f"{r['off_2_5']} | {r['off_5']} | {r['rejected']} | {r['rms']:.2f} m | {r['time_ms']:.0f} ms |",
+                      flush=True)
+
+
+if __name__ == "__main__":
+    main()
