@@ -43,7 +43,8 @@ from ..mapfile.reader import open_map
 from ..mapfile.writer import MapWriter
 from ..objects import Objects
 from ..progress import ProgressLike, as_progress
-from .pipeline import _auto_crs, _duplicate, _fingerprint, _projected_crs, _to_lonlat, file_sha256
+from .inputs import duplicate_input, file_fingerprint, file_sha256
+from .pipeline import _auto_crs, _projected_crs, _to_lonlat
 
 __all__ = ["content_digest", "merge_maps"]
 
@@ -121,8 +122,8 @@ def _unique_inputs(inputs: Sequence[str | Path]) -> tuple[list[tuple[Path, str |
     warnings = []
     seen: dict[Any, Path] = {}
     for path in map(Path, inputs):
-        fingerprint = _fingerprint(path)  # None for what is not a regular file: open_map says what is wrong
-        duplicate = _duplicate(path, fingerprint, seen, "map")
+        fingerprint = file_fingerprint(path)  # None for what is not a regular file: open_map says what is wrong
+        duplicate = duplicate_input(path, fingerprint, seen, "map")
         if duplicate:
             warnings.append(duplicate)
         else:

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
-import stat
 import tempfile
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
@@ -33,6 +30,7 @@ from ..sources.spool import ObjectSpool, release_freed_memory
 from .blocks import BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines, blocks_spool, forms_blocks
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 from .elevation import ElevationTally
+from .inputs import duplicate_input, file_fingerprint, file_sha256
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
            "utm_crs_for"]
@@ -83,44 +81,6 @@ def _strictly_inside(code: str, lon: float, lat: float) -> bool:
     query of the zones that hold a point, which takes tens of milliseconds, surely finds it)."""
     area = CRS.from_epsg(int(code)).area_of_use
     return area is not None and area.west < lon < area.east and area.south < lat < area.north
-
-
-def file_sha256(path: Path) -> str:
-    """The SHA-256 of a file's bytes, read in blocks (sources and tables are recorded by it)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _fingerprint(path: Path) -> tuple[tuple[int, int], str] | None:
-    """(device and inode, SHA-256) of a regular file; None for anything else (its reader says what is wrong)."""
-    try:
-        st = os.stat(path)
-        if not stat.S_ISREG(st.st_mode):
-            return None
-        return (st.st_dev, st.st_ino), file_sha256(path)
-    except OSError:
-        return None
-
-
-def _duplicate(path: Path, fingerprint: tuple[tuple[int, int], str] | None, seen: dict[Any, Path],
-               what: str = "source") -> str | None:
-    """The warning for an input already given (the same file, or the same bytes), else None; ``seen`` learns it.
-
-    Shared by ``build`` (sources) and ``merge`` (maps, ``what="map"``)."""
-    if fingerprint is None:
-        return None
-    identity, sha = fingerprint
-    if identity in seen:
-        first = seen[identity]
-        return f"{path}: given twice; read once" if first == path else \
-            f"{path}: the same file as {what} {first}; read once"
-    if sha in seen:
-        return f"{path}: the same content as {what} {seen[sha]} (SHA-256 {sha[:16]}...); read once"
-    seen[identity] = seen[sha] = path
-    return None
 
 
 def _spread_warning(names: list[str], lonlat: list[Blocks], target: str) -> str | None:
@@ -464,8 +424,8 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
     unique, warnings = [], []
     seen: dict[Any, Path] = {}
     for path in map(Path, sources):
-        fingerprint = _fingerprint(path)
-        duplicate = _duplicate(path, fingerprint, seen)
+        fingerprint = file_fingerprint(path)
+        duplicate = duplicate_input(path, fingerprint, seen)
         if duplicate:
             warnings.append(duplicate)
             say.advance()
