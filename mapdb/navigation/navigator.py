@@ -18,7 +18,8 @@ Per frame (:meth:`Navigator.step`), in this order:
 4. **Velocity** from the previous frame (:mod:`mapdb.navigation.velocity`), guessed from the filter's
    velocity; and the inertial velocity when the frame has one.
 5. **Fix**: unless the flight withholds the map, the frame is localized with the filter's prediction as the
-   prior, radius from the particle cloud (99 % of the weight, plus the attitude errors' floor).  After
+   prior, radius from the particle cloud (99 % of the weight or its stated 3 sigma, whichever is wider,
+   plus the attitude errors' floor; the cloud spreads with the time since the last applied fix).  After
    ``widen_after`` queries in a row without an applied fix the radius doubles every frame, and past
    ``max_radius_m`` the query is lost-in-space.  The answer and its runner-up candidates update the
    filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`).  Fixes rejected as outliers
@@ -369,8 +370,11 @@ class Navigator:
         if not self.filter.initialised:
             return None
         opts = self.options
-        centre = self.filter.estimate()[0]
-        radius = max(opts.min_radius_m, self.filter.radius(centre) + 3.0 * self._floor())
+        centre, _, cov, _ = self.filter.estimate()
+        # The cloud's 99 % or its stated 3 sigma, whichever is wider: the radius follows the covariance as the
+        # filter drifts between fixes (the filter's drift model), so that the truth stays inside the query.
+        stated = 3.0 * math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0))
+        radius = max(opts.min_radius_m, max(self.filter.radius(centre), stated) + 3.0 * self._floor())
         if self.previous.misses >= opts.widen_after:
             # Doubling every frame: lost-in-space within a second when even a wide search finds nothing.
             radius *= 2.0 ** min(self.previous.misses - opts.widen_after + 1, 30)
