@@ -82,3 +82,15 @@ def test_the_stated_covariance_covers_the_error_while_the_map_is_withheld(world)
     assert error[gap].max() > 5.0 * max(error[~gap][:30].max(), 0.5)  # the error grows in the gap
     assert np.mean(nees <= 9.0) >= 0.98, (np.mean(nees <= 9.0), error[gap].max())
     assert error[-10:].max() < 1.0  # and the fixes pull it back when the map returns
+
+
+def test_initial_starts_with_the_first_measured_velocity_and_no_lag(world) -> None:
+    # --initial at the truth, the map withheld for the first 3 s: only frame-to-frame velocity.  The cloud
+    # starts with a wide velocity spread about rest; the first velocity measured sets the velocities and
+    # moves the positions over the step predicted at rest (before: 4-4.8 m behind for the whole 3 s at 5 fps).
+    frames = _flight(world, 6.0, map_gaps=((0.0, 3.0),), fps=5.0)
+    start = frames[0]["truth"]
+    navigator = Navigator(world, initial=(start["x"], start["y"], 5.0))
+    error = np.array([navigator.step(f).truth["error_m"] for f in frames])
+    withheld = np.array([bool(f.get("map_withheld")) for f in frames])
+    assert withheld[:15].all() and error[:15].max() < 1.5, error[:15]

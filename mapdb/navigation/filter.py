@@ -144,6 +144,7 @@ class ParticleFilter:
         self.initialised = False
         self.velocity_known = False
         self.since_fix = 0.0  # seconds since the last applied fix or start (module docs, drift)
+        self.last_dt = 0.0  # the last prediction's step (s)
 
     # ------------------------------------------------------------------------------------- state
 
@@ -164,15 +165,17 @@ class ParticleFilter:
         self.initialised = True
         self.velocity_known = velocity is not None
         self.since_fix = 0.0
+        self.last_dt = 0.0
 
     def snapshot(self) -> tuple[Any, ...]:
         """The whole state, random generator included, for :meth:`restore` (copies: some updates are in place)."""
         return (self.p.copy(), self.v.copy(), self.logw.copy(), self.initialised, self.velocity_known,
-                self.since_fix, self.rng.bit_generator.state)
+                self.since_fix, self.last_dt, self.rng.bit_generator.state)
 
     def restore(self, state: tuple[Any, ...]) -> None:
         """Back to a :meth:`snapshot`: as if the updates since had not happened."""
-        self.p, self.v, self.logw, self.initialised, self.velocity_known, self.since_fix, rng_state = state
+        (self.p, self.v, self.logw, self.initialised, self.velocity_known, self.since_fix, self.last_dt,
+         rng_state) = state
         self.rng.bit_generator.state = rng_state
 
     def finite(self) -> bool:
@@ -193,6 +196,7 @@ class ParticleFilter:
         """The motion model over ``dt`` seconds; ``turn_rad`` the heading change (clockwise), if known."""
         if not self.initialised or dt <= 0:
             return
+        self.last_dt = dt
         v_new = self.v * (np.exp(-1j * turn_rad) if turn_rad else 1.0)
         v_new = v_new + self.accel_std * dt * self._normal(self.n)
         self.p = self.p + 0.5 * (self.v + v_new) * dt
@@ -216,10 +220,14 @@ class ParticleFilter:
             return False
         if not self.velocity_known:
             # The first velocity measured sets the velocities: weighing a broad guess by it would leave
-            # few particles, and little diversity to learn the rest from.
+            # few particles, and little diversity to learn the rest from.  It is the motion over the step
+            # just predicted with the guess (a frame-to-frame velocity is the mean over it), so the positions
+            # move as it says over that step: a start at rest would otherwise lag by one step's flight.
             root = np.linalg.cholesky(cov + 1e-9 * np.eye(2))
             draws = root @ self.rng.standard_normal((2, self.n))
-            self.v = np.asarray(v + draws[0] + 1j * draws[1], np.complex128)
+            v_new = np.asarray(v + draws[0] + 1j * draws[1], np.complex128)
+            self.p = self.p + (v_new - self.v) * self.last_dt
+            self.v = v_new
             self.velocity_known = True
             return True
         w = self.weights
