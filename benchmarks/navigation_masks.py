@@ -9,7 +9,9 @@ blobs of label masks rendered from the extract's outlines with each frame's pose
 * ``thin15``: with heights, over a map built from the extract with 15 % of its buildings left out
   (:func:`mapdb.simulation.thinning.thin_extract`, seed 1): the camera sees buildings the map lacks;
 * ``erode2`` / ``dilate2``: with heights, every mask region eroded / dilated by 2 px;
-* ``blobs10``: with heights, 10 % of the objects missed and 10 % spurious blobs.
+* ``blobs10``: with heights, 10 % of the objects missed and 10 % spurious blobs;
+* ``ideal``: the centroid flights of ``benchmarks/navigation.py`` (150 m, 70 degrees, 10 fps, 1 px, 20 %
+  missed, a 2 s blackout at 60 s), to check that they do not get worse.
 
 Each at every ``--altitudes`` and navigated from every ``--starts``: ``lis`` (lost in space: no initial
 position) and ``initial`` (``--initial`` at the true start, radius 30 m).  Per flight:
@@ -60,7 +62,11 @@ DATA = next((p for p in (ROOT.parent / "shared" / "data" / "osm", Path("/work/sh
 EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-03.osm.pbf",
             "liechtenstein": "liechtenstein-2013-08-03.osm.pbf"}
 CASES = {"heights": {}, "flat": {"heights": False}, "thin15": {"thin": 0.15}, "erode2": {"mask_offset_px": -2},
-         "dilate2": {"mask_offset_px": 2}, "blobs10": {"blob_miss_rate": 0.1, "blob_spurious_rate": 0.1}}
+         "dilate2": {"mask_offset_px": 2}, "blobs10": {"blob_miss_rate": 0.1, "blob_spurious_rate": 0.1},
+         "ideal": {"ideal": True}}
+# The ideal flights of benchmarks/navigation.py (centroids, not masks; the altitude given is not used).
+IDEAL = {"altitude_m": 150.0, "fps": 10.0, "pixel_std": 1.0, "attitude_std": 0.1, "miss_rate": 0.2,
+         "blackouts": ((60.0, 2.0),)}
 FLIGHT = {"fov_deg": 60.0, "size": (640, 480), "fps": 5.0, "speed_mps": 20.0, "attitude_std": 0.1}
 START_RADIUS_M = 30.0
 THIN_SEED = 1
@@ -103,6 +109,11 @@ def _flight(name: str, case: str, altitude: float, length: float, cache: Path) -
     full, thin = _maps(name, cache)
     with open_map(full) as m:
         waypoints = survey_pattern(m.all(), length)  # the same path over the full and the thinned map
+        if params.get("ideal"):
+            frames = simulate_flight(m, FlightOptions(length_m=length, **IDEAL), waypoints)
+            with gzip.open(path, "wt") as f:
+                f.writelines(json.dumps(frame) + "\n" for frame in frames)
+            return frames
     with open_map(thin if params.pop("thin", None) else full) as m:
         scene = read_scene(DATA / EXTRACTS[name], m.all())
         render = FlightRender(scene, EXTRACTS[name], **params)
