@@ -28,7 +28,10 @@ Per frame (:meth:`Navigator.step`), in this order:
 6. **Record** the estimate (:class:`~mapdb.navigation.track.TrackRecord`).
 
 Without an initial position the filter waits for a first fix with score at least ``init_min_score``
-(lost-in-space, no prior); until then every frame is recorded as "not initialised".
+(lost-in-space, no prior); until then every frame is recorded as "not initialised".  With one (``--initial``)
+the particles start in its disc with a wide velocity spread about rest; the first velocity measured (frame
+to frame, or the inertial unit's) sets their velocities and carries them over the step predicted at rest,
+so the estimate does not lag the aircraft (:meth:`ParticleFilter.update_velocity`).
 """
 
 from __future__ import annotations
