@@ -7,6 +7,7 @@ import click
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.path import read_linestring
+from mapdb.navigation.rendered import MAX_MASK_OFFSET_PX
 from mapdb.simulation.documents import write_images
 
 from .options import (
@@ -93,6 +94,23 @@ std = finite_float(0.0, 1e4)
 @click.option("--map-gap", "map_gaps", multiple=True, callback=parse_windows, metavar="START:SECONDS",
               help="Mark frames from START for SECONDS as map-withheld: navigate does not query the map there.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same flight.")
+@click.option("--render", type=click.Choice(["centroids", "masks"]), default="centroids", show_default=True,
+              help="centroids: each visible map object at its projected centroid; masks: each frame's objects "
+                   "extracted from a label mask rendered from the --source outlines with the frame's pose.")
+@click.option("--source", "source_file", type=click.Path(), metavar="EXTRACT.osm.pbf",
+              help="With --render masks: the OSM extract the map was built from (its outlines are drawn).")
+@click.option("--masks-dir", type=click.Path(file_okay=False), metavar="DIR",
+              help="With --render masks: also write each frame's mask as ID.png, with classes.toml (the folder "
+                   "appears whole; an existing one, not empty, is replaced only with --overwrite).")
+@click.option("--no-heights", is_flag=True, help="With --render masks: draw buildings flat (no relief).")
+@click.option("--mask-erode", type=click.IntRange(0, MAX_MASK_OFFSET_PX), default=0, metavar="PX",
+              help="With --render masks: erode every region of the mask by PX pixels.")
+@click.option("--mask-dilate", type=click.IntRange(0, MAX_MASK_OFFSET_PX), default=0, metavar="PX",
+              help="With --render masks: dilate every region of the mask by PX pixels.")
+@click.option("--blob-miss-rate", type=rate, default=0.0, show_default=True,
+              help="With --render masks: fraction of objects left out of the masks.")
+@click.option("--blob-spurious-rate", type=rate, default=0.0, show_default=True,
+              help="With --render masks: false blobs per object in view, painted on the background.")
 @overwrite_option
 @parents_option
 @quiet_option
@@ -100,16 +118,26 @@ std = finite_float(0.0, 1e4)
 @handle_errors
 def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size, turn_radius, pixel_std, miss_rate,
            spurious_rate, label_noise, attitude_std, turbulence, heading_bias, baro_std, baro_bias, imu_std, imu_bias,
-           blackouts, map_gaps, seed, overwrite, parents, quiet, debug):
+           blackouts, map_gaps, seed, render, source_file, masks_dir, no_heights, mask_erode, mask_dilate,
+           blob_miss_rate, blob_spurious_rate, overwrite, parents, quiet, debug):
     """Simulate a flight over MAP: one frame document per line (JSON Lines).
 
     Each frame is a `mapdb query` image (objects, camera, attitude, altitude_m) with the autopilot's
     sensors beside it (time_s, attitude.yaw_deg, barometric altitude_m, optionally imu_velocity_mps),
     "map_withheld" inside a --map-gap, and the truth (x, y, heading, altitude, velocity).
+
+    With --render masks each frame's objects are the blobs of a label mask rendered from the --source
+    outlines (buildings extruded to their heights, the frame's roll, pitch and bank), as `mapdb objects`
+    extracts them, with the segmentation errors --mask-erode/--mask-dilate, --blob-miss-rate and
+    --blob-spurious-rate in place of the detector's.
     """
     if isinstance(fov, tuple):
         raise click.BadParameter("give one field of view, not a range", param_hint="'--fov'")
-    check_paths([output], [map_file, path_file], overwrite=overwrite, parents=parents)
+    masks = dict(source_file=source_file, masks_dir=masks_dir, no_heights=no_heights, erode=mask_erode,
+                 dilate=mask_dilate, miss=blob_miss_rate, spurious=blob_spurious_rate)
+    _check_render(render, masks, {"--pixel-std": pixel_std, "--miss-rate": miss_rate,
+                                  "--spurious-rate": spurious_rate, "--label-noise": label_noise})
+    check_paths([output], [map_file, path_file, source_file], overwrite=overwrite, parents=parents)
     options = FlightOptions(
         length_m=length, speed_mps=speed, fps=fps, altitude_m=altitude, fov_deg=fov, size=size,
         turn_radius_m=turn_radius, pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate,
@@ -118,11 +146,66 @@ def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size,
         imu_bias_mps=imu_bias, blackouts=blackouts, map_gaps=map_gaps, seed=seed,
     )
     say = progress_printer(quiet)
-    with open_map(map_file) as m:
-        waypoints = read_linestring(path_file, m.crs) if path_file else None
-        frames = simulate_flight(m, options, waypoints, progress=say)
+    if render == "masks":
+        frames = _masks_flight(map_file, path_file, options, masks, (overwrite, parents), say)
+    else:
+        with open_map(map_file) as m:
+            waypoints = read_linestring(path_file, m.crs) if path_file else None
+            frames = simulate_flight(m, options, waypoints, progress=say)
     write_images(frames, output)
     if say:
         seconds = frames[-1]["time_s"] if frames else 0.0
         n_obj = sum(len(f["objects"]) for f in frames) / max(len(frames), 1)
         say(f"{len(frames)} frames, {seconds:g} s, {n_obj:.1f} objects per frame -> {output}")
+
+
+def _check_render(render: str, masks: dict, detector: dict) -> None:
+    """Usage errors: the mask options need --render masks, which needs --source and has no use for the centroid
+    detector's errors."""
+    if render != "masks":
+        given = [name for name, value in (("--source", masks["source_file"]), ("--masks-dir", masks["masks_dir"]),
+                                          ("--no-heights", masks["no_heights"]), ("--mask-erode", masks["erode"]),
+                                          ("--mask-dilate", masks["dilate"]), ("--blob-miss-rate", masks["miss"]),
+                                          ("--blob-spurious-rate", masks["spurious"])) if value]
+        if given:
+            raise click.UsageError(f"{', '.join(given)} {'needs' if len(given) == 1 else 'need'} --render masks")
+        return
+    if masks["source_file"] is None:
+        raise click.UsageError("--render masks needs --source EXTRACT.osm.pbf")
+    if masks["erode"] and masks["dilate"]:
+        raise click.UsageError("give --mask-erode or --mask-dilate, not both")
+    used = [name for name, value in detector.items() if value]
+    if used:
+        raise click.UsageError(f"{', '.join(used)} describe the centroid detector; with --render masks use "
+                               "--mask-erode/--mask-dilate, --blob-miss-rate and --blob-spurious-rate")
+
+
+def _masks_flight(map_file, path_file, options: FlightOptions, masks: dict, rule: tuple[bool, bool], say) -> list:
+    """``--render masks``: the outlines read, the flight rendered, the masks folder written whole (when asked)
+    before the frames; ``rule`` is (overwrite, parents)."""
+    from contextlib import nullcontext
+
+    from mapdb.analysis.outputs import output_folder
+    from mapdb.navigation.rendered import FlightRender
+    from mapdb.simulation.outlines import read_scene
+    from mapdb.simulation.rendered import png_bytes, write_masks
+
+    overwrite, parents = rule
+    source = masks["source_file"]
+    folder_rule = (output_folder(masks["masks_dir"], [map_file, source], overwrite=overwrite, parents=parents)
+                   if masks["masks_dir"] else nullcontext(None))
+    with folder_rule as folder, open_map(map_file) as m:
+        waypoints = read_linestring(path_file, m.crs) if path_file else None
+        scene = read_scene(source, m.all(), seed=options.seed)
+        render = FlightRender(scene, str(source), heights=not masks["no_heights"],
+                              mask_offset_px=int(masks["dilate"] - masks["erode"]), blob_miss_rate=masks["miss"],
+                              blob_spurious_rate=masks["spurious"])
+        pngs: list[tuple[str, bytes]] = []
+        keep = (lambda frame_id, mask: pngs.append((f"{frame_id}.png", png_bytes(mask)))) if folder else None
+        frames = simulate_flight(m, options, waypoints, progress=say, render=render, on_mask=keep)
+        if folder is not None:
+            classes = "".join(f'{code + 1} = "{name}"\n' for code, name in enumerate(scene.labels))
+            pngs.append(("classes.toml", f"# mask codes of mapdb simulate flight --render masks\n[classes]\n"
+                                         f"{classes}".encode()))
+            write_masks(pngs, folder)
+    return frames

@@ -17,6 +17,15 @@ Over ``dt`` seconds, with the heading change ``dpsi`` (clockwise) the autopilot 
 The rotation makes a coordinated turn follow the aircraft's own heading, so that a turn flown without any
 measurement (a detector blackout) bends the track as the aircraft did; ``a`` covers the rest.
 
+**Drift since the last fix.**  The velocity measurements are not independent from frame to frame as the
+velocity update treats them: frame-to-frame matching and an inertial unit keep an error for seconds (a
+heading or scale a little off, rooftops moving faster than the ground, an IMU's bias).  Such a bias ``b``
+puts the position ``b tau`` off ``tau`` seconds after the last applied fix, which no velocity update can
+see.  The prediction therefore also spreads the positions so that their variance grows as ``(sigma_b
+tau)^2`` per axis: each step adds ``sigma_b^2 ((tau + dt)^2 - tau^2)``, with ``sigma_b = DRIFT_FLOOR_MPS
++ DRIFT_FRACTION |v|``.  An applied fix (or a new start) sets ``tau`` back to 0, so on a flight fixed
+every frame the spread added is a few centimetres.  The fix gate widens with it (:meth:`update_fix`).
+
 Measurement models
 ------------------
 * **Velocity** (frame to frame, or an inertial unit): ``z_v = v + n``, ``n ~ N(0, R)`` with the 2x2
@@ -71,6 +80,12 @@ MODE_GRID = 256  # at most this many cells across the cloud
 MIN_EFFECTIVE = 50.0
 # Kernel width of the cloud's density at a fix's components, as a fraction of its largest spread (>= 1 m).
 KERNEL_FRACTION = 0.2
+# The velocity error that persists between fixes (module docs, drift): per axis, a floor plus a fraction of
+# the speed.  Measured on rendered-mask flights at 120 m (benchmarks/navigation_masks.py): frame-to-frame
+# velocity biased by up to 0.5 m/s at 20 m/s after the first fix (rooftops), 0.35 m/s before it (a 1 degree
+# heading bias, a 2 m barometer bias at 120 m); 0.1 + 0.03 x 20 = 0.7 m/s covers both.
+DRIFT_FLOOR_MPS = 0.1
+DRIFT_FRACTION = 0.03
 
 
 @dataclass(frozen=True)
@@ -128,6 +143,8 @@ class ParticleFilter:
         self.logw = np.full(n, -math.log(n))
         self.initialised = False
         self.velocity_known = False
+        self.since_fix = 0.0  # seconds since the last applied fix or start (module docs, drift)
+        self.last_dt = 0.0  # the last prediction's step (s)
 
     # ------------------------------------------------------------------------------------- state
 
@@ -147,15 +164,18 @@ class ParticleFilter:
         self.logw = np.full(self.n, -math.log(self.n))
         self.initialised = True
         self.velocity_known = velocity is not None
+        self.since_fix = 0.0
+        self.last_dt = 0.0
 
     def snapshot(self) -> tuple[Any, ...]:
         """The whole state, random generator included, for :meth:`restore` (copies: some updates are in place)."""
         return (self.p.copy(), self.v.copy(), self.logw.copy(), self.initialised, self.velocity_known,
-                self.rng.bit_generator.state)
+                self.since_fix, self.last_dt, self.rng.bit_generator.state)
 
     def restore(self, state: tuple[Any, ...]) -> None:
         """Back to a :meth:`snapshot`: as if the updates since had not happened."""
-        self.p, self.v, self.logw, self.initialised, self.velocity_known, rng_state = state
+        (self.p, self.v, self.logw, self.initialised, self.velocity_known, self.since_fix, self.last_dt,
+         rng_state) = state
         self.rng.bit_generator.state = rng_state
 
     def finite(self) -> bool:
@@ -176,10 +196,21 @@ class ParticleFilter:
         """The motion model over ``dt`` seconds; ``turn_rad`` the heading change (clockwise), if known."""
         if not self.initialised or dt <= 0:
             return
+        self.last_dt = dt
         v_new = self.v * (np.exp(-1j * turn_rad) if turn_rad else 1.0)
         v_new = v_new + self.accel_std * dt * self._normal(self.n)
         self.p = self.p + 0.5 * (self.v + v_new) * dt
         self.v = v_new
+        grown = self.drift_sigma(self.since_fix + dt) ** 2 - self.drift_sigma(self.since_fix) ** 2
+        self.p = self.p + math.sqrt(max(grown, 0.0)) * self._normal(self.n)
+        self.since_fix += dt
+
+    def drift_sigma(self, since: float | None = None) -> float:
+        """Per-axis position error (m) a persistent velocity error gives ``since`` seconds (default: now) after
+        the last applied fix (module docs, drift)."""
+        since = self.since_fix if since is None else since
+        speed = abs(complex(np.sum(self.weights * self.v))) if self.initialised else 0.0
+        return (DRIFT_FLOOR_MPS + DRIFT_FRACTION * speed) * since
 
     # ------------------------------------------------------------------------------ measurements
 
@@ -189,10 +220,14 @@ class ParticleFilter:
             return False
         if not self.velocity_known:
             # The first velocity measured sets the velocities: weighing a broad guess by it would leave
-            # few particles, and little diversity to learn the rest from.
+            # few particles, and little diversity to learn the rest from.  It is the motion over the step
+            # just predicted with the guess (a frame-to-frame velocity is the mean over it), so the positions
+            # move as it says over that step: a start at rest would otherwise lag by one step's flight.
             root = np.linalg.cholesky(cov + 1e-9 * np.eye(2))
             draws = root @ self.rng.standard_normal((2, self.n))
-            self.v = np.asarray(v + draws[0] + 1j * draws[1], np.complex128)
+            v_new = np.asarray(v + draws[0] + 1j * draws[1], np.complex128)
+            self.p = self.p + (v_new - self.v) * self.last_dt
+            self.v = v_new
             self.velocity_known = True
             return True
         w = self.weights
@@ -210,15 +245,17 @@ class ParticleFilter:
     def update_fix(self, components: list[FixComponent], area_m2: float, gate_sigma_m: float = 2.0) -> FixOutcome:
         """Weigh particles by a (multi-modal) fix with an outlier floor (module docs).
 
-        ``gate_sigma_m`` widens the components when deciding whether the fix is an outlier (not when
-        applying it): a cloud a little too confident must not turn away a right fix a metre or two off.
+        ``gate_sigma_m``, combined with the drift since the last applied fix (:meth:`drift_sigma`), widens
+        the components when deciding whether the fix is an outlier (not when applying it): a cloud a
+        little too confident must not turn away a right fix a metre or two off.
         An accepted fix is then applied with the inlier probability the gate found,
         ``w' ∝ w (P_in g / E[g] + 1 - P_in)`` with ``g`` the sharp mixture: recomputing the floor against
         the sharp ``g`` would let a fix 2-3 m from every particle (``g`` far below the floor everywhere)
         pass the gate, be reported used, and change no weight (issue 29).
         """
         w = self.weights
-        inlier = (1.0 - self.beta) * float(np.sum(w * self._mixture(components, gate_sigma_m)))
+        gate = math.hypot(gate_sigma_m, self.drift_sigma())
+        inlier = (1.0 - self.beta) * float(np.sum(w * self._mixture(components, gate)))
         floor = self.beta / max(area_m2, 1.0)
         p_in = inlier / (inlier + floor)
         best = max(components, key=lambda c: c.weight).centre
@@ -237,6 +274,7 @@ class ParticleFilter:
             self._redraw(components, w)
         else:
             self._reweigh(loglik)
+        self.since_fix = 0.0
         return FixOutcome(True, p_in, distance)
 
     def _coverage(self, components: list[FixComponent], w: np.ndarray) -> float:

@@ -28,6 +28,11 @@ Sensor error model (all draws depend only on ``seed`` and the frame number):
 * detector: the simulator's (``pixel_std``, ``miss_rate``, ``spurious_rate``, ``label_noise``); during a
   blackout (``blackouts``: ``(start_s, seconds)`` pairs) a frame has no objects at all.
 
+With ``render`` (:mod:`mapdb.navigation.rendered`, ``mapdb simulate flight --render masks``) each frame's
+objects are the blobs of a label mask rendered from the source's outlines with the frame's own pose, as
+``mapdb objects`` extracts them (``area_px``, ``border``, ``bbox``), with segmentation errors in place of
+the detector's; ``truth.map_index`` is then the map object covering most of each blob (-1 for none).
+
 ``map_gaps`` marks frames during which the navigator must not query the map (the matcher is off), to
 measure how far frame-to-frame velocity alone drifts.
 """
@@ -35,7 +40,7 @@ measure how far frame-to-frame velocity alone drifts.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -50,6 +55,7 @@ from ..simulation.documents import image_document, truth_entry
 from ..simulation.poses import Shot, placement_limits
 from ..simulation.simulate import objects_of_map
 from .path import FlightPath, heading_deg, survey_pattern
+from .rendered import FlightRender, check_coverage, rendered_objects
 
 __all__ = ["DEFAULT_LENGTH_M", "FlightOptions", "in_windows", "simulate_flight"]
 
@@ -179,22 +185,35 @@ def _sensors(rng: np.random.Generator, options: FlightOptions, biases: dict[str,
     return out
 
 
-def _frame(i: int, truth: _Trajectory, options: FlightOptions, objects: Objects, tree: cKDTree,
-           detector: Detector, biases: dict[str, Any], blackout: bool, withheld: bool) -> dict[str, Any]:
-    """Frame ``i``: the camera's objects, the sensors, the truth."""
+# What renders a flight's masks, and what receives each mask (frame id, mask); None: ideal centroids.
+_Render = tuple[FlightRender, Callable[[str, np.ndarray], None] | None] | None
+
+
+def _frame(i: int, truth: _Trajectory, options: FlightOptions, world: tuple[Objects, cKDTree, Detector],
+           biases: dict[str, Any], blackout: bool, withheld: bool, render: _Render) -> dict[str, Any]:
+    """Frame ``i``: the camera's objects (centroids, or blobs of a rendered mask), the sensors, the truth."""
+    objects, tree, detector = world
     rng = np.random.default_rng([options.seed, i])
     wobble = options.turbulence_deg * rng.standard_normal(2)
     camera = Camera(options.size[0], options.size[1], options.fov_deg)
     shot = Shot(float(truth.altitude[i]), camera, float(truth.heading[i]), float(truth.roll[i] + wobble[0]),
                 float(wobble[1]))
     x, y = float(truth.z[i].real), float(truth.z[i].imag)
-    index, u, v = _visible(objects, tree, shot, x, y)
-    n_visible = index.size
-    if blackout:
-        index, u, v, names = index[:0], u[:0], v[:0], np.zeros(0, object)
+    frame_id = f"frame-{i:06d}"
+    if render is not None:
+        doc, index, n_visible, mask = rendered_objects(render[0], shot, x, y, rng, frame_id)
+        if blackout:
+            doc["objects"], index = [], index[:0]
+        if render[1] is not None:
+            render[1](frame_id, mask)
     else:
-        index, u, v, names = detect(rng, objects, index, u, v, camera, detector)
-    doc = image_document(f"frame-{i:06d}", camera, names, u, v)
+        index, u, v = _visible(objects, tree, shot, x, y)
+        n_visible = index.size
+        if blackout:
+            index, u, v, names = index[:0], u[:0], v[:0], np.zeros(0, object)
+        else:
+            index, u, v, names = detect(rng, objects, index, u, v, camera, detector)
+        doc = image_document(frame_id, camera, names, u, v)
     doc = {"id": doc.pop("id"), "time_s": round(float(truth.t[i]), 6), **doc}
     doc.update(_sensors(np.random.default_rng([options.seed, i, 1]), options, biases, shot, complex(truth.velocity[i])))
     if withheld:
@@ -206,7 +225,8 @@ def _frame(i: int, truth: _Trajectory, options: FlightOptions, objects: Objects,
 
 
 def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: np.ndarray | None = None,
-                    progress: ProgressLike = None) -> list[dict[str, Any]]:
+                    progress: ProgressLike = None, render: FlightRender | None = None,
+                    on_mask: Callable[[str, np.ndarray], None] | None = None) -> list[dict[str, Any]]:
     """Frames of a simulated flight over a map (module docs).
 
     Parameters
@@ -219,6 +239,17 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
         survey pattern over the map's densest part (:func:`~mapdb.navigation.path.survey_pattern`).
     progress : Progress or callable, optional
         Counts the frames made.
+    render : FlightRender, optional
+        Each frame's objects extracted from a label mask rendered from these outlines
+        (:mod:`mapdb.navigation.rendered`); by default each visible map object at its projected centroid,
+        with the detector's errors of ``options``.
+    on_mask : callable, optional
+        With ``render``: called with each frame's id and mask (class codes: label code + 1), in order.
+
+    Raises
+    ------
+    SourceError
+        ``render``'s outlines do not cover the map's objects along the flight.
 
     Returns
     -------
@@ -234,6 +265,10 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
     path = FlightPath.from_waypoints(waypoints, options.turn_radius_m)
     length = min(wanted or path.length, path.length)
     truth = _trajectory(path, options, length)
+    if render is not None:
+        altitude = float(np.max(truth.altitude))
+        camera = Camera(options.size[0], options.size[1], options.fov_deg)
+        check_coverage(render, objects, truth.z, altitude * math.hypot(*options.size) / 2.0 / camera.focal_px)
     names, mix = label_mix(counts)
     detector = Detector(options.pixel_std, options.miss_rate, options.spurious_rate, options.label_noise, names, mix)
     tree = cKDTree(np.column_stack([objects.x, objects.y]))
@@ -244,7 +279,8 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
     say.start(truth.t.size, "simulate flight")
     frames = []
     for i in range(truth.t.size):
-        frames.append(_frame(i, truth, options, objects, tree, detector, biases, bool(blackout[i]), bool(withheld[i])))
+        frames.append(_frame(i, truth, options, (objects, tree, detector), biases, bool(blackout[i]),
+                             bool(withheld[i]), None if render is None else (render, on_mask)))
         say.advance()
     say.done()
     return frames

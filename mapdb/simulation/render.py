@@ -108,11 +108,15 @@ def _faces(
     owner = part_of[ring_of[coord_of]]
     z = height[owner]
     ground = np.column_stack(project_points(xy[:, 0], xy[:, 1], 0.0, pose, camera))
-    faces = [shapely.transform(parts, lambda _: ground)]
-    owners = [part_of]
+    # A part with a vertex behind the camera (a banked camera, a roof near its height) has no image polygon:
+    # left out, as the non-finite faces are below (a ring of NaNs is not even closed).
+    ground_ok = _finite_parts(ground, ring_of[coord_of], parts.size)
+    faces = [shapely.transform(parts[ground_ok], lambda _: ground[ground_ok[ring_of[coord_of]]])]
+    owners = [part_of[ground_ok]]
     tall_part = height[part_of] > 0
     if tall_part.any():
         top = np.column_stack(project_points(xy[:, 0], xy[:, 1], z, pose, camera))
+        tall_part &= _finite_parts(top, ring_of[coord_of], parts.size) & ground_ok
         tall_coord = tall_part[ring_of[coord_of]]
         faces.append(shapely.transform(parts[tall_part], lambda _: top[tall_coord]))
         owners.append(part_of[tall_part])
@@ -125,6 +129,12 @@ def _faces(
     all_faces, all_owners = np.concatenate(faces), np.concatenate(owners)
     finite = np.isfinite(shapely.bounds(all_faces)).all(axis=1)
     return all_faces[finite], all_owners[finite]
+
+
+def _finite_parts(image: np.ndarray, part_of_coord: np.ndarray, n: int) -> np.ndarray:
+    """Whether every projected vertex of each of ``n`` parts is finite."""
+    bad = np.bincount(part_of_coord, weights=~np.isfinite(image).all(axis=1), minlength=n)
+    return np.asarray(bad == 0)
 
 
 def _noisy(
