@@ -434,7 +434,12 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     args.workdir.mkdir(parents=True, exist_ok=True)
     extracts = extract_maps()
-    maps = {"Andorra": extracts[0]}
+    # Andorra's map copied into the work directory: its index is built beside it, not in the shared cache
+    # (where another run's index of another format may be).
+    andorra = args.workdir / extracts[0].name
+    if not andorra.exists():
+        shutil.copyfile(extracts[0], andorra)
+    maps = {"Andorra": andorra}
     world_path = {}
     for n in args.worlds:
         for jitter in args.jitter:
