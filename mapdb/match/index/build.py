@@ -90,7 +90,9 @@ def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str]
     output : path, optional
         The index file; default :func:`~mapdb.match.index.layout.index_path` of the map (``MAP.qidx``).
     neighbours : int
-        Neighbours per anchor (``FastOptions.map_neighbours``; 3 to 12).
+        The matcher's neighbours per anchor the index serves (``FastOptions.map_neighbours``; 3 to 12): the
+        quads are each object with the triples of its ``min(neighbours, QUAD_NEIGHBOURS)`` (4) nearest, a
+        subset of the quads of its ``neighbours`` nearest.
     target_occupancy : float
         Other quads expected in a quad's cell: sets each label combination's cell size (the lookup
         radius is clamped to it).  Larger: fewer clamped lookups, more candidates per lookup.
@@ -102,7 +104,8 @@ def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str]
     Returns
     -------
     dict
-        ``output``, ``objects``, ``quads``, ``cells``, ``bytes``, ``seconds``.
+        ``output``, ``objects``, ``quads``, ``cells``, ``max_cell``, ``neighbours``, ``quad_neighbours``,
+        ``bytes``, ``seconds``.
 
     Raises
     ------
@@ -327,7 +330,7 @@ def _write_sorted(b: _Build, combo_keys: np.ndarray, combo_cell: np.ndarray, siz
     with open(b.tmp, "r+b") as out:
         pwrite_all(out.fileno(), crc_table.tobytes(), layout["crc"]["offset"])
         write_header(out.fileno(), header, layout.offset)
-    return {key: summary[key] for key in ("quads", "cells", "max_cell", "neighbours")}
+    return {key: summary[key] for key in ("quads", "cells", "max_cell", "neighbours", "quad_neighbours")}
 
 
 def _write_quads(b: _Build, layout: SectionPlan, record: tuple[int, int, int],

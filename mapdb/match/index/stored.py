@@ -1,13 +1,14 @@
 """A disk-backed lost-in-space quad index: built in bounded memory, opened in milliseconds, memory-mapped.
 
 The whole-map :class:`~mapdb.match.quads.QuadIndex` keeps every quad's complex coordinates and labels and
-a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds the same
-quads (:func:`~mapdb.match.quads.neighbour_quads` with the same number of neighbours, the same canonical
-order and invariants from :func:`~mapdb.match.quads.canonical_quads`) in a sidecar file ``MAP.qidx``
-beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the format is in ``docs/index_format.md``.
+a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds a tenth of
+those quads, each object's closest (:func:`~mapdb.match.quads.neighbour_quads` of its 4 nearest, the same
+canonical order and invariants from :func:`~mapdb.match.quads.canonical_quads`), packed into about 30 bytes
+an object, in a sidecar file ``MAP.qidx`` beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the
+format (version 3) is in ``docs/index_format.md``.
 
 How it works (``docs/index_format.md`` in full)
-    A quad is an anchor object and a triple of its ``K`` nearest neighbours, filed by its label combination
+    A quad is an anchor object and a triple of its 4 nearest neighbours, filed by its label combination
     and the cell of its invariants (side ``c`` per combination) with its position inside the cell; a
     lookup reads the cells its ball reaches and recomputes the candidates the positions do not rule out.
     **The lookup radius is clamped to the cell size** (:meth:`StoredQuadIndex.cell_size`): where ``c`` is
@@ -23,11 +24,13 @@ Safety
     its map, each map page's coordinates against the page's box, and each resolved quad (with a few the
     bounds dropped, and each label combination's first cell) against the cell it was found in.
 
-The code is in five modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
-prefix, header, sections, cell keys), :mod:`~mapdb.match.index.build` (:func:`build_index`, the external
-sort), :mod:`~mapdb.match.index.generate` (neighbours, quads, cells) and :mod:`~mapdb.match.index.lookup`
-(checked sections, the cells and candidates of a lookup), :mod:`~mapdb.match.index.binding` (the index
-checked against its map).
+The code is in the modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
+prefix, header, sections, cell keys), :mod:`~mapdb.match.index.packed` (the packed codes),
+:mod:`~mapdb.match.index.build` (:func:`build_index`, the external sort; :mod:`~mapdb.match.index.sections`),
+:mod:`~mapdb.match.index.generate` (neighbours, quads, cells), :mod:`~mapdb.match.index.lookup` (checked
+sections, the cells and candidates of a lookup), :mod:`~mapdb.match.index.directory` (the cell directory and
+the neighbours, decoded as lookups reach them), :mod:`~mapdb.match.index.binding` (the index checked against
+its map).
 """
 
 from __future__ import annotations
@@ -94,7 +97,7 @@ class StoredQuadIndex:
     labels : tuple of str
         The map's label names: label codes in lookups index into them.
     neighbours : int
-        Neighbours per anchor the quads were built with.
+        The matcher's neighbours per anchor the index serves (its quads are of each object's 4 nearest).
     n_objects, n_quads, n_cells : int
     quantum : float
     """
