@@ -126,3 +126,18 @@ def test_take_rows_matches_fancy_indexing() -> None:
     assert np.array_equal(take_rows(a, index), a[index])
     assert np.array_equal(take_rows(a[:, :2], index), a[:, :2][index])  # not contiguous: numpy's own
     assert take_rows(a, np.zeros(0, np.int64)).shape == (0, 4)
+
+
+def test_directory_pages_packed_in_groups_are_the_same_bytes(monkeypatch) -> None:
+    from mapdb.match.index import packed
+
+    rng = np.random.default_rng(11)
+    combos, sides = np.array([3, 9]), np.array([0.1, 0.011])
+    lk = np.sort(rng.choice(combos, 3000))
+    cells = (rng.uniform(0, 1, (lk.size, 4)) * 20).astype(np.int64)
+    keys = np.unique(cell_keys(lk, cells, BITS))
+    counts = rng.integers(1, 30, keys.size)
+    whole = directory_pages(keys, counts, combos, sides, BITS)
+    monkeypatch.setattr(packed, "_PAGES_AT_ONCE", 3)
+    grouped = directory_pages(keys, counts, combos, sides, BITS)
+    assert whole[1].shape[0] > 10 and all(np.array_equal(a, b) for a, b in zip(whole, grouped, strict=True))

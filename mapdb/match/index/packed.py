@@ -28,6 +28,7 @@ __all__ = ["NB_BLOCK", "PAGE_CELLS", "PAD", "cells_of_dense", "dense_cells", "de
 NB_BLOCK = 64  # objects whose neighbours share one bit width
 PAGE_CELLS = 64  # cells of a directory page (the fence, in memory, holds one row a page)
 PAD = 8  # zero bytes after every bit-packed section (the codec's reader reads 8-byte windows)
+_PAGES_AT_ONCE = 2048  # directory pages packed at once (about 130k cells: some 50 MB of bit arrays)
 
 
 def record_layout(n_objects: int, n_triples: int) -> tuple[int, int, int]:
@@ -199,7 +200,13 @@ def directory_pages(keys: np.ndarray, counts: np.ndarray, combos: np.ndarray, ce
     per = -(-run // PAGE_CELLS)
     first = np.repeat(new_combo, per) + (np.arange(int(per.sum())) - np.repeat(np.cumsum(per) - per, per)) * PAGE_CELLS
     page_first = np.append(first, keys.size).astype(np.int64)
-    data, lengths = pack_pages(dense, counts, page_first)
+    # Pages are whole bytes each: packed a few thousand at a time (the bit arrays take 8 bytes a bit).
+    parts = [pack_pages(dense[page_first[p] : page_first[min(p + _PAGES_AT_ONCE, first.size)]],
+                        counts[page_first[p] : page_first[min(p + _PAGES_AT_ONCE, first.size)]],
+                        page_first[p : p + _PAGES_AT_ONCE + 1] - page_first[p])
+             for p in range(0, first.size, _PAGES_AT_ONCE)]
+    data = np.concatenate([d for d, _ in parts]) if parts else np.zeros(0, np.uint8)
+    lengths = np.concatenate([n for _, n in parts]) if parts else np.zeros(0, np.int64)
     starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     fence = np.zeros((first.size + 1, 4), "<u8")
     fence[:, 0] = np.append(keys[first], np.uint64(2**64 - 1))

@@ -18,7 +18,7 @@ from .packed import NB_BLOCK, PAD, pack_neighbours
 
 __all__ = ["write_directory", "write_neighbours"]
 
-_NB_STEP = NB_BLOCK * 4096  # objects whose neighbours are packed at once (bounds the bit arrays' memory)
+_NB_STEP = NB_BLOCK * 1024  # objects whose neighbours are packed at once (bit arrays: some 40 MB)
 
 
 def write_neighbours(out_path: str | os.PathLike[str], work: Path, layout: SectionPlan, coords: np.ndarray,
