@@ -40,8 +40,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import resource
+import shutil
 import statistics
+import struct
 import subprocess
 import sys
 import tempfile
@@ -53,8 +56,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import synthetic_world as _world  # noqa: E402
 from _baseline import as_json, import_baseline  # noqa: E402
-from synthetic_world import DATA, extract_maps, synthetic_world  # noqa: E402
+from synthetic_world import extract_maps, synthetic_world  # noqa: E402
 
 from mapdb.camera import image_plane  # noqa: E402
 from mapdb.mapfile.reader import open_map  # noqa: E402
@@ -150,7 +154,7 @@ def _stored_lookups(map_path: Path, images: list[dict]) -> dict:
     return result
 
 
-def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Path] | None = None) -> dict:
+def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Path, Path] | None = None) -> dict:
     """Whole lost-in-space answers (``Localizer.localize``, no prior) with the map's stored index, per image.
 
     What a user meets, lookups, verification, decision and refinement together.  The map's whole-map
@@ -158,17 +162,21 @@ def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Pat
     once, before the timing (``index_s``); then each image is localized once (``first_ms``: the index
     blocks it needs read and checksummed the first time), and ``REPEATS`` more passes of which each
     image keeps its fastest (``ms``, the steady state of a long-running process).  ``ok``: images
-    accepted; ``wrong``: accepted more than 5 m from the truth.  With ``baseline`` (a revision and the
-    work directory :func:`_baseline.import_baseline` extracts it into), that revision's localizer answers
-    each image right after this tree's, with its own indexes: ``baseline_cpu_ms``, ``baseline_ok`` and
+    accepted; ``wrong``: accepted more than 5 m from the truth.  With ``baseline`` (a revision, the
+    work directory :func:`_baseline.import_baseline` extracts it into, and the map beside which that revision's
+    own index was built), that revision's localizer answers each image right after this tree's, with its own
+    indexes: ``baseline_cpu_ms``, ``baseline_ms``, ``baseline_ok``, ``baseline_within_2m`` and
     ``baseline_wrong``, and ``same``, the images both answered alike.
     """
     from mapdb.localize.localizer import Localizer, StoredQuads
 
     versions = {"tree": (Localizer, open_map)}
+    paths = {"tree": map_path}
     if baseline is not None:
-        versions["baseline"] = (import_baseline(*baseline).Localizer, import_baseline(*baseline, "store").open_map)
-    maps = {name: open_map_(map_path) for name, (_, open_map_) in versions.items()}
+        versions["baseline"] = (import_baseline(*baseline[:2]).Localizer,
+                                import_baseline(*baseline[:2], "store").open_map)
+        paths["baseline"] = baseline[2]
+    maps = {name: open_map_(paths[name]) for name, (_, open_map_) in versions.items()}
     try:
         locs = {name: make(maps[name]) for name, (make, _) in versions.items()}
         start = time.perf_counter()
@@ -205,7 +213,9 @@ def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Pat
         error = [math.hypot(a["x"] - im["truth"]["x"], a["y"] - im["truth"]["y"])
                  for a, im in zip(answers[name], images) if a["status"] == "ok"]
         result.update({prefix + "cpu_ms": np.min(cpu[name][1:], axis=0).tolist(), prefix + "ok": len(error),
-                       prefix + "wrong": sum(e > 5.0 for e in error)})
+                       prefix + "wrong": sum(e > 5.0 for e in error),
+                       prefix + "within_2m": sum(e <= 2.0 for e in error),
+                       prefix + "ms": np.min(passes[name][1:], axis=0).tolist()})
     result["answers"] = [[a["status"], a.get("x"), a.get("y")] for a in answers["tree"]]
     if "baseline" in answers:
         result["same"] = sum(a["status"] == b["status"] and a.get("x") == b.get("x") and a.get("y") == b.get("y")
@@ -323,7 +333,13 @@ def _child(code: str, *args: str) -> dict:
 
 BUILD = """
 import json, sys
-from mapdb.match.index.stored import build_index
+from pathlib import Path
+sys.path.insert(0, "benchmarks")
+if len(sys.argv) > 3:  # a baseline revision's build_index, imported as mapdb_baseline
+    from _baseline import import_baseline
+    build_index = import_baseline(sys.argv[3], Path(sys.argv[4]), "match.index.stored").build_index
+else:
+    from mapdb.match.index.stored import build_index
 print(json.dumps(build_index(sys.argv[1], workers=int(sys.argv[2]))))
 """
 
@@ -370,7 +386,7 @@ if sys.argv[3]:  # a baseline revision, imported as mapdb_baseline
     import_baseline(sys.argv[3], Path(sys.argv[4]))
     package = "mapdb_baseline"
 Localizer = importlib.import_module(package + ".localize").Localizer
-index_path = importlib.import_module(package + ".match.stored_index").index_path
+index_path = importlib.import_module(package + ".match.index.layout").index_path
 open_map = importlib.import_module(package + ".store").open_map
 image = json.loads(sys.argv[2])
 """ + DROP_CACHE + """t1 = time.perf_counter()
@@ -411,12 +427,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--first-answers", type=int, default=FIRST_ANSWERS,
                         help="fresh processes (one image each) timed for the first answer")
     args = parser.parse_args(argv)
-    if not DATA.is_dir():
-        print(f"no shared data at {DATA}: nothing to measure", file=sys.stderr)
+    if not _world.DATA.is_dir():  # a worktree beside the repository: the shared data's absolute place
+        _world.DATA = Path("/work/shared/data/osm")
+    if not _world.DATA.is_dir():
+        print(f"no shared data at {_world.DATA}: nothing to measure", file=sys.stderr)
         return 1
     args.workdir.mkdir(parents=True, exist_ok=True)
     extracts = extract_maps()
-    maps = {"Andorra": extracts[0]}
+    # Andorra's map copied into the work directory: its index is built beside it, not in the shared cache
+    # (where another run's index of another format may be).
+    andorra = args.workdir / extracts[0].name
+    if not andorra.exists():
+        shutil.copyfile(extracts[0], andorra)
+    maps = {"Andorra": andorra}
     world_path = {}
     for n in args.worlds:
         for jitter in args.jitter:
@@ -428,17 +451,27 @@ def main(argv: list[str] | None = None) -> int:
             maps[f"world {n / 1e6:g}M" + (f" jitter {jitter:g} m" if jitter else "")] = path
             world_path.setdefault(n, path)
 
-    rows, whole = [], []
+    rows, whole, index_rows = [], [], []
     for name, path in maps.items():
         with open_map(path) as m:
             n_objects, map_bytes = len(m), path.stat().st_size
-        if args.lookups_only:
-            from mapdb.match.index.stored import index_path, open_index
-
-            with open_index(index_path(path)) as ix:
-                build = {"quads": ix.n_quads, "bytes": index_path(path).stat().st_size}
-        else:
-            build = _child(BUILD, str(path), str(args.workers))
+        # With a baseline, its own index beside a link to the same map (this tree's may be another format);
+        # the two builds in alternating order, map by map.
+        base_path = _baseline_map(path, args.workdir) if args.baseline else None
+        builds = {}
+        for who in (("tree", "baseline") if len(rows) % 2 == 0 else ("baseline", "tree")):
+            if who == "baseline" and base_path is None:
+                continue
+            target = path if who == "tree" else base_path
+            if args.lookups_only:
+                builds[who] = _index_facts(target)
+            else:
+                extra = () if who == "tree" else (args.baseline, str(args.workdir))
+                builds[who] = _child(BUILD, str(target), str(args.workers), *extra)
+            builds[who]["bytes"] = Path(str(target) + ".qidx").stat().st_size
+        build = builds["tree"]
+        if base_path is not None:
+            index_rows.append((name, n_objects, builds["tree"], builds["baseline"]))
         images = _images(path, args.images, args.seed)
         first = _child(OPEN, str(path), json.dumps(images[0]))
         # With a baseline, the two versions' processes alternate image by image (the same load on both).
@@ -446,10 +479,10 @@ def main(argv: list[str] | None = None) -> int:
         for image in images[:args.first_answers]:
             first_answers.append(_child(FIRST_ANSWER, str(path), json.dumps(image), "", "")["open_to_answer_s"])
             if args.baseline:
-                first_baseline.append(_child(FIRST_ANSWER, str(path), json.dumps(image), args.baseline,
+                first_baseline.append(_child(FIRST_ANSWER, str(base_path), json.dumps(image), args.baseline,
                                              str(args.workdir))["open_to_answer_s"])
         look = _stored_lookups(path, images)
-        located = _localize_times(path, images, (args.baseline, args.workdir) if args.baseline else None)
+        located = _localize_times(path, images, (args.baseline, args.workdir, base_path) if base_path else None)
         located["first_answer_s"] = statistics.median(first_answers)
         located["first_answer_max_s"] = max(first_answers)
         located["first_answers_s"] = first_answers
@@ -504,25 +537,70 @@ def main(argv: list[str] | None = None) -> int:
           " queries: lookups per image, hits: per image; true"
           " found: image quads of real objects whose true map quad is among the hits")
     _whole_table(whole)
+    _index_table(index_rows, args.baseline)
     return 0
+
+
+def _baseline_map(path: Path, workdir: Path) -> Path:
+    """A hard link to the map (a copy where links fail) in ``workdir/baseline-maps``, for the baseline's index."""
+    base = workdir / "baseline-maps" / path.name
+    base.parent.mkdir(parents=True, exist_ok=True)
+    if base.exists() and base.stat().st_ino != path.stat().st_ino:
+        base.unlink()
+    if not base.exists():
+        try:
+            os.link(path, base)
+        except OSError:
+            shutil.copyfile(path, base)
+    return base
+
+
+def _index_facts(map_path: Path) -> dict:
+    """Quads of an index already built (any format version: its JSON header read from the prefix)."""
+    with open(str(map_path) + ".qidx", "rb") as f:
+        _, _, _, h_off, h_len, _ = struct.unpack("<8sHHQII", f.read(28))
+        f.seek(h_off)
+        return {"quads": json.loads(f.read(h_len))["quads"]}
+
+
+def _index_table(rows: list, baseline: str | None) -> None:
+    """This tree's index beside the baseline's, map by map: size, quads, build time and memory."""
+    if not rows:
+        return
+    print(f"\n{'index (this tree / ' + str(baseline) + ')':<40} {'B/obj':>13} {'quads/obj':>13} {'build s':>15}"
+          f" {'PSS MB':>13} {'RSS MB':>13}")
+    def pair(tree: dict, base: dict, key: str, scale: float = 1.0, fmt: str = ".1f") -> str:
+        a, b = tree.get(key, math.nan) * scale, base.get(key, math.nan) * scale
+        return f"{a:{fmt}} / {b:{fmt}}"
+
+    for name, n, tree, base in rows:
+        print(f"{name:<40} {pair(tree, base, 'bytes', 1 / n):>13} {pair(tree, base, 'quads', 1 / n):>13}"
+              f" {pair(tree, base, 'wall_s'):>15} {pair(tree, base, 'peak_pss_mb', fmt='.0f'):>13}"
+              f" {pair(tree, base, 'peak_rss_mb', fmt='.0f'):>13}")
+    print("B/obj: index file bytes an object; build: wall time and peak memory of the building process and its"
+          " workers (a child process each, this tree's and the baseline's in alternating order)")
 
 
 def _whole_table(whole: list[tuple[str, dict]]) -> None:
     """The table of whole lost-in-space answers per image (``_localize_times``), with ratios to the first map's."""
-    print(f"\n{'map':<28} {'ok':>7} {'wrong':>5} {'indexes s':>9} {'1st answer s (max)':>18} {'1st pass ms':>11}"
-          f" {'localize ms':>11} {'p95 ms':>7} {'CPU ms':>7} {'x first map':>11} {'x (1st pass)':>12}")
+    print(f"\n{'map':<28} {'ok':>7} {'<=2 m':>5} {'wrong':>5} {'indexes s':>9} {'1st answer s (max)':>18}"
+          f" {'1st pass ms':>11} {'localize ms':>11} {'p95 ms':>7} {'p99 ms':>7} {'CPU ms':>7} {'x first map':>11}"
+          f" {'x (1st pass)':>12}")
     ref = whole[0][1] if whole else None
     for name, r in whole:
         ratio = statistics.median(r["ms"]) / statistics.median(ref["ms"])
         ratio_first = statistics.median(r["first_ms"]) / statistics.median(ref["first_ms"])
-        print(f"{name:<28} {r['ok']:>3}/{r['images']:<3} {r['wrong']:>5} {r['index_s']:>9.2f}"
+        print(f"{name:<28} {r['ok']:>3}/{r['images']:<3} {r['within_2m']:>5} {r['wrong']:>5} {r['index_s']:>9.2f}"
               f" {r['first_answer_s']:>11.2f} ({r['first_answer_max_s']:4.2f})"
               f" {statistics.median(r['first_ms']):>11.2f}"
               f" {statistics.median(r['ms']):>11.2f} {np.percentile(r['ms'], 95):>7.2f}"
+              f" {np.percentile(r['ms'], 99):>7.2f}"
               f" {statistics.median(r['cpu_ms']):>7.2f} {ratio:>10.2f}x {ratio_first:>11.2f}x")
         if "baseline_cpu_ms" in r:
-            print(f"{'  baseline, same images':<28} {r['baseline_ok']:>3}/{r['images']:<3} {r['baseline_wrong']:>5}"
-                  f" {'':>31} {'':>11} {'':>7} {statistics.median(r['baseline_cpu_ms']):>7.2f}"
+            print(f"{'  baseline, same images':<28} {r['baseline_ok']:>3}/{r['images']:<3}"
+                  f" {r['baseline_within_2m']:>5} {r['baseline_wrong']:>5} {'':>28} {'':>11}"
+                  f" {statistics.median(r['baseline_ms']):>11.2f} {np.percentile(r['baseline_ms'], 95):>7.2f}"
+                  f" {np.percentile(r['baseline_ms'], 99):>7.2f} {statistics.median(r['baseline_cpu_ms']):>7.2f}"
                   f"   this tree: {statistics.median(r['cpu_ms']) / statistics.median(r['baseline_cpu_ms']):.2f}x"
                   f" the baseline's CPU time, {r['same']}/{r['images']} answers the same")
     if ref is not None and len(whole) > 1:

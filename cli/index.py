@@ -19,7 +19,8 @@ from .options import (
 @click.argument("map_file", metavar="MAP", type=click.Path())
 @click.option("-o", "--output", type=click.Path(), help="Index file [default: MAP.qidx, beside the map].")
 @click.option("--neighbours", default=8, show_default=True, type=click.IntRange(3, 12),
-              help="Neighbours per object in the quads (the fast matcher's map_neighbours).")
+              help="The fast matcher's map_neighbours the index serves (its quads are each object's with "
+                   "triples of its 4 nearest, a subset of these).")
 @click.option("--workers", type=click.IntRange(1, 64), help="Processes generating quads [default: up to 2].")
 @overwrite_option
 @json_option
@@ -43,6 +44,7 @@ def index(map_file, output, neighbours, workers, overwrite, as_json, quiet, debu
     if as_json:
         click.echo(dumps_strict(summary))
         return
-    click.echo(f"{target}: {summary['quads']} quads of {summary['objects']} objects ({summary['neighbours']} "
-               f"neighbours), {summary['cells']} cells, {summary['bytes']} bytes "
+    click.echo(f"{target}: {summary['quads']} quads of {summary['objects']} objects (of each object's "
+               f"{summary['quad_neighbours']} nearest, for {summary['neighbours']} neighbours), {summary['cells']} "
+               f"cells, {summary['bytes']} bytes "
                f"({summary['bytes'] / max(summary['objects'], 1):.0f} bytes/object), {summary['seconds']:.1f} s")

@@ -90,7 +90,14 @@ def setup(tmp_path_factory):
     assert memory.exit_code == 0 and genuine.exit_code == 0 and genuine.stderr == ""
     answers = _answers(memory.stdout)
     assert [a["status"] for a in answers] == ["ok"] * N_IMAGES  # every image is answered in memory...
-    assert _answers(genuine.stdout) == answers  # ... and with the genuine index, identically
+    # ... and with the genuine index at the same poses, but for an image its fewer quads (each object's closest:
+    # a tenth of the in-memory search's) leave without a hypothesis: 7 of these 8.  (Scores differ: they count
+    # the hypotheses tried.)
+    indexed = _answers(genuine.stdout)
+    assert sum(a["status"] == "ok" for a in indexed) >= N_IMAGES - 1
+    pose = ("x", "y", "heading_deg", "inliers", "scale_m_per_px")
+    assert all([a[f] for f in pose] == [b[f] for f in pose] for a, b in zip(indexed, answers, strict=True)
+               if a["status"] == "ok")
     return map_path, images_path, root, answers
 
 
@@ -153,6 +160,14 @@ def _permuted_in_page(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _bits_set(a: np.ndarray, byte, mask) -> np.ndarray:
+    """Quad records with the bytes ``byte`` masked by ``mask`` (permuted among records for None)."""
+    a = a.copy()
+    assert a.shape[1] == 4  # 1500 objects: 11-bit anchors, 2-bit triples, four 4-bit positions
+    a[:, byte] = _permuted(a[:, byte]) if mask is None else a[:, byte] & mask
+    return a
+
+
 def _one_moved(a: np.ndarray) -> np.ndarray:
     a = a.copy()
     i = int(np.argmax(a[:90, 0] < a[:90, 0].max()))  # an object of page 0 that can move right inside its box
@@ -179,20 +194,24 @@ HEADER_CASES = {
     "quads": _set("quads", value=lambda q: q - 1),
     "cells": _set("cells", value=lambda d: d + 1),
     "max cell": _set("max_cell", value=1),
-    "neighbours": _set("neighbours", value=7),
+    "quad neighbours": _set("quad_neighbours", value=3),
     "key cell bits": _set("key_cell_bits", value=lambda b: b - 1),
-    "sub cells": _set("sub_cells", value=128),
+    "sub bits": _set("sub_bits", value=lambda b: b + 1),
+    "record bytes": _set("record_bytes", value=lambda b: b + 1),
+    "pages": _set("pages", value=lambda p: p - 1),
+    "directory bytes": _set("dir_bytes", value=lambda b: b + 64),
+    "neighbour bytes": _set("nb_bytes", value=lambda b: b - 1),
     "block size": _set("block_size", value=8192),
     "combos empty": _set("combos", value=[]),
     "combos one dropped": _set("combos", value=lambda c: c[1:]),  # four buildings: the commonest
     "cell sides halved": _set("combos", value=lambda c: [[k, s / 2] for k, s in c]),
     "cell sides doubled": _set("combos", value=lambda c: [[k, min(0.5, s * 2 ** 0.5)] for k, s in c]),
     "cell side off the ladder": _set("combos", value=lambda c: [[c[0][0], 0.3], *c[1:]]),
-    "anchor offset": _set("sections", "anchor", "offset", value=lambda o: o + 4096),
+    "quads offset": _set("sections", "quads", "offset", value=lambda o: o + 64),
     "coords offset": _set("sections", "coords", "offset", value=lambda o: o + 4096),
-    "anchor first block": _set("sections", "anchor", "first_block", value=lambda b: b + 1),
+    "quads first block": _set("sections", "quads", "first_block", value=lambda b: b + 1),
     "crc table crc": _set("crc_crc32", value=lambda c: c ^ 1),
-    "format version 3 in the header": _set("format_version", value=3),
+    "format version 4 in the header": _set("format_version", value=4),
     "sections gone": _set("sections", value={}),
 }
 
@@ -204,14 +223,16 @@ SECTION_CASES = {
     "coords zeroed": ("coords", np.zeros_like),
     "coords scaled": ("coords", lambda a: a // 2),
     "one object moved a quantum": ("coords", _one_moved),
-    "neighbours permuted": ("neighbours", _permuted),
-    "neighbours zeroed": ("neighbours", np.zeros_like),
-    "anchor permuted": ("anchor", _permuted),
-    "triple zeroed": ("triple", np.zeros_like),
-    "sub zeroed": ("sub", np.zeros_like),
-    "sub permuted": ("sub", _permuted),
-    "dir key permuted": ("dir_key", _permuted),
-    "dir start shifted": ("dir_start", lambda a: np.concatenate([[0], a[2:], [a[-1]]])),
+    "neighbours permuted": ("nb_data", _permuted),
+    "neighbours zeroed": ("nb_data", np.zeros_like),
+    "neighbour widths": ("nb_width", lambda a: a + 1),
+    "neighbour blocks shifted": ("nb_start", lambda a: np.concatenate([[0], a[2:], [a[-1]]])),
+    "anchor permuted": ("quads", _permuted),  # whole records: each quad filed under another's key
+    "triple zeroed": ("quads", lambda a: _bits_set(a, 2, 0xFC)),  # (4-byte records: 4 positions of 4 bits first)
+    "sub zeroed": ("quads", lambda a: _bits_set(a, slice(0, 2), 0)),
+    "sub permuted": ("quads", lambda a: _bits_set(a, slice(0, 2), None)),
+    "dir data permuted": ("dir_data", _permuted),
+    "dir starts shifted": ("fence", lambda a: np.column_stack([a[:, :2], np.r_[0, a[2:, 2], a[-1, 2]], a[:, 3]])),
     "fence zeroed": ("fence", np.zeros_like),
 }
 
@@ -219,7 +240,8 @@ SECTION_CASES = {
 # The default run forges the cases of issue 28's table (N5, N7); the rest of the matrix is marked slow (each
 # case is a whole query, about 0.3 s of CPU).
 DEFAULT_CASES = {"origin shifted", "origin 1e30 (N7)", "quantum doubled", "combos empty", "cell sides halved",
-                 "coords shifted", "coords permuted", "coords permuted in a page", "coords zeroed", "sub zeroed"}
+                 "coords shifted", "coords permuted", "coords permuted in a page", "coords zeroed", "sub zeroed",
+                 "neighbours permuted", "anchor permuted", "dir data permuted"}
 
 
 def _cases(cases: dict) -> list:
@@ -265,6 +287,13 @@ def test_forged_section_content_makes_the_query_search_in_memory(setup, case) ->
 def test_an_index_of_format_version_1_is_not_read(setup) -> None:
     result = _run_forged(setup, header=_set("format_version", value=1), version=1)
     _fallback(setup, result, "version 1", "rebuild with mapdb index")
+
+
+def test_an_index_of_format_version_2_is_not_read(setup) -> None:
+    # Version 2 (anchor, triple and sub arrays, 428 bytes an object) is refused, not converted: rebuilding
+    # takes a minute for a million objects, and an index is derived data.
+    result = _run_forged(setup, header=_set("format_version", value=2), version=2)
+    _fallback(setup, result, "version 2", "rebuild with mapdb index")
 
 
 @pytest.mark.parametrize("cut", [0, "half", *(pytest.param(c, marks=pytest.mark.slow) for c in (31, 4096, -1))])
@@ -346,7 +375,9 @@ def test_the_reader_bound_to_its_map_refuses_forged_sections_at_lookup(setup, ca
             objects = m.all()
             with pytest.raises(MapFormatError) as exc:
                 _lookup_stored_quads(ix, root, objects)
-        _one_line(exc, "index of another map or damaged")
+        _one_line(exc)
+        # Packed neighbours shuffled decode to ids out of range, or to quads filed elsewhere.
+        assert "index of another map or damaged" in str(exc.value) or "file is corrupt" in str(exc.value)
     finally:
         target.unlink()
 

@@ -35,11 +35,11 @@ import numpy as np
 from ...errors import MapFormatError, open_regular, reading
 from ...mapfile.layout import MAGIC as MAP_MAGIC
 from ...mapfile.reader import MetaMap
-from .layout import FENCE, cell_keys, cells_of
+from .layout import cell_keys, cells_of
 from .lookup import Section
 
-__all__ = ["IDENTITY_KEYS", "PageBoxes", "check_filed", "check_identity", "check_positions", "first_cells",
-           "map_identity", "mismatch"]
+__all__ = ["IDENTITY_KEYS", "PageBoxes", "check_filed", "check_identity", "check_positions", "map_identity",
+           "mismatch"]
 
 _MAP_PREFIX = struct.Struct("<8sHHI")  # the map file's own prefix (mapdb.mapfile.layout), for its header CRC
 # What the header's ``map`` section holds, in the order checked (the cheapest and most telling first).
@@ -131,43 +131,22 @@ class PageBoxes:
         self.checked[todo] = True
 
 
-def check_filed(inv: np.ndarray, key: np.ndarray, sub: np.ndarray, cell: np.ndarray, bits: int,
+def check_filed(inv: np.ndarray, key: np.ndarray, sub: np.ndarray, cell: np.ndarray, bits: int, sub_bits: int,
                 where: str) -> None:
     """Refuse unless each resolved quad lies in the cell it was found in, at its stored place inside it.
 
     ``inv`` are the quads' invariants recomputed from the index's coordinates (bit for bit the writer's
     for a genuine index), ``key`` the cells' keys, ``sub`` the stored positions inside them and ``cell``
-    the cell sides (of each quad's label combination).
+    the cell sides (of each quad's label combination); positions are in 1/``2 ** sub_bits`` of a cell.
     """
     if not key.size:
         return
     with np.errstate(all="ignore"):  # forged coordinates can make degenerate quads: NaN, refused below
-        cells, mine = cells_of(inv, cell)
+        cells, mine = cells_of(inv, cell, 1 << sub_bits)
         lk = (key >> np.uint64(4 * bits)).astype(np.int64)
         ok = np.isfinite(inv).all(axis=1) & (cell_keys(lk, cells, bits) == key) & (mine == sub).all(axis=1)
     if not ok.all():
         raise mismatch(where, "a quad recomputed from its objects is not where the index files it")
-
-
-def first_cells(fence: np.ndarray, dir_key: Section, n_cells: int, lk: np.ndarray, bits: int,
-                where: str) -> np.ndarray:
-    """Directory positions of the first cell of each label combination ``lk`` (int64, of the header's ``combos``).
-
-    The fence names the page where a combination's keys begin; its first key is on that page or is the next
-    page's first.  A combination the header lists but the directory has no cell of is refused: a writer
-    lists only the combinations its quads have.
-    """
-    first = lk.astype(np.uint64) << np.uint64(4 * bits)
-    lo = np.maximum(np.searchsorted(fence, first, side="right") - 1, 0) * FENCE
-    hi = np.minimum(lo + FENCE + 1, n_cells)
-    dir_key.check_ranges(lo, hi)
-    at = np.array([a + np.searchsorted(dir_key.array[a:b], f) for a, b, f in zip(lo.tolist(), hi.tolist(), first,
-                                                                                  strict=True)], np.int64)
-    ok = at < n_cells
-    ok[ok] = (dir_key.array[at[ok]] >> np.uint64(4 * bits)) == first[ok] >> np.uint64(4 * bits)
-    if not ok.all():
-        raise mismatch(where, "its header lists a label combination its directory has no cell of")
-    return at
 
 
 def check_positions(coordinates: np.ndarray, x: np.ndarray, y: np.ndarray, where: str, map_path: Any) -> None:

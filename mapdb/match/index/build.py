@@ -35,21 +35,21 @@ from .binding import map_identity
 from .generate import RECORD, SHARED, cell_for, choose_cells, chunk_records, neighbour_table, sample_quads
 from .layout import (
     BLOCK,
-    FENCE,
     FORMAT_NAME,
     INDEX_VERSION,
     MAX_NEIGHBOURS,
-    SUB_CELLS,
+    QUAD_NEIGHBOURS,
     SectionPlan,
     cell_keys,
     cells_of,
     index_path,
     key_layout,
     pwrite_all,
-    start_dtype,
     triples,
     write_header,
 )
+from .packed import NB_BLOCK, PAGE_CELLS, directory_pages, pack_records, record_layout
+from .sections import write_directory, write_neighbours
 
 __all__ = ["build_index"]
 
@@ -62,9 +62,10 @@ class _Build:
     """What the steps of one build share: the map's arrays, the key layout, where to write, how."""
 
     n: int  # objects
-    k: int  # neighbours per anchor (below 3: no quads)
+    k: int  # the matcher's neighbours per anchor the quads serve (below 3: no quads)
+    ku: int  # nearest neighbours the quads are drawn from (at most k)
     coords: np.ndarray  # (n, 2) int32 quanta relative to origin
-    table: np.ndarray  # (n, k) uint32 neighbour ids
+    table: np.ndarray  # (n, ku) uint32 neighbour ids
     identity: dict[str, Any]
     origin: tuple[int, int]
     label_bits: int
@@ -89,7 +90,9 @@ def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str]
     output : path, optional
         The index file; default :func:`~mapdb.match.index.layout.index_path` of the map (``MAP.qidx``).
     neighbours : int
-        Neighbours per anchor (``FastOptions.map_neighbours``; 3 to 12).
+        The matcher's neighbours per anchor the index serves (``FastOptions.map_neighbours``; 3 to 12): the
+        quads are each object with the triples of its ``min(neighbours, QUAD_NEIGHBOURS)`` (4) nearest, a
+        subset of the quads of its ``neighbours`` nearest.
     target_occupancy : float
         Other quads expected in a quad's cell: sets each label combination's cell size (the lookup
         radius is clamped to it).  Larger: fewer clamped lookups, more candidates per lookup.
@@ -101,7 +104,8 @@ def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str]
     Returns
     -------
     dict
-        ``output``, ``objects``, ``quads``, ``cells``, ``bytes``, ``seconds``.
+        ``output``, ``objects``, ``quads``, ``cells``, ``max_cell``, ``neighbours``, ``quad_neighbours``,
+        ``bytes``, ``seconds``.
 
     Raises
     ------
@@ -157,20 +161,21 @@ def _read_map(map_path: str | os.PathLike[str], neighbours: int, target: float, 
     n = len(objects)
     coords, origin = _quantize(objects, quantum, tuple(identity["origin"]), map_path)
     k = min(neighbours, n - 1)
+    ku = min(k, QUAD_NEIGHBOURS)
     xy = np.column_stack([objects.x, objects.y])
     z = objects.x + 1j * objects.y
     label = objects.label.astype(np.int64)
     del objects
     label_bits, bits = key_layout(n_labels)
     if k >= 3:
-        say(f"finding {k} neighbours of {n} objects ...")
-        table = neighbour_table(xy, k, workers)
+        say(f"finding {ku} neighbours of {n} objects ...")
+        table = neighbour_table(xy, ku, workers)
     else:
-        table = np.zeros((n, max(k, 0)), np.uint32)
+        table = np.zeros((n, 0), np.uint32)
     del xy
     SHARED.clear()
     SHARED.update(neighbours=table, z=z, label=label, n_labels=n_labels, bits=bits)
-    return _Build(n, k, coords, table, identity, origin, label_bits, bits, target, workers, say)
+    return _Build(n, k, ku, coords, table, identity, origin, label_bits, bits, target, workers, say)
 
 
 def _quantize(objects: Objects, quantum: float, origin: tuple[int, ...],
@@ -230,7 +235,8 @@ def _map_chunks(pool: concurrent.futures.Executor | None, workers: int, fn: Call
 
 def _write(b: _Build) -> dict[str, Any]:
     """Choose cells and buckets from a sample, generate every quad into its bucket, then write the file."""
-    n_triples = len(triples(b.k)) if b.k >= 3 else 0
+    n_triples = len(triples(b.ku)) if b.k >= 3 else 0
+    SHARED.update(sub_cells=1 << record_layout(b.n, n_triples)[1])
     ranges = [(lo, min(b.n, lo + _CHUNK_ANCHORS)) for lo in range(0, b.n, _CHUNK_ANCHORS)] if n_triples else []
 
     # 1. A sample of anchors chooses each label combination's cell and the sort buckets.
@@ -260,7 +266,7 @@ def _splitters(s_inv: np.ndarray, s_lk: np.ndarray, rate: float, combo_keys: np.
     n_buckets = max(1, math.ceil(estimate / _BUCKET_QUADS))
     if not s_lk.size:
         return np.zeros(0, np.uint64)
-    s_cells, _ = cells_of(s_inv, cell_for(s_lk, combo_keys, combo_cell))
+    s_cells, _ = cells_of(s_inv, cell_for(s_lk, combo_keys, combo_cell), 1)
     s_keys = np.sort(cell_keys(s_lk, s_cells, bits))
     return s_keys[(np.arange(1, n_buckets) * s_keys.size) // n_buckets]
 
@@ -283,92 +289,66 @@ def _scatter(b: _Build, ranges: list[tuple[int, int]], n_buckets: int) -> tuple[
     return sizes, present
 
 
-def _sort_bucket(path: str, _: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+def _sort_bucket(path: str, _: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A bucket file's quads sorted by key (then deleted): anchors, triples, positions in cells, and its cells'
-    keys, first quads (relative to the bucket) and largest size."""
+    keys and quad counts."""
     rec = np.fromfile(path, dtype=RECORD)
     os.unlink(path)
-    if not rec.size:
-        empty = np.zeros(0, np.int64)
-        return np.zeros(0, "<u4"), np.zeros(0, "u1"), np.zeros((0, 4), "u1"), np.zeros(0, "<u8"), empty, 0
-    rec = rec[np.argsort(rec["key"])]  # deterministic: the chunks came in anchor order
+    rec = rec[np.argsort(rec["key"], kind="stable")]  # deterministic: the chunks came in anchor order
     key = rec["key"]
-    first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
-    longest = int(np.diff(np.append(first, key.size)).max())
-    return (np.ascontiguousarray(rec["anchor"]), np.ascontiguousarray(rec["triple"]), np.ascontiguousarray(rec["sub"]),
-            key[first], first, longest)
+    first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]])) if key.size else np.zeros(0, np.int64)
+    return (rec["anchor"], rec["triple"], np.ascontiguousarray(rec["sub"]), key[first],
+            np.diff(np.append(first, key.size)))
 
 
 def _write_sorted(b: _Build, combo_keys: np.ndarray, combo_cell: np.ndarray, sizes: np.ndarray,
                   present: set[int]) -> dict[str, Any]:
     """Sort the bucket files (in the pool's processes), then write every section, the checksums, the header."""
     q = int(sizes.sum())
-    # 3. Sections at fixed offsets: quads sorted bucket by bucket, the cell directory after them.
+    # 3. Sections one after another: coordinates, packed neighbours, quad records in key order, the directory.
     layout = SectionPlan()
     layout.place("coords", "<i4", (b.n, 2))
-    layout.place("neighbours", "<u4", (b.n, b.k if b.k >= 3 else 0))
-    layout.place("anchor", "<u4", (q,))
-    layout.place("triple", "u1", (q,))
-    layout.place("sub", "u1", (q, 4))
+    nb_bytes = write_neighbours(b.tmp, b.workdir / "nb_data", layout, b.coords, b.table)
+    rb, sb, tb = record_layout(b.n, len(triples(b.ku)) if b.k >= 3 else 0)
+    layout.place("quads", "u1", (q, rb))
     b.say(f"sorting {q} quads in {sizes.size} buckets ...")
-    n_cells, max_cell = _write_quads(b, layout, q, sizes.size)
-    _write_directory(b, layout, q, n_cells)
+    keys, counts = _write_quads(b, layout, (rb, sb, tb), sizes.size)
+    used = np.array(sorted(present), np.int64)
+    dir_bytes, pages = write_directory(b.tmp, layout, directory_pages(keys, counts, used,
+                                                                       cell_for(used, combo_keys, combo_cell), b.bits))
 
     # 4. Checksums of every 4 KiB block, the header at the end, the prefix last.
     b.say("checksumming ...")
     crc_table = layout.checksums(b.tmp)
     layout.place("crc", "<u4", (crc_table.size,))
-    used = np.array(sorted(present), np.int64)
-    counts = {"objects": b.n, "neighbours": b.k if b.k >= 3 else 0, "quads": q, "cells": n_cells,
-              "max_cell": max_cell}
-    header = _header(b, counts, list(zip(used.tolist(), cell_for(used, combo_keys, combo_cell).tolist(),
-                                         strict=True)), layout, crc_table)
+    summary = {"objects": b.n, "neighbours": b.k if b.k >= 3 else 0, "quad_neighbours": b.ku if b.k >= 3 else 0,
+               "quads": q, "cells": int(keys.size), "pages": pages,
+               "max_cell": int(counts.max(initial=0)), "nb_bytes": nb_bytes, "dir_bytes": dir_bytes,
+               "record_bytes": rb, "sub_bits": sb}
+    header = _header(b, summary, list(zip(used.tolist(), cell_for(used, combo_keys, combo_cell).tolist(),
+                                          strict=True)), layout, crc_table)
     with open(b.tmp, "r+b") as out:
         pwrite_all(out.fileno(), crc_table.tobytes(), layout["crc"]["offset"])
         write_header(out.fileno(), header, layout.offset)
-    return {"quads": q, "cells": n_cells, "max_cell": max_cell, "neighbours": counts["neighbours"]}
+    return {key: summary[key] for key in ("quads", "cells", "max_cell", "neighbours", "quad_neighbours")}
 
 
-def _write_quads(b: _Build, layout: SectionPlan, q: int, n_buckets: int) -> tuple[int, int]:
-    """Write the coordinates, the neighbours and the buckets' sorted quads; the cell directory to work files.
-
-    Returns the number of cells and the most quads in one.
-    """
-    max_cell = 0
-    n_cells = 0
-    workdir = b.workdir
-    with open(b.tmp, "r+b") as out, open(workdir / "dir_key", "wb") as dk, open(workdir / "dir_start", "wb") as ds:
-        fd = out.fileno()
-        pwrite_all(fd, b.coords.tobytes(), layout["coords"]["offset"])
-        pwrite_all(fd, np.ascontiguousarray(b.table[:, : layout["neighbours"]["shape"][1]]).tobytes(),
-                   layout["neighbours"]["offset"])
-        done = 0
-        paths = [str(workdir / f"bucket{i:04d}") for i in range(n_buckets)]
-        for anchor, triple, sub, keys, first, longest in _map_chunks(b.pool, b.workers, _sort_bucket,
-                                                                     [(p, 0) for p in paths]):
-            for name, data, itemsize in (("anchor", anchor, 4), ("triple", triple, 1), ("sub", sub, 4)):
-                pwrite_all(fd, data.tobytes(), layout[name]["offset"] + done * itemsize)
-            max_cell = max(max_cell, longest)
-            n_cells += first.size
-            dk.write(keys.tobytes())
-            ds.write((first + done).astype(start_dtype(q)).tobytes())
-            done += anchor.size
-        ds.write(np.array([q], start_dtype(q)).tobytes())
-    return n_cells, max_cell
-
-
-def _write_directory(b: _Build, layout: SectionPlan, q: int, n_cells: int) -> None:
-    """Place and copy the cell directory (``dir_key``, ``dir_start``) and write its fence."""
-    layout.place("dir_key", "<u8", (n_cells,))
-    layout.place("dir_start", start_dtype(q), (n_cells + 1,))
-    fence = np.array(np.memmap(b.workdir / "dir_key", "<u8", "r")[::FENCE]) if n_cells else np.zeros(0, "<u8")
-    layout.place("fence", "<u8", (fence.size,))
+def _write_quads(b: _Build, layout: SectionPlan, record: tuple[int, int, int],
+                 n_buckets: int) -> tuple[np.ndarray, np.ndarray]:
+    """Write the buckets' sorted quads as records; return every cell's key and quad count, in key order."""
+    keys, counts = [], []
+    rb, sb, tb = record
+    paths = [(str(b.workdir / f"bucket{i:04d}"), 0) for i in range(n_buckets)]
     with open(b.tmp, "r+b") as out:
-        for name in ("dir_key", "dir_start"):
-            out.seek(layout[name]["offset"])
-            with open(b.workdir / name, "rb") as src:
-                shutil.copyfileobj(src, out, 16 << 20)
-        pwrite_all(out.fileno(), fence.tobytes(), layout["fence"]["offset"])
+        at = layout["quads"]["offset"]
+        for anchor, triple, sub, cell_key, count in _map_chunks(b.pool, b.workers, _sort_bucket, paths):
+            rows = pack_records(anchor, triple, sub, rb, sb, tb)
+            pwrite_all(out.fileno(), rows.tobytes(), at)
+            at += rows.size
+            keys.append(cell_key)
+            counts.append(count)
+    return (np.concatenate(keys) if keys else np.zeros(0, np.uint64),
+            np.concatenate(counts) if counts else np.zeros(0, np.int64))
 
 
 def _header(b: _Build, counts: dict[str, int], combos: list[tuple[int, float]], layout: SectionPlan,
@@ -381,7 +361,8 @@ def _header(b: _Build, counts: dict[str, int], combos: list[tuple[int, float]], 
         **counts,
         "key_label_bits": b.label_bits,
         "key_cell_bits": b.bits,
-        "sub_cells": SUB_CELLS,
+        "page_cells": PAGE_CELLS,
+        "nb_block": NB_BLOCK,
         "block_size": BLOCK,
         "target_occupancy": b.target,
         "combos": [[int(c), float(s)] for c, s in combos],

@@ -101,7 +101,7 @@ def chunk_records(lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     # Blocks of a few thousand anchors keep the arrays of quad generation in the CPU caches (1.5x faster).
     for a in range(lo, hi, _BLOCK_ANCHORS):
         anchor, triple, inv, lk = chunk_quads(a, min(hi, a + _BLOCK_ANCHORS))
-        cells, sub = cells_of(inv, cell_for(lk, SHARED["combo_keys"], SHARED["combo_cell"]))
+        cells, sub = cells_of(inv, cell_for(lk, SHARED["combo_keys"], SHARED["combo_cell"]), SHARED["sub_cells"])
         rec = np.empty(anchor.size, RECORD)
         rec["key"] = cell_keys(lk, cells, SHARED["bits"])
         rec["anchor"] = anchor

@@ -22,13 +22,13 @@ import numpy as np
 
 from ... import __version__
 from ...errors import MapdbIOError, MapFormatError, MapVersionError
+from .packed import NB_BLOCK, PAD, PAGE_CELLS, record_layout
 
 __all__ = [
     "BLOCK",
     "BLOCK_BITS",
     "CELL_LADDER",
     "Counts",
-    "FENCE",
     "FORMAT_NAME",
     "INDEX_MAGIC",
     "INDEX_SUFFIX",
@@ -37,7 +37,7 @@ __all__ = [
     "PREFIX_SIZE",
     "SECTIONS",
     "SectionPlan",
-    "SUB_CELLS",
+    "QUAD_NEIGHBOURS",
     "MAX_QUANTA",
     "cell_keys",
     "cells_of",
@@ -50,7 +50,6 @@ __all__ = [
     "pwrite_all",
     "read_header",
     "section_shapes",
-    "start_dtype",
     "triples",
     "whole",
     "write_header",
@@ -58,7 +57,7 @@ __all__ = [
 
 FORMAT_NAME = "mapdb-quad-index"
 INDEX_MAGIC = b"\x89MAPDBQX"
-INDEX_VERSION = 2  # 2: the header's ``map`` section binds the index to its map (origin, pages_sha256)
+INDEX_VERSION = 3  # 3: compact (packed quad records, neighbours and directory); 2: bound to its map; 1: neither
 INDEX_SUFFIX = ".qidx"
 # magic | u16 version | u16 flags | u64 header offset | u32 header length | u32 header CRC-32 | u32 CRC-32 of
 # the 28 bytes before it.  The JSON header is written last, at the end of the file, since it holds the
@@ -67,28 +66,21 @@ _PREFIX = struct.Struct("<8sHHQII")
 PREFIX_SIZE = _PREFIX.size + 4
 _MAX_HEADER = 16 << 20
 MAX_QUANTA = 1 << 52  # a map's positions in quanta stay within this (mapdb.mapfile.layout): so must an origin
-ALIGN = 4096  # sections start at multiples of a page
+ALIGN = 64  # sections start at multiples of 64 bytes (a page each would cost 5 bytes an object on Andorra)
 BLOCK_BITS = 12
 BLOCK = 1 << BLOCK_BITS  # checksum block of every section: a page, what a lookup's first read of it costs
-SUB_CELLS = 256  # positions inside a cell, per invariant
+QUAD_NEIGHBOURS = 4  # quads are each object with triples of its 4 nearest (a subset of the K-neighbour quads)
 CELL_LADDER = 0.5 * 2.0 ** (-np.arange(12) / 2.0)  # 0.5 .. 0.011: cell sides tried per label combination
 MAX_NEIGHBOURS = 12  # C(12, 3) = 220 triples fit in one byte
-SECTIONS: dict[str, str | None] = {  # name: dtype, in the order of the checksum table
+SECTIONS: dict[str, str] = {  # name: dtype, in the order of the checksum table (docs/index_format.md)
     "coords": "<i4",
-    "neighbours": "<u4",
-    "anchor": "<u4",
-    "triple": "u1",
-    "sub": "u1",
-    "dir_key": "<u8",
-    "dir_start": None,  # start_dtype: 4 bytes while quads number fewer than 2^32
-    "fence": "<u8",  # every FENCE-th cell key: the page of dir_key to search, read once when opening
+    "nb_start": "<u8",  # first byte of each block of NB_BLOCK objects' neighbours in nb_data
+    "nb_width": "u1",  # bit width of each block's neighbour differences
+    "nb_data": "u1",  # neighbours, bit-packed (packed.pack_neighbours)
+    "quads": "u1",  # one record of record_bytes a quad, in key order (packed.pack_records)
+    "dir_data": "u1",  # directory pages, bit-packed (packed.pack_pages)
+    "fence": "<u8",  # a row a directory page: first cell's key, first cell, first quad, first byte; read at open
 }
-FENCE = BLOCK // 8  # cell keys per page of dir_key
-
-
-def start_dtype(quads: int) -> str:
-    """The dtype of ``dir_start`` for an index of ``quads`` quads."""
-    return "<u4" if quads < 2**32 else "<u8"
 
 
 def index_path(map_path: str | os.PathLike[str]) -> Path:
@@ -110,15 +102,15 @@ def key_layout(n_labels: int) -> tuple[int, int]:
     return label_bits, (64 - label_bits) // 4
 
 
-def cells_of(inv: np.ndarray, cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Cell coordinates (int64) and position inside the cell (uint8, 1/256ths) of invariants ``(m, 4)``.
+def cells_of(inv: np.ndarray, cell: np.ndarray, sub_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cell coordinates (int64) and position inside the cell (uint8, in 1/``sub_cells``) of invariants ``(m, 4)``.
 
     Invariants lie in [-1, 1] (``A``, ``B`` are the most distant pair), so ``t + 1`` is >= 0 and cells
     count from 0; the ladder's smallest cell keeps the largest coordinate far below ``2 ** bits``.
     """
     s = (inv + 1.0) / cell[:, None]
     k = np.floor(s)
-    sub = np.clip(np.floor((s - k) * SUB_CELLS), 0, SUB_CELLS - 1).astype(np.uint8)
+    sub = np.clip(np.floor((s - k) * sub_cells), 0, sub_cells - 1).astype(np.uint8)
     return np.maximum(k, 0).astype(np.int64), sub
 
 
@@ -156,8 +148,9 @@ def read_header(f: IO[bytes], size: int, where: str) -> dict[str, Any]:
         raise MapVersionError(f"{where}: written by a newer quad index format (version {version}); "
                               f"this mapdb {__version__} reads up to version {INDEX_VERSION}")
     if version < INDEX_VERSION:
-        raise MapFormatError(f"{where}: quad index format version {version}, which does not bind the index to "
-                             f"its map; rebuild with mapdb index")
+        why = "which does not bind the index to its map" if version < 2 else "about ten times larger"
+        raise MapFormatError(f"{where}: quad index format version {version} ({why}); this mapdb reads version "
+                             f"{INDEX_VERSION}: rebuild with mapdb index")
     if h_len > _MAX_HEADER or h_off < PREFIX_SIZE or h_off + h_len != size:
         raise MapFormatError(f"{where}: truncated quad index ({size} bytes; its header says "
                              f"{h_off + h_len})")
@@ -179,15 +172,22 @@ def read_header(f: IO[bytes], size: int, where: str) -> dict[str, Any]:
 
 
 class Counts(NamedTuple):
-    """A header's counts and key layout, checked (:func:`header_counts`)."""
+    """A header's counts and layout, checked (:func:`header_counts`)."""
 
     objects: int
-    neighbours: int
+    neighbours: int  # the matcher's K the quads serve (every quad is one of the K-neighbour quads)
+    quad_neighbours: int  # the nearest neighbours the quads are drawn from
     quads: int
     cells: int
+    pages: int
     max_cell: int
     origin: tuple[int, ...]
     cell_bits: int
+    nb_bytes: int
+    dir_bytes: int
+    record_bytes: int
+    sub_bits: int
+    triple_bits: int
 
 
 def whole(value: Any, where: str, what: str, low: int = 0, high: int = 2**63 - 1) -> int:
@@ -203,10 +203,11 @@ def header_counts(h: dict[str, Any], n_labels: int, identity: dict[str, Any], wh
 
     Every field must be a JSON integer in range (no float, string or boolean read as one); the origin
     within the positions a map can hold, so that no coordinate computed from it overflows; the quantum a
-    finite number a map can have.
+    finite number a map can have; the record and key layouts the ones the counts give.
     """
-    n, k, q, d, max_cell = (whole(h[key], where, key) for key in ("objects", "neighbours", "quads", "cells",
-                                                                    "max_cell"))
+    n, k, ku, q, d, p, max_cell, nb_bytes, dir_bytes = (
+        whole(h[key], where, key) for key in ("objects", "neighbours", "quad_neighbours", "quads", "cells", "pages",
+                                              "max_cell", "nb_bytes", "dir_bytes"))
     origin = identity["origin"]
     if not isinstance(origin, list) or len(origin) != 2:
         raise MapFormatError(f"{where}: quad index header field origin is not two integers")
@@ -217,16 +218,20 @@ def header_counts(h: dict[str, Any], n_labels: int, identity: dict[str, Any], wh
                              f"in (0, 1000]")
     label_bits, bits = whole(h["key_label_bits"], where, "key_label_bits"), whole(h["key_cell_bits"], where,
                                                                                  "key_cell_bits")
-    if (label_bits, bits) != key_layout(n_labels) or whole(h["sub_cells"], where, "sub_cells") != SUB_CELLS or \
-            whole(h["block_size"], where, "block_size") != BLOCK:
-        raise MapFormatError(f"{where}: unsupported key layout")
-    n_triples = math.comb(k, 3) if 3 <= k <= MAX_NEIGHBOURS else 0  # counted, not listed: k is not checked yet
-    if not (0 <= n < 2**32 and n == whole(identity["count"], where, "count") and (k == 0 or 3 <= k <= MAX_NEIGHBOURS)
-            and 0 <= q <= n * n_triples and 0 <= d <= q and 0 <= max_cell <= q
-            and (d > 0) == (q > 0) and (max_cell > 0) == (q > 0)):
+    n_triples = math.comb(ku, 3) if 3 <= ku <= MAX_NEIGHBOURS else 0  # counted, not listed: ku is not checked yet
+    rb, sb, tb = record_layout(n, n_triples)
+    if ((label_bits, bits) != key_layout(n_labels) or whole(h["block_size"], where, "block_size") != BLOCK
+            or (whole(h["record_bytes"], where, "record_bytes"), whole(h["sub_bits"], where, "sub_bits")) != (rb, sb)
+            or whole(h["page_cells"], where, "page_cells") != PAGE_CELLS
+            or whole(h["nb_block"], where, "nb_block") != NB_BLOCK):
+        raise MapFormatError(f"{where}: unsupported key or record layout")
+    if not (0 <= n < 2**32 and n == whole(identity["count"], where, "count")
+            and (k == ku == 0 or 3 <= ku <= k <= MAX_NEIGHBOURS)
+            and 0 <= q <= n * n_triples and 0 <= d <= q and 0 <= max_cell <= q and d <= p * PAGE_CELLS and p <= d
+            and (d > 0) == (q > 0) and (max_cell > 0) == (q > 0) and (nb_bytes > 0) == (ku > 0 and n > 0)):
         raise MapFormatError(f"{where}: quad index counts out of range (objects {n}, neighbours {k}, "
-                             f"quads {q}, cells {d})")
-    return Counts(n, k, q, d, max_cell, origin, bits)
+                             f"quads {q}, cells {d}, pages {p})")
+    return Counts(n, k, ku, q, d, p, max_cell, origin, bits, nb_bytes, dir_bytes, rb, sb, tb)
 
 
 def header_combos(combos: Any, quads: int, n_labels: int, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -256,13 +261,13 @@ def header_combos(combos: Any, quads: int, n_labels: int, where: str) -> tuple[n
 # ----------------------------------------------------------------------------------------- sections
 
 
-def section_shapes(n: int, k: int, q: int, d: int) -> dict[str, tuple[tuple[int, ...], str]]:
-    """Shape and dtype of every section but ``crc``, for ``n`` objects, ``k`` neighbours, ``q`` quads, ``d``
-    cells."""
+def section_shapes(c: Counts) -> dict[str, tuple[tuple[int, ...], str]]:
+    """Shape and dtype of every section but ``crc`` for the counts ``c`` (packed sections end in 8 zero bytes)."""
+    blocks = -(-c.objects // NB_BLOCK) if c.quad_neighbours else 0
     shapes: dict[str, tuple[int, ...]] = {
-        "coords": (n, 2), "neighbours": (n, k), "anchor": (q,), "triple": (q,), "sub": (q, 4),
-        "dir_key": (d,), "dir_start": (d + 1,), "fence": (-(-d // FENCE),)}
-    return {name: (shape, SECTIONS[name] or start_dtype(q)) for name, shape in shapes.items()}
+        "coords": (c.objects, 2), "nb_start": (blocks + 1,), "nb_width": (blocks,), "nb_data": (c.nb_bytes + PAD,),
+        "quads": (c.quads, c.record_bytes), "dir_data": (c.dir_bytes + PAD,), "fence": (c.pages + 1, 4)}
+    return {name: (shape, SECTIONS[name]) for name, shape in shapes.items()}
 
 
 def check_sections(layout: dict[str, Any], shapes: dict[str, tuple[tuple[int, ...], str]], end: int,
@@ -301,7 +306,7 @@ class SectionPlan:
 
     def __init__(self) -> None:
         self.sections: dict[str, dict[str, Any]] = {}
-        self.offset = ALIGN
+        self.offset = -(-PREFIX_SIZE // ALIGN) * ALIGN
 
     def place(self, name: str, dtype: str, shape: tuple[int, ...]) -> None:
         """Put the next section at ``offset``."""

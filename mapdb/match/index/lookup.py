@@ -1,9 +1,9 @@
 """What a stored index's lookup reads and how: checked sections, the cells of a query, candidates' bounds.
 
 :class:`Section` is one memory-mapped array of the file whose 4 KiB blocks are checked (CRC-32) the first
-time a lookup reads them; :func:`query_cells` and :func:`find_cells` find the directory entries of the
-cells a query's ball overlaps; :func:`bound_candidates` drops, from each quad's position inside its cell,
-the candidates that cannot be among a query's ``k`` nearest within its radius; :class:`Best` keeps the
+time a lookup reads them; :func:`query_cells` gives the cells a query's ball overlaps (their directory
+entries: :mod:`~mapdb.match.index.directory`); :func:`bound_candidates` drops, from each quad's position
+inside its cell, the candidates that cannot be among a query's ``k`` nearest within its radius; :class:`Best` keeps the
 ``k`` nearest per query.  :class:`~mapdb.match.index.stored.StoredQuadIndex` puts them together.
 """
 
@@ -17,13 +17,13 @@ from typing import Any
 import numpy as np
 
 from ...errors import MapFormatError
-from .layout import BLOCK, BLOCK_BITS, FENCE, SUB_CELLS, cell_keys, pread, whole
+from .layout import BLOCK, BLOCK_BITS, cell_keys, pread, whole
 
-__all__ = ["LOOKUP_CANDIDATES", "Best", "Section", "bound_candidates", "find_cells", "map_sections", "pieces",
-           "query_cells", "take_rows"]
+__all__ = ["LOOKUP_CANDIDATES", "Best", "Section", "bound_candidates", "map_sections", "pieces", "query_cells",
+           "take_rows"]
 
 LOOKUP_CANDIDATES = 1 << 20  # candidates handled at once by a lookup: bounds its memory
-_BOUND_MARGIN = 0.05  # in 1/256ths of a cell: far above float32 rounding of positions below 2^16
+_BOUND_MARGIN = 0.05  # in positions inside a cell (1/16 to 1/256 of it): far above float32 rounding
 _PREFETCH_GAP = 8  # blocks: runs of wanted blocks closer than this are prefetched together
 _CELL_SLACK = 1e-6  # in cells: far above float64 rounding, so no cell holding a quad within the radius is left out
 _ONES = np.ones(4, np.float32)
@@ -64,8 +64,6 @@ class Section:
         self.row_bytes = max(1, int(np.prod(array.shape[1:], dtype=np.int64)) * array.itemsize)
         self.checked = np.zeros(crcs.size, bool)
         self.all_checked = crcs.size == 0
-        # Pages of FENCE rows found in order (``dir_key``: ascending, starting with their fence key).
-        self.ordered = np.zeros(-(-len(array) // FENCE) if array.ndim else 0, bool)
 
     def _check(self, blocks: np.ndarray) -> None:
         todo = np.unique(blocks[~self.checked[blocks]])
@@ -92,7 +90,8 @@ class Section:
         try:
             for a, b in zip(first.tolist(), last.tolist(), strict=True):
                 start = self.offset + a * BLOCK
-                self.mapping.madvise(mmap.MADV_WILLNEED, start, min((b + 1 - a) * BLOCK, end - start))
+                start -= start % mmap.PAGESIZE  # sections start on 64-byte boundaries; madvise wants a page's
+                self.mapping.madvise(mmap.MADV_WILLNEED, start, min(self.offset + (b + 1) * BLOCK, end) - start)
         except OSError:  # pages larger than a block, say: reading on demand is correct, only slower
             pass
 
@@ -149,10 +148,7 @@ def map_sections(mapping: mmap.mmap | None, fd: int, h: dict[str, Any],
     for b in range(fence.crcs.size):
         if zlib.crc32(raw[b * BLOCK : (b + 1) * BLOCK]) != int(fence.crcs[b]):
             raise MapFormatError(f"{where}: fence block {b} checksum mismatch (file is corrupt)")
-    keys = np.frombuffer(raw, "<u8")
-    if keys.size > 1 and not (keys[1:] > keys[:-1]).all():
-        raise MapFormatError(f"{where}: quad index fence out of order (file is corrupt)")
-    return sections, keys
+    return sections, np.frombuffer(raw, "<u8").reshape(shapes["fence"][0]).astype(np.uint64)
 
 
 def _mapped(mapping: mmap.mmap | None, dtype: str, offset: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -162,14 +158,14 @@ def _mapped(mapping: mmap.mmap | None, dtype: str, offset: int, shape: tuple[int
     return np.frombuffer(mapping, dtype=dtype, count=count, offset=offset).reshape(shape)
 
 
-def query_cells(q: np.ndarray, r: np.ndarray, cell: np.ndarray, lk: np.ndarray,
-                bits: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def query_cells(q: np.ndarray, r: np.ndarray, cell: np.ndarray, lk: np.ndarray, bits: int,
+                sub_cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The cells the balls of radius ``r`` (at most ``cell``) around invariants ``q`` reach.
 
     At most 3 per invariant, 81 in all, within the key's range; of those, only the cells whose box
     comes within ``r`` of ``q`` (a 4-D ball fills a third of its bounding cube: the corner cells of
     the cube hold no quad within the radius).  Returns the query row of each cell (ascending), the
-    query's position relative to the cell's corner in 1/256ths of the cell, float32 ``(c, 4)`` (what
+    query's position relative to the cell's corner in 1/sub_cells of the cell, float32 ``(c, 4)`` (what
     :func:`bound_candidates` measures quads' positions inside their cells from), and its key (with the
     query's label key ``lk``).
     """
@@ -182,54 +178,16 @@ def query_cells(q: np.ndarray, r: np.ndarray, cell: np.ndarray, lk: np.ndarray,
     inside = ((gap * gap).sum(axis=2) <= reach * reach) & ((cand >= 0) & (cand <= top)).all(axis=2)
     which, step = np.nonzero(inside)
     cells = cand[which, step]
-    rel = ((s[which] - cells) * SUB_CELLS).astype(np.float32)
+    rel = ((s[which] - cells) * sub_cells).astype(np.float32)
     return which, rel, cell_keys(lk[which], cells, bits)
 
 
-def find_cells(fence: np.ndarray, dir_key: Section, n_cells: int, keys: np.ndarray) -> np.ndarray:
-    """Directory positions of cell keys (-1 where absent).
-
-    The fence (every 512th key, in memory) names the one page of ``dir_key`` that can hold each key;
-    a binary search inside it reads that page only: a cold lookup costs a page read per cell, not one
-    per step of a search over the whole directory.
-    """
-    d = n_cells
-    if not d or not keys.size:
-        return np.full(keys.size, -1, np.int64)
-    page = np.searchsorted(fence, keys, side="right") - 1
-    ok = page >= 0
-    lo = np.maximum(page, 0) * FENCE
-    dir_key.check_ranges(lo[ok], np.minimum(lo + FENCE, d)[ok])
-    _check_order(fence, dir_key, d, np.unique(page[ok]))
-    # Branchless: the position moves up by each power of two in turn while the key just below the new position
-    # is smaller (three array operations a step): it ends at the key's place if the page holds it.  Every probe
-    # stays on the page; one past the directory's end reads its last key instead, the largest.
-    at = lo
-    for step in (FENCE >> 1) >> np.arange((FENCE >> 1).bit_length()):
-        at = at + step * (dir_key.array[np.minimum(at + (step - 1), d - 1)] < keys)
-    found = ok & (at < d)
-    found[found] = dir_key.array[at[found]] == keys[found]
-    return np.where(found, at, -1)
-
-
-def _check_order(fence: np.ndarray, dir_key: Section, n_cells: int, pages: np.ndarray) -> None:
-    """Refuse a page of ``dir_key`` (read the first time) whose keys do not ascend from its fence key to below the
-    next one: a binary search in it would miss cells, and lookups would find less without a word."""
-    todo = pages[~dir_key.ordered[pages]]
-    for p in todo.tolist():
-        keys = dir_key.array[p * FENCE : min((p + 1) * FENCE, n_cells)]
-        if (keys[0] != fence[p] or not (keys[1:] > keys[:-1]).all()
-                or (p + 1 < fence.size and keys[-1] >= fence[p + 1])):
-            raise MapFormatError(f"{dir_key.where}: quad index directory out of order (file is corrupt)")
-    dir_key.ordered[todo] = True
-
-
 def bound_candidates(which: np.ndarray, idx: np.ndarray, rel: np.ndarray, sub: np.ndarray,
-                     r: np.ndarray, cell: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+                     r: np.ndarray, cell: np.ndarray, k: int, sub_cells: int) -> tuple[np.ndarray, np.ndarray]:
     """The candidates (query rows ``which``, ascending; quad positions ``idx``) worth measuring.
 
     Drops, from bounds on a candidate's distance given by its position ``sub`` inside its cell and its
-    query's position ``rel`` relative to that cell (both in 1/256ths of the cell, :func:`query_cells`),
+    query's position ``rel`` relative to that cell (both in 1/sub_cells of the cell, :func:`query_cells`),
     those farther than the radius and those that cannot be among their query's ``k`` nearest.
     """
     # The candidate lies in [sub, sub + 1) per invariant: its gap to the query is max(d, -1 - d, 0) with
@@ -243,7 +201,7 @@ def bound_candidates(which: np.ndarray, idx: np.ndarray, rel: np.ndarray, sub: n
     np.maximum(d, 0.0, out=d)
     d *= d
     lower = d @ _ONES  # a product with ones sums the four columns several times faster than sum(axis=1)
-    reach = (r * (SUB_CELLS / cell) + _BOUND_MARGIN).astype(np.float32)
+    reach = (r * (sub_cells / cell) + _BOUND_MARGIN).astype(np.float32)
     sel = np.flatnonzero(lower <= (reach * reach)[which])
     which, idx, lower = which[sel], idx[sel], lower[sel]
     if not idx.size or np.bincount(which).max() <= k:

@@ -1,13 +1,14 @@
 """A disk-backed lost-in-space quad index: built in bounded memory, opened in milliseconds, memory-mapped.
 
 The whole-map :class:`~mapdb.match.quads.QuadIndex` keeps every quad's complex coordinates and labels and
-a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds the same
-quads (:func:`~mapdb.match.quads.neighbour_quads` with the same number of neighbours, the same canonical
-order and invariants from :func:`~mapdb.match.quads.canonical_quads`) in a sidecar file ``MAP.qidx``
-beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the format is in ``docs/index_format.md``.
+a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds a tenth of
+those quads, each object's closest (:func:`~mapdb.match.quads.neighbour_quads` of its 4 nearest, the same
+canonical order and invariants from :func:`~mapdb.match.quads.canonical_quads`), packed into about 30 bytes
+an object, in a sidecar file ``MAP.qidx`` beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the
+format (version 3) is in ``docs/index_format.md``.
 
 How it works (``docs/index_format.md`` in full)
-    A quad is an anchor object and a triple of its ``K`` nearest neighbours, filed by its label combination
+    A quad is an anchor object and a triple of its 4 nearest neighbours, filed by its label combination
     and the cell of its invariants (side ``c`` per combination) with its position inside the cell; a
     lookup reads the cells its ball reaches and recomputes the candidates the positions do not rule out.
     **The lookup radius is clamped to the cell size** (:meth:`StoredQuadIndex.cell_size`): where ``c`` is
@@ -23,11 +24,13 @@ Safety
     its map, each map page's coordinates against the page's box, and each resolved quad (with a few the
     bounds dropped, and each label combination's first cell) against the cell it was found in.
 
-The code is in five modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
-prefix, header, sections, cell keys), :mod:`~mapdb.match.index.build` (:func:`build_index`, the external
-sort), :mod:`~mapdb.match.index.generate` (neighbours, quads, cells) and :mod:`~mapdb.match.index.lookup`
-(checked sections, the cells and candidates of a lookup), :mod:`~mapdb.match.index.binding` (the index
-checked against its map).
+The code is in the modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
+prefix, header, sections, cell keys), :mod:`~mapdb.match.index.packed` (the packed codes),
+:mod:`~mapdb.match.index.build` (:func:`build_index`, the external sort; :mod:`~mapdb.match.index.sections`),
+:mod:`~mapdb.match.index.generate` (neighbours, quads, cells), :mod:`~mapdb.match.index.lookup` (checked
+sections, the cells and candidates of a lookup), :mod:`~mapdb.match.index.directory` (the cell directory and
+the neighbours, decoded as lookups reach them), :mod:`~mapdb.match.index.binding` (the index checked against
+its map).
 """
 
 from __future__ import annotations
@@ -47,11 +50,10 @@ from .binding import (
     check_filed,
     check_identity,
     check_positions,
-    first_cells,
     map_identity,
-    mismatch,
 )
 from .build import build_index
+from .directory import Directory, Neighbours
 from .layout import (
     INDEX_SUFFIX,
     check_sections,
@@ -66,12 +68,12 @@ from .lookup import (
     LOOKUP_CANDIDATES,
     Best,
     bound_candidates,
-    find_cells,
     map_sections,
     pieces,
     query_cells,
     take_rows,
 )
+from .packed import unpack_records
 
 AUDITED = 16  # candidates a lookup's batch resolves and checks whatever their bounds (check_filed)
 
@@ -95,7 +97,7 @@ class StoredQuadIndex:
     labels : tuple of str
         The map's label names: label codes in lookups index into them.
     neighbours : int
-        Neighbours per anchor the quads were built with.
+        The matcher's neighbours per anchor the index serves (its quads are of each object's 4 nearest).
     n_objects, n_quads, n_cells : int
     quantum : float
     """
@@ -133,21 +135,21 @@ class StoredQuadIndex:
         self.header = h
         self.identity = dict(h["map"])
         self.labels = tuple(str(s) for s in self.identity["labels"])
-        counts = header_counts(h, len(self.labels), self.identity, where)
+        c = header_counts(h, len(self.labels), self.identity, where)
         self.quantum = float(self.identity["quantum"])
-        n, k, q, d = counts.objects, counts.neighbours, counts.quads, counts.cells
-        self.max_cell, self.origin, self._bits = counts.max_cell, counts.origin, counts.cell_bits
-        self.n_objects, self.neighbours, self.n_quads, self.n_cells = n, k, q, d
-        self._triples = triples(k) if k >= 3 else np.zeros((0, 3), np.int64)
-        self._combo_keys, self._combo_cell = header_combos(h["combos"], q, len(self.labels), where)
-        shapes = section_shapes(n, k, q, d)
+        self.max_cell, self.origin, self._bits = c.max_cell, c.origin, c.cell_bits
+        self.n_objects, self.neighbours, self.n_quads, self.n_cells = c.objects, c.neighbours, c.quads, c.cells
+        self.quad_neighbours, self._sub_bits, self._triple_bits = c.quad_neighbours, c.sub_bits, c.triple_bits
+        self._triples = triples(c.quad_neighbours) if c.quad_neighbours >= 3 else np.zeros((0, 3), np.int64)
+        self._combo_keys, self._combo_cell = header_combos(h["combos"], c.quads, len(self.labels), where)
+        shapes = section_shapes(c)
         total_blocks = check_sections(h["sections"], shapes, int(h["_header_offset"]), where)
-        self._sections, self._fence = map_sections(self._mmap, fd, h, shapes, total_blocks, where)
-        # Combinations left out of the header would make lookups find nothing: checked where the fence shows cells.
-        fenced = (self._fence >> np.uint64(4 * self._bits)).astype(np.int64)
-        at = np.minimum(np.searchsorted(self._combo_keys, fenced), max(self._combo_keys.size - 1, 0))
-        if fenced.size and not (self._combo_keys.size and (self._combo_keys[at] == fenced).all()):
-            raise mismatch(where, "its directory holds label combinations its header does not list")
+        self._sections, fence = map_sections(self._mmap, fd, h, shapes, total_blocks, where)
+        read = self._sections
+        self._directory = Directory(fence, read["dir_data"], self._combo_keys, self._combo_cell,
+                                    (c.cells, c.quads, c.dir_bytes, c.max_cell, c.pages), c.cell_bits, where)
+        self._neighbours = Neighbours(read["nb_start"], read["nb_width"], read["nb_data"], c.objects,
+                                      c.quad_neighbours, where)
 
     # ------------------------------------------------------------------------------------------ public
 
@@ -296,14 +298,12 @@ class StoredQuadIndex:
         new = np.setdiff1d(lk, self._audited)
         if not new.size:
             return
-        read = self._sections
-        at = first_cells(self._fence, read["dir_key"], self.n_cells, new, self._bits, self.where)
-        start = read["dir_start"].rows(at).astype(np.int64)
-        if start.min() < 0 or start.max() >= self.n_quads:
-            raise MapFormatError(f"{self.where}: quad index directory out of range (file is corrupt)")
-        _, inv = self._resolve(start)
-        check_filed(inv, read["dir_key"].array[at], read["sub"].rows(start),
-                    self._combo_cell[np.searchsorted(self._combo_keys, new)], self._bits, self.where)
+        at = self._directory.first_cells(new)
+        start = self._directory.start[at]
+        records = self._records(start)
+        _, inv = self._resolve(records[0], records[1])
+        check_filed(inv, self._directory.key[at], records[2], self._combo_cell[np.searchsorted(self._combo_keys, new)],
+                    self._bits, self._sub_bits, self.where)
         self._audited = np.union1d(self._audited, new)
 
     def _cell_ranges(self, q: np.ndarray, r: np.ndarray, cell: np.ndarray,
@@ -311,23 +311,22 @@ class StoredQuadIndex:
         """The non-empty cells the queries' balls reach: query row, first quad, quads, the query's position
         relative to the cell (:func:`~mapdb.match.index.lookup.query_cells`), the cell's key.
 
-        Their directory ranges are checked, and the blocks of ``sub`` holding them (read below range by range).
+        Their directory pages are decoded and checked, and the blocks of ``quads`` holding them (read below
+        range by range).
         """
-        which, rel, keys = query_cells(q, r, cell, lk, self._bits)
-        dir_start = self._sections["dir_start"]
-        at = find_cells(self._fence, self._sections["dir_key"], self.n_cells, keys)
+        which, rel, keys = query_cells(q, r, cell, lk, self._bits, 1 << self._sub_bits)
+        at = self._directory.find(keys)
         found = at >= 0
         which, at = which[found], at[found]
-        start = dir_start.rows(at).astype(np.int64)
-        stop = dir_start.rows(at + 1).astype(np.int64)
-        length = stop - start
-        if length.size and (start.min() < 0 or stop.max() > self.n_quads or length.min() < 1
-                            or length.max() > self.max_cell):
-            raise MapFormatError(f"{self.where}: quad index directory out of range (file is corrupt)")
-        # Every candidate's position inside its cell is read; its anchor and triple only if it survives
-        # the bounds (a few in a hundred where cells are crowded): their blocks are checked as they are read.
-        self._sections["sub"].check_ranges(start, stop)
+        start, length = self._directory.start[at], self._directory.count[at]
+        # Every candidate's record is read (its position inside the cell bounds its distance).
+        self._sections["quads"].check_ranges(start, start + length)
         return which, start, length, rel[found], keys[found]
+
+    def _records(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Anchors, triple numbers and positions inside their cells of the quads at ``positions``."""
+        rows = self._sections["quads"].rows(positions)
+        return unpack_records(rows, self._sub_bits, self._triple_bits)
 
     def _candidates(self, which: np.ndarray, idx: np.ndarray, rel: np.ndarray, key: np.ndarray, q: np.ndarray,
                     r: np.ndarray, cell: np.ndarray, k: int, best: Best) -> None:
@@ -336,15 +335,17 @@ class StoredQuadIndex:
         ``which`` (the query row of each candidate) is ascending; ``key`` is the key of its cell.  Every
         resolved candidate must be filed where its recomputed invariants put it (``check_filed``).
         """
-        sub = take_rows(self._sections["sub"].array, idx)  # its blocks checked by _cell_ranges
+        anchor, triple, sub = unpack_records(take_rows(self._sections["quads"].array, idx), self._sub_bits,
+                                             self._triple_bits)  # its blocks checked by _cell_ranges
         which_all = which
-        which, kept = bound_candidates(which, np.arange(idx.size), rel, sub, r, cell, k)
+        which, kept = bound_candidates(which, np.arange(idx.size), rel, sub, r, cell, k, 1 << self._sub_bits)
         # A few candidates the bounds dropped are resolved and checked too: forged positions in cells (or cell
         # sides) would otherwise make every candidate look far, and lookups find nothing without a word.
         audit = np.unique(np.linspace(0, idx.size - 1, min(idx.size, AUDITED)).astype(np.int64))
         both = np.concatenate([kept, audit])
-        ids, inv = self._resolve(idx[both])
-        check_filed(inv, key[both], take_rows(sub, both), cell[which_all[both]], self._bits, self.where)
+        ids, inv = self._resolve(anchor[both], triple[both])
+        check_filed(inv, key[both], take_rows(sub, both), cell[which_all[both]], self._bits, self._sub_bits,
+                    self.where)
         ids, inv = ids[: kept.size], inv[: kept.size]
         if not kept.size:
             return
@@ -352,19 +353,14 @@ class StoredQuadIndex:
         hit = dist <= r[which]
         best.offer(which[hit], ids[hit], dist[hit])
 
-    def _resolve(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Object ids ``(m, 4)`` in canonical order and invariants of the stored quads at ``positions``."""
-        read = self._sections
-        anchor = read["anchor"].rows(positions).astype(np.int64)
-        triple = read["triple"].rows(positions).astype(np.int64)
+    def _resolve(self, anchor: np.ndarray, triple: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Object ids ``(m, 4)`` in canonical order and invariants of quads given by anchors and triple numbers."""
         if anchor.size and (anchor.max() >= self.n_objects or triple.max() >= len(self._triples)):
             raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
-        nb = read["neighbours"].rows(anchor).astype(np.int64)
-        members = np.empty((positions.size, 4), np.int64)
+        nb = self._neighbours.rows(anchor)
+        members = np.empty((anchor.size, 4), np.int64)
         members[:, 0] = anchor
         members[:, 1:] = np.take_along_axis(nb, self._triples[triple], axis=1)
-        if members.size and members.max() >= self.n_objects:
-            raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
         # The canonical order from the ids in ascending order, as at build time (and as QuadIndex does).
         members.sort(axis=1)
         with np.errstate(all="ignore"):  # four objects on one spot (forged coordinates): NaN, refused by the caller
@@ -374,7 +370,8 @@ class StoredQuadIndex:
     def quads(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Object ids ``(m, 4)``, in canonical order, of the stored quads ``start:stop`` (in key order)."""
         stop = self.n_quads if stop is None else min(stop, self.n_quads)
-        return self._resolve(np.arange(max(start, 0), max(stop, start, 0), dtype=np.int64))[0]
+        anchor, triple, _ = self._records(np.arange(max(start, 0), max(stop, start, 0), dtype=np.int64))
+        return self._resolve(anchor, triple)[0]
 
 
 

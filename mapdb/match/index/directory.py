@@ -1,0 +1,159 @@
+"""A version-3 index's packed parts as a lookup reads them: the cell directory and the neighbour table.
+
+:class:`Directory` finds cells by key: the fence (one row a page, in memory) names the page that can hold a
+key; a page is decoded (:func:`~mapdb.match.index.packed.page_fields`) and checked the first time a lookup
+reads it, into arrays kept for the next lookups, so a query reads only the pages it needs.
+:class:`Neighbours` gives the neighbours of anchors from their packed blocks, each block checked before use.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import MapFormatError
+from .lookup import Section
+from .packed import NB_BLOCK, PAD, PAGE_CELLS, cells_of_dense, dense_cells, dense_side, neighbour_fields, page_fields
+
+__all__ = ["Directory", "Neighbours"]
+
+_TOP = np.uint64(2**64 - 1)
+
+
+def _corrupt(where: str, what: str) -> MapFormatError:
+    return MapFormatError(f"{where}: quad index {what} (file is corrupt)")
+
+
+class Directory:
+    """The cells of an index: the fence ``(P + 1, 4)`` (first key, first cell, first quad, first byte of each page)
+    and the packed pages of ``dir_data``; combinations ``combo_keys`` (ascending) with cell sides ``combo_cell``.
+
+    The fence is checked when the index is opened (rows ascending, its last row the counts, every page within
+    :data:`PAGE_CELLS` cells of one combination the header lists, its first cell within its combination's
+    cells); a page when it is first decoded (its length, gaps, counts and quads agree with the fence).
+    """
+
+    def __init__(self, fence: np.ndarray, data: Section, combo_keys: np.ndarray, combo_cell: np.ndarray,
+                 counts: tuple[int, int, int, int, int], bits: int, where: str) -> None:
+        n_cells, n_quads, dir_bytes, max_cell, n_pages = counts
+        self.where, self.bits, self.data, self.max_cell = where, bits, data, max_cell
+        key, cell, quad, byte = (fence[:, j] for j in range(4))
+        if (fence.shape[0] != n_pages + 1 or int(cell[-1]) != n_cells or int(quad[-1]) != n_quads
+                or int(byte[-1]) != dir_bytes or key[-1] != _TOP or cell[0] != 0 or quad[0] != 0 or byte[0] != 0):
+            raise _corrupt(where, "fence does not match the counts")
+        pages = np.diff(cell.astype(np.int64))
+        if n_pages and (not (key[1:] > key[:-1]).all() or pages.min() < 1 or pages.max() > PAGE_CELLS
+                        or not (np.diff(quad.astype(np.int64)) >= pages).all() or not (byte[1:] > byte[:-1]).all()):
+            raise _corrupt(where, "fence out of order")
+        self.fence_key, self.page_cells = key[:-1], pages
+        self.first_cell, self.first_quad = cell.astype(np.int64), quad.astype(np.int64)
+        self.first_byte = byte.astype(np.int64)
+        self.page_lk = (self.fence_key >> np.uint64(4 * bits)).astype(np.int64)
+        at = np.minimum(np.searchsorted(combo_keys, self.page_lk), max(combo_keys.size - 1, 0))
+        if n_pages and not (combo_keys.size and (combo_keys[at] == self.page_lk).all()):
+            raise MapFormatError(f"{where}: index of another map or damaged (its directory holds label combinations "
+                                 f"its header does not list); rebuild with mapdb index")
+        side = dense_side(combo_cell[at]) if n_pages else np.zeros(0, np.int64)
+        self.page_side = side
+        self.page_dense = dense_cells(self._cells(self.fence_key), side) if n_pages else np.zeros(0, np.int64)
+        if n_pages and ((self._cells(self.fence_key) >= side[:, None]).any()):
+            raise _corrupt(where, "fence names a cell out of range")
+        self.decoded = np.zeros(n_pages, bool)
+        self.key = np.zeros(n_cells, np.uint64)  # filled page by page as lookups decode them
+        self.start = np.zeros(n_cells, np.int64)
+        self.count = np.zeros(n_cells, np.int64)
+
+    def _cells(self, keys: np.ndarray) -> np.ndarray:
+        mask = np.uint64((1 << self.bits) - 1)
+        return np.column_stack([((keys >> np.uint64(self.bits * (3 - j))) & mask).astype(np.int64)
+                                for j in range(4)]).reshape(-1, 4)
+
+    def decode(self, pages: np.ndarray) -> None:
+        """Decode and check the pages not decoded yet among ``pages``."""
+        todo = np.unique(pages[~self.decoded[pages]])
+        if not todo.size:
+            return
+        lo, hi, n = self.first_byte[todo], self.first_byte[todo + 1], self.page_cells[todo]
+        self.data.check_ranges(lo, np.minimum(hi + PAD, self.data.array.size))
+        # The widths first (a page's first two bytes): the fields they place must fill the page exactly.
+        wg, wc = self.data.array[lo].astype(np.int64), self.data.array[lo + 1].astype(np.int64)
+        if (wg > 32).any() or (wc > 32).any() or (-(-(16 + (n - 1) * wg + n * wc) // 8) != hi - lo).any():
+            raise _corrupt(self.where, "directory page out of range")
+        offsets, counts, _ = page_fields(self.data.array, lo, n)
+        span = self.page_side[todo] ** 4
+        page = np.repeat(np.arange(todo.size), n)
+        rank = np.arange(page.size) - np.repeat(np.cumsum(n) - n, n)
+        step = np.diff(offsets, prepend=-1)
+        if (((step <= 0) & (rank > 0)).any() or (self.page_dense[todo][page] + offsets >= span[page]).any()
+                or counts.max() > self.max_cell
+                or (np.bincount(page, counts, todo.size) != self.first_quad[todo + 1] - self.first_quad[todo]).any()):
+            raise _corrupt(self.where, "directory page out of range")
+        dense = self.page_dense[todo][page] + offsets
+        cells = cells_of_dense(dense, self.page_side[todo][page])
+        key = self.page_lk[todo][page].astype(np.uint64)
+        for j in range(4):
+            key = (key << np.uint64(self.bits)) | cells[:, j].astype(np.uint64)
+        at = self.first_cell[todo][page] + rank
+        self.key[at] = key
+        self.count[at] = counts
+        before = np.cumsum(counts) - counts  # quads before each cell, restarted at each page
+        self.start[at] = self.first_quad[todo][page] + before - np.repeat(before[np.cumsum(n) - n], n)
+        self.decoded[todo] = True
+
+    def find(self, keys: np.ndarray) -> np.ndarray:
+        """Cell numbers of cell keys (-1 where absent): the fence names the page, a search inside it the cell."""
+        if not self.fence_key.size or not keys.size:
+            return np.full(keys.size, -1, np.int64)
+        page = np.searchsorted(self.fence_key, keys, side="right") - 1
+        ok = page >= 0
+        page = np.maximum(page, 0)
+        self.decode(page[ok])
+        lo, hi = self.first_cell[page], self.first_cell[page + 1]
+        # Branchless binary search inside each page (at most PAGE_CELLS cells): every probe stays on the page.
+        at = lo
+        for step in (PAGE_CELLS >> 1) >> np.arange((PAGE_CELLS >> 1).bit_length()):
+            at = at + step * (self.key[np.minimum(at + (step - 1), hi - 1)] < keys)
+        found = ok & (at < hi)
+        found[found] = self.key[at[found]] == keys[found]
+        return np.where(found, at, -1)
+
+    def first_cells(self, lk: np.ndarray) -> np.ndarray:
+        """The first cell of each label combination ``lk`` (a page begins there); refused if it has none."""
+        page = np.searchsorted(self.page_lk, lk)
+        ok = page < self.page_lk.size
+        ok[ok] = self.page_lk[page[ok]] == lk[ok]
+        if not ok.all():
+            raise MapFormatError(f"{self.where}: index of another map or damaged (its header lists a label "
+                                 f"combination its directory has no cell of); rebuild with mapdb index")
+        self.decode(page)
+        return self.first_cell[page]
+
+
+class Neighbours:
+    """Each object's ``k`` nearest neighbours, packed in blocks of :data:`NB_BLOCK` objects (``nb_start``,
+    ``nb_width``, ``nb_data``); a block's offsets and width are checked against the data the first time it is
+    read."""
+
+    def __init__(self, start: Section, width: Section, data: Section, n: int, k: int, where: str) -> None:
+        self.start, self.width, self.data, self.n, self.k, self.where = start, width, data, n, k, where
+        self.checked = np.zeros(width.array.size, bool)
+        self.max_width = max(1, (2 * max(n, 1)).bit_length())
+
+    def rows(self, objects: np.ndarray) -> np.ndarray:
+        """Neighbour ids ``(m, k)`` (int64, each checked below ``n``) of objects (already checked below ``n``)."""
+        block = objects // NB_BLOCK
+        todo = np.unique(block[~self.checked[block]])
+        if todo.size:
+            lo = self.start.rows(todo).astype(np.int64)
+            hi = self.start.rows(todo + 1).astype(np.int64)
+            w = self.width.rows(todo).astype(np.int64)
+            size = np.minimum(self.n - todo * NB_BLOCK, NB_BLOCK)
+            if ((w > self.max_width).any() or (hi - lo != -(-(size * self.k * w) // 8)).any() or (lo < 0).any()
+                    or (hi > self.data.array.size - PAD).any()):
+                raise _corrupt(self.where, "neighbour block out of range")
+            self.data.check_ranges(lo, hi + PAD)
+            self.checked[todo] = True
+        lo = self.start.array[block].astype(np.int64)
+        ids = neighbour_fields(self.data.array, lo, self.width.array[block].astype(np.int64), objects, self.k)
+        if ids.size and (ids.min() < 0 or ids.max() >= self.n):
+            raise _corrupt(self.where, "holds an object id out of range")
+        return ids
