@@ -1,23 +1,30 @@
-"""The matcher core side by side with an earlier commit: time per image and process start-up.
+"""The matcher core side by side with an earlier commit: time per image, numpy calls per image, start-up.
 
-1. Andorra (``../shared/data/osm``, all labels) images as issue 8 measures them: 300 m, 60 degree field of
-   view, random heading, 1 px and 0.05 degree errors, at least 6 objects; median time per ``localize``
-   call with a 300 m prior in each image and without a prior (the whole map's index built once first,
-   outside the timing), and how many were localized within 2 m.
-2. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
+1. Per image, on each real extract of ``shared/data/osm`` (Andorra, Monaco, Liechtenstein; all labels; maps
+   built once into a cache outside the repository) with images as issue 8 measures them: 300 m, 60 degree
+   field of view, random heading, 1 px and 0.05 degree errors, at least 6 objects.  Median and p95 time per
+   ``localize`` call with a 300 m prior in each image and without a prior (the whole map's index built once
+   first, outside the timing), how many were localized within 2 m, and how many answers (status and
+   position) are the same as the first version's.
+2. Numpy calls per image (median): calls from code outside numpy into numpy (a ufunc, an array method, a
+   function of numpy's package), counted with ``sys.setprofile`` on a separate untimed pass.
+3. A gauge of the machine's speed: the median time of a fixed numpy workload (:func:`gauge_ms`), taken before
+   each map's timings and printed beside them, and the load average, so that figures from different machines
+   (or one machine under different loads) can be compared.
+4. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
    answer's line on the pipe (and to exit), median of ``--repeats`` processes.  As installed: Python's
    bytecode cache in use (kept in a temporary ``PYTHONPYCACHEPREFIX``, filled by one untimed run of each
    command, so the working tree gets no ``__pycache__``); and with ``PYTHONDONTWRITEBYTECODE=1`` and no
    cache, as in a sandbox where every process compiles mapdb's sources.  The command is the ``mapdb``
    script beside this Python (a version manager's shim on PATH, such as pyenv's, adds 0.06-0.1 s of its
-   own).  ``--startup-only`` skips part 1.
+   own).  ``--startup-only`` skips parts 1-3, ``--no-startup`` skips part 4.
 
 With ``--baseline REV`` the code of that revision runs in the same process, image by image in turn with
-this tree's, so both meet the same load.
+this tree's (which goes first alternates image by image), so both meet the same load.
 
 Run from the repository root::
 
-    python benchmarks/matcher_core.py --baseline 98b7ab6
+    python benchmarks/matcher_core.py --baseline 5144dec
 """
 
 from __future__ import annotations
@@ -34,18 +41,81 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, as_json, import_baseline  # noqa: E402
+from _baseline import ROOT, as_json, cached_maps, import_baseline  # noqa: E402
 
-ANDORRA = ROOT.parent / "shared" / "data" / "osm" / "andorra-2021-06-22.osm.pbf"
+# Beside the checkout (``../shared/data``), or the machine's shared copy for a worktree elsewhere.
+DATA = next((d for d in (ROOT.parent / "shared" / "data" / "osm", Path("/work/shared/data/osm")) if d.is_dir()),
+            ROOT.parent / "shared" / "data" / "osm")
+EXTRACTS = {
+    "andorra": "andorra-2021-06-22.osm.pbf",
+    "monaco": "monaco-2021-12-03.osm.pbf",
+    "liechtenstein": "liechtenstein-2013-08-03.osm.pbf",
+}
+CACHE = Path(tempfile.gettempdir()) / "mapdb-bench-matcher-core"
+ANDORRA = DATA / EXTRACTS["andorra"]
 
-def time_images(versions: dict, map_path: Path, images: list[dict]) -> dict:
-    """Median ms per image of each version's ``localize``, alternating versions image by image; localized
-    images, and answers (status and position) identical to the first version's."""
+
+def gauge_ms(repeats: int = 7) -> float:
+    """The machine's speed: median ms of a fixed numpy workload (a 256 x 256 matrix product, a sort of 200,000
+    numbers and 2,000 small-array calls, the matcher's mix of arithmetic and dispatch)."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    m = rng.random((256, 256))
+    v = rng.random(200_000)
+    small = rng.random(16)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        (m @ m).sum()
+        np.sort(v)
+        for _ in range(2_000):
+            np.abs(small - 0.5).argmin()
+        times.append((time.perf_counter() - start) * 1000.0)
+    return statistics.median(times)
+
+
+def count_numpy_calls(localize, image: dict, map_) -> int:
+    """Calls from outside numpy into numpy made by one ``localize`` call (``sys.setprofile``)."""
+    import numpy as np
+
+    count = 0
+
+    def in_numpy(frame) -> bool:
+        return frame is not None and str(frame.f_globals.get("__name__", "")).startswith("numpy")
+
+    def profile(frame, event, arg) -> None:
+        nonlocal count
+        if event == "call":
+            count += in_numpy(frame) and not in_numpy(frame.f_back)
+        elif event == "c_call" and not in_numpy(frame):
+            owner = getattr(arg, "__self__", None)
+            count += (isinstance(arg, np.ufunc) or isinstance(owner, (np.ndarray, np.generic))
+                      or str(getattr(arg, "__module__", "") or "").startswith("numpy"))
+
+    sys.setprofile(profile)
+    try:
+        localize(image, map_)
+    finally:
+        sys.setprofile(None)
+    return count
+
+
+def p95(values: list[float]) -> float:
+    """The 95th percentile (nearest rank)."""
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, math.ceil(0.95 * len(ordered)) - 1)]
+
+
+def time_images(versions: dict, map_path: Path, images: list[dict], counted: int) -> dict:
+    """Per version and case (prior, no prior): median and p95 ms per image of ``localize``, alternating
+    versions image by image; localized images, answers (status and position) identical to the first
+    version's, and the median numpy calls an image over the first ``counted`` images."""
     result = {}
     for case in ("prior", "no prior"):
         subset = images if case == "prior" else [{k: v for k, v in im.items() if k != "prior"} for im in images]
         maps = {label: store.open_map(map_path) for label, (localize, store) in versions.items()}
-        times = {label: [] for label in versions}
+        times: dict[str, list[float]] = {label: [] for label in versions}
         good = dict.fromkeys(versions, 0)
         answers: dict[str, list] = {label: [] for label in versions}
         for label, (localize, _) in versions.items():
@@ -57,16 +127,19 @@ def time_images(versions: dict, map_path: Path, images: list[dict]) -> dict:
             for label, (localize, _) in order if i % 2 == 0 else order[::-1]:
                 start = time.perf_counter()
                 answer = as_json(localize(im, maps[label]))
-                answers[label].append((answer["status"], answer.get("x"), answer.get("y")))
                 times[label].append((time.perf_counter() - start) * 1000.0)
+                answers[label].append((answer["status"], answer.get("x"), answer.get("y")))
                 good[label] += answer["status"] == "ok" and math.hypot(
                     answer["x"] - im["truth"]["x"], answer["y"] - im["truth"]["y"]) <= 2.0
         first = answers[next(iter(versions))]
-        for label in versions:
+        for label, (localize, _) in versions.items():
+            calls = [count_numpy_calls(localize, im, maps[label]) for im in subset[:counted]]
             maps[label].close()
-            result.setdefault(label, {})[case] = {"median_ms": statistics.median(times[label]),
-                                                  "localized": good[label], "images": len(subset),
-                                                  "same": sum(a == b for a, b in zip(answers[label], first))}
+            result.setdefault(label, {})[case] = {
+                "median_ms": statistics.median(times[label]), "p95_ms": p95(times[label]),
+                "localized": good[label], "images": len(subset),
+                "same": sum(a == b for a, b in zip(answers[label], first)),
+                "numpy_calls": statistics.median(calls) if calls else float("nan")}
     return result
 
 
@@ -109,8 +182,19 @@ def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int) -> 
         print(f"  {label:<34} {times['--help']:6.3f}s {times['query answer']:13.3f}s {times['query exit']:6.3f}s")
 
 
-def per_image_table(args: argparse.Namespace, map_path: Path, images: list[dict], work: Path) -> None:
-    """Print part 1: median ms per image of this tree (and the baseline), with and without a prior."""
+def simulated(map_path: Path, n: int, seed: int) -> list[dict]:
+    """``n`` images over the map as issue 8 measures them, each with a 300 m prior."""
+    from mapdb.mapfile.reader import open_map
+    from mapdb.simulation.simulate import simulate_images
+
+    with open_map(map_path) as m:
+        return simulate_images(m, n, altitude=300.0, fov_deg=60.0, yaw="random", pixel_std=1.0,
+                               attitude_std=0.05, min_objects=6, with_prior=300.0, seed=seed)
+
+
+def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path) -> None:
+    """Print parts 1-3: per map, median and p95 ms per image of this tree (and the baseline), with and without
+    a prior, numpy calls an image and the gauge taken just before."""
     from mapdb.localize import localizer as tree_localize
     from mapdb.mapfile import reader as tree_reader
 
@@ -118,49 +202,58 @@ def per_image_table(args: argparse.Namespace, map_path: Path, images: list[dict]
     if args.baseline:
         old = import_baseline(args.baseline, work)
         versions[f"baseline {args.baseline}"] = (old.localize, import_baseline(args.baseline, work, "store"))
-    results = time_images(versions, map_path, images)
-    print(f"Andorra, {args.n} images: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects "
-          f"({statistics.mean(len(im['objects']) for im in images):.1f} objects per image)")
-    print(f"  {'code':<24} {'case':<9} {'median ms':>9} {'localized':>10} {'same answers':>13}")
-    for label, res in results.items():
-        for case, r in res.items():
-            print(f"  {label:<24} {case:<9} {r['median_ms']:9.2f} {r['localized']:6d}/{r['images']}"
-                  f" {r['same']:>9d}/{r['images']}")
-    if args.baseline:
-        base = results[f"baseline {args.baseline}"]
-        for case in ("prior", "no prior"):
-            ratio = base[case]["median_ms"] / results["this tree"][case]["median_ms"]
-            print(f"  {case}: this tree is {ratio:.2f}x the baseline's speed")
+    print(f"{args.n} images a map: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects, prior 300 m; "
+          f"numpy calls over the first {min(args.count, args.n)}; load average {os.getloadavg()[0]:.1f}")
+    print(f"  {'map':<14} {'code':<17} {'case':<9} {'median ms':>9} {'p95 ms':>8} {'localized':>10} "
+          f"{'same':>8} {'numpy calls':>11} {'gauge ms':>8}")
+    for name, path in maps.items():
+        images = simulated(path, args.n, args.seed)
+        gauge = gauge_ms()
+        results = time_images(versions, path, images, args.count)
+        for label, res in results.items():
+            for case, r in res.items():
+                print(f"  {name:<14} {label:<17} {case:<9} {r['median_ms']:9.2f} {r['p95_ms']:8.2f} "
+                      f"{r['localized']:5d}/{r['images']:<4d} {r['same']:4d}/{r['images']:<4d}"
+                      f"{r['numpy_calls']:11.0f} {gauge:8.1f}")
+        tree = results["this tree"]
+        with_prior, without = tree["prior"], tree["no prior"]
+        print(f"  {name:<14} this tree, prior / no prior: median "
+              f"{with_prior['median_ms'] / without['median_ms']:.2f}, "
+              f"p95 {with_prior['p95_ms'] / without['p95_ms']:.2f}")
+        if args.baseline:
+            base = results[f"baseline {args.baseline}"]
+            for case in ("prior", "no prior"):
+                print(f"  {name:<14} {case}: this tree / baseline: median "
+                      f"{tree[case]['median_ms'] / base[case]['median_ms']:.2f}, "
+                      f"p95 {tree[case]['p95_ms'] / base[case]['p95_ms']:.2f}")
+    print(f"  load average after: {os.getloadavg()[0]:.1f}; gauge {gauge_ms():.1f} ms")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--n", type=int, default=300, help="images")
+    parser.add_argument("--n", type=int, default=300, help="images a map")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--baseline", metavar="REV", help="also run the matcher of this git revision")
+    parser.add_argument("--maps", default=",".join(EXTRACTS), help="extracts measured (comma separated)")
+    parser.add_argument("--count", type=int, default=20, help="images whose numpy calls are counted")
     parser.add_argument("--repeats", type=int, default=5, help="runs of each start-up measurement")
     parser.add_argument("--startup-only", action="store_true", help="measure start-up only (not per image)")
+    parser.add_argument("--no-startup", action="store_true", help="measure per image only (not start-up)")
     args = parser.parse_args()
-    if not ANDORRA.exists():
-        sys.exit(f"skipped: {ANDORRA} not found")
-    from mapdb.build.pipeline import build_map
-    from mapdb.mapfile.reader import open_map
-    from mapdb.simulation.simulate import simulate_images
-
+    names = [n for n in args.maps.split(",") if n]
+    if not all((DATA / EXTRACTS[n]).exists() for n in names):
+        sys.exit(f"skipped: the extracts are not all in {DATA}")
+    maps = cached_maps({n: EXTRACTS[n] for n in names}, DATA, CACHE)
+    print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; gauge (fixed numpy "
+          f"workload) {gauge_ms():.1f} ms")
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        map_path = work / "andorra.mapdb"
-        build_map([ANDORRA], map_path)
-        with open_map(map_path) as m:
-            images = simulate_images(m, args.n, altitude=300.0, fov_deg=60.0, yaw="random", pixel_std=1.0,
-                                     attitude_std=0.05, min_objects=6, with_prior=300.0, seed=args.seed)
-        images_path = work / "images.jsonl"
-        images_path.write_text("".join(json.dumps(im) + "\n" for im in images))
-        one_image = work / "one.jsonl"
-        one_image.write_text(json.dumps(images[0]) + "\n")
         if not args.startup_only:
-            per_image_table(args, map_path, images, work)
-        startup_table(map_path, one_image, work, args.repeats)
+            per_image_table(args, maps, work)
+        if not args.no_startup:
+            one_image = work / "one.jsonl"
+            one_image.write_text(json.dumps(simulated(maps[names[0]], 1, args.seed)[0]) + "\n")
+            startup_table(maps[names[0]], one_image, work, args.repeats)
 
 
 if __name__ == "__main__":
