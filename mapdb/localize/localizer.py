@@ -287,7 +287,9 @@ class Localizer:
 
         An index that cannot be used (damaged, of another map, not a regular file) is not: the quad index is
         built in memory instead, saying so once (:attr:`warn`).  Where the whole map is decoded anyway (a
-        map the object index holds whole), the index's coordinates are checked against it exactly.
+        map the object index holds whole), the index's coordinates are checked against it exactly.  The index of
+        a map with blocks holds the quads of the map without them (``docs/index_format.md``): it serves the view
+        without blocks only, and an index without that mark (blocks and buildings as one world) none.
         """
         # A map with blocks: only its view without blocks is served, by an index of the map without them.
         base = self.map.raw if isinstance(self.map, BlocksView) else self.map
