@@ -32,8 +32,9 @@ def index(map_file, output, neighbours, workers, overwrite, as_json, quiet, debu
 
     Lookups without a prior then read the index (memory-mapped, opened in milliseconds) instead of
     building one in memory.  The index records which map it was built from and is refused for any
-    other, or for the map once rewritten: rebuild it then.  An existing index (or OUTPUT) is replaced only
-    with --overwrite.
+    other, or for the map once rewritten: rebuild it then.  A map with blocks of buildings is indexed without
+    its blocks: the index serves point images; images with building areas (mask blobs) search in memory.  An
+    existing index (or OUTPUT) is replaced only with --overwrite.
     """
     from mapdb.match.index.stored import build_index, index_path
     from mapdb.outputs import dumps_strict

@@ -213,6 +213,8 @@ HEADER_CASES = {
     "crc table crc": _set("crc_crc32", value=lambda c: c ^ 1),
     "format version 4 in the header": _set("format_version", value=4),
     "sections gone": _set("sections", value={}),
+    "blocks not the documented value": _set("blocks", value=1),  # (the key is written for maps with blocks)
+    "blocks said of a map without": _set("blocks", value="left out"),
 }
 
 SECTION_CASES = {
@@ -241,7 +243,8 @@ SECTION_CASES = {
 # case is a whole query, about 0.3 s of CPU).
 DEFAULT_CASES = {"origin shifted", "origin 1e30 (N7)", "quantum doubled", "combos empty", "cell sides halved",
                  "coords shifted", "coords permuted", "coords permuted in a page", "coords zeroed", "sub zeroed",
-                 "neighbours permuted", "anchor permuted", "dir data permuted"}
+                 "neighbours permuted", "anchor permuted", "dir data permuted", "blocks not the documented value",
+                 "blocks said of a map without"}
 
 
 def _cases(cases: dict) -> list:

@@ -177,3 +177,44 @@ def test_a_reader_written_from_the_document_reads_what_the_library_reads(small) 
             g = np.floor(s).astype(int)
             assert [(key >> (b * (3 - j))) & ((1 << b) - 1) for j in range(4)] == g.tolist()
             assert np.floor((s - g) * 2**sb).astype(int).tolist() == sub
+
+
+def test_a_map_with_blocks_is_indexed_as_documented_without_them(tmp_path: Path) -> None:
+    """The document's section "Maps with blocks": the header key, every object's neighbours the nearest objects
+    that are not blocks, no quad anchored at or holding a block, the quads those of the map without blocks."""
+    objects = _objects(300)
+    labels = (*objects.labels, "building_block")
+    # A block beside every tenth object (a label the map's table knows: the index does not care what a block is).
+    near = np.arange(0, len(objects), 10)
+    x = np.concatenate([objects.x, objects.x[near] + 3.0])
+    y = np.concatenate([objects.y, objects.y[near] + 2.0])
+    label = np.concatenate([objects.label, np.full(near.size, 3)])
+    with_blocks = Objects(x, y, label, np.zeros(x.size), labels, objects.crs)
+    path, plain = tmp_path / "b.mapdb", tmp_path / "n.mapdb"
+    write_map(path, with_blocks, page_capacity=100)
+    write_map(plain, Objects(objects.x, objects.y, objects.label, objects.area, labels, objects.crs), page_capacity=100)
+    build_index(path, workers=1)
+    build_index(plain, workers=1)
+    doc = read_as_documented(Path(str(path) + ".qidx"))
+    assert doc["header"]["blocks"] == "left out" and "blocks" not in read_as_documented(Path(str(plain) + ".qidx"))[
+        "header"]
+    with open_map(path) as m:
+        mine = m.all()
+    block = mine.label == 3
+    xy = np.column_stack([mine.x, mine.y])
+    world = np.flatnonzero(~block)
+    ku = doc["header"]["quad_neighbours"]
+    for i, nb in enumerate(doc["neighbours"]):
+        d = np.hypot(*(xy[world] - xy[i]).T)
+        d[world == i] = np.inf  # the object itself is not its own neighbour
+        assert not block[nb].any() and np.allclose(np.sort(d)[:ku], np.hypot(*(xy[nb] - xy[i]).T))
+    assert not any(block[members].any() for members, _ in doc["records"])
+    # The same quads (as positions) as the index of the map without its blocks.
+    theirs = read_as_documented(Path(str(plain) + ".qidx"))
+    with open_map(plain) as n:
+        plain_objects = n.all()
+
+    def positions(records: list, o: Objects) -> set:
+        return {tuple(sorted(zip(o.x[ms].tolist(), o.y[ms].tolist(), strict=True))) for ms, _ in records}
+
+    assert positions(doc["records"], mine) == positions(theirs["records"], plain_objects) != set()

@@ -199,8 +199,8 @@ class Localizer:
         """The localizer of a map with blocks seen with them folded into buildings, or left out."""
         view = self._views.get(fold)
         if view is None:
-            if not self._views:
-                self._no_stored_index_for_blocks()
+            if fold:
+                self._no_stored_index_for_masks()
             view = Localizer(BlocksView(self.map, fold), self.method, self.options, self.prior)
             view.warn = self.warn
             self._views[fold] = view
@@ -219,13 +219,14 @@ class Localizer:
             self._drop_stored(str(exc))
             return _answer(self, image, self.prior if prior is None else prior, source)
 
-    def _no_stored_index_for_blocks(self) -> None:
-        """Say once that a stored index beside a map with blocks is not used: its quads mix blocks and buildings
-        in one world, which neither view searches (:mod:`mapdb.match.mapobjects.blocks_view`)."""
+    def _no_stored_index_for_masks(self) -> None:
+        """Say once that a map's stored index does not serve the images matched against its blocks: it holds the
+        quads of the map without them, which the view without blocks searches, but not those of the folded view's
+        second world (:mod:`mapdb.match.mapobjects.blocks_view`)."""
         path = getattr(self.map, "path", None)
         if self.method == "fast" and path is not None and index_path(path).exists():
-            self.warn(f"{index_path(path)}: not used for a map with blocks of buildings (answering with the in-memory "
-                      "search); build the map with --no-blocks to use a stored index")
+            self.warn(f"{index_path(path)}: serves point images only on a map with blocks of buildings; images with "
+                      "building areas (mask blobs) are answered with the in-memory search")
 
     @property
     def fast_options(self) -> FastOptions:
@@ -286,12 +287,16 @@ class Localizer:
 
         An index that cannot be used (damaged, of another map, not a regular file) is not: the quad index is
         built in memory instead, saying so once (:attr:`warn`).  Where the whole map is decoded anyway (a
-        map the object index holds whole), the index's coordinates are checked against it exactly.
+        map the object index holds whole), the index's coordinates are checked against it exactly.  The index of
+        a map with blocks holds the quads of the map without them (``docs/index_format.md``): it serves the view
+        without blocks only, and an index without that mark (blocks and buildings as one world) none.
         """
-        if not isinstance(self.map, MetaMap) or self._stored_failed:
+        # A map with blocks: only its view without blocks is served, by an index of the map without them.
+        base = self.map.raw if isinstance(self.map, BlocksView) else self.map
+        if not isinstance(base, MetaMap) or self._stored_failed or self._folds_blocks():
             return None
         try:
-            stored = StoredQuadIndex.for_map(self.map)
+            stored = StoredQuadIndex.for_map(base)
         except MapdbError as exc:
             self._drop_stored(str(exc))
             return None
@@ -299,9 +304,15 @@ class Localizer:
             if stored is not None:
                 stored.close()
             return None
-        if len(self.map) < PAGED_FROM_OBJECTS:
+        if stored.blocks_left_out != (base is not self.map):
+            stored.close()
+            why = ("its header says the map has blocks" if stored.blocks_left_out else "its quads mix the map's "
+                   "blocks and buildings in one world (written before mapdb indexed a map with blocks without them)")
+            self._drop_stored(f"{stored.path}: {why}")
+            return None
+        if len(base) < PAGED_FROM_OBJECTS:
             try:
-                objects = self.map.all()  # a damaged map page is the map's error, raised as without an index
+                objects = base.all()  # a damaged map page is the map's error, raised as without an index
             except BaseException:
                 stored.close()
                 raise

@@ -32,9 +32,20 @@ from ...mapfile.reader import open_map
 from ...objects import Objects
 from ...outputs import atomic_path, check_outputs, creation_time, pid_alive
 from .binding import map_identity
-from .generate import RECORD, SHARED, cell_for, choose_cells, chunk_records, neighbour_table, sample_quads
+from .generate import (
+    RECORD,
+    SHARED,
+    block_free_world,
+    cell_for,
+    choose_cells,
+    chunk_records,
+    neighbour_table,
+    sample_quads,
+    world_neighbours,
+)
 from .layout import (
     BLOCK,
+    BLOCKS_LEFT_OUT,
     FORMAT_NAME,
     INDEX_VERSION,
     MAX_NEIGHBOURS,
@@ -76,6 +87,7 @@ class _Build:
     tmp: Path = Path()
     workdir: Path = Path()
     pool: concurrent.futures.Executor | None = None
+    blocks_left_out: bool = False  # a map with blocks, indexed without them (header key ``blocks``)
 
 
 def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str] | None = None, *,
@@ -158,9 +170,12 @@ def _read_map(map_path: str | os.PathLike[str], neighbours: int, target: float, 
         objects = map_.all()
         n_labels = len(map_.labels)
         quantum = float(map_.quantum)
+        # A map with blocks: quads of the map without them, the world point images are matched in
+        # (mapdb.match.mapobjects.blocks_view); a map without blocks is indexed as before, byte for byte.
+        world = block_free_world(map_, objects)
     n = len(objects)
     coords, origin = _quantize(objects, quantum, tuple(identity["origin"]), map_path)
-    k = min(neighbours, n - 1)
+    k = min(neighbours, (n if world is None else int(world.sum())) - 1)
     ku = min(k, QUAD_NEIGHBOURS)
     xy = np.column_stack([objects.x, objects.y])
     z = objects.x + 1j * objects.y
@@ -169,13 +184,15 @@ def _read_map(map_path: str | os.PathLike[str], neighbours: int, target: float, 
     label_bits, bits = key_layout(n_labels)
     if k >= 3:
         say(f"finding {ku} neighbours of {n} objects ...")
-        table = neighbour_table(xy, ku, workers)
+        table = neighbour_table(xy, ku, workers) if world is None else world_neighbours(xy, world, ku, workers)
     else:
         table = np.zeros((n, 0), np.uint32)
     del xy
     SHARED.clear()
-    SHARED.update(neighbours=table, z=z, label=label, n_labels=n_labels, bits=bits)
-    return _Build(n, k, ku, coords, table, identity, origin, label_bits, bits, target, workers, say)
+    SHARED.update(neighbours=table, z=z, label=label, n_labels=n_labels, bits=bits, world=world)
+    build = _Build(n, k, ku, coords, table, identity, origin, label_bits, bits, target, workers, say)
+    build.blocks_left_out = world is not None
+    return build
 
 
 def _quantize(objects: Objects, quantum: float, origin: tuple[int, ...],
@@ -370,4 +387,5 @@ def _header(b: _Build, counts: dict[str, int], combos: list[tuple[int, float]], 
         "crc_crc32": zlib.crc32(crc_table.tobytes()),
         "software": f"mapdb {__version__}",
         "created": creation_time(),
+        **({"blocks": BLOCKS_LEFT_OUT} if b.blocks_left_out else {}),
     }

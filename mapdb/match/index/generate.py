@@ -13,18 +13,20 @@ from typing import Any
 import numpy as np
 
 from ..._scipy import cKDTree
+from ...labels import BLOCK_LABEL
 from ..quads import canonical_quads, label_keys, nearest_others
 from .layout import CELL_LADDER, cell_keys, cells_of, triples
 
-__all__ = ["RECORD", "SHARED", "cell_for", "choose_cells", "chunk_quads", "chunk_records", "neighbour_table",
-           "sample_quads"]
+__all__ = ["RECORD", "SHARED", "block_free_world", "cell_for", "choose_cells", "chunk_quads", "chunk_records",
+           "neighbour_table", "sample_quads", "world_neighbours"]
 
 _SAMPLE_QUADS = 2_000_000  # quads sampled to choose cells and buckets
 _BLOCK_ANCHORS = 1024  # anchors whose quads are generated at once
 RECORD = np.dtype([("key", "<u8"), ("anchor", "<u4"), ("triple", "u1"), ("sub", "u1", (4,))])  # a bucket's quads
 
 # Arrays of the build shared with forked worker processes (read-only, inherited copy-on-write):
-# neighbours, z, label, n_labels, bits, and once the sample has chosen them combo_keys, combo_cell, splitters.
+# neighbours, z, label, n_labels, bits, world (None, or which objects anchor quads), and once the sample has
+# chosen them combo_keys, combo_cell, splitters.
 SHARED: dict[str, Any] = {}
 
 
@@ -45,6 +47,36 @@ def neighbour_table(xy: np.ndarray, k: int, workers: int) -> np.ndarray:
     return table
 
 
+def block_free_world(map_: Any, objects: Any) -> np.ndarray | None:
+    """Which of a map's objects (``map_.all()``) are not blocks, for a map holding blocks; None for one without.
+
+    The index of a map with blocks holds the quads of the map without them: those of the view point images are
+    matched in (:mod:`~mapdb.match.mapobjects.blocks_view`), identical to the map's built with ``--no-blocks``.
+    """
+    from ..mapobjects.blocks_view import has_blocks  # the one definition of a map holding blocks
+
+    if not has_blocks(map_):
+        return None
+    return np.asarray(objects.label) != list(map_.labels).index(BLOCK_LABEL)
+
+
+def world_neighbours(xy: np.ndarray, world: np.ndarray, k: int, workers: int) -> np.ndarray:
+    """Each object's ``k`` nearest other objects of ``world`` (uint32 ids of all objects, nearest first).
+
+    Objects of the world get :func:`neighbour_table` of the world alone (the same tree, in the same order, as
+    the map without its other objects); the others (blocks: no quad is anchored at one) their ``k`` nearest
+    world objects, so that their rows pack as small as their neighbours' ids.
+    """
+    ids = np.flatnonzero(world)
+    table = np.empty((len(xy), k), np.uint32)
+    table[ids] = ids[neighbour_table(xy[ids], k, workers)]
+    rest = np.flatnonzero(~world)
+    if rest.size:
+        _, near = cKDTree(xy[ids]).query(xy[rest], k=k)
+        table[rest] = ids[np.asarray(near).reshape(rest.size, k)]
+    return table
+
+
 def chunk_quads(lo: int, hi: int, anchors: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """The quads anchored at objects ``lo..hi`` (or at ``anchors``), each kept at one anchor only.
 
@@ -54,6 +86,8 @@ def chunk_quads(lo: int, hi: int, anchors: np.ndarray | None = None) -> tuple[np
     k = table.shape[1]
     numbered = triples(k)
     a = np.arange(lo, hi, dtype=np.int64) if anchors is None else anchors.astype(np.int64)
+    if SHARED.get("world") is not None:
+        a = a[SHARED["world"][a]]  # a map's blocks anchor no quad (block_free_world)
     t = len(numbered)
     anchor = np.repeat(a, t)
     triple = np.tile(np.arange(t, dtype=np.int64), a.size)

@@ -27,6 +27,7 @@ from .packed import NB_BLOCK, PAD, PAGE_CELLS, record_layout
 __all__ = [
     "BLOCK",
     "BLOCK_BITS",
+    "BLOCKS_LEFT_OUT",
     "CELL_LADDER",
     "Counts",
     "FORMAT_NAME",
@@ -42,6 +43,7 @@ __all__ = [
     "cell_keys",
     "cells_of",
     "check_sections",
+    "header_blocks",
     "header_combos",
     "header_counts",
     "index_path",
@@ -59,6 +61,9 @@ FORMAT_NAME = "mapdb-quad-index"
 INDEX_MAGIC = b"\x89MAPDBQX"
 INDEX_VERSION = 3  # 3: compact (packed quad records, neighbours and directory); 2: bound to its map; 1: neither
 INDEX_SUFFIX = ".qidx"
+# The header's ``blocks`` value for a map with blocks of buildings indexed without them (the quads of the world
+# point images are matched in); the key is absent for a map without blocks.
+BLOCKS_LEFT_OUT = "left out"
 # magic | u16 version | u16 flags | u64 header offset | u32 header length | u32 header CRC-32 | u32 CRC-32 of
 # the 28 bytes before it.  The JSON header is written last, at the end of the file, since it holds the
 # section sizes and checksums.
@@ -360,3 +365,13 @@ def pwrite_all(fd: int, data: bytes, offset: int) -> None:
     while view:
         written = os.pwrite(fd, view, offset)
         view, offset = view[written:], offset + written
+
+
+def header_blocks(h: dict[str, Any], where: str) -> bool:
+    """Whether the header says its map's blocks are left out of the quads (key ``blocks``; absent: no blocks)."""
+    if "blocks" not in h:
+        return False
+    if h["blocks"] != BLOCKS_LEFT_OUT:
+        raise MapFormatError(f"{where}: quad index header field blocks is {str(h['blocks'])[:40]!r}, not "
+                             f"{BLOCKS_LEFT_OUT!r}")
+    return True

@@ -45,18 +45,13 @@ import numpy as np
 from ...errors import MapdbIOError, MapFormatError, open_regular, reading
 from ...mapfile.reader import MetaMap
 from ..quads import canonical_quads, label_keys
-from .binding import (
-    PageBoxes,
-    check_filed,
-    check_identity,
-    check_positions,
-    map_identity,
-)
+from .binding import PageBoxes, check_filed, check_identity, check_positions, map_identity
 from .build import build_index
 from .directory import Directory, Neighbours
 from .layout import (
     INDEX_SUFFIX,
     check_sections,
+    header_blocks,
     header_combos,
     header_counts,
     index_path,
@@ -98,6 +93,8 @@ class StoredQuadIndex:
         The map's label names: label codes in lookups index into them.
     neighbours : int
         The matcher's neighbours per anchor the index serves (its quads are of each object's 4 nearest).
+    blocks_left_out : bool
+        True for the index of a map with blocks of buildings: its quads are those of the map without the blocks.
     n_objects, n_quads, n_cells : int
     quantum : float
     """
@@ -135,6 +132,7 @@ class StoredQuadIndex:
         self.header = h
         self.identity = dict(h["map"])
         self.labels = tuple(str(s) for s in self.identity["labels"])
+        self.blocks_left_out = header_blocks(h, where)
         c = header_counts(h, len(self.labels), self.identity, where)
         self.quantum = float(self.identity["quantum"])
         self.max_cell, self.origin, self._bits = c.max_cell, c.origin, c.cell_bits
