@@ -117,8 +117,9 @@ std = finite_float(0.0, 1e4)
               help="Elevation raster(s) giving the objects' and the ground's heights (else the map's own, if it "
                    "holds elevation).")
 @click.option("--altitude-above", type=click.Choice(ALTITUDE_ABOVE), default="start", show_default=True,
-              help="Over terrain: the aircraft holds a barometric altitude, --altitude above the ground under the "
-                   "path's start, or above the datum.")
+              help="Over terrain: the aircraft flies a barometric altitude, --altitude above the ground under the "
+                   "path's start (one pressure altitude), above the ground under each frame (a terrain-following "
+                   "plan), or above the datum.")
 @click.option("--flat", is_flag=True, help="Ignore the map's elevation: every object on one plane.")
 @overwrite_option
 @parents_option
@@ -141,8 +142,9 @@ def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size,
     --blob-spurious-rate in place of the detector's.
 
     Terrain: over a map that holds elevation (mapdb build --dem), or with --dem, every object stands at
-    its ground elevation and the aircraft holds a barometric altitude: --altitude above the ground under
-    the path's start (or above the datum with --altitude-above datum).  Each frame then carries
+    its ground elevation and the aircraft flies a barometric altitude: --altitude above the ground under
+    the path's start (--altitude-above ground: under each frame, a terrain-following plan; datum: above
+    the datum).  Each frame then carries
     baro_altitude_m (the barometer: above the datum, with its bias and noise) and no altitude_m (nothing
     aboard measures the height above the ground); the truth adds ground_m and altitude_datum_m.  --flat
     ignores the map's elevation (the frames of a flight before terrain, byte for byte).

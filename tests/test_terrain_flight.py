@@ -5,6 +5,7 @@ maps unchanged."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +93,15 @@ def test_a_flight_over_the_slope_holds_its_barometric_altitude(maps: dict[str, P
     for f in frames:
         assert "altitude_m" not in f and abs(f["baro_altitude_m"] - f["truth"]["altitude_datum_m"]) < 10.0
     assert np.median([len(f["objects"]) for f in frames]) >= 8
+
+
+def test_a_terrain_following_flight_stays_its_altitude_above_the_ground(maps: dict[str, Path]) -> None:
+    with open_map(maps["dem"]) as m:
+        frames = simulate_flight(m, replace(OPTIONS, altitude_above="ground"), waypoints(m), terrain=terrain_of(m))
+    truth = [f["truth"] for f in frames]
+    assert all(abs(t["altitude_m"] - 80.0) < 1e-6 for t in truth)
+    datum = np.array([t["altitude_datum_m"] for t in truth])
+    assert 35.0 < datum[0] - datum[-1] < 55.0  # the planned datum altitude follows the ground down the slope
 
 
 def test_the_navigators_height_above_ground_tracks_the_truth(maps: dict[str, Path]) -> None:

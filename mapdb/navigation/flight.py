@@ -39,10 +39,11 @@ measure how far frame-to-frame velocity alone drifts.
 Over terrain (``terrain``: a map that holds elevation, or ``mapdb simulate flight --dem``; issue 33) every
 object stands at its ground elevation and the aircraft flies a barometric altitude: a height above the
 vertical datum, ``altitude_m`` above the ground under the path's start (``altitude_above="start"``, the
-default) or above the datum itself (``altitude_above="datum"``); a ``(start, end)`` profile changes it
-linearly along the flight either way.  The height above the ground then changes with the ground under the
-aircraft, as it does for an aircraft holding a pressure altitude.  Nothing aboard measures that height, so a
-frame over terrain carries no ``altitude_m``; it carries instead::
+default: the aircraft holds one pressure altitude, and its height above the ground changes with the ground
+under it), above the ground under each frame (``"ground"``: a terrain-following plan, the autopilot flying
+the planned datum altitudes: the camera stays ``altitude_m`` above the ground) or above the datum itself
+(``"datum"``); a ``(start, end)`` profile changes it linearly along the flight in every case.  Nothing aboard
+measures the height above the ground, so a frame over terrain carries no ``altitude_m``; it carries instead::
 
      "baro_altitude_m": 212.4,   # the barometer: height above the datum, plus its bias and noise
 
@@ -83,8 +84,9 @@ __all__ = ["ALTITUDE_ABOVE", "DEFAULT_LENGTH_M", "FlightOptions", "TerrainCleara
 GRAVITY = 9.80665
 # The default survey's length when no path is given.
 DEFAULT_LENGTH_M = 5000.0
-# Over terrain, what a flight's altitude is measured from: the ground under the path's start, or the datum.
-ALTITUDE_ABOVE = ("start", "datum")
+# Over terrain, what a flight's altitude is measured from: the ground under the path's start, the ground under
+# each frame (a terrain-following plan), or the datum.
+ALTITUDE_ABOVE = ("start", "ground", "datum")
 # Over terrain, a flight passing closer to the ground than this fraction of its planned altitude is refused.
 MIN_CLEARANCE = 0.1
 
@@ -186,17 +188,18 @@ def _trajectory(path: FlightPath, options: FlightOptions, length: float) -> _Tra
 
 
 def _over_terrain(truth: _Trajectory, terrain: Terrain, options: FlightOptions, map_name: str) -> _Trajectory:
-    """The trajectory at a barometric altitude over ``terrain`` (module docs): the profile above the datum, or
-    above the ground under the start; its height above the ground under each frame's nadir."""
+    """The trajectory at a barometric altitude over ``terrain`` (module docs): the profile above the datum, the
+    ground under the start or the ground under each frame; its height above the ground under each nadir."""
     ground = np.array([terrain.ground(float(z.real), float(z.imag)) for z in truth.z])
-    datum = truth.altitude + (ground[0] if options.altitude_above == "start" else 0.0)
+    base = {"start": ground[0], "ground": ground, "datum": 0.0}[options.altitude_above]
+    datum = truth.altitude + base
     above = datum - ground
     low = np.flatnonzero(above < MIN_CLEARANCE * truth.altitude)
     if low.size:
         i = int(low[0])
         raise TerrainClearanceError(
             f"{map_name}: the flight passes {above[i]:.1f} m above the ground at {truth.t[i]:g} s (ground "
-            f"{ground[i]:.1f} m above the datum): give a higher --altitude, or --altitude-above start")
+            f"{ground[i]:.1f} m above the datum): give a higher --altitude, or --altitude-above ground")
     return _Trajectory(truth.t, truth.z, truth.velocity, truth.heading, truth.roll, above, ground, datum)
 
 
