@@ -154,7 +154,7 @@ def test_flight_over_terrain_errors_are_one_line(maps: dict[str, Path]) -> None:
     tmp = maps["dir"]
     low = run("simulate", "flight", maps["dem"], "-o", tmp / "low.jsonl", "--altitude", 30, "--altitude-above",
               "datum", "--length", 100)
-    assert_one_line_error(low, "passes")
+    assert_one_line_error(low, "would be", "above the ground")
     assert not (tmp / "low.jsonl").exists()
     both = run("simulate", "flight", maps["dem"], "-o", tmp / "both.jsonl", "--flat", "--dem", maps["tif"])
     assert both.exit_code == 2 and not (tmp / "both.jsonl").exists()

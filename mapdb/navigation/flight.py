@@ -198,8 +198,9 @@ def _over_terrain(truth: _Trajectory, terrain: Terrain, options: FlightOptions, 
     if low.size:
         i = int(low[0])
         raise TerrainClearanceError(
-            f"{map_name}: the flight passes {above[i]:.1f} m above the ground at {truth.t[i]:g} s (ground "
-            f"{ground[i]:.1f} m above the datum): give a higher --altitude, or --altitude-above ground")
+            f"{map_name}: the flight would be {above[i]:.1f} m above the ground at {truth.t[i]:g} s (the ground "
+            f"{ground[i]:.1f} m above the datum; at least {MIN_CLEARANCE:.0%} of the altitude is needed): give a "
+            "higher --altitude, or --altitude-above ground")
     return _Trajectory(truth.t, truth.z, truth.velocity, truth.heading, truth.roll, above, ground, datum)
 
 
