@@ -5,10 +5,11 @@ from __future__ import annotations
 import click
 
 from mapdb.mapfile.reader import open_map
-from mapdb.navigation.flight import FlightOptions, simulate_flight
+from mapdb.navigation.flight import ALTITUDE_ABOVE, FlightOptions, simulate_flight
 from mapdb.navigation.path import read_linestring
 from mapdb.navigation.rendered import MAX_MASK_OFFSET_PX
 from mapdb.simulation.documents import write_images
+from mapdb.simulation.terrain import terrain_of
 
 from .options import (
     MAX_ATTITUDE_STD,
@@ -68,7 +69,8 @@ std = finite_float(0.0, 1e4)
 @click.option("--speed", type=positive, default=20.0, show_default=True, help="Ground speed, m/s.")
 @click.option("--fps", type=positive, default=10.0, show_default=True, help="Frames per second.")
 @click.option("--altitude", default="150", callback=parse_profile, show_default=True,
-              help="Height above ground, metres, or START:END changing linearly along the flight.")
+              help="Height above ground, metres, or START:END changing linearly along the flight; over terrain "
+                   "a barometric altitude (see --altitude-above).")
 @click.option("--fov", default="70", callback=parse_fov, show_default=True, help="Horizontal field of view, degrees.")
 @click.option("--size", default="640x480", callback=parse_size, show_default=True, help="Image size WxH.")
 @click.option("--turn-radius", type=positive, default=75.0, show_default=True, help="Radius of the turns, metres.")
@@ -111,6 +113,14 @@ std = finite_float(0.0, 1e4)
               help="With --render masks: fraction of objects left out of the masks.")
 @click.option("--blob-spurious-rate", type=rate, default=0.0, show_default=True,
               help="With --render masks: false blobs per object in view, painted on the background.")
+@click.option("--dem", "dems", multiple=True, type=click.Path(), metavar="DEM",
+              help="Elevation raster(s) giving the objects' and the ground's heights (else the map's own, if it "
+                   "holds elevation).")
+@click.option("--altitude-above", type=click.Choice(ALTITUDE_ABOVE), default="start", show_default=True,
+              help="Over terrain: the aircraft flies a barometric altitude, --altitude above the ground under the "
+                   "path's start (one pressure altitude), above the ground under each frame (a terrain-following "
+                   "plan), or above the datum.")
+@click.option("--flat", is_flag=True, help="Ignore the map's elevation: every object on one plane.")
 @overwrite_option
 @parents_option
 @quiet_option
@@ -119,7 +129,7 @@ std = finite_float(0.0, 1e4)
 def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size, turn_radius, pixel_std, miss_rate,
            spurious_rate, label_noise, attitude_std, turbulence, heading_bias, baro_std, baro_bias, imu_std, imu_bias,
            blackouts, map_gaps, seed, render, source_file, masks_dir, no_heights, mask_erode, mask_dilate,
-           blob_miss_rate, blob_spurious_rate, overwrite, parents, quiet, debug):
+           blob_miss_rate, blob_spurious_rate, dems, altitude_above, flat, overwrite, parents, quiet, debug):
     """Simulate a flight over MAP: one frame document per line (JSON Lines).
 
     Each frame is a `mapdb query` image (objects, camera, attitude, altitude_m) with the autopilot's
@@ -130,6 +140,14 @@ def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size,
     outlines (buildings extruded to their heights, the frame's roll, pitch and bank), as `mapdb objects`
     extracts them, with the segmentation errors --mask-erode/--mask-dilate, --blob-miss-rate and
     --blob-spurious-rate in place of the detector's.
+
+    Terrain: over a map that holds elevation (mapdb build --dem), or with --dem, every object stands at
+    its ground elevation and the aircraft flies a barometric altitude: --altitude above the ground under
+    the path's start (--altitude-above ground: under each frame, a terrain-following plan; datum: above
+    the datum).  Each frame then carries
+    baro_altitude_m (the barometer: above the datum, with its bias and noise) and no altitude_m (nothing
+    aboard measures the height above the ground); the truth adds ground_m and altitude_datum_m.  --flat
+    ignores the map's elevation (the frames of a flight before terrain, byte for byte).
     """
     if isinstance(fov, tuple):
         raise click.BadParameter("give one field of view, not a range", param_hint="'--fov'")
@@ -137,13 +155,17 @@ def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size,
                  dilate=mask_dilate, miss=blob_miss_rate, spurious=blob_spurious_rate)
     _check_render(render, masks, {"--pixel-std": pixel_std, "--miss-rate": miss_rate,
                                   "--spurious-rate": spurious_rate, "--label-noise": label_noise})
-    check_paths([output], [map_file, path_file, source_file], overwrite=overwrite, parents=parents)
+    if render == "masks" and (dems or altitude_above != "start"):
+        raise click.UsageError("--dem and --altitude-above apply to --render centroids (masks draw flat ground)")
+    if flat and dems:
+        raise click.UsageError("--flat and --dem contradict each other")
+    check_paths([output], [map_file, path_file, source_file, *dems], overwrite=overwrite, parents=parents)
     options = FlightOptions(
         length_m=length, speed_mps=speed, fps=fps, altitude_m=altitude, fov_deg=fov, size=size,
         turn_radius_m=turn_radius, pixel_std=pixel_std, miss_rate=miss_rate, spurious_rate=spurious_rate,
         label_noise=label_noise, attitude_std=attitude_std, turbulence_deg=turbulence,
         heading_bias_deg=heading_bias, baro_std_m=baro_std, baro_bias_m=baro_bias, imu_std_mps=imu_std,
-        imu_bias_mps=imu_bias, blackouts=blackouts, map_gaps=map_gaps, seed=seed,
+        imu_bias_mps=imu_bias, blackouts=blackouts, map_gaps=map_gaps, seed=seed, altitude_above=altitude_above,
     )
     say = progress_printer(quiet)
     if render == "masks":
@@ -151,7 +173,8 @@ def flight(map_file, output, path_file, length, speed, fps, altitude, fov, size,
     else:
         with open_map(map_file) as m:
             waypoints = read_linestring(path_file, m.crs) if path_file else None
-            frames = simulate_flight(m, options, waypoints, progress=say)
+            terrain = None if flat else terrain_of(m, dems)
+            frames = simulate_flight(m, options, waypoints, progress=say, terrain=terrain)
     write_images(frames, output)
     if say:
         seconds = frames[-1]["time_s"] if frames else 0.0

@@ -35,33 +35,64 @@ the detector's; ``truth.map_index`` is then the map object covering most of each
 
 ``map_gaps`` marks frames during which the navigator must not query the map (the matcher is off), to
 measure how far frame-to-frame velocity alone drifts.
+
+Over terrain (``terrain``: a map that holds elevation, or ``mapdb simulate flight --dem``; issue 33) every
+object stands at its ground elevation and the aircraft flies a barometric altitude: a height above the
+vertical datum, ``altitude_m`` above the ground under the path's start (``altitude_above="start"``, the
+default: the aircraft holds one pressure altitude, and its height above the ground changes with the ground
+under it), above the ground under each frame (``"ground"``: a terrain-following plan, the autopilot flying
+the planned datum altitudes: the camera stays ``altitude_m`` above the ground) or above the datum itself
+(``"datum"``); a ``(start, end)`` profile changes it linearly along the flight in every case.  Nothing aboard
+measures the height above the ground, so a frame over terrain carries no ``altitude_m``; it carries instead::
+
+     "baro_altitude_m": 212.4,   # the barometer: height above the datum, plus its bias and noise
+
+and its truth adds ``ground_m`` (the ground's elevation under the nadir) and ``altitude_datum_m`` (the
+camera's true height above the datum); ``truth.altitude_m`` stays the camera's height above the ground under
+it.  The barometer's errors are those of the flat flight (``baro_bias_m``, ``baro_std_m``), around the datum
+altitude.  The navigator subtracts the map's elevation at its position (:mod:`mapdb.navigation.terrain`).
+Without terrain (a map without elevation, or ``--flat``) every frame is what it was before terrain existed,
+byte for byte: ``altitude_m`` is the barometric height above the flat ground.  Rendered masks
+(``render``) draw flat ground: terrain applies to ideal centroids only.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from .._scipy import cKDTree
-from ..camera import Camera, project_to_image
+from ..camera import Camera, Pose, project_points, project_to_image
+from ..errors import MapdbError
 from ..objects import Objects
 from ..progress import ProgressLike, as_progress
 from ..simulation.detector import Detector, detect, label_mix
 from ..simulation.documents import image_document, truth_entry
 from ..simulation.poses import Shot, placement_limits
 from ..simulation.simulate import objects_of_map
+from ..simulation.terrain import Terrain
 from .path import FlightPath, heading_deg, survey_pattern
 from .rendered import FlightRender, check_coverage, rendered_objects
 
-__all__ = ["DEFAULT_LENGTH_M", "FlightOptions", "in_windows", "simulate_flight"]
+__all__ = ["ALTITUDE_ABOVE", "DEFAULT_LENGTH_M", "FlightOptions", "TerrainClearanceError", "in_windows",
+           "simulate_flight"]
 
 GRAVITY = 9.80665
 # The default survey's length when no path is given.
 DEFAULT_LENGTH_M = 5000.0
+# Over terrain, what a flight's altitude is measured from: the ground under the path's start, the ground under
+# each frame (a terrain-following plan), or the datum.
+ALTITUDE_ABOVE = ("start", "ground", "datum")
+# Over terrain, a flight passing closer to the ground than this fraction of its planned altitude is refused.
+MIN_CLEARANCE = 0.1
+
+
+class TerrainClearanceError(MapdbError, ValueError):
+    """A flight over terrain that would pass (nearly) at or below the ground."""
 
 
 @dataclass(frozen=True)
@@ -70,7 +101,8 @@ class FlightOptions:
 
     ``length_m`` None flies the whole given path, or :data:`DEFAULT_LENGTH_M` of the default survey.
     ``altitude_m`` is a constant height above ground or ``(start, end)``, changing linearly along the
-    flight.  ``imu_std_mps`` None: no inertial velocity in the frames.
+    flight; over terrain, a barometric altitude measured from ``altitude_above`` (module docs).
+    ``imu_std_mps`` None: no inertial velocity in the frames.
     """
 
     length_m: float | None = None
@@ -94,8 +126,11 @@ class FlightOptions:
     blackouts: tuple[tuple[float, float], ...] = field(default_factory=tuple)
     map_gaps: tuple[tuple[float, float], ...] = field(default_factory=tuple)
     seed: int = 0
+    altitude_above: str = "start"
 
     def __post_init__(self) -> None:
+        if self.altitude_above not in ALTITUDE_ABOVE:
+            raise ValueError(f"altitude above {self.altitude_above!r}: not one of {', '.join(ALTITUDE_ABOVE)}")
         positive = {"speed_mps": self.speed_mps, "fps": self.fps, "turn_radius_m": self.turn_radius_m}
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
@@ -134,7 +169,9 @@ class _Trajectory:
     velocity: np.ndarray  # complex m/s (east + i north)
     heading: np.ndarray
     roll: np.ndarray  # the coordinated turn's bank, before turbulence
-    altitude: np.ndarray
+    altitude: np.ndarray  # above the ground under the nadir
+    ground: np.ndarray | None = None  # over terrain: the ground's elevation under the nadir
+    datum: np.ndarray | None = None  # over terrain: the camera's height above the datum
 
 
 def _trajectory(path: FlightPath, options: FlightOptions, length: float) -> _Trajectory:
@@ -150,6 +187,23 @@ def _trajectory(path: FlightPath, options: FlightOptions, length: float) -> _Tra
     return _Trajectory(t, z, options.speed_mps * tangent, heading_deg(tangent), roll, altitude)
 
 
+def _over_terrain(truth: _Trajectory, terrain: Terrain, options: FlightOptions, map_name: str) -> _Trajectory:
+    """The trajectory at a barometric altitude over ``terrain`` (module docs): the profile above the datum, the
+    ground under the start or the ground under each frame; its height above the ground under each nadir."""
+    ground = np.array([terrain.ground(float(z.real), float(z.imag)) for z in truth.z])
+    base = {"start": ground[0], "ground": ground, "datum": 0.0}[options.altitude_above]
+    datum = truth.altitude + base
+    above = datum - ground
+    low = np.flatnonzero(above < MIN_CLEARANCE * truth.altitude)
+    if low.size:
+        i = int(low[0])
+        raise TerrainClearanceError(
+            f"{map_name}: the flight would be {above[i]:.1f} m above the ground at {truth.t[i]:g} s (the ground "
+            f"{ground[i]:.1f} m above the datum; at least {MIN_CLEARANCE:.0%} of the altitude is needed): give a "
+            "higher --altitude, or --altitude-above ground")
+    return _Trajectory(truth.t, truth.z, truth.velocity, truth.heading, truth.roll, above, ground, datum)
+
+
 def _biases(options: FlightOptions) -> dict[str, Any]:
     """The flight's constant sensor biases, drawn once."""
     rng = np.random.default_rng([options.seed, 2])
@@ -158,26 +212,35 @@ def _biases(options: FlightOptions) -> dict[str, Any]:
             "imu": options.imu_bias_mps * complex(draws[2], draws[3])}
 
 
-def _visible(objects: Objects, tree: cKDTree, shot: Shot, x: float, y: float
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Map indices and pixels of the objects inside the image of a camera at ``(x, y)``."""
-    _, _, reach = placement_limits(shot, (x, y, x, y), False)
+def _visible(objects: Objects, tree: cKDTree, shot: Shot, x: float, y: float, terrain: Terrain | None = None,
+             datum: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Map indices and pixels of the objects inside the image of a camera at ``(x, y)``; over ``terrain`` the
+    objects at their heights and the camera ``datum`` metres above the datum."""
+    # Over terrain the lowest ground is seen farthest out: the reach of a camera that high above it.
+    wide = shot if terrain is None else replace(shot, altitude=datum - float(terrain.z.min()))
+    _, _, reach = placement_limits(wide, (x, y, x, y), False)
     near = np.asarray(tree.query_ball_point([x, y], reach * 1.001 + 1e-6), dtype=np.int64)
     near.sort()
-    u, v = project_to_image(objects.x[near], objects.y[near], shot.pose(x, y), shot.camera)
+    if terrain is None:
+        u, v = project_to_image(objects.x[near], objects.y[near], shot.pose(x, y), shot.camera)
+    else:
+        pose = Pose(x, y, datum, shot.heading, shot.roll, shot.pitch)
+        u, v = project_points(objects.x[near], objects.y[near], terrain.z[near], pose, shot.camera)
     seen = np.isfinite(u) & (u >= 0) & (u < shot.camera.width) & (v >= 0) & (v < shot.camera.height)
     return near[seen], u[seen], v[seen]
 
 
 def _sensors(rng: np.random.Generator, options: FlightOptions, biases: dict[str, Any], shot: Shot,
-             velocity: complex) -> dict[str, Any]:
-    """What the autopilot reports of the true ``shot`` and velocity (module docs)."""
+             velocity: complex, datum: float | None = None) -> dict[str, Any]:
+    """What the autopilot reports of the true ``shot`` and velocity (module docs); over terrain the barometer
+    reads the ``datum`` altitude, as ``baro_altitude_m``."""
     err = rng.standard_normal(6)
     att = options.attitude_std
+    baro = (shot.altitude if datum is None else datum) + biases["baro"] + options.baro_std_m * err[3]
     out: dict[str, Any] = {
         "attitude": {"roll_deg": float(shot.roll + att * err[0]), "pitch_deg": float(shot.pitch + att * err[1]),
                      "yaw_deg": float((shot.heading + biases["heading"] + att * err[2]) % 360.0)},
-        "altitude_m": float(shot.altitude + biases["baro"] + options.baro_std_m * err[3]),
+        "altitude_m" if datum is None else "baro_altitude_m": float(baro),
     }
     if options.imu_std_mps is not None:
         measured = velocity + biases["imu"] + options.imu_std_mps * complex(err[4], err[5])
@@ -189,10 +252,15 @@ def _sensors(rng: np.random.Generator, options: FlightOptions, biases: dict[str,
 _Render = tuple[FlightRender, Callable[[str, np.ndarray], None] | None] | None
 
 
-def _frame(i: int, truth: _Trajectory, options: FlightOptions, world: tuple[Objects, cKDTree, Detector],
+# The world a flight's camera sees: the map's objects, their tree, the detector, and the terrain (None: flat).
+_World = tuple[Objects, cKDTree, Detector, Terrain | None]
+
+
+def _frame(i: int, truth: _Trajectory, options: FlightOptions, world: _World,
            biases: dict[str, Any], blackout: bool, withheld: bool, render: _Render) -> dict[str, Any]:
     """Frame ``i``: the camera's objects (centroids, or blobs of a rendered mask), the sensors, the truth."""
-    objects, tree, detector = world
+    objects, tree, detector, terrain = world
+    datum = None if truth.datum is None else float(truth.datum[i])
     rng = np.random.default_rng([options.seed, i])
     wobble = options.turbulence_deg * rng.standard_normal(2)
     camera = Camera(options.size[0], options.size[1], options.fov_deg)
@@ -207,7 +275,7 @@ def _frame(i: int, truth: _Trajectory, options: FlightOptions, world: tuple[Obje
         if render[1] is not None:
             render[1](frame_id, mask)
     else:
-        index, u, v = _visible(objects, tree, shot, x, y)
+        index, u, v = _visible(objects, tree, shot, x, y, terrain, datum or 0.0)
         n_visible = index.size
         if blackout:
             index, u, v, names = index[:0], u[:0], v[:0], np.zeros(0, object)
@@ -215,18 +283,22 @@ def _frame(i: int, truth: _Trajectory, options: FlightOptions, world: tuple[Obje
             index, u, v, names = detect(rng, objects, index, u, v, camera, detector)
         doc = image_document(frame_id, camera, names, u, v)
     doc = {"id": doc.pop("id"), "time_s": round(float(truth.t[i]), 6), **doc}
-    doc.update(_sensors(np.random.default_rng([options.seed, i, 1]), options, biases, shot, complex(truth.velocity[i])))
+    doc.update(_sensors(np.random.default_rng([options.seed, i, 1]), options, biases, shot, complex(truth.velocity[i]),
+                        datum))
     if withheld:
         doc["map_withheld"] = True
     doc["truth"] = {**truth_entry(shot, x, y, n_visible, index, None), "time_s": doc["time_s"],
                     "velocity_mps": [float(truth.velocity[i].real), float(truth.velocity[i].imag)],
                     "blackout": bool(blackout)}
+    if truth.ground is not None and datum is not None:
+        doc["truth"].update(ground_m=float(truth.ground[i]), altitude_datum_m=datum)
     return doc
 
 
 def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: np.ndarray | None = None,
                     progress: ProgressLike = None, render: FlightRender | None = None,
-                    on_mask: Callable[[str, np.ndarray], None] | None = None) -> list[dict[str, Any]]:
+                    on_mask: Callable[[str, np.ndarray], None] | None = None,
+                    terrain: Terrain | None = None) -> list[dict[str, Any]]:
     """Frames of a simulated flight over a map (module docs).
 
     Parameters
@@ -245,11 +317,18 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
         with the detector's errors of ``options``.
     on_mask : callable, optional
         With ``render``: called with each frame's id and mask (class codes: label code + 1), in order.
+    terrain : Terrain, optional
+        The objects at their heights and a barometric altitude (module docs;
+        :func:`~mapdb.simulation.terrain.terrain_of`); not with ``render``.  None: flat ground.
 
     Raises
     ------
     SourceError
         ``render``'s outlines do not cover the map's objects along the flight.
+    ValueError
+        ``render`` and ``terrain`` both given.
+    TerrainClearanceError
+        Over terrain, the flight passes lower than ``MIN_CLEARANCE`` times its altitude above the ground.
 
     Returns
     -------
@@ -265,6 +344,10 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
     path = FlightPath.from_waypoints(waypoints, options.turn_radius_m)
     length = min(wanted or path.length, path.length)
     truth = _trajectory(path, options, length)
+    if terrain is not None:
+        if render is not None:
+            raise ValueError("rendered masks draw flat ground: a flight over terrain has ideal centroids")
+        truth = _over_terrain(truth, terrain, options, str(getattr(map, "path", None) or "map"))
     if render is not None:
         altitude = float(np.max(truth.altitude))
         camera = Camera(options.size[0], options.size[1], options.fov_deg)
@@ -279,7 +362,7 @@ def simulate_flight(map: Any, options: FlightOptions | None = None, waypoints: n
     say.start(truth.t.size, "simulate flight")
     frames = []
     for i in range(truth.t.size):
-        frames.append(_frame(i, truth, options, (objects, tree, detector), biases, bool(blackout[i]),
+        frames.append(_frame(i, truth, options, (objects, tree, detector, terrain), biases, bool(blackout[i]),
                              bool(withheld[i]), None if render is None else (render, on_mask)))
         say.advance()
     say.done()

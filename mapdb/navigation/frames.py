@@ -2,7 +2,8 @@
 
 A frame document is an image document (the ``mapdb query`` schema: ``width``, ``height``, ``objects``,
 ``camera``, ``attitude``, ``altitude_m``) with the autopilot's fields beside it: ``time_s`` (seconds,
-required, increasing), ``attitude.yaw_deg`` (heading, degrees clockwise from north),
+required, increasing), ``attitude.yaw_deg`` (heading, degrees clockwise from north), ``baro_altitude_m``
+(the barometer's height above the datum, over terrain: :mod:`mapdb.navigation.terrain`),
 ``imu_velocity_mps`` (``[east, north]``, optional), ``map_withheld`` (optional) and ``truth`` (a simulated
 frame's ``x``, ``y``; used only to report the error).  :mod:`mapdb.navigation.flight` writes them.
 
@@ -21,6 +22,7 @@ time step                   ``MIN_STEP_S <= dt <= MAX_STEP_S`` (navigator, modul
 ``attitude.roll/pitch_deg`` ``abs(v) <= MAX_ATTITUDE_DEG`` (89)
 ``camera.fov_deg``          ``MIN_FOV_DEG <= v <= MAX_FOV_DEG``
 ``altitude_m``              ``MIN_ALTITUDE_M <= v <= MAX_ALTITUDE_M`` (1 mm to 100 km)
+``baro_altitude_m``         ``MIN_BARO_M <= v <= MAX_ALTITUDE_M`` (-1 km to 100 km; above the datum)
 ``imu_velocity_mps``        two numbers, speed ``<= MAX_SPEED_MPS`` (1000 m/s)
 ``truth.x``, ``truth.y``    ``abs(v) <= MAX_MAP_COORDINATE_M`` (1e8 m)
 ``id``                      a string of at most ``MAX_ID_CHARS`` characters or an integer
@@ -61,6 +63,7 @@ __all__ = [
     "MAX_TIME_S",
     "MAX_YAW_DEG",
     "MIN_ALTITUDE_M",
+    "MIN_BARO_M",
     "MIN_STEP_S",
     "Frame",
     "read_frame",
@@ -82,6 +85,8 @@ MAX_YAW_DEG = 1e6
 MAX_FOV_DEG = 179.999
 # A barometric altitude must be positive for the ground scale; one millimetre is the floor.
 MIN_ALTITUDE_M = 1e-3
+# A barometric altitude is above the datum: the shores of the Dead Sea are 430 m below it.
+MIN_BARO_M = -1000.0
 # Faster than any aircraft that flies a downward camera (Mach 3): an inertial or frame-to-frame velocity
 # above it is a sensor or matching fault, and squared in a covariance it would overflow the filter.
 MAX_SPEED_MPS = 1000.0
@@ -110,6 +115,7 @@ class Frame:
     pitch: float | None = None
     yaw: float | None = None
     altitude: float | None = None
+    baro_altitude: float | None = None
     imu: complex | None = None
     withheld: bool = False
     truth: tuple[float, float] | None = None
@@ -231,6 +237,7 @@ def read_frame(doc: Any, where: str = "frame") -> Frame:
         pitch=_number(attitude, "pitch_deg", "attitude.pitch_deg", notes, -MAX_ATTITUDE_DEG, MAX_ATTITUDE_DEG),
         yaw=_number(attitude, "yaw_deg", "attitude.yaw_deg", notes, -MAX_YAW_DEG, MAX_YAW_DEG),
         altitude=_number(doc, "altitude_m", "altitude_m", notes, MIN_ALTITUDE_M, MAX_ALTITUDE_M),
+        baro_altitude=_number(doc, "baro_altitude_m", "baro_altitude_m", notes, MIN_BARO_M, MAX_ALTITUDE_M),
         imu=_imu(doc, notes),
         withheld=_withheld(doc, notes),
         truth=_truth(doc, notes),

@@ -11,6 +11,8 @@ Per frame (:meth:`Navigator.step`), in this order:
    frame holds, it gets a record: a frame whose navigation fails leaves the navigator as it was and is
    answered "skipped" with the reason, and the next frames are navigated.
 2. **Predict** the particles to the frame's time, turning their velocities by the autopilot's heading change.
+   Over terrain, a frame with the barometer's ``baro_altitude_m`` (above the datum) gets its height above
+   the ground from the map's elevation at the predicted position (:mod:`mapdb.navigation.terrain`).
 3. **Frame orientation**: the image-to-ground similarity ``A = s exp(-i heading)``.  The heading is the last
    applied fix's plus the autopilot's yaw change since (the frame-to-frame rotation where the yaw is
    missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
@@ -49,6 +51,7 @@ from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
 from .filter import FixComponent, ParticleFilter
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
+from .terrain import GroundModel, height_above_ground
 from .track import TrackRecord
 from .velocity import FramePoints, frame_points, match_frames, velocity_from_motion
 
@@ -81,6 +84,7 @@ class NavigatorOptions:
     widen_after: int = 10
     recover_after: int = 3
     seed: int = 0
+    terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
 
 
 @dataclass
@@ -142,6 +146,7 @@ class Navigator:
         self.previous = _Previous()
         self.last_velocity: complex | None = None
         self._extra_labels: dict[str, int] = {}  # this frame's labels the map lacks (``_codes``)
+        self.ground = GroundModel.of(map)  # the map's elevation, for the barometer (mapdb.navigation.terrain)
         if initial is not None:
             self.filter.initialise(complex(initial[0], initial[1]), initial[2])
 
@@ -178,6 +183,8 @@ class Navigator:
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
         self.filter.predict(dt, self._turn(frame))
+        record.altitude = height_above_ground(frame, self.ground, self.filter, self.options.baro_std_m,
+                                              self.options.terrain)
         self._orient(frame)
         timing["filter"] = time.perf_counter() - t0
         points = self._points(frame)

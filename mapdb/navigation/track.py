@@ -10,6 +10,8 @@ One :class:`TrackRecord` per frame (``mapdb navigate`` writes its :meth:`TrackRe
      "velocity": {"status": "used", "velocity_mps": [...], "sigma_mps": 3.1, "inliers": 14},
      "prior_radius_m": 10.0, "notes": [...],
      "time_ms": {"total": 9.1, "query": 5.2, "velocity": 2.3, "filter": 1.2},
+     "altitude": {"baro_m": 212.4, "ground_m": 92.1, "above_ground_m": 120.3, "sigma_m": 0.6, "used": true},
+                                                                     # a frame with baro_altitude_m only
      "truth": {"x": ..., "y": ..., "error_m": 0.21}}                 # when the frame carries its truth
 
 ``status`` is ``"fix"`` (a fix was applied), ``"dead-reckoning"`` (a velocity only), ``"predicting"``
@@ -69,6 +71,7 @@ class TrackRecord:
     notes: list[str] = field(default_factory=list)
     time_ms: dict[str, float] = field(default_factory=dict)
     truth: dict[str, Any] | None = None
+    altitude: dict[str, Any] | None = None  # from the barometer (mapdb.navigation.terrain), when the frame has one
 
     @property
     def placed(self) -> bool:
@@ -99,6 +102,8 @@ class TrackRecord:
         if self.notes:
             record["notes"] = self.notes
         record["time_ms"] = {k: _r(t, 3) for k, t in self.time_ms.items()}
+        if self.altitude is not None:
+            record["altitude"] = self.altitude
         if self.truth is not None:
             record["truth"] = self.truth
         return json_safe(record)
