@@ -27,6 +27,7 @@ from .options import (
     progress_printer,
     quiet_option,
     rate,
+    rendered_masks_options,
 )
 
 
@@ -96,14 +97,11 @@ std = finite_float(0.0, 1e4)
 @click.option("--map-gap", "map_gaps", multiple=True, callback=parse_windows, metavar="START:SECONDS",
               help="Mark frames from START for SECONDS as map-withheld: navigate does not query the map there.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same flight.")
-@click.option("--render", type=click.Choice(["centroids", "masks"]), default="centroids", show_default=True,
-              help="centroids: each visible map object at its projected centroid; masks: each frame's objects "
-                   "extracted from a label mask rendered from the --source outlines with the frame's pose.")
-@click.option("--source", "source_file", type=click.Path(), metavar="EXTRACT.osm.pbf",
-              help="With --render masks: the OSM extract the map was built from (its outlines are drawn).")
-@click.option("--masks-dir", type=click.Path(file_okay=False), metavar="DIR",
-              help="With --render masks: also write each frame's mask as ID.png, with classes.toml (the folder "
-                   "appears whole; an existing one, not empty, is replaced only with --overwrite).")
+@rendered_masks_options(
+    render_help=("centroids: each visible map object at its projected centroid; masks: each frame's objects "
+                 "extracted from a label mask rendered from the --source outlines with the frame's pose."),
+    masks_dir_help=("With --render masks: also write each frame's mask as ID.png, with classes.toml (the folder "
+                    "appears whole; an existing one, not empty, is replaced only with --overwrite)."))
 @click.option("--no-heights", is_flag=True, help="With --render masks: draw buildings flat (no relief).")
 @click.option("--mask-erode", type=click.IntRange(0, MAX_MASK_OFFSET_PX), default=0, metavar="PX",
               help="With --render masks: erode every region of the mask by PX pixels.")

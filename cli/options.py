@@ -350,3 +350,16 @@ def detector_error_options(attitude_std: float = 0.0,
         click.option("--label-noise", type=rate, default=0.0, show_default=True,
                      help="Fraction of objects given a wrong label."),
     ])
+
+
+def rendered_masks_options(render_help: str, masks_dir_help: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """``--render centroids|masks``, ``--source EXTRACT`` and ``--masks-dir DIR``: objects from label masks
+    rendered from an extract's outlines (``simulate`` and ``simulate flight`` word what each renders)."""
+    return _stack([
+        click.option("--render", type=click.Choice(["centroids", "masks"]), default="centroids", show_default=True,
+                     help=render_help),
+        click.option("--source", "source_file", type=click.Path(), metavar="EXTRACT.osm.pbf",
+                     help="With --render masks: the OSM extract the map was built from (its outlines are drawn)."),
+        click.option("--masks-dir", type=click.Path(file_okay=False), metavar="DIR", help=masks_dir_help),
+    ])
+

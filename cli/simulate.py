@@ -30,6 +30,7 @@ from .options import (
     progress_printer,
     quiet_option,
     rate,
+    rendered_masks_options,
 )
 
 
@@ -61,14 +62,11 @@ from .options import (
 @click.option("--min-objects", type=click.IntRange(0, None), default=0, show_default=True,
               help="Redraw camera positions until at least this many map objects are in view (sparse maps).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Same seed, same images.")
-@click.option("--render", type=click.Choice(["centroids", "masks"]), default="centroids", show_default=True,
-              help="centroids: each visible map object at its projected centroid; masks: objects extracted from "
-                   "label masks rendered from the --source outlines (heights, relief, border, merging).")
-@click.option("--source", "source_file", type=click.Path(), metavar="EXTRACT.osm.pbf",
-              help="With --render masks: the OSM extract the map was built from (its outlines are drawn).")
-@click.option("--masks-dir", type=click.Path(file_okay=False), metavar="DIR",
-              help="With --render masks: each image's mask is written here as ID.png, with classes.toml; the folder "
-                   "appears whole, and an existing one (not empty) is replaced only with --overwrite.")
+@rendered_masks_options(
+    render_help=("centroids: each visible map object at its projected centroid; masks: objects extracted from "
+                   "label masks rendered from the --source outlines (heights, relief, border, merging)."),
+    masks_dir_help=("With --render masks: each image's mask is written here as ID.png, with classes.toml; the folder "
+                   "appears whole, and an existing one (not empty) is replaced only with --overwrite."))
 @click.option("--mask-noise", type=finite_float(0.0, MAX_MASK_NOISE_PX), default=0.0, show_default=True,
               metavar="PX", help="With --render masks: grow or shrink each object's image by up to PX pixels.")
 @click.option("--no-heights", is_flag=True, help="With --render masks: draw buildings flat (no relief).")

@@ -5,34 +5,24 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from navworld import fly, synthetic_world
 
 from mapdb.mapfile.queries import MemoryMap
-from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.navigator import Navigator
 from mapdb.navigation.velocity import MIN_WHOLE_OBJECTS, FramePoints, match_frames
-from mapdb.objects import Objects
-from mapdb.simulation.simulate import PAPER_CRS, PAPER_ORIGIN
+from mapdb.simulation.simulate import PAPER_ORIGIN
 
 W, H = 640.0, 480.0
 X0, Y0 = PAPER_ORIGIN
-# A straight leg, a turn and another leg, inside the synthetic world (as tests/test_navigation.py flies).
-WAYPOINTS = np.array([complex(X0 + 300, Y0 + 300), complex(X0 + 900, Y0 + 300), complex(X0 + 900, Y0 + 900)])
-ERRORS = {"pixel_std": 1.0, "attitude_std": 0.1, "miss_rate": 0.2}
 
 
 @pytest.fixture(scope="module")
 def world() -> MemoryMap:
-    """1.2 x 1.2 km of random objects of three labels, about 15 in a 100 m, 60 degree image."""
-    rng = np.random.default_rng(7)
-    n = 2200
-    names = rng.choice(["building", "road_intersection", "parking"], size=n, p=[0.7, 0.2, 0.1])
-    return MemoryMap(Objects.from_names(X0 + rng.uniform(0, 1200, n), Y0 + rng.uniform(0, 1200, n), names,
-                                        crs=PAPER_CRS))
+    return synthetic_world()
 
 
 def _flight(world: MemoryMap, seconds: float, **changes) -> list[dict]:
-    options = {"length_m": 20.0 * seconds, "altitude_m": 100.0, "fov_deg": 60.0, **ERRORS, **changes}
-    return simulate_flight(world, FlightOptions(**options), WAYPOINTS)
+    return fly(world, seconds, **changes)
 
 
 def _frames(n_whole: int, n_cut: int, b: complex, seed: int = 3) -> tuple[FramePoints, FramePoints]:
