@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 from navworld import fly, synthetic_world
 
-from mapdb.mapfile.queries import MemoryMap
 from mapdb.navigation.navigator import Navigator
 from mapdb.navigation.velocity import MIN_WHOLE_OBJECTS, FramePoints, match_frames
 from mapdb.simulation.simulate import PAPER_ORIGIN
@@ -16,13 +15,8 @@ W, H = 640.0, 480.0
 X0, Y0 = PAPER_ORIGIN
 
 
-@pytest.fixture(scope="module")
-def world() -> MemoryMap:
-    return synthetic_world()
-
-
-def _flight(world: MemoryMap, seconds: float, **changes) -> list[dict]:
-    return fly(world, seconds, **changes)
+world = pytest.fixture(scope="module", name="world")(synthetic_world)  # the synthetic world (tests/navworld.py)
+_flight = fly
 
 
 def _frames(n_whole: int, n_cut: int, b: complex, seed: int = 3) -> tuple[FramePoints, FramePoints]:

@@ -36,13 +36,8 @@ ANSWER_TIMEOUT_S = 60.0
 X0, Y0 = PAPER_ORIGIN
 
 
-@pytest.fixture(scope="module")
-def world() -> MemoryMap:
-    return synthetic_world()
-
-
-def _flight(world: MemoryMap, seconds: float, **changes) -> list[dict]:
-    return fly(world, seconds, **changes)
+world = pytest.fixture(scope="module", name="world")(synthetic_world)  # the synthetic world (tests/navworld.py)
+_flight = fly
 
 
 def _navigate(world: MemoryMap, frames: list[dict], initial=None, **kw) -> list:
