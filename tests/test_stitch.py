@@ -147,3 +147,30 @@ def test_stitching_never_accepts_monaco_frames_in_the_andorra_map(tmp_path) -> N
         records = _navigate(m, frames, stitch=5)
     assert sum("stitched" in r.fix for r in records) > 10
     assert not any(r.fix.get("status") in ("used", "initialised") for r in records)
+
+
+def test_the_track_record_fields_are_the_documented_ones() -> None:
+    """The record's example in :mod:`mapdb.navigation.track` names every top-level field ``to_json`` writes."""
+    import re
+
+    import mapdb.navigation.track as track
+
+    doc = track.__doc__ or ""
+    example = doc[doc.index("::") + 2: doc.index("``status`` is")]
+    # Top-level keys: those opening a line of the example, or following a value on the same line at depth one.
+    depth, keys, i = 0, set(), 0
+    while i < len(example):
+        c = example[i]
+        if c in "{[":
+            depth += 1
+        elif c in "}]":
+            depth -= 1
+        elif c == '"':
+            end = example.index('"', i + 1)
+            if depth == 1 and re.match(r"\s*:", example[end + 1:]):
+                keys.add(example[i + 1:end])
+            i = end
+        i += 1
+    record = track.TrackRecord(id="f", time_s=0.0, status="fix", notes=["n"], truth={"x": 0.0, "y": 0.0},
+                               fix_frames=[0.0])
+    assert keys == set(record.to_json())
