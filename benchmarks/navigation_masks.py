@@ -26,7 +26,12 @@ position) and ``initial`` (``--initial`` at the true start, radius 30 m).  Per f
 * **>3 sigma**: share of the placed frames whose error lies beyond the stated 3 sigma (the error's
   Mahalanobis distance under the stated covariance over 3, 1.1 % for a consistent 2-D Gaussian);
   **NEES**: its mean square (2 for a consistent filter; clipped at 1e4 a frame);
-* **ms median / p95**: the navigator's time per frame (filter and query).
+* **ms median / p95**: the navigator's time per frame (filter and query);
+* **stitched**: frames whose applied fix came from the frame stitched with the ones before it
+  (``fix_frames`` of more than one frame, :mod:`mapdb.navigation.stitch`).
+
+``--stitch K1,K2,...`` navigates every flight with each number of stitched frames (0: single frames only),
+side by side in the same process, one row each.
 
 ``--baseline REV`` also navigates every flight with the mapdb of git revision ``REV`` in the same
 process, frame by frame alternating which goes first, and prints its row under each row of this tree.
@@ -37,6 +42,8 @@ navigating 0.05-0.3 s on the shared 2-core machine: ``--length`` shortens the fl
 
     python benchmarks/navigation_masks.py --maps andorra,monaco --length 3000 --baseline main
     python benchmarks/navigation_masks.py --maps monaco --cases heights,thin15 --starts lis --length 1000
+    python benchmarks/navigation_masks.py --maps monaco,andorra --cases heights --altitudes 120 --stitch 0,3,5 \
+        --baseline main
 """
 
 from __future__ import annotations
@@ -184,7 +191,8 @@ def _row(records: list[Any], frames: list[dict[str, Any]]) -> dict[str, Any]:
             "ttff": None if first is None else float(t[first] - t[0]),
             "after6": None if first is None or six is None else float(t[first] - t[six]),
             "bias": _bias(records, frames, first), "wrong": wrong, "beyond": beyond, "nees": nees,
-            "median_ms": float(np.nanmedian(total)), "p95_ms": float(np.nanpercentile(total, 95))}
+            "median_ms": float(np.nanmedian(total)), "p95_ms": float(np.nanpercentile(total, 95)),
+            "stitched": sum(1 for r in records if len(getattr(r, "fix_frames", None) or ()) > 1)}
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -195,14 +203,18 @@ def _print_row(label: str, r: dict[str, Any]) -> None:
     print(f"| {label} | {r['frames']} | {r['fix']:.1%} | {r['within2']:.1%} | {r['within5']:.1%} | {r['max']:.1f} "
           f"| {_fmt(r['ttff'], '.1f')} | {_fmt(r['after6'], '.1f')} | "
           f"{r['bias'][0]:+.2f}±{r['bias'][2]:.2f} / {r['bias'][1]:+.2f}±{r['bias'][3]:.2f} "
-          f"| {r['wrong']} | {r['beyond']:.1%} | {r['nees']:.1f} | {r['median_ms']:.0f} / {r['p95_ms']:.0f} |",
+          f"| {r['wrong']} | {r['beyond']:.1%} | {r['nees']:.1f} | {r['median_ms']:.0f} / {r['p95_ms']:.0f} "
+          f"| {r['stitched']} |",
           flush=True)
 
 
-def _navigators(maps: list[Any], modules: list[Any], frames: list[dict[str, Any]], start: str) -> list[Any]:
+def _navigators(maps: list[Any], versions: list[tuple[Any, ...]], frames: list[dict[str, Any]],
+                start: str) -> list[Any]:
+    """One navigator a version (its navigator module and its options' changes, None for the defaults)."""
     truth = frames[0]["truth"]
     initial = (truth["x"], truth["y"], START_RADIUS_M) if start == "initial" else None
-    return [mod.Navigator(m, initial=initial) for m, mod in zip(maps, modules, strict=True)]
+    return [mod.Navigator(m, options=None if changes is None else mod.NavigatorOptions(**changes), initial=initial)
+            for m, (_, mod, _, changes) in zip(maps, versions, strict=True)]
 
 
 def main() -> None:
@@ -215,6 +227,8 @@ def main() -> None:
     parser.add_argument("--starts", default="lis,initial", help="lis, initial (%(default)s)")
     parser.add_argument("--length", type=float, default=3000.0, help="metres flown (%(default)s)")
     parser.add_argument("--baseline", default=None, metavar="REV", help="also navigate with this git revision")
+    parser.add_argument("--stitch", default=None, metavar="K,...",
+                        help="navigate with each of these numbers of stitched frames (default: the navigator's)")
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "mapdb-bench-nav-masks")
     args = parser.parse_args()
     names = args.maps.split(",")
@@ -224,14 +238,16 @@ def main() -> None:
     from mapdb.mapfile import reader
     from mapdb.navigation import navigator
 
-    versions = [(reader, navigator, "now")]
+    versions: list[tuple[Any, ...]] = [(reader, navigator, "now", None)]
+    if args.stitch:
+        versions = [(reader, navigator, f"K={k}", {"stitch_frames": int(k)}) for k in args.stitch.split(",")]
     if args.baseline:
         work = args.cache / "baseline"
         versions.append((import_baseline(args.baseline, work, "mapfile.reader"),
-                         import_baseline(args.baseline, work, "navigation.navigator"), args.baseline))
+                         import_baseline(args.baseline, work, "navigation.navigator"), args.baseline, None))
     print("| flight | frames | fix | <=2 m | <=5 m | max m | ttff s | after 6 s | bias along/across m/s | wrong "
-          "| >3 sigma | NEES | ms median / p95 |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "| >3 sigma | NEES | ms median / p95 | stitched |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in names:
         for case in args.cases.split(","):
             for altitude in (float(a) for a in args.altitudes.split(",")):
@@ -242,10 +258,10 @@ def main() -> None:
                 full, thin = _maps(name, args.cache)
                 path = thin if case == "thin15" else full
                 for start in args.starts.split(","):
-                    maps = [rd.open_map(path) for rd, _, _ in versions]
+                    maps = [rd.open_map(path) for rd, _, _, _ in versions]
                     try:
-                        navs = _navigators(maps, [nav for _, nav, _ in versions], frames, start)
-                        for (_, _, label), records in zip(versions, _navigate(navs, frames), strict=True):
+                        navs = _navigators(maps, versions, frames, start)
+                        for (_, _, label, _), records in zip(versions, _navigate(navs, frames), strict=True):
                             _print_row(f"{name} {case} {altitude:g} m {start} ({label})", _row(records, frames))
                     finally:
                         for m in maps:

@@ -27,6 +27,10 @@ Per frame (:meth:`Navigator.step`), in this order:
    filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`).  Fixes rejected as outliers
    ``recover_after`` times in a row at places consistent with the filter's velocity draw half the
    particles to them: a filter started far off, or captured, gets back.
+   When the frame alone is not decisive (no fix, or one rejected as an outlier), the objects of the last
+   ``stitch_frames`` frames, carried into this one by the frame-to-frame similarities of step 4, are
+   queried as one image (:mod:`mapdb.navigation.stitch`); the record's ``fix_frames`` names the frames a
+   fix used.
 6. **Record** the estimate (:class:`~mapdb.navigation.track.TrackRecord`).
 
 Without an initial position the filter waits for a first fix with score at least ``init_min_score``
@@ -51,9 +55,10 @@ from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
 from .filter import FixComponent, ParticleFilter
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
+from .stitch import DEFAULT_FRAMES, History, Seen, min_stitched_score
 from .terrain import GroundModel, height_above_ground
 from .track import TrackRecord
-from .velocity import FramePoints, frame_points, match_frames, velocity_from_motion
+from .velocity import FrameMotion, FramePoints, frame_points, match_frames, velocity_from_motion
 
 __all__ = ["BLOB_FIX_FLOOR_PX", "Navigator", "NavigatorOptions"]
 
@@ -67,7 +72,8 @@ class NavigatorOptions:
 
     ``attitude_std`` and ``baro_std_m`` are the accuracies the autopilot's sensors are trusted with;
     ``heading_std`` that of its heading before any fix (a magnetometer's bias); ``imu_std_mps`` that of
-    an inertial velocity (bias included).
+    an inertial velocity (bias included).  ``stitch_frames``: earlier frames stitched to a frame that is not
+    decisive alone (:mod:`mapdb.navigation.stitch`; 0 queries single frames only).
     """
 
     particles: int = 2000
@@ -83,6 +89,7 @@ class NavigatorOptions:
     candidate_min_score: float = 4.0
     widen_after: int = 10
     recover_after: int = 3
+    stitch_frames: int = DEFAULT_FRAMES
     seed: int = 0
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
 
@@ -147,6 +154,8 @@ class Navigator:
         self.last_velocity: complex | None = None
         self._extra_labels: dict[str, int] = {}  # this frame's labels the map lacks (``_codes``)
         self.ground = GroundModel.of(map)  # the map's elevation, for the barometer (mapdb.navigation.terrain)
+        self.history = History(self.options.stitch_frames)
+        self._motion: FrameMotion | None = None  # the current frame's similarity to the previous one
         if initial is not None:
             self.filter.initialise(complex(initial[0], initial[1]), initial[2])
 
@@ -188,8 +197,12 @@ class Navigator:
         self._orient(frame)
         timing["filter"] = time.perf_counter() - t0
         points = self._points(frame)
+        self._motion = None
         record.velocity_measurement = self._velocity(frame, points, dt, timing)
+        self._remember(frame, points)
         record.fix = self._fix(frame, record, timing)
+        if record.fix.get("status") in ("used", "initialised"):
+            record.fix_frames = record.fix.pop("frames", [frame.time_s])
         self.previous.time_s = frame.time_s
         self.previous.points = points
         self.previous.extra_labels = self._extra_labels if points is not None else {}
@@ -233,13 +246,14 @@ class Navigator:
         self.filter.reset()
         self.previous = _Previous()
         self.last_velocity = None
+        self.history.clear()
 
     def _snapshot(self) -> tuple[Any, ...]:
         previous = replace(self.previous, pending=list(self.previous.pending))
-        return (self.filter.snapshot(), replace(self.orientation), previous, self.last_velocity)
+        return (self.filter.snapshot(), replace(self.orientation), previous, self.last_velocity, self.history.copy())
 
     def _restore(self, saved: tuple[Any, ...]) -> None:
-        filter_state, self.orientation, self.previous, self.last_velocity = saved
+        filter_state, self.orientation, self.previous, self.last_velocity, self.history = saved
         self.filter.restore(filter_state)
 
     def _failed(self, doc: Any, where: str, exc: Exception, start: float) -> TrackRecord:
@@ -297,6 +311,15 @@ class Navigator:
             o.scale *= frame.altitude / o.baro
         o.yaw = frame.yaw if frame.yaw is not None else o.yaw
         o.baro = frame.altitude if frame.altitude is not None else o.baro
+
+    def _remember(self, frame: Frame, points: FramePoints | None) -> None:
+        """Keep the frame for stitching, linked by its similarity to the previous one when step 4 found one
+        (:mod:`mapdb.navigation.stitch`); a frame without objects breaks the chain."""
+        if points is None or frame.image is None or frame.time_s is None:
+            self.history.clear()
+            return
+        self.history.add(Seen(frame.time_s, points, frame.image.names, frame.image.area_px,
+                              self._motion))
 
     def _points(self, frame: Frame) -> FramePoints | None:
         if frame.image is None or len(frame.image) == 0:
@@ -369,6 +392,7 @@ class Navigator:
         if not abs(vel.v) <= MAX_SPEED_MPS:  # a mismatch, or a scale from absurd sensors: not a velocity
             return {"status": "none", "reason": f"measured speed {abs(vel.v):g} m/s is over {MAX_SPEED_MPS:g} m/s"}
         self.last_velocity = vel.v
+        self._motion = motion
         sigma = math.sqrt(float(np.max(np.linalg.eigvalsh(vel.cov))))
         used = self.filter.update_velocity(vel.v, vel.cov) if self.filter.initialised else False
         status = "used" if used else ("rejected" if self.filter.initialised else "measured")
@@ -414,9 +438,42 @@ class Navigator:
         timing["query"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
-            return self._apply_fix(frame, answer, prior)
+            info = self._apply_fix(frame, answer, prior)
         finally:
             timing["filter"] = timing.get("filter", 0.0) + time.perf_counter() - t0
+        if info["status"] in ("used", "initialised"):
+            return info
+        return self._stitched_fix(frame, prior, info, timing)
+
+    def _stitched_fix(self, frame: Frame, prior: tuple[float, float, float] | None, single: dict[str, Any],
+                      timing: dict[str, float]) -> dict[str, Any]:
+        """The frame with the earlier frames' objects carried into it (:mod:`mapdb.navigation.stitch`): the
+        stitched answer's fix when it is certain enough (the Bonferroni floor) and the filter applies it, else
+        the frame's own outcome, saying why the stitched query gave none."""
+        assert frame.image is not None
+        stitched = self.history.stitched(frame.image, None)
+        if stitched is None:
+            return single
+        t0 = time.perf_counter()
+        answer = self.localizer.localize(stitched.image, prior=prior)
+        timing["stitched"] = time.perf_counter() - t0
+        floor = min_stitched_score(self.localizer.fast_options.log10_epsilon)
+        summary = {"frames": len(stitched.frames), "objects": len(stitched.image), "carried": stitched.carried}
+        if not answer.ok or (answer.score or 0.0) < floor:
+            reason = answer.reason or f"score {answer.score:g} is under the stitched floor {floor:.2f}"
+            single["stitched"] = {**summary, "reason": reason}
+            return single
+        saved = (self.previous.misses, list(self.previous.pending))
+        t0 = time.perf_counter()
+        info = self._apply_fix(frame, answer, prior, recover=False)
+        timing["filter"] = timing.get("filter", 0.0) + time.perf_counter() - t0
+        if info["status"] in ("used", "initialised"):
+            info.update(stitched=summary, frames=stitched.frames,
+                        single={"status": single["status"], "reason": single.get("reason")})
+            return info
+        self.previous.misses, self.previous.pending = saved  # the frame's miss is counted once
+        single["stitched"] = {**summary, "reason": info.get("reason")}
+        return single
 
     def _components(self, answer: Answer, frame: Frame) -> list[FixComponent]:
         """The places an answer gives (module docs of :mod:`mapdb.navigation.filter`).
@@ -443,8 +500,8 @@ class Navigator:
         return [FixComponent(z, math.hypot(sigma or 1.0, floor), 10.0 ** max(score - top, -300.0))
                 for z, sigma, score in places]
 
-    def _apply_fix(self, frame: Frame, answer: Answer, prior: tuple[float, float, float] | None
-                   ) -> dict[str, Any]:
+    def _apply_fix(self, frame: Frame, answer: Answer, prior: tuple[float, float, float] | None,
+                   recover: bool = True) -> dict[str, Any]:
         components = self._components(answer, frame)
         info: dict[str, Any] = {"status": "none"}
         if answer.ok:
@@ -468,7 +525,7 @@ class Navigator:
         info["reason"] = (f"outlier: {outcome.distance_m:.1f} m from the estimate, "
                           f"inlier probability {outcome.inlier_probability:.2g}")
         self.previous.misses += 1
-        if answer.ok and self._recover(frame, complex(answer.x or 0.0, answer.y or 0.0)):
+        if recover and answer.ok and self._recover(frame, complex(answer.x or 0.0, answer.y or 0.0)):
             info["reason"] += f"; {self.options.recover_after} consistent rejected fixes: particles drawn there"
         return info
 

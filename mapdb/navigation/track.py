@@ -7,6 +7,7 @@ One :class:`TrackRecord` per frame (``mapdb navigate`` writes its :meth:`TrackRe
      "velocity_mps": [east, north], "speed_mps": 20.1, "heading_deg": 90.2,
      "cov_m2": [[xx, xy], [xy, yy]], "sigma_m": 0.31,          # the largest axis of the position covariance
      "fix": {"status": "used", "x": ..., "y": ..., "score": 23.1, "inlier_probability": 1.0, ...},
+     "fix_frames": [11.9, 12.1, 12.3],                      # the times of the frames whose objects the fix used
      "velocity": {"status": "used", "velocity_mps": [...], "sigma_mps": 3.1, "inliers": 14},
      "prior_radius_m": 10.0, "notes": [...],
      "time_ms": {"total": 9.1, "query": 5.2, "velocity": 2.3, "filter": 1.2},
@@ -22,6 +23,13 @@ and the estimate is the previous one).  ``fix.status`` is
 ``"used"``, ``"initialised"`` (the first fix placed the filter), ``"rejected"`` (an outlier: ``reason``
 says how far and how likely), ``"none"`` (``reason``: the matcher's, or why no query was made) or
 ``"withheld"`` (the flight withholds the map).
+
+``fix_frames`` names the frames whose objects the applied fix used, by their ``time_s``, oldest first: the
+frame's own time for its own query, several for a fix from the frame
+stitched with the frames before it (:mod:`mapdb.navigation.stitch`: ``fix.stitched`` then gives the
+stitched image's ``frames``, ``objects`` and ``carried`` objects, and ``fix.single`` what the frame's own
+query gave); null when no fix was applied.  When a stitched query was tried and gave no fix, ``fix.stitched``
+says why (``reason``).
 
 :func:`track_geojson` gives the track's frames as RFC 7946 GeoJSON points (lon/lat), :func:`track_line_geojson`
 its path as a LineString, each a FeatureCollection of one geometry type (a GIS layer has one: ``ogrinfo``
@@ -66,6 +74,7 @@ class TrackRecord:
     heading_deg: float | None = None
     cov: np.ndarray | None = None
     fix: dict[str, Any] = field(default_factory=dict)
+    fix_frames: list[float] | None = None
     velocity_measurement: dict[str, Any] = field(default_factory=dict)
     prior_radius_m: float | None = None
     notes: list[str] = field(default_factory=list)
@@ -96,7 +105,7 @@ class TrackRecord:
             "heading_deg": _r(self.heading_deg, 3),
             "cov_m2": None if self.cov is None else [[_r(float(c), 4) for c in row] for row in self.cov],
             "sigma_m": _r(self.sigma_m, 3) if self.sigma_m is not None else None,
-            "fix": self.fix, "velocity": self.velocity_measurement,
+            "fix": self.fix, "fix_frames": self.fix_frames, "velocity": self.velocity_measurement,
             "prior_radius_m": _r(self.prior_radius_m, 2),
         }
         if self.notes:
