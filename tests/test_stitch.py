@@ -172,5 +172,5 @@ def test_the_track_record_fields_are_the_documented_ones() -> None:
             i = end
         i += 1
     record = track.TrackRecord(id="f", time_s=0.0, status="fix", notes=["n"], truth={"x": 0.0, "y": 0.0},
-                               fix_frames=[0.0])
+                               fix_frames=[0.0], altitude={"baro_m": 212.4})  # altitude: written when set
     assert keys == set(record.to_json())
