@@ -58,6 +58,19 @@ def test_help_imports_no_numpy() -> None:
     assert out.splitlines()[-1] == "False False"
 
 
+def test_the_mapdb_script_s_help_imports_no_numpy_scipy_or_kernel() -> None:
+    # The console script's own path (python -m mapdb_cli is what it runs), ended by --help's exit.
+    out = _python("""
+        import atexit, json, runpy, sys
+        atexit.register(lambda: print(json.dumps(sorted(
+            m for m in sys.modules if m.split(".")[0] in ("numpy", "scipy", "numba", "shapely", "pyproj")))))
+        sys.argv = ["mapdb", "--help"]
+        runpy.run_module("mapdb_cli", run_name="__main__")
+    """)
+    assert "Usage: mapdb" in out
+    assert json.loads(out.splitlines()[-1]) == []
+
+
 def test_a_one_image_query_with_a_prior_loads_only_what_it_uses(paper_setup, tmp_path: Path) -> None:
     map_path, images = paper_setup
     image = {**images[0], "prior": {"x": images[0]["truth"]["x"], "y": images[0]["truth"]["y"], "radius": 300.0}}
@@ -79,6 +92,29 @@ def test_a_one_image_query_with_a_prior_loads_only_what_it_uses(paper_setup, tmp
     answer, loaded = (json.loads(line) for line in out.splitlines())
     assert answer["status"] == "ok"
     assert math.hypot(answer["x"] - image["truth"]["x"], answer["y"] - image["truth"]["y"]) < 5.0
+    assert loaded == []
+
+
+# What a one-image query with a prior never needs, each some 0.01-0.1 s of its start-up: numpy.ma (numpy 2's
+# np.unique imports it on its first plain call), the paper's matcher, the stored index's reader and writer
+# (multiprocessing), the label files' TOML parser.
+NOT_FOR_ONE_ANSWER = ["numpy.ma", "mapdb.match.paper.algorithm", "mapdb.match.index.stored", "multiprocessing",
+                      "tomllib"]
+
+
+def test_a_one_image_query_with_a_prior_skips_what_it_never_needs(paper_setup, tmp_path: Path) -> None:
+    map_path, images = paper_setup
+    lines = [json.dumps({**image, "prior": {"x": image["truth"]["x"], "y": image["truth"]["y"], "radius": 300.0}})
+             for image in images[:2]]  # the third's final assignment has rivals: scipy.sparse brings numpy.ma
+    (tmp_path / "two.jsonl").write_text("\n".join(lines) + "\n")
+    out = _python(f"""
+        import json, sys
+        from mapdb_cli.main import cli
+        cli(["query", sys.argv[1], sys.argv[2]], standalone_mode=False)
+        print(json.dumps([m for m in {NOT_FOR_ONE_ANSWER!r} if m in sys.modules]))
+    """, str(map_path), str(tmp_path / "two.jsonl"))
+    *answers, loaded = (json.loads(line) for line in out.splitlines())
+    assert [a["status"] for a in answers] == ["ok"] * 2
     assert loaded == []
 
 

@@ -52,7 +52,6 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
-from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, BinaryIO
 
@@ -84,7 +83,7 @@ __all__ = [
     "split_image_documents",
 ]
 
-IMAGE_SCHEMA_PATH = Path(str(resources.files("mapdb") / "data" / "image.schema.json"))
+IMAGE_SCHEMA_PATH = Path(__file__).parents[1] / "data" / "image.schema.json"  # not importlib.resources: start-up
 # The ranges of an image's numbers (module docs).  The schema states the same bounds and is what checks
 # them (tests keep the two equal); here they are named for the code and the messages that need them.
 # A guard against documents that would take minutes: no detector reports this many objects in a frame.

@@ -12,7 +12,7 @@ from typing import Any
 
 from ..answers import Answer
 from ..match.fast import FastOptions
-from ..match.paper.algorithm import PaperOptions
+from ..match.paper.options import PaperOptions
 from .localizer import localizer_for
 from .records import rejected
 

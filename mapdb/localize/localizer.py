@@ -16,7 +16,7 @@ import sys
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,15 +28,17 @@ from ..match.evidence.blobs import outward_normals
 from ..match.fast import FastOptions, ObjectIndex, QuadIndex, match_fast
 from ..match.hypotheses import PRIOR_SLACK
 from ..match.index.layout import index_path
-from ..match.index.stored import StoredQuadIndex
 from ..match.mapobjects.blocks_view import BlocksView, block_quads, has_blocks, wants_blocks
 from ..match.mapobjects.paged_objects import PAGED_FROM_OBJECTS, WholeMapObjects
-from ..match.paper.algorithm import PaperOptions, match_paper
+from ..match.paper.options import PaperOptions
 from ..match.quads import near_only
 from ..objects import Objects
 from .image_points import image_points, known_objects, scale_hints
 from .priors import outside_bounds, prior_margin, resolve_prior
 from .records import FoundPose, RejectionError, finite, ok_record, rejected, rounded
+
+if TYPE_CHECKING:  # imported where used: an answer with a prior never opens the stored index
+    from ..match.index.stored import StoredQuadIndex
 
 __all__ = ["METHODS", "Localizer", "localize", "localizer_for"]
 
@@ -295,6 +297,10 @@ class Localizer:
         base = self.map.raw if isinstance(self.map, BlocksView) else self.map
         if not isinstance(base, MetaMap) or self._stored_failed or self._folds_blocks():
             return None
+        # Here, not at the top: its reader and writer (multiprocessing, the label tables) cost a one-image query
+        # with a prior some 0.03 s of imports it never needs.
+        from ..match.index.stored import StoredQuadIndex
+
         try:
             stored = StoredQuadIndex.for_map(base)
         except MapdbError as exc:
@@ -522,6 +528,8 @@ def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: floa
             raise RejectionError(found.reason or "no match", candidates, **extra)
         best = found.best
         return FoundPose(best.a, best.b, best.inliers, best.sigma_m, rounded(best.score, 2), candidates, extra)
+    from ..match.paper.algorithm import match_paper  # the reference matcher: seconds an image, imported when used
+
     map_ = localizer.map
     objects = map_.query_radius(prior[0], prior[1], prior[2] + margin) if prior is not None else map_.all()
     answer = match_paper(z, codes, objects, options=localizer.paper_options)

@@ -33,10 +33,14 @@ an image document, picks the map region and formats the answer.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from .fast import MatchResult, ObjectIndex, QuadIndex, match_fast
 from .options import FastOptions
-from .paper.algorithm import PaperResult, match_paper
 from .paper.options import PaperOptions
+
+if TYPE_CHECKING:
+    from .paper.algorithm import PaperResult, match_paper
 
 __all__ = [
     "FastOptions",
@@ -48,3 +52,13 @@ __all__ = [
     "match_fast",
     "match_paper",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """The paper's matcher, imported on first use: a fast-method process (a one-image ``mapdb query``) never
+    loads it."""
+    if name in ("PaperResult", "match_paper"):
+        from .paper import algorithm
+
+        return getattr(algorithm, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
+from .arrays import all_distinct
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, residual_sigmas
 from .evidence.relief import ReliefFit
@@ -135,7 +136,7 @@ def polish(
         rows, cols, costs = index.within(w, img_label, gate, 3)
         if not rows.size:
             return cand
-        if np.unique(rows).size == rows.size and np.unique(cols).size == cols.size:
+        if all_distinct(rows) and all_distinct(cols):
             if fit is not None and np.array_equal(pairs, np.column_stack([rows, cols])):
                 break  # the pairs of the last fit: fitting them again gives it again
             pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign

@@ -85,6 +85,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..arrays import sorted_unique
+
 __all__ = [
     "CUT_RATIO_HIGH", "POINTS_SHARE", "RATIO_HIGH", "RATIO_LOW", "SOLID_LABELS", "ImageAreas", "bands", "compatible",
     "disc_chances", "points_floor", "sample_evidence", "solid_objects",
@@ -194,7 +196,7 @@ def disc_chances(log_area: np.ndarray, members: list[list[np.ndarray]], img_labe
     h, n = lo.shape
     q = np.ones((h, n))
     for row in range(h):
-        for code in np.unique(img_label):
+        for code in sorted_unique(img_label):
             cols = np.flatnonzero((img_label == code) & (np.isfinite(lo[row]) | np.isfinite(hi[row])))
             if not cols.size:
                 continue

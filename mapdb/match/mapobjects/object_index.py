@@ -14,6 +14,7 @@ import numpy as np
 
 from ..._scipy import quick_tree
 from ...objects import Objects
+from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 
 __all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "ObjectIndex"]
@@ -240,7 +241,7 @@ class ObjectIndex:
         out = [[empty] * len(self.labels) for _ in range(centres.size)]
         if self.tree is None:
             return out
-        codes = np.unique(codes)
+        codes = sorted_unique(codes)
         w = np.repeat(centres, codes.size)
         found = self.tree.query_ball_point(self._points(w, np.tile(codes, centres.size)),
                                            np.minimum(np.repeat(radius, codes.size), 0.5 * self.gap))
