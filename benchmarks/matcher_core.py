@@ -5,14 +5,16 @@
    field of view, random heading, 1 px and 0.05 degree errors, at least 6 objects.  Median and p95 time per
    ``localize`` call with a 300 m prior in each image and without a prior (the whole map's index built once
    first, outside the timing), how many were localized within 2 m, and how many answers (status and
-   position) are the same as the first version's.
+   position) are the same as the first version's: the same status and, when accepted, position, heading and
+   scale within 1e-6 (``SAME_POSE``); each differing image is listed and the differences counted.
 2. Numpy calls per image (median): calls from code outside numpy into numpy (a ufunc, an array method, a
    function of numpy's package), counted with ``sys.setprofile`` on a separate untimed pass.
 3. A gauge of the machine's speed: the median time of a fixed numpy workload (:func:`gauge_ms`), taken before
    each map's timings and printed beside them, and the load average, so that figures from different machines
    (or one machine under different loads) can be compared.
 4. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
-   answer's line on the pipe (and to exit), median of ``--repeats`` processes.  As installed: Python's
+   answer's line on the pipe (the first answer) and to exit, median of ``--repeats`` fresh processes (5 by
+   default), the baseline's beside this tree's (its ``mapdb`` and CLI first on ``PYTHONPATH``).  As installed: Python's
    bytecode cache in use (kept in a temporary ``PYTHONPYCACHEPREFIX``, filled by one untimed run of each
    command, so the working tree gets no ``__pycache__``); and with ``PYTHONDONTWRITEBYTECODE=1`` and no
    cache, as in a sandbox where every process compiles mapdb's sources.  The command is the ``mapdb``
@@ -107,10 +109,30 @@ def p95(values: list[float]) -> float:
     return ordered[min(len(ordered) - 1, math.ceil(0.95 * len(ordered)) - 1)]
 
 
+# Two answers are the same when their status is, and their position, heading and scale differ by at most this
+# (the answers' own rounding: mm, 0.001 degree, 1e-6 m a pixel; so in effect equal as written).
+SAME_POSE = 1e-6
+
+
+def pose_of(answer: dict) -> tuple:
+    """What :func:`same_answer` compares: accepted or not, and the pose of an accepted answer."""
+    accepted = answer["status"] == "ok"
+    pose = tuple(answer.get(k) for k in ("x", "y", "heading_deg", "scale_m_per_px")) if accepted else ()
+    return (accepted, *pose)
+
+
+def same_answer(one: tuple, other: tuple) -> bool:
+    """Both accepted with poses within ``SAME_POSE``, or both rejected (:func:`pose_of`)."""
+    if one[0] != other[0]:
+        return False
+    return all(abs(a - b) <= SAME_POSE for a, b in zip(one[1:], other[1:], strict=True))
+
+
 def time_images(versions: dict, map_path: Path, images: list[dict], counted: int) -> dict:
     """Per version and case (prior, no prior): median and p95 ms per image of ``localize``, alternating
-    versions image by image; localized images, answers (status and position) identical to the first
-    version's, and the median numpy calls an image over the first ``counted`` images."""
+    versions image by image; localized images, answers the same as the first version's (:func:`same_answer`;
+    ``differ`` lists the others: image id, this version's and the first's), and the median numpy calls an image
+    over the first ``counted`` images."""
     result = {}
     for case in ("prior", "no prior"):
         subset = images if case == "prior" else [{k: v for k, v in im.items() if k != "prior"} for im in images]
@@ -128,7 +150,7 @@ def time_images(versions: dict, map_path: Path, images: list[dict], counted: int
                 start = time.perf_counter()
                 answer = as_json(localize(im, maps[label]))
                 times[label].append((time.perf_counter() - start) * 1000.0)
-                answers[label].append((answer["status"], answer.get("x"), answer.get("y")))
+                answers[label].append(pose_of(answer))
                 good[label] += answer["status"] == "ok" and math.hypot(
                     answer["x"] - im["truth"]["x"], answer["y"] - im["truth"]["y"]) <= 2.0
         first = answers[next(iter(versions))]
@@ -138,48 +160,80 @@ def time_images(versions: dict, map_path: Path, images: list[dict], counted: int
             result.setdefault(label, {})[case] = {
                 "median_ms": statistics.median(times[label]), "p95_ms": p95(times[label]),
                 "localized": good[label], "images": len(subset),
-                "same": sum(a == b for a, b in zip(answers[label], first)),
+                "same": sum(same_answer(a, b) for a, b in zip(answers[label], first, strict=True)),
+                "differ": [(im.get("id"), a, b) for im, a, b in zip(subset, answers[label], first, strict=True)
+                           if not same_answer(a, b)],
                 "numpy_calls": statistics.median(calls) if calls else float("nan")}
     return result
 
 
-def startup(map_path: Path, one_image: Path, cwd: Path, repeats: int, env: dict[str, str]) -> dict[str, float]:
-    """Median seconds of ``mapdb --help`` (to exit) and of a one-image query with a prior (to its answer's line,
-    and to exit), each process started afresh with ``env``; one untimed run of each first."""
-    out: dict[str, list[float]] = {"--help": [], "query answer": [], "query exit": []}
+def startup_run(mapdb: str, map_path: Path, one_image: Path, cwd: Path, env: dict[str, str]) -> tuple[float, ...]:
+    """Seconds of one fresh ``mapdb --help`` (to exit) and one one-image query with a prior (to its answer's
+    line, and to exit)."""
+    start = time.perf_counter()
+    subprocess.run([mapdb, "--help"], check=True, capture_output=True, cwd=cwd, env=env)
+    help_s = time.perf_counter() - start
+    start = time.perf_counter()
+    with subprocess.Popen([mapdb, "query", str(map_path), str(one_image)], stdout=subprocess.PIPE,
+                          stderr=subprocess.DEVNULL, cwd=cwd, env=env) as proc:
+        assert proc.stdout is not None
+        answer = json.loads(proc.stdout.readline())  # written and flushed before the next line is read
+        answer_s = time.perf_counter() - start
+        proc.stdout.read()
+    exit_s = time.perf_counter() - start
+    if proc.returncode != 0 or answer.get("status") != "ok":
+        sys.exit(f"the one-image query failed: exit {proc.returncode}, answer {answer}")
+    return help_s, answer_s, exit_s
+
+
+def startup(map_path: Path, one_image: Path, cwd: Path, repeats: int, envs: dict[str, dict[str, str]]
+            ) -> dict[str, dict[str, float]]:
+    """Per version (``envs``: its environment), median seconds of ``mapdb --help`` (to exit) and of a one-image
+    query with a prior (to its answer's line, and to exit), each process started afresh; the versions take turns
+    (which goes first alternates), after one untimed run of each."""
+    out: dict[str, dict[str, list[float]]] = {v: {"--help": [], "query answer": [], "query exit": []} for v in envs}
     script = Path(sys.executable).parent / "mapdb"
     mapdb = str(script) if script.exists() else "mapdb"
+    order = list(envs.items())
     for run in range(repeats + 1):
-        start = time.perf_counter()
-        subprocess.run([mapdb, "--help"], check=True, capture_output=True, cwd=cwd, env=env)
-        help_s = time.perf_counter() - start
-        start = time.perf_counter()
-        with subprocess.Popen([mapdb, "query", str(map_path), str(one_image)], stdout=subprocess.PIPE,
-                              stderr=subprocess.DEVNULL, cwd=cwd, env=env) as proc:
-            assert proc.stdout is not None
-            answer = json.loads(proc.stdout.readline())  # written and flushed before the next line is read
-            answer_s = time.perf_counter() - start
-            proc.stdout.read()
-        exit_s = time.perf_counter() - start
-        if proc.returncode != 0 or answer.get("status") != "ok":
-            sys.exit(f"the one-image query failed: exit {proc.returncode}, answer {answer}")
-        if run:  # the first run fills the bytecode cache
-            for key, value in zip(out, (help_s, answer_s, exit_s)):
-                out[key].append(value)
-    return {key: statistics.median(values) for key, values in out.items()}
+        for version, env in order if run % 2 == 0 else order[::-1]:
+            times = startup_run(mapdb, map_path, one_image, cwd, env)
+            if run:  # the first run fills the bytecode cache
+                for key, value in zip(out[version], times, strict=True):
+                    out[version][key].append(value)
+    return {v: {key: statistics.median(values) for key, values in t.items()} for v, t in out.items()}
 
 
-def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int) -> None:
-    """Print start-up with Python's bytecode cache (as installed) and without (compiling mapdb every run)."""
-    cached = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+def baseline_tree(rev: str, work: Path) -> Path:
+    """A directory holding revision ``rev``'s ``mapdb`` and its CLI as ``mapdb_cli``: first on ``PYTHONPATH``,
+    the installed ``mapdb`` script runs that revision (the editable install's finder comes after the path)."""
+    root = work / f"startup-{rev}"
+    if not (root / "mapdb_cli").is_dir():
+        root.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb", "cli"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(root)], input=archive, check=True)
+        (root / "cli").rename(root / "mapdb_cli")
+    return root
+
+
+def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int, baseline: str | None) -> None:
+    """Print start-up with Python's bytecode cache (as installed) and without (compiling mapdb every run), this
+    tree's and the baseline's side by side."""
+    cached = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPATH")}
     cached["PYTHONPYCACHEPREFIX"] = str(work / "pycache")
-    uncached = {k: v for k, v in os.environ.items() if k != "PYTHONPYCACHEPREFIX"}
+    uncached = {k: v for k, v in os.environ.items() if k not in ("PYTHONPYCACHEPREFIX", "PYTHONPATH")}
     uncached["PYTHONDONTWRITEBYTECODE"] = "1"
-    print(f"start-up (this tree, median of {repeats} processes; the query's answer is ok):")
-    print(f"  {'bytecode':<34} {'--help':>7} {'query: answer':>14} {'exit':>7}")
+    print(f"start-up (median of {repeats} fresh processes a version, taking turns; the query's answer is ok; "
+          f"load average {os.getloadavg()[0]:.1f}):")
+    print(f"  {'bytecode':<28} {'code':<17} {'--help':>7} {'first answer':>13} {'exit':>7}")
     for label, env in (("cached (as installed)", cached), ("none (compiled every run)", uncached)):
-        times = startup(map_path, one_image, work, repeats, env)
-        print(f"  {label:<34} {times['--help']:6.3f}s {times['query answer']:13.3f}s {times['query exit']:6.3f}s")
+        envs = {"this tree": env}
+        if baseline:
+            envs[f"baseline {baseline}"] = {**env, "PYTHONPATH": str(baseline_tree(baseline, work))}
+        for version, t in startup(map_path, one_image, work, repeats, envs).items():
+            print(f"  {label:<28} {version:<17} {t['--help']:6.3f}s {t['query answer']:12.3f}s "
+                  f"{t['query exit']:6.3f}s")
 
 
 def simulated(map_path: Path, n: int, seed: int) -> list[dict]:
@@ -215,6 +269,10 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
                 print(f"  {name:<14} {label:<17} {case:<9} {r['median_ms']:9.2f} {r['p95_ms']:8.2f} "
                       f"{r['localized']:5d}/{r['images']:<4d} {r['same']:4d}/{r['images']:<4d}"
                       f"{r['numpy_calls']:11.0f} {gauge:8.1f}")
+        for label, res in results.items():
+            for case, r in res.items():
+                for image_id, mine, theirs in r["differ"]:
+                    print(f"  {name:<14} {label}, {case}: {image_id} differs: {_said(mine)} against {_said(theirs)}")
         tree = results["this tree"]
         with_prior, without = tree["prior"], tree["no prior"]
         print(f"  {name:<14} this tree, prior / no prior: median "
@@ -223,10 +281,17 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
         if args.baseline:
             base = results[f"baseline {args.baseline}"]
             for case in ("prior", "no prior"):
+                print(f"  {name:<14} {case}: answers differing from the baseline's: "
+                      f"{len(base[case]['differ'])} of {base[case]['images']}")
                 print(f"  {name:<14} {case}: this tree / baseline: median "
                       f"{tree[case]['median_ms'] / base[case]['median_ms']:.2f}, "
                       f"p95 {tree[case]['p95_ms'] / base[case]['p95_ms']:.2f}")
     print(f"  load average after: {os.getloadavg()[0]:.1f}; gauge {gauge_ms():.1f} ms")
+
+
+def _said(pose: tuple) -> str:
+    """A :func:`pose_of` tuple, short."""
+    return "rejected" if not pose[0] else "ok at ({:.3f}, {:.3f}) heading {:.3f} scale {:.6f}".format(*pose[1:])
 
 
 def main() -> None:
@@ -253,7 +318,7 @@ def main() -> None:
         if not args.no_startup:
             one_image = work / "one.jsonl"
             one_image.write_text(json.dumps(simulated(maps[names[0]], 1, args.seed)[0]) + "\n")
-            startup_table(maps[names[0]], one_image, work, args.repeats)
+            startup_table(maps[names[0]], one_image, work, args.repeats, args.baseline)
 
 
 if __name__ == "__main__":
