@@ -15,7 +15,7 @@ __all__ = ["all_distinct", "sorted_unique"]
 
 
 def sorted_unique(values: np.ndarray) -> np.ndarray:
-    """The distinct values of ``values`` (flattened), sorted: :func:`numpy.unique` of a small integer array
+    """The distinct values of array ``values`` (flattened), sorted: :func:`numpy.unique` of a small integer array
     (an image's labels), in one numpy call and a Python set.
 
     Examples
@@ -25,7 +25,6 @@ def sorted_unique(values: np.ndarray) -> np.ndarray:
     >>> sorted_unique(np.zeros(0, np.int64)).tolist()
     []
     """
-    values = np.asarray(values)
     return np.array(sorted(set(values.ravel().tolist())), dtype=values.dtype)
 
 
@@ -38,5 +37,5 @@ def all_distinct(values: np.ndarray) -> bool:
     >>> all_distinct(np.array([2, 0, 1])), all_distinct(np.array([2, 0, 2]))
     (True, False)
     """
-    listed = values.ravel().tolist()
+    listed = values.tolist() if values.ndim == 1 else values.ravel().tolist()
     return len(set(listed)) == len(listed)
