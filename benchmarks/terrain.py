@@ -15,6 +15,7 @@ Run from the repository root::
     python benchmarks/terrain.py --n 500 --no-altitude --baseline main  # beside main, image by image
     python benchmarks/terrain.py --sizes            # bytes an object that elevation adds (Monaco, Andorra)
     python benchmarks/terrain.py --wrong-place      # Monaco's images against Andorra's map: false alarms
+    python benchmarks/terrain.py --ground           # the map's ground under the nadirs against the DEM's
 
 Prints, per row: images, localized within 2 m, accepted 2-5 m off, accepted more than 5 m off, rejected, the
 RMS of the localized (within 2 m), and the median time per image.  ``--sizes`` builds Monaco with the SRTM
@@ -185,6 +186,27 @@ def row_beside(map_path: Path, altitude: float, n: int, seed: int, with_altitude
     return summary(errors[0], times[0]), summary(errors[1], times[1])
 
 
+def ground_errors(altitude: float, n: int, seed: int) -> None:
+    """The matcher's ground under the nadir (:meth:`TerrainModel.nadir_ground`, from the map's objects) against
+    the DEM's, at the nadirs of a row's images: its error and the error over its modelled sigma."""
+    from mapdb.mapfile.reader import open_map
+    from mapdb.match.evidence.terrain import TerrainModel
+    from mapdb.match.mapobjects.object_index import ObjectIndex
+    from mapdb.simulation.simulate import simulate_images
+    from mapdb.simulation.terrain import terrain_of
+
+    with open_map(build(MONACO, CACHE / "monaco.dem.mapdb", DEM)) as m:
+        images = simulate_images(m, n, altitude=altitude, fov_deg=60.0, size=(640, 480), yaw="random",
+                                 pixel_std=1.0, with_attitude=True, with_altitude=True, min_objects=6, seed=seed,
+                                 terrain=terrain_of(m, (DEM,)))
+        model = TerrainModel(ObjectIndex(m.all()), 1.0, altitude)
+    found = [model.nadir_ground(complex(im["truth"]["x"], im["truth"]["y"])) for im in images]
+    error = np.array([abs(im["truth"]["ground_m"] - g) for im, (g, _) in zip(images, found, strict=True)])
+    ratio = error / np.sqrt([v for _, v in found])
+    print(f"| {altitude:.0f} m, {error.size} nadirs | {np.median(error):.2f} m | {np.quantile(error, 0.9):.2f} m | "
+          f"{error.max():.1f} m | {np.quantile(ratio, 0.9):.2f} | {np.quantile(ratio, 0.99):.2f} | {ratio.max():.2f} |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, default=500, help="images a row")
@@ -195,6 +217,8 @@ def main() -> None:
     parser.add_argument("--sizes", action="store_true", help="only the map sizes")
     parser.add_argument("--baseline", metavar="REV",
                         help="also localize every image with the matcher of this git revision, in this process")
+    parser.add_argument("--ground", action="store_true",
+                        help="only the error of the map's ground under the nadirs against the DEM's")
     parser.add_argument("--wrong-place", action="store_true",
                         help="only the wrong-place check: Monaco's images against Andorra's map with elevation")
     args = parser.parse_args()
@@ -203,6 +227,13 @@ def main() -> None:
         sys.exit(f"real data absent: {MONACO} or {DEM} (see ../shared/data/SOURCES.md)")
     if args.sizes:
         sizes()
+        return
+    if args.ground:
+        print("| nadirs | median error | 90th percentile | largest | error / sigma: 90th pct (Gaussian 1.64) "
+              "| 99th (2.58) | largest |")
+        print("|---|---|---|---|---|---|---|")
+        for altitude in args.rows:
+            ground_errors(altitude, args.n, args.seed)
         return
     if args.wrong_place:
         print("| Monaco's images (altitude given) against Andorra's map with elevation | accepted (false alarms) |")
