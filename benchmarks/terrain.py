@@ -207,6 +207,18 @@ def ground_errors(altitude: float, n: int, seed: int) -> None:
           f"{error.max():.1f} m | {np.quantile(ratio, 0.9):.2f} | {np.quantile(ratio, 0.99):.2f} | {ratio.max():.2f} |")
 
 
+def load_baseline(rev: str) -> object:
+    """The ``mapdb`` package of git revision ``rev``, as ``mapdb_baseline`` (``benchmarks/_baseline.py``)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _baseline import import_baseline
+
+    import_baseline(rev, CACHE, "localize")
+    import mapdb_baseline.localize.localizer
+    import mapdb_baseline.mapfile.reader  # noqa: F401
+
+    return sys.modules["mapdb_baseline"]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, default=500, help="images a row")
@@ -247,16 +259,7 @@ def main() -> None:
     print(f"| {args.n} images a row | localized within 2 m | accepted 2-5 m off | accepted > 5 m off | rejected "
           "| RMS of the localized | median time |")
     print("|---|---|---|---|---|---|---|")
-    baseline = None
-    if args.baseline:
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from _baseline import import_baseline
-
-        import_baseline(args.baseline, CACHE, "localize")
-        import mapdb_baseline.localize.localizer
-        import mapdb_baseline.mapfile.reader  # noqa: F401
-
-        baseline = sys.modules["mapdb_baseline"]
+    baseline = load_baseline(args.baseline) if args.baseline else None
     for with_altitude in [True, False] if args.no_altitude else [True]:
         for altitude in args.rows:
             for terrain, path in ((True, high), (False, flat)):
