@@ -103,12 +103,12 @@ def test_the_ground_under_the_nadir_is_less_certain_far_from_any_object() -> Non
 
 
 def test_the_position_error_stated_over_a_slope_is_honest() -> None:
-    """Over 200 noisy images of the one-sided slope the error of the position over the stated sigma
+    """Over 100 noisy images of the one-sided slope the error of the position over the stated sigma
     (position's from the fit and from the height) has the spread of a 2-D Gaussian error: median 1.18."""
     from mapdb.match.evidence.relief import fit_with_relief
 
     ratios = []
-    for seed in range(200):
+    for seed in range(100):
         index, focal, z, w, h = slope_scene(seed=seed)
         model = TerrainModel(index, focal, 300.0)
         src, depth_variance = model.fit_sources(z, w, 0j, 300.0 / focal, h)
