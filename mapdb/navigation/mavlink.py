@@ -13,6 +13,14 @@ Each :class:`~mapdb.navigation.track.TrackRecord` becomes one ``GPS_INPUT`` mess
 * time: the record's ``time_s`` as GPS week and milliseconds (a Unix time, or seconds since the start of
   the flight, counted from the moment the output was opened).
 
+The input side (:class:`AutopilotAltitude`, :func:`altitude_of`, :class:`MavlinkIn`) reads the autopilot's
+altitude from its own MAVLink messages (``ALTITUDE``, ``GLOBAL_POSITION_INT``, ``VFR_HUD``) and turns it into
+the frame field the navigator reads (:meth:`AutopilotAltitude.frame_fields`, ``docs/mavlink.md``, *Input*):
+over a map with elevation the barometric altitude above the datum, ``baro_altitude_m`` (above mean sea level,
+the datum of the DEMs mapdb reads: SRTM's EGM96 geoid), from which the navigator takes the map's ground away
+(:mod:`mapdb.navigation.terrain`); over a flat map ``altitude_m``, the height above the take-off ground; a
+range finder's distance to the ground is ``altitude_m`` over either.
+
 UDP has no acknowledgement: a receiver that went away is seen only through the "port unreachable" the
 kernel reports on the next send.  Such messages are counted as lost (:attr:`MavlinkOut.lost`) and the
 sending goes on, so that navigation never stops for the link.
@@ -37,11 +45,14 @@ from ..errors import MapdbError, MapdbIOError
 from .track import TrackRecord
 
 __all__ = [
+    "AutopilotAltitude",
     "GPS_EPOCH_UNIX_S",
     "GPS_LEAP_S",
+    "MavlinkIn",
     "MavlinkMissingError",
     "MavlinkOptions",
     "MavlinkOut",
+    "altitude_of",
     "ground_frame",
     "gps_input_fields",
     "gps_time",
@@ -343,6 +354,148 @@ class MavlinkOut:
         return line
 
     def __enter__(self) -> MavlinkOut:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --- Input: the autopilot's altitude for the frames ---
+
+# ALTITUDE.altitude_terrain below this means unknown (MAVLink's definition); an unknown bottom_clearance is
+# negative.  Neither field is read here but bottom_clearance (a range finder: a measured height).
+_UNKNOWN_CLEARANCE = 0.0
+
+
+def _finite(value: Any, scale: float = 1.0) -> float | None:
+    """A message field as metres (``scale`` from its unit), None when it is not a finite number."""
+    try:
+        number = float(value) * scale
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+@dataclass(frozen=True)
+class AutopilotAltitude:
+    """What an autopilot says of its altitude, metres (None: not said).
+
+    ``amsl_m``: above mean sea level (the barometric altitude the autopilot flies by); ``relative_m``: above
+    its home (take-off) position; ``clearance_m``: a range finder's distance to the ground below it.
+    """
+
+    amsl_m: float | None = None
+    relative_m: float | None = None
+    clearance_m: float | None = None
+
+    def merged(self, newer: AutopilotAltitude) -> AutopilotAltitude:
+        """This altitude updated by the fields a newer message says."""
+        return AutopilotAltitude(*(b if b is not None else a for a, b in (
+            (self.amsl_m, newer.amsl_m), (self.relative_m, newer.relative_m), (self.clearance_m, newer.clearance_m))))
+
+    def frame_fields(self, elevation: bool, home_elevation_m: float | None = None) -> dict[str, float]:
+        """The frame's altitude field (``docs/frames.md``): empty when nothing usable was said.
+
+        Parameters
+        ----------
+        elevation : bool
+            Whether the map holds elevation (``mapdb build --dem``): then the barometric altitude is the height
+            above the datum, ``baro_altitude_m``, from ``amsl_m`` or ``relative_m + home_elevation_m``; else
+            the height above the (flat) ground, ``altitude_m``, from ``relative_m`` (the take-off ground's
+            height) or ``amsl_m - home_elevation_m``.
+        home_elevation_m : float, optional
+            The take-off ground's height above mean sea level.
+
+        A range finder's ``clearance_m`` is the height above the ground itself: ``altitude_m`` in either case.
+
+        Examples
+        --------
+        >>> AutopilotAltitude(amsl_m=412.0, relative_m=120.0).frame_fields(elevation=True)
+        {'baro_altitude_m': 412.0}
+        >>> AutopilotAltitude(relative_m=120.0).frame_fields(elevation=True, home_elevation_m=292.0)
+        {'baro_altitude_m': 412.0}
+        >>> AutopilotAltitude(amsl_m=412.0, relative_m=120.0).frame_fields(elevation=False)
+        {'altitude_m': 120.0}
+        >>> AutopilotAltitude(relative_m=120.0).frame_fields(elevation=True)  # the home's height unknown
+        {}
+        """
+        if self.clearance_m is not None:
+            return {"altitude_m": self.clearance_m}
+        if elevation:
+            if self.amsl_m is not None:
+                return {"baro_altitude_m": self.amsl_m}
+            if self.relative_m is not None and home_elevation_m is not None:
+                return {"baro_altitude_m": self.relative_m + home_elevation_m}
+            return {}
+        if self.relative_m is not None:
+            return {"altitude_m": self.relative_m}
+        if self.amsl_m is not None and home_elevation_m is not None:
+            return {"altitude_m": self.amsl_m - home_elevation_m}
+        return {}
+
+
+def altitude_of(message: Any) -> AutopilotAltitude | None:
+    """The altitude a decoded pymavlink message says, or None for a message that says none.
+
+    ``ALTITUDE`` (141): ``altitude_amsl``, ``altitude_relative``, ``bottom_clearance`` (metres; NaN, or a
+    negative clearance, unknown); ``GLOBAL_POSITION_INT`` (33): ``alt`` and ``relative_alt`` (millimetres);
+    ``VFR_HUD`` (74): ``alt`` (metres above mean sea level).
+    """
+    kind = message.get_type() if hasattr(message, "get_type") else None
+    if kind == "ALTITUDE":
+        clearance = _finite(message.bottom_clearance)
+        return AutopilotAltitude(_finite(message.altitude_amsl), _finite(message.altitude_relative),
+                                 clearance if clearance is not None and clearance > _UNKNOWN_CLEARANCE else None)
+    if kind == "GLOBAL_POSITION_INT":
+        return AutopilotAltitude(_finite(message.alt, 1e-3), _finite(message.relative_alt, 1e-3))
+    if kind == "VFR_HUD":
+        return AutopilotAltitude(_finite(message.alt))
+    return None
+
+
+class MavlinkIn:
+    """The autopilot's altitude, heard on ``udpin:HOST:PORT`` (the port MAVProxy or mavlink-router forwards the
+    autopilot's messages to): :meth:`poll` reads what has arrived without waiting, and :attr:`altitude` holds
+    the latest of each kind (:meth:`AutopilotAltitude.merged`)."""
+
+    def __init__(self, address: str) -> None:
+        dialect = _dialect()
+        kind, _, rest = address.partition(":")
+        host, _, port = rest.rpartition(":")
+        if kind != "udpin" or not host or not port.isdigit():
+            raise MapdbIOError(f"{address}: cannot open MAVLink input (not udpin:HOST:PORT)")
+        try:
+            self.sock = socket.socket(socket.AF_INET6 if ":" in host.strip("[]") else socket.AF_INET,
+                                      socket.SOCK_DGRAM)
+            self.sock.bind((host.strip("[]"), int(port)))
+        except OSError as exc:
+            raise MapdbIOError(f"{address}: cannot open MAVLink input ({exc.strerror or exc})") from None
+        self.sock.setblocking(False)
+        self.dialect = dialect
+        self.parser = dialect.MAVLink(None)
+        self.address, self.altitude, self.heard = address, AutopilotAltitude(), 0
+
+    def poll(self) -> AutopilotAltitude:
+        """Every datagram waiting decoded (what does not decode is skipped), and the latest altitude."""
+        while True:
+            try:
+                data = self.sock.recv(65536)
+            except (BlockingIOError, InterruptedError):
+                return self.altitude
+            try:
+                messages = self.parser.parse_buffer(data) or []
+            except self.dialect.MAVError:  # not MAVLink (or damaged): skipped, with what the parser held of it
+                self.parser = self.dialect.MAVLink(None)
+                continue
+            for message in messages:
+                said = altitude_of(message)
+                if said is not None:
+                    self.altitude, self.heard = self.altitude.merged(said), self.heard + 1
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def __enter__(self) -> MavlinkIn:
         return self
 
     def __exit__(self, *exc: object) -> None:
