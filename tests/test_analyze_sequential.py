@@ -7,7 +7,6 @@ buildings (no image can show four objects there: those cells are skipped by the 
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import numpy as np
@@ -57,21 +56,25 @@ def test_sequential_agrees_with_fixed_within_its_widths_with_fewer_images(both) 
     s, f = sequential.measures, fixed.measures
     simulated = sequential.counts.within_reach >= measures.MIN_VISIBLE
     assert simulated.sum() >= 8
+    width = SampleConfig().stop_width
     for r, c in zip(*np.nonzero(simulated), strict=True):
-        n = int(s["images"][r, c])
-        k = round(float(s["success"][r, c]) * n)
-        low, high = wilson_interval(k, n)
-        # The reported width is that interval's, and the fixed run's share lies inside it.
-        assert s["success_width"][r, c] == pytest.approx(high - low, abs=1e-6)
-        assert low - 1e-6 <= f["success"][r, c] <= high + 1e-6, (r, c, k, n, f["success"][r, c])
-        # A cell stops only once its width is reached, else it draws every image (a prefix of the fixed run's)
-        assert n == 16 or s["success_width"][r, c] <= SampleConfig().stop_width + 1e-6
-        if n == 16:
-            for band in ("success", "false_fixes", "error_m", "ambiguity", "visible", "simulated"):
+        ready, ran = int(s["localizable"][r, c]), int(s["simulated"][r, c])
+        # The same poses and views: what every image shows, and which can be localized, are the fixed run's.
+        assert s["visible"][r, c] == f["visible"][r, c] and ready == f["localizable"][r, c] == f["simulated"][r, c]
+        low, high = float(s["success_low"][r, c]), float(s["success_high"][r, c])
+        assert low - 1e-6 <= f["success"][r, c] <= high + 1e-6, (r, c, low, high, f["success"][r, c])
+        if ran == ready:  # every localizable image ran: the fixed run's figures, an interval of no width
+            assert low == high == s["success"][r, c]
+            for band in ("success", "false_fixes", "error_m", "ambiguity", "simulated"):
                 assert np.array_equal(s[band][r, c], f[band][r, c], equal_nan=True), band
-    assert (s["images"][simulated] < 16).sum() >= simulated.sum() / 2  # the extreme cells stopped early
-    assert sequential.stats["images_drawn"] <= 0.75 * fixed.stats["images_drawn"]
-    assert sequential.stats["images_localized"] < fixed.stats["images_localized"]
+        else:  # stopped early: only once its interval was narrow enough, after at least MIN_RUN
+            k = round(float(s["success"][r, c]) * 16 * ran / ready)
+            expected = wilson_interval(k, ran)
+            assert (low, high) == pytest.approx((expected[0] * ready / 16, expected[1] * ready / 16), abs=1e-6)
+            assert measures.MIN_RUN <= ran < ready and high - low <= width + 1e-6
+    stopped = simulated & (s["simulated"] < s["localizable"])
+    assert stopped.sum() >= simulated.sum() / 2
+    assert sequential.stats["images_localized"] <= fixed.stats["images_localized"] / 2
     assert (f["images"][fixed.reached] == 16).all()
 
 
@@ -85,10 +88,10 @@ def test_cells_no_image_can_localize_from_are_skipped(both) -> None:
     assert sequential.counts.within_reach[cell] == 2
     skipped = sequential.reached & (sequential.counts.within_reach < measures.MIN_VISIBLE)
     assert skipped[cell] and sequential.stats["cells_skipped"] == int(skipped.sum())
-    # Marked: no image drawn, objects in view unknown, success and false 0 exactly (width 0).
+    # Marked: no image drawn, objects in view unknown, success and false 0 exactly (an interval of no width).
     assert (s["images"][skipped] == 0).all() and np.isnan(s["visible"][skipped]).all()
-    assert np.isnan(s["visible_building"][skipped]).all()
-    assert (s["success"][skipped] == 0).all() and (s["success_width"][skipped] == 0).all()
+    assert np.isnan(s["visible_building"][skipped]).all() and (s["localizable"][skipped] == 0).all()
+    assert (s["success"][skipped] == 0).all() and (s["success_high"][skipped] == 0).all()
     # The fixed run draws all 16 there, and none of them can be localized: the same success.
     assert (f["images"][skipped] == 16).all() and (f["simulated"][skipped] == 0).all()
     assert (f["success"][skipped] == 0).all() and fixed.stats["cells_skipped"] == 0
@@ -113,19 +116,21 @@ def test_skipped_cells_reach_no_worker(world: Path, monkeypatch) -> None:
 
 def test_the_documented_rule_is_the_code() -> None:
     """The module docstring's numbers, read against the functions."""
-    doc = measures.__doc__ or ""
-    assert f"{SampleConfig().stop_width:.3f} for 16 images" in doc
-    low, high = wilson_interval(0, 5)
-    assert f"stops after 5 images (interval 0 to {high:.3f})" in doc and low == 0
+    doc = " ".join((measures.__doc__ or "").split())
     width = SampleConfig().stop_width
+    assert f"{width:.3f} for 16 images" in doc and wilson_width(8, 16) == pytest.approx(width)
+    assert f"``m >= MIN_RUN`` ({measures.MIN_RUN})" in doc
 
-    def first_stop(k: int) -> int:
-        return next(n for n in range(max(k, 1), 17) if wilson_width(k, n) <= width and wilson_width(0, n) <= width)
+    def stops_after(ready: int) -> int:  # every image localized succeeds
+        return next(m for m in range(ready + 1) if measures._known(m, 0, m, ready, 16, width))
 
-    said = re.search(r"one success among failures stops after (\d+); two after (\d+)", doc)
-    assert said is not None and (int(said[1]), int(said[2])) == (first_stop(1), first_stop(2))
-    assert first_stop(0) == 5
-    assert wilson_width(8, 16) == pytest.approx(width)
+    low = wilson_interval(5, 5)[0]
+    assert f"all succeed stops after {stops_after(16)} (interval {low:.3f} to 1 of the fixed share)" in doc
+    assert f"one with 8 localizable after {stops_after(8)}, whatever they give" in doc
+    assert f"(at most {8 / 16 * wilson_width(1, 2):.3f} wide)" in doc
+    assert f"12 localizable, all succeeding, after {stops_after(12)}" in doc
+    assert not measures._known(0, 0, 1, 16, 16, 1.0)  # never before MIN_RUN, however wide the width
+    assert measures._known(0, 0, 3, 3, 16, 0.01)  # always once every localizable image ran
     assert SampleConfig(width=0.3).stop_width == 0.3
 
 
@@ -144,8 +149,8 @@ def test_cli_records_the_rule_and_marks_skipped_cells(world: Path, tmp_path: Pat
     assert p["sequential"] is True and p["stop_width"] == round(wilson_width(2, 4), 4)
     assert p["images_per_cell"] == "sequential: at most 4" and p["interval"].startswith("Wilson")
     assert summary["run"]["cells_skipped"] >= 1
-    assert summary["images_drawn"] == summary["run"]["images_drawn"] > 0
-    assert summary["success_width"]["max"] <= 1.0
+    assert summary["images_localized"] < summary["images_localizable"] == summary["run"]["images_localizable"]
+    assert 0 < summary["success_width"]["max"] <= p["stop_width"]
     cells = geopandas.read_file(out / "cells.gpkg")
     skipped = cells[cells["images"] == 0]
     assert len(skipped) == summary["run"]["cells_skipped"] and skipped["visible"].isna().all()
@@ -154,7 +159,8 @@ def test_cli_records_the_rule_and_marks_skipped_cells(world: Path, tmp_path: Pat
     assert result.exit_code == 0, result.output
     summary = json.loads((fixed / "summary.json").read_text())
     assert summary["parameters"]["sequential"] is False and summary["parameters"]["stop_width"] is None
-    assert summary["run"]["cells_skipped"] == 0
+    assert summary["run"]["cells_skipped"] == 0 and summary["success_width"]["max"] == 0
+    assert summary["images_localized"] == summary["images_localizable"]
 
 
 @pytest.mark.parametrize("width", ["0", "-0.1", "1.5", "nan"])

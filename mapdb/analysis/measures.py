@@ -15,20 +15,26 @@ An image that shows fewer than :data:`MIN_VISIBLE` objects of the analysed label
 localized without being simulated: the fast matcher places an image from a quad of four image objects
 matched to four map objects, so with fewer than four true objects in view it cannot find the true place.
 
-**The sequential rule** (``SampleConfig.sequential``, the default).  A cell draws its samples in the same
-order as a fixed run (sample ``s`` from the same generator), and stops once its success share *and* its
-false share are each known to the width the outputs report: the width of Wilson's 95 % score interval
-(:func:`wilson_width`, ``z = 1.96``) of ``k`` of ``n`` images at most ``SampleConfig.stop_width``, at most
-``samples`` images.  That width is, unless given, the widest interval a fixed run of ``samples`` images
-reports (half of them successes): 0.440 for 16 images.  So a cell is known as well as a fixed-16 run knows
-its least certain cell.  For 16 images a cell where every image fails (or every one succeeds with no false
-fix) stops after 5 images (interval 0 to 0.434); one success among failures stops after 9; two after 11;
-cells with shares near one half draw all 16, as before.  A cell's images are thus a prefix of the fixed
-run's, and its measures the fixed run's when it draws them all.  Each cell records the images it drew
-(``images``) and its success interval's width (``width``).  The rule treats each image as a Bernoulli
-trial of the cell's success probability and ignores that the stop looks at the data (the usual sequential
-caveat: coverage a little under the nominal 95 %); a rare event, a false fix in one image in twenty, is
-more likely to go unseen in 5 images than in 16.
+**The sequential rule** (``SampleConfig.sequential``, the default).  A cell's success share, as a fixed
+run reports it, is ``k / N``: ``k`` of its ``N = samples`` images localized within the threshold.  Which of the
+``N`` images *can* be localized is known cheaply, before any is simulated: the ``L`` that show at least
+:data:`MIN_VISIBLE` objects (the others fail by rule).  So every pose and view is drawn, as in a fixed run
+(``visible`` is the fixed run's), and only the localizable images are run, in sample order, until the share
+is known to the width the outputs report: after ``m`` of the ``L`` with ``k`` successes and ``f`` false
+fixes, the cell stops once ``m >= MIN_RUN`` (2) and the 95 % Wilson score interval (:func:`wilson_interval`,
+``z = 1.96``) of ``k`` of ``m``, and of ``f`` of ``m``, each scaled by ``L / N``, is at most
+``SampleConfig.stop_width`` wide; or once all ``L`` ran.  It reports ``success = (L / N) (k / m)`` (likewise
+``false_fixes``) and the interval (``success_low``, ``success_high``; both the share itself when all ran):
+an interval for the share the fixed run of the same ``N`` images would report.  ``stop_width`` is, unless
+given, the widest interval a fixed run's share has around the cell's success probability (half of ``N``
+successes): 0.440 for 16 images; the sequential figure is thus never further from the fixed one than the fixed
+one is (at worst) from the truth.  For 16 images: a cell whose 16 images can all be localized and all succeed
+stops after 5 (interval 0.566 to 1 of the fixed share); one with 8 localizable after 2, whatever they give
+(at most 0.405 wide); a cell with 12 localizable, all succeeding, after 3.  Its measures are
+the fixed run's when it runs every localizable image.  The rule treats the localizable images as
+exchangeable and ignores that the stop looks at the data (the usual sequential caveat: coverage a little under
+the nominal 95 %); error and ambiguity are medians over fewer images; a rare event, a false fix in one image
+in twenty, is more likely to go unseen in 2 images than in 16.
 """
 
 from __future__ import annotations
@@ -54,6 +60,9 @@ MIN_VISIBLE = 4
 _TILT_SIGMAS = 5.0
 # Maps (with their localizers) a worker keeps open.
 _KEEP_MAPS = 2
+# The fewest localizable images the sequential rule runs in a cell before it may stop (a share from one image is
+# all or nothing).
+MIN_RUN = 2
 # The normal quantile of a two-sided 95 % interval (the sequential rule's and the outputs' widths).
 Z95 = 1.959963984540054
 # Cells whose objects are read from the map together (as run.BLOCK_CELLS): a task's cells are one such block,
@@ -157,8 +166,10 @@ class CellMeasures:
     error: np.ndarray          # median error of the correct answers (m)
     ambiguity: np.ndarray      # median over the samples of the ambiguity (0 unique .. 1 indistinguishable)
     simulated: np.ndarray      # samples simulated and localized (the others showed < MIN_VISIBLE objects)
-    images: np.ndarray         # samples drawn (all of them, or fewer when the sequential rule stopped)
-    width: np.ndarray          # width of the 95 % Wilson interval of success over the drawn samples
+    images: np.ndarray         # samples drawn (their poses and the objects they show)
+    localizable: np.ndarray    # of them, those showing at least MIN_VISIBLE objects (``simulated`` of them ran)
+    low: np.ndarray            # 95 % interval of the success share a run of every localizable image reports
+    high: np.ndarray
     seconds: float = 0.0       # time spent measuring (set-up excluded)
     label_names: tuple[str, ...] = field(default=())
 
@@ -168,7 +179,8 @@ class CellMeasures:
         nothing = np.full(n, np.nan, np.float32)
         return cls(np.zeros(n, np.float32), np.zeros((n, len(label_names)), np.float32), np.zeros(n, np.float32),
                    np.zeros(n, np.float32), nothing, nothing.copy(), np.zeros(n, np.int32),
-                   np.zeros(n, np.int32), np.zeros(n, np.float32), label_names=label_names)
+                   np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
+                   label_names=label_names)
 
 
 def _natural(v: int) -> int:
@@ -294,49 +306,65 @@ def _context(m: Any, localizer: Any, config: SampleConfig, cell_m: float, cells:
     return _Context(config, cell_m, localizer, objects, tree, codes, label_counts)
 
 
-def _known(successes: int, false: int, drawn: int, width: float) -> bool:
-    """Whether the sequential rule stops a cell: both shares' 95 % intervals at most ``width`` wide."""
-    return drawn > 0 and wilson_width(successes, drawn) <= width and wilson_width(false, drawn) <= width
+def _known(successes: int, false: int, run: int, ready: int, drawn: int, width: float) -> bool:
+    """Whether the sequential rule stops a cell after ``run`` of its ``ready`` localizable images (of ``drawn``):
+    all of them run, or at least :data:`MIN_RUN` and both shares' intervals at most ``width`` wide."""
+    if run >= ready:
+        return True
+    if run < MIN_RUN:
+        return False
+    scale = ready / drawn
+    return scale * wilson_width(successes, run) <= width and scale * wilson_width(false, run) <= width
+
+
+def _draw(ctx: _Context, i: int, j: int, s: int) -> tuple[Pose, np.random.Generator, Any, np.ndarray]:
+    """Sample ``s`` of cell ``(i, j)``: its pose, its generator (left where the image's errors start), the
+    analysed objects near it and which of them its image shows."""
+    cfg = ctx.config
+    rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
+    where = rng.random(2)
+    heading = float(rng.uniform(0.0, 360.0))
+    roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
+    pose = Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
+                heading, roll, pitch)
+    local, seen = _in_view(ctx, pose)
+    return pose, rng, local, seen
 
 
 def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) -> None:
-    """Sample one cell (all its samples, or until the sequential rule stops it) and write its measures into row
-    ``row`` of ``out``."""
+    """Sample one cell (every localizable image, or until the sequential rule stops it) and write its measures
+    into row ``row`` of ``out``."""
     cfg = ctx.config
-    visible = np.zeros((cfg.samples, len(ctx.codes)), np.int64)
+    drawn = [_draw(ctx, i, j, s) for s in range(cfg.samples)]
+    visible = np.array([np.bincount(local.label[seen], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
+                        for _, _, local, seen in drawn], np.int64).reshape(cfg.samples, len(ctx.codes))
+    ready = [s for s, (_, _, _, seen) in enumerate(drawn) if seen.sum() >= MIN_VISIBLE]
     correct: list[float] = []
     amb: list[float] = []
-    false = simulated = drawn = 0
-    stop_width = cfg.stop_width
-    for s in range(cfg.samples):
-        if cfg.sequential and _known(len(correct), false, drawn, stop_width):
+    false = run = 0
+    for s in ready:
+        if cfg.sequential and _known(len(correct), false, run, len(ready), cfg.samples, cfg.stop_width):
             break
-        drawn += 1
-        rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
-        where = rng.random(2)
-        heading = float(rng.uniform(0.0, 360.0))
-        roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
-        pose = Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
-                    heading, roll, pitch)
-        local, seen = _in_view(ctx, pose)
-        visible[s] = np.bincount(local.label[seen], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
-        if seen.sum() < MIN_VISIBLE:
-            continue
-        simulated += 1
+        run += 1
+        pose, rng, local, _ = drawn[s]
         error, lost = _localize(ctx, local, pose, rng, f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
             false += 1
         amb.append(ambiguity(lost, pose.x, pose.y, cfg.separation_m))
-    visible = visible[:drawn]
+    # The shares the fixed run would report: the localizable share (known) times the share of those that ran
+    # (integers divided once: the fixed run's k / samples exactly when every localizable image ran).
+    n, k = cfg.samples * max(run, 1), len(correct)
     out.visible[row] = np.median(visible.sum(axis=1))
     out.per_label[row] = np.median(visible, axis=0)
-    out.success[row] = len(correct) / drawn
-    out.false[row] = false / drawn
-    out.simulated[row] = simulated
-    out.images[row] = drawn
-    out.width[row] = wilson_width(len(correct), drawn)
+    out.success[row] = k * len(ready) / n
+    out.false[row] = false * len(ready) / n
+    out.simulated[row] = run
+    out.images[row] = cfg.samples
+    out.localizable[row] = len(ready)
+    low, high = wilson_interval(k, run) if run < len(ready) else (k / max(run, 1), k / max(run, 1))
+    out.low[row], out.high[row] = low * len(ready) / cfg.samples, high * len(ready) / cfg.samples
     if correct:
         out.error[row] = np.median(correct)
     defined = [a for a in amb if not math.isnan(a)]

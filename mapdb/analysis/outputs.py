@@ -185,9 +185,11 @@ def _rule(cfg: SampleConfig) -> dict[str, Any]:
                 "interval": "Wilson score, 95 %", "stop_width": None}
     return {"images_per_cell": f"sequential: at most {cfg.samples}", "sequential": True,
             "interval": "Wilson score, 95 %", "stop_width": round(cfg.stop_width, 4),
-            "stop_rule": "a cell stops once the 95 % Wilson intervals of its success and false shares are each "
-                         "at most stop_width wide; cells with fewer than min_visible analysed objects within "
-                         "reach are skipped (images 0)"}
+            "stop_rule": "every image's pose and view is drawn; of the localizable ones (at least min_visible "
+                         "objects in view), a cell localizes at least 2, in order, until the 95 % Wilson "
+                         "intervals of its success and false shares, times the localizable share, are each at "
+                         "most stop_width wide; cells with fewer than min_visible analysed objects within reach "
+                         "are skipped (images 0)"}
 
 
 def _fraction(mask: np.ndarray, within: np.ndarray) -> float | None:
@@ -203,10 +205,12 @@ def _lonlat(crs: str, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def _most_ambiguous(analysis: Analysis) -> list[dict[str, Any]]:
-    """The cells of highest ambiguity among those where at least half the images drawn were simulated (a cell
-    whose one lucky image saw four objects says little about its pattern), most ambiguous first."""
+    """The cells of highest ambiguity among those where at least half the images drawn showed enough objects to
+    be localized (a cell whose one lucky image saw four objects says little about its pattern), most ambiguous
+    first."""
     amb = analysis.measures["ambiguity"]
-    seen = (analysis.measures["simulated"] >= analysis.measures["images"] / 2) & (analysis.measures["images"] > 0)
+    m = analysis.measures
+    seen = (m["localizable"] >= m["images"] / 2) & (m["images"] > 0)
     rows, cols = np.nonzero(~np.isnan(amb) & seen)
     if not rows.size:
         return []
@@ -239,9 +243,9 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
                       "median": None if not amb.size else round(float(np.median(amb)), 4),
                       "cells_at_least_0.5": int((amb >= 0.5).sum())},
         "images_localized": analysis.stats.get("images_localized"),
-        "images_drawn": analysis.stats.get("images_drawn"),
-        "images_per_simulated_cell": _per_cell(m["images"], analysis.counts.within_reach >= MIN_VISIBLE),
-        "success_width": _widths(m["success_width"], analysis.counts.within_reach >= MIN_VISIBLE),
+        "images_localizable": analysis.stats.get("images_localizable"),
+        "images_localized_per_simulated_cell": _per_cell(m["simulated"], analysis.counts.within_reach >= MIN_VISIBLE),
+        "success_width": _widths(m["success_high"] - m["success_low"], analysis.counts.within_reach >= MIN_VISIBLE),
     }
 
 

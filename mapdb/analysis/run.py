@@ -51,10 +51,11 @@ MEASURES: dict[str, tuple[str, str]] = {
     "objects_per_km2": ("objects/km2", "map objects (all labels) per square kilometre"),
     "bytes_per_km2": ("bytes/km2", "map file bytes per square kilometre (its objects' share of their pages)"),
     "simulated": ("images", "images simulated and localized (the others showed too few objects)"),
-    "images": ("images", "images drawn (the sequential rule stops a cell early; 0: not sampled, fewer than 4 "
-                         "analysed objects within reach)"),
-    "success_width": ("fraction", "width of the 95 % Wilson interval of success over the cell's images (0: "
-                                  "success 0 exactly, fewer than 4 analysed objects within reach)"),
+    "images": ("images", "images drawn: poses and the objects they show (0: skipped, fewer than 4 analysed "
+                         "objects within reach)"),
+    "localizable": ("images", "images drawn that show at least 4 analysed objects (simulated: those localized)"),
+    "success_low": ("fraction", "95 % interval of the success a run of every localizable image gives: low end"),
+    "success_high": ("fraction", "95 % interval of the success a run of every localizable image gives: high end"),
 }
 # A map with elevation (format version 2) adds these bands after the per-label ones.
 TERRAIN_MEASURES: dict[str, tuple[str, str]] = {
@@ -193,7 +194,8 @@ def _run(map_path: str, grid: Grid, counts: CellCounts, config: SampleConfig, in
     stats = {"cells": grid.size, "cells_within_reach": int(rows.size), "cells_simulated": int(heavy.sum()),
              "cells_skipped": int((~heavy).sum()) if config.sequential else 0,
              "images_localized": int(np.nansum(bands["simulated"])),
-             "images_drawn": int(np.nansum(bands["images"])), "workers": workers,
+             "images_drawn": int(np.nansum(bands["images"])),
+             "images_localizable": int(np.nansum(bands["localizable"])), "workers": workers,
              "estimate_s": None if estimate_s is None else round(estimate_s, 1),
              "seconds": round(time.perf_counter() - start, 1)}
     return Analysis(map_path, grid, config, counts, bands, info, stats, name)
@@ -209,9 +211,8 @@ def _empty_bands(grid: Grid, label_names: Sequence[str]) -> dict[str, np.ndarray
 
 
 def _mark_skipped(bands: dict[str, np.ndarray], rows: np.ndarray, cols: np.ndarray, sequential: bool) -> None:
-    """Cells within reach of fewer than MIN_VISIBLE analysed objects: success 0 exactly (width 0); skipped by
-    the sequential rule, their objects in view unknown (no image drawn)."""
-    bands["success_width"][rows, cols] = 0.0
+    """Cells within reach of fewer than MIN_VISIBLE analysed objects: success 0 exactly; skipped by the
+    sequential rule, their objects in view unknown (no image drawn)."""
     if sequential:
         for band in bands:
             if band == "visible" or band.startswith("visible_"):
@@ -222,7 +223,8 @@ def _place(bands: dict[str, np.ndarray], result: CellMeasures, rows: np.ndarray,
     for band, values in (("success", result.success), ("false_fixes", result.false), ("error_m", result.error),
                          ("ambiguity", result.ambiguity), ("visible", result.visible),
                          ("simulated", result.simulated), ("images", result.images),
-                         ("success_width", result.width)):
+                         ("localizable", result.localizable), ("success_low", result.low),
+                         ("success_high", result.high)):
         bands[band][rows, cols] = values
     for k, label in enumerate(result.label_names):
         bands[f"visible_{label}"][rows, cols] = result.per_label[:, k]
@@ -268,7 +270,7 @@ def _announce(say: Any, prefix: str, grid: Grid, within: int, heavy: int, config
 def _rule(config: SampleConfig) -> str:
     if not config.sequential:
         return ", all of them"
-    return f", fewer once the 95 % interval of success is {config.stop_width:.3f} wide"
+    return f", localized until the 95 % interval of success is {config.stop_width:.3f} wide"
 
 
 def _duration(seconds: float) -> str:
