@@ -48,8 +48,8 @@ def _labels(value: str | None) -> tuple[str, ...] | None:
 @click.option("--samples", type=click.IntRange(1, 10_000), default=16, show_default=True,
               help="Images per cell, at most (random position in the cell, random heading).")
 @click.option("--sequential/--no-sequential", default=True, show_default=True,
-              help="Stop a cell once its success share is known to --width, and skip cells no image can "
-                   "localize from; --no-sequential draws all --samples images in every cell within reach.")
+              help="Localize a cell's images only until its success share is known to --width, and skip "
+                   "cells no image can localize from; --no-sequential localizes every image of every cell.")
 @click.option("--width", "stop_width", type=finite_float(0.0, 1.0, min_open=True), default=None, metavar="W",
               help="Width of the 95 % interval of success at which a cell stops (default: the widest "
                    "interval of a fixed --samples run, 0.44 for 16).")
@@ -76,9 +76,9 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
 
     Per cell: objects in view, success, false positives, error, ambiguity (0: the cell's pattern is
     unique, 1: indistinguishable from another place), objects and map bytes per km², and for a map with
-    elevation the relief in view (relief_m). A cell stops drawing images once its success share is known
-    to --width (images and success_width say how many and how well). Cells from which no image can show 4
-    objects are decided without simulating. Writes a GeoTIFF (a band per measure),
+    elevation the relief in view (relief_m). A cell stops localizing images once its success share is
+    known to --width (simulated and success_low/success_high say how many and how well). Cells from which
+    no image can show 4 objects are decided without simulating. Writes a GeoTIFF (a band per measure),
     a PNG, a GeoPackage of the cells and summary.json into OUTDIR, which appears only when complete.
     """
     if jobs is not None and scheduler is not None:
