@@ -113,7 +113,8 @@ def agreement(fixed: Path, sequential: Path) -> dict:
             "max_width": float(width.max()) if cells else 0.0,
             "mean_success": (float(f["success"][bearing].mean()), float(s["success"][bearing].mean())),
             "mean_abs_diff": float(np.abs(f["success"] - s["success"])[both].mean()) if cells else 0.0,
-            "at_least_95": (int((f["success"] >= 0.95).sum()), int((s["success"] >= 0.95).sum())),
+            "at_least_95": (int((f["success"] >= 0.95).sum()), int((s["success"] >= 0.95).sum()),
+                            int((s["success_low"] >= 0.95).sum()), int((s["success_high"] >= 0.95).sum())),
             "false_cells": (int((f["false_fixes"] > 0).sum()), int((s["false_fixes"] > 0).sum())),
             "error_moved_m": moved("error_m"), "ambiguity_moved": moved("ambiguity"),
             "all_ran": int(all_ran.sum()),
@@ -161,7 +162,8 @@ def side_by_side(name: str, med: dict[str, dict]) -> None:
           f"{a['success_inside']:.1%}, false share in {a['false_inside']:.1%}; mean |difference| of success "
           f"{a['mean_abs_diff']:.3f}; mean success of "
           f"objects-bearing cells {a['mean_success'][0]:.3f} fixed, {a['mean_success'][1]:.3f} sequential; cells "
-          f"with success >= 95 %: {a['at_least_95'][0]} fixed, {a['at_least_95'][1]} sequential; cells with a "
+          f"with success >= 95 %: {a['at_least_95'][0]} fixed, {a['at_least_95'][1]} sequential (its interval: "
+          f"{a['at_least_95'][2]} to {a['at_least_95'][3]}); cells with a "
           f"false fix: {a['false_cells'][0]} fixed, {a['false_cells'][1]} sequential; median change of error_m "
           f"{a['error_moved_m']:.2f} m, of ambiguity {a['ambiguity_moved']:.3f}; the {a['all_ran']:,} cells that "
           f"ran every localizable image: the same success {'yes' if a['same_where_all_ran'] else 'NO'}")

@@ -151,6 +151,8 @@ def test_cli_records_the_rule_and_marks_skipped_cells(world: Path, tmp_path: Pat
     assert summary["run"]["cells_skipped"] >= 1
     assert summary["images_localized"] < summary["images_localizable"] == summary["run"]["images_localizable"]
     assert 0 < summary["success_width"]["max"] <= p["stop_width"]
+    bounds, works = summary["success_at_least_95_within_interval"], summary["success_at_least_95"]
+    assert bounds["low"] <= works["fraction_of_objects_bearing_area"] <= bounds["high"]
     cells = geopandas.read_file(out / "cells.gpkg")
     skipped = cells[cells["images"] == 0]
     assert len(skipped) == summary["run"]["cells_skipped"] and skipped["visible"].isna().all()
@@ -161,6 +163,8 @@ def test_cli_records_the_rule_and_marks_skipped_cells(world: Path, tmp_path: Pat
     assert summary["parameters"]["sequential"] is False and summary["parameters"]["stop_width"] is None
     assert summary["run"]["cells_skipped"] == 0 and summary["success_width"]["max"] == 0
     assert summary["images_localized"] == summary["images_localizable"]
+    bounds, works = summary["success_at_least_95_within_interval"], summary["success_at_least_95"]
+    assert bounds["low"] == works["fraction_of_objects_bearing_area"] == bounds["high"]
 
 
 @pytest.mark.parametrize("width", ["0", "-0.1", "1.5", "nan"])

@@ -235,6 +235,11 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
     return {
         "success_at_least_95": {"fraction_of_area": _fraction(works, everywhere),
                                 "fraction_of_objects_bearing_area": _fraction(works, bearing)},
+        # The sequential rule's interval carried through the classification: the share of the area where
+        # success is certainly (low end) and possibly (high end) at least the level (the same for a fixed run).
+        "success_at_least_95_within_interval": {
+            "low": _fraction(m["success_low"] >= SUCCESS_LEVEL, bearing),
+            "high": _fraction(m["success_high"] >= SUCCESS_LEVEL, bearing), "of": "objects-bearing area"},
         "false_above_0": {"fraction_of_area": _fraction(fooled, everywhere),
                           "fraction_of_objects_bearing_area": _fraction(fooled, bearing)},
         "mean_success_objects_bearing_area": None if not bearing.any() else round(float(m["success"][bearing].mean()),
