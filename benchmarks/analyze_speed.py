@@ -1,135 +1,222 @@
-"""``mapdb analyze`` over the whole Andorra map: wall time with 1 and 2 local Dask workers, the speed-up,
-whether the measures are the same bytes, and a worked cost estimate for a country from the measured cost.
+"""``mapdb analyze`` of whole maps, fixed-16 against the sequential rule, side by side; and the projected
+core-hours of a country from the measured densities.
 
-Builds and indexes the map (../shared/data/osm/andorra-2021-06-22.osm.pbf) in a work folder, then runs,
-each as its own process as a user would (default: 100 m cells, 16 images a cell, 150 m, 45 degrees)::
+Builds and indexes the maps (../shared/data/osm: Andorra, sparse valleys and mountains; Monaco, dense
+urban) in a work folder, then runs each mode as its own process as a user would (100 m cells, at most 16
+images a cell, 150 m, 45 degrees, in one process so that CPU time is core time), alternating the modes
+(fixed, sequential, sequential, fixed, ...) so that a neighbour's load falls on both alike::
 
-    mapdb analyze andorra.mapdb -o OUT --jobs N
+    mapdb analyze MAP -o OUT --no-sequential        # fixed: 16 images in every cell within reach
+    mapdb analyze MAP -o OUT                        # sequential (the default)
 
-    python benchmarks/analyze_speed.py [--jobs 1,2] [--repeat 2] [--samples 16] [--cell 100]
-                                       [--workdir DIR] [--country Germany:357588]
+    python benchmarks/analyze_speed.py [--repeat 2] [--maps andorra,monaco] [--workdir DIR]
+                                       [--country Germany:357588:45e6] [--jobs N]
 
-The estimate: cells = area / cell area; core-seconds per localized image measured with one worker (wall
-time over images, so set-up, sparse cells and outputs are included); images per cell as in Andorra (a lower
-bound for a densely built country) and all of them in every cell (the upper bound); workers for a 24-hour
-run at the measured parallel efficiency.  The matcher's lookups cost more in a larger map (README,
-"Lost-in-space at country scale"), which this does not include.
+Per run: cells, cells simulated, skipped, images drawn and localized, CPU (user + system of the process and
+its workers), core-ms a simulated cell.  Agreement: for every cell simulated in both modes, whether the
+fixed run's success (and false-fix) share lies inside the sequential run's 95 % Wilson interval (the width
+the outputs report, rebuilt from its ``images`` and share), and how far the other figures moved.
+
+The projection: a country of AREA km² and OBJECTS map objects in 100 m cells, its cells a mixture of the
+measured maps' cells (a share of Monaco-like cells, the rest Andorra-like, the share chosen so that the
+objects per cell match the country's); each mode's core-seconds a grid cell (the median run's CPU over its
+grid cells, everything included: set-up, empty cells, outputs) times the country's cells.  Not included:
+the growth of the per-image cost with the map's size (a country's lost-in-space search is slower).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import resource
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "osm"
-EXTRACT = "andorra-2021-06-22.osm.pbf"
+if not DATA.is_dir():
+    DATA = Path("/work/shared/data/osm")
+EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-03.osm.pbf",
+            "liechtenstein": "liechtenstein-2013-08-03.osm.pbf"}
+MODES = {"fixed": ["--no-sequential"], "sequential": []}
 
 
 def mapdb(*args: object) -> None:
-    subprocess.run(["mapdb", *map(str, args)], check=True)
+    exe = shutil.which("mapdb") or str(Path(sys.executable).with_name("mapdb"))
+    subprocess.run([exe, *map(str, args)], check=True)
 
 
-def build(workdir: Path) -> Path:
-    out = workdir / "andorra.mapdb"
+def build(workdir: Path, name: str) -> Path:
+    out = workdir / f"{name}.mapdb"
     if not out.exists():
-        mapdb("build", "-q", DATA / EXTRACT, "-o", out)
+        mapdb("build", "-q", DATA / EXTRACTS[name], "-o", out)
         mapdb("index", out)
     return out
 
 
-def analyse(map_path: Path, out: Path, jobs: int, samples: int, cell: float) -> dict:
-    """One run as its own process: its wall time, the CPU time of it and its workers, the machine's load
-    when it started (the machine is shared: a busy neighbour shows here), and its summary."""
+def analyse(map_path: Path, out: Path, mode: str, jobs: int | None) -> dict:
+    """One run as its own process: wall time, CPU of it and its workers, the load when it started."""
     if out.exists():
         shutil.rmtree(out)
     load = os.getloadavg()[0]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    mapdb("analyze", map_path, "-o", out, "--jobs", jobs, "--samples", samples, "--cell", cell, "-q")
+    mapdb("analyze", map_path, "-o", out, "-q", *MODES[mode], *(["--jobs", jobs] if jobs else []))
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     summary = json.loads((out / "summary.json").read_text())
-    return {"jobs": jobs, "wall_s": wall, "cpu_s": cpu, "load": load, "summary": summary, "out": out}
+    return {"mode": mode, "wall_s": wall, "cpu_s": cpu, "load": load, "summary": summary, "out": out}
 
 
-def same_measures(a: Path, b: Path) -> bool:
-    """Whether two runs' GeoTIFFs hold the same measures, byte for byte."""
+def read_bands(out: Path) -> dict[str, np.ndarray]:
     import rasterio
 
-    with rasterio.open(a / "analysis.tif") as x, rasterio.open(b / "analysis.tif") as y:
-        return x.read().tobytes() == y.read().tobytes()
+    with rasterio.open(out / "analysis.tif") as src:
+        return {name: src.read(k + 1).astype(np.float64) for k, name in enumerate(src.descriptions)}
 
 
-def estimate(name: str, area_km2: float, cell: float, samples: int, andorra: dict, efficiency: float) -> list[str]:
-    """Rows of the worked estimate for a country of ``area_km2``, from the one-worker run's cost per image."""
-    run = andorra["summary"]["run"]
-    cells = area_km2 / (cell * cell / 1e6)
-    per_image = andorra["wall_s"] / max(run["images_localized"], 1)  # core-seconds, set-up and skipped cells in
-    sparse = run["images_localized"] / run["cells"]
-    lines = [f"\n{name}, {area_km2:,.0f} km² at {cell:g} m: {cells / 1e6:,.1f} million cells; measured "
-             f"{per_image * 1000:,.1f} core-ms per localized image (Andorra, 1 worker, everything included); "
-             f"parallel efficiency {efficiency:.0%} (2 workers)",
-             "| images localized | images | core-hours | workers for a 24 h run |", "|---|---|---|---|"]
-    for label, per_cell in ((f"as in Andorra ({sparse:.2f} a cell)", sparse),
-                            (f"all {samples} in every cell (upper bound)", float(samples))):
-        images = cells * per_cell
-        core_h = images * per_image / 3600
-        lines.append(f"| {label} | {images / 1e6:,.1f} M | {core_h:,.0f} | {math.ceil(core_h / 24 / efficiency):,} |")
-    return lines
+def agreement(fixed: Path, sequential: Path) -> dict:
+    """Whether the fixed run's cell figures lie within the sequential run's reported 95 % intervals."""
+    from mapdb.analysis.measures import wilson_interval
+
+    f, s = read_bands(fixed), read_bands(sequential)
+    both = s["images"] > 0  # the cells the sequential run sampled (the others: success 0 in both, exactly)
+    ok = (s["success_low"] - 1e-6 <= f["success"]) & (f["success"] <= s["success_high"] + 1e-6)
+    false_ok = 0
+    for r, c in zip(*np.nonzero(both), strict=True):
+        ready, ran, n = int(s["localizable"][r, c]), int(s["simulated"][r, c]), int(s["images"][r, c])
+        if ran == ready:  # every localizable image ran: the fixed run's share exactly
+            false_ok += int(f["false_fixes"][r, c] == s["false_fixes"][r, c])
+            continue
+        low, high = wilson_interval(round(s["false_fixes"][r, c] * n * ran / ready), ran)
+        false_ok += int(low * ready / n - 1e-6 <= f["false_fixes"][r, c] <= high * ready / n + 1e-6)
+    cells = int(both.sum())
+
+    def moved(band: str) -> float:
+        known = both & (f[band] != -9999.0) & (s[band] != -9999.0)
+        return float(np.median(np.abs(f[band][known] - s[band][known]))) if known.any() else float("nan")
+
+    bearing = f["objects_per_km2"] > 0
+    all_ran = both & (s["simulated"] == s["localizable"])
+    width = (s["success_high"] - s["success_low"])[both]
+    return {"cells": cells, "success_inside": int(ok[both].sum()) / max(cells, 1),
+            "false_inside": false_ok / max(cells, 1), "median_width": float(np.median(width)) if cells else 0.0,
+            "max_width": float(width.max()) if cells else 0.0,
+            "mean_success": (float(f["success"][bearing].mean()), float(s["success"][bearing].mean())),
+            "mean_abs_diff": float(np.abs(f["success"] - s["success"])[both].mean()) if cells else 0.0,
+            "at_least_95": (int((f["success"] >= 0.95).sum()), int((s["success"] >= 0.95).sum()),
+                            int((s["success_low"] >= 0.95).sum()), int((s["success_high"] >= 0.95).sum())),
+            "false_cells": (int((f["false_fixes"] > 0).sum()), int((s["false_fixes"] > 0).sum())),
+            "error_moved_m": moved("error_m"), "ambiguity_moved": moved("ambiguity"),
+            "all_ran": int(all_ran.sum()),
+            "same_where_all_ran": bool(np.array_equal(f["success"][all_ran], s["success"][all_ran]))}
+
+
+def run_table(name: str, runs: list[dict]) -> None:
+    print(f"\n{name}: mapdb analyze, 100 m cells, at most 16 images a cell, 150 m, 45 deg, pixel 1 px, "
+          "attitude 0.05 deg, one process")
+    print("| run | mode | wall (s) | CPU (s) | load | cells | simulated | skipped | images localizable | "
+          "images localized | core-ms a simulated cell |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for k, r in enumerate(runs, start=1):
+        run = r["summary"]["run"]
+        per_cell = 1000 * r["cpu_s"] / max(run["cells_simulated"], 1)
+        print(f"| {k} | {r['mode']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['load']:.1f} | {run['cells']:,} | "
+              f"{run['cells_simulated']:,} | {run['cells_skipped']:,} | {run['images_localizable']:,} | "
+              f"{run['images_localized']:,} | {per_cell:,.0f} |")
+
+
+def medians(runs: list[dict]) -> dict[str, dict]:
+    out = {}
+    for mode in MODES:
+        mine = [r for r in runs if r["mode"] == mode]
+        run = mine[0]["summary"]["run"]  # the measures are the same bytes in every run of a mode
+        out[mode] = {"cpu_s": statistics.median(r["cpu_s"] for r in mine), "cells": run["cells"],
+                     "simulated": run["cells_simulated"], "drawn": run["images_localizable"],
+                     "localized": run["images_localized"], "objects": mine[0]["summary"]["area"]["objects"],
+                     "out": mine[0]["out"]}
+    return out
+
+
+def side_by_side(name: str, med: dict[str, dict]) -> None:
+    f, s = med["fixed"], med["sequential"]
+    print(f"\n{name}, medians | fixed | sequential | sequential / fixed |\n|---|---|---|---|")
+    for key, label in (("drawn", "images localizable"), ("localized", "images localized (run)"), ("cpu_s", "CPU (s)")):
+        print(f"| {label} | {f[key]:,.1f} | {s[key]:,.1f} | {s[key] / f[key]:.2f} |")
+    for mode in (f, s):
+        mode["ms_cell"] = 1000 * mode["cpu_s"] / max(mode["simulated"], 1)
+    print(f"| core-ms a simulated cell | {f['ms_cell']:,.0f} | {s['ms_cell']:,.0f} | "
+          f"{s['ms_cell'] / f['ms_cell']:.2f} |")
+    a = agreement(f["out"], s["out"])
+    print(f"\nAgreement over the {a['cells']:,} cells simulated: fixed success inside the sequential 95 % "
+          f"interval (median width {a['median_width']:.3f}, widest {a['max_width']:.3f}) in "
+          f"{a['success_inside']:.1%}, false share in {a['false_inside']:.1%}; mean |difference| of success "
+          f"{a['mean_abs_diff']:.3f}; mean success of "
+          f"objects-bearing cells {a['mean_success'][0]:.3f} fixed, {a['mean_success'][1]:.3f} sequential; cells "
+          f"with success >= 95 %: {a['at_least_95'][0]} fixed, {a['at_least_95'][1]} sequential (its interval: "
+          f"{a['at_least_95'][2]} to {a['at_least_95'][3]}); cells with a "
+          f"false fix: {a['false_cells'][0]} fixed, {a['false_cells'][1]} sequential; median change of error_m "
+          f"{a['error_moved_m']:.2f} m, of ambiguity {a['ambiguity_moved']:.3f}; the {a['all_ran']:,} cells that "
+          f"ran every localizable image: the same success {'yes' if a['same_where_all_ran'] else 'NO'}")
+
+
+def projection(country: str, maps: dict[str, dict[str, dict]]) -> None:
+    """Core-hours of a country whose cells mix the measured maps' cells to its objects per cell."""
+    name, area, objects = country.split(":")
+    cells = float(area) / 0.01
+    density = float(objects) / cells
+    dense, sparse = maps.get("monaco"), maps.get("andorra")
+    if dense is None or sparse is None:
+        print("\n(projection needs the andorra and monaco maps)")
+        return
+    d_dense = dense["fixed"]["objects"] / dense["fixed"]["cells"]
+    d_sparse = sparse["fixed"]["objects"] / sparse["fixed"]["cells"]
+    share = min(1.0, max(0.0, (density - d_sparse) / (d_dense - d_sparse)))
+    print(f"\n{name}: {float(area):,.0f} km², {float(objects) / 1e6:,.1f} M objects, {cells / 1e6:,.1f} M cells of "
+          f"100 m ({density:.3f} objects a cell): {share:.1%} Monaco-like cells ({d_dense:.3f} objects a cell), "
+          f"{1 - share:.1%} Andorra-like ({d_sparse:.4f})")
+    print("| mode | core-ms a grid cell, Monaco | Andorra | country core-hours |\n|---|---|---|---|")
+    hours = {}
+    for mode in MODES:
+        per_dense = dense[mode]["cpu_s"] / dense[mode]["cells"]
+        per_sparse = sparse[mode]["cpu_s"] / sparse[mode]["cells"]
+        hours[mode] = cells * (share * per_dense + (1 - share) * per_sparse) / 3600
+        print(f"| {mode} | {1000 * per_dense:,.2f} | {1000 * per_sparse:,.3f} | {hours[mode]:,.0f} |")
+    print(f"| sequential / fixed | | | {hours['sequential'] / hours['fixed']:.2f} |")
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--jobs", default="1,2", help="worker counts to time, comma-separated")
-    parser.add_argument("--samples", type=int, default=16)
-    parser.add_argument("--cell", type=float, default=100.0)
-    parser.add_argument("--repeat", type=int, default=2, help="runs of each worker count")
-    parser.add_argument("--workdir", type=Path, default=None, help="keep the map and outputs here")
-    parser.add_argument("--country", default="Germany:357588", help="NAME:AREA_KM2 for the worked estimate")
+    parser.add_argument("--maps", default="andorra,monaco", help="shared extracts to analyse, comma-separated")
+    parser.add_argument("--repeat", type=int, default=2, help="runs of each mode and map")
+    parser.add_argument("--jobs", type=int, default=None, help="local Dask workers (default: one process)")
+    parser.add_argument("--workdir", type=Path, default=None, help="keep the maps and outputs here")
+    parser.add_argument("--country", default="Germany:357588:45e6", help="NAME:AREA_KM2:OBJECTS to project")
     args = parser.parse_args()
-    if not (DATA / EXTRACT).exists():
+    if not DATA.is_dir():
         print(f"no shared data at {DATA}: nothing to measure", file=sys.stderr)
         return 1
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="analyze-speed-"))
     workdir.mkdir(parents=True, exist_ok=True)
-    map_path = build(workdir)
-    counts = [int(j) for j in args.jobs.split(",")]
-    # Alternate the worker counts (1, 2, 1, 2, ...) so that a neighbour's load falls on both alike; the best
-    # run of each count is the one least disturbed.
-    runs = [analyse(map_path, workdir / f"out-{j}-{k}", j, args.samples, args.cell)
-            for k in range(args.repeat) for j in counts]
-    first = runs[0]
-    print(f"mapdb analyze {EXTRACT.split('-')[0]}: {args.cell:g} m cells, {args.samples} images a cell, "
-          "150 m, 45 deg, pixel 1 px, attitude 0.05 deg")
-    print("| run | workers | wall (s) | CPU (s) | load at start | cells | simulated | images localized | "
-          "same bytes as run 1 |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for k, r in enumerate(runs, start=1):
-        run = r["summary"]["run"]
-        same = same_measures(first["out"], r["out"])
-        print(f"| {k} | {r['jobs']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | {r['load']:.1f} | {run['cells']:,} | "
-              f"{run['cells_simulated']:,} | {run['images_localized']:,} | {'yes' if same else 'NO'} |")
-    best = {j: min((r for r in runs if r["jobs"] == j), key=lambda r: r["wall_s"]) for j in counts}
-    base = best[counts[0]]
-    print("\n| workers | best wall (s) | speed-up |\n|---|---|---|")
-    for j in counts:
-        print(f"| {j} | {best[j]['wall_s']:.1f} | {base['wall_s'] / best[j]['wall_s']:.2f}x |")
-    last = best[counts[-1]]
-    # (above 1 only when the one-worker runs met a busier machine: no better than linear is assumed)
-    efficiency = min(1.0, base["wall_s"] * base["jobs"] / (last["wall_s"] * last["jobs"]))
-    name, area = args.country.split(":")
-    print("\n".join(estimate(name, float(area), args.cell, args.samples, base, efficiency)))
+    measured = {}
+    for name in args.maps.split(","):
+        map_path = build(workdir, name)
+        order = [m for k in range(args.repeat) for m in (("fixed", "sequential") if k % 2 == 0
+                                                          else ("sequential", "fixed"))]
+        runs = [analyse(map_path, workdir / f"{name}-{mode}-{k}", mode, args.jobs) for k, mode in enumerate(order)]
+        run_table(name, runs)
+        measured[name] = medians(runs)
+        side_by_side(name, measured[name])
+    projection(args.country, measured)
     return 0
 
 

@@ -46,7 +46,13 @@ def _labels(value: str | None) -> tuple[str, ...] | None:
 @detector_error_options(attitude_std=0.05, pixel_std=1.0)
 @click.option("--labels", metavar="LABEL,...", help="Use only these map labels (a detector that knows only them).")
 @click.option("--samples", type=click.IntRange(1, 10_000), default=16, show_default=True,
-              help="Images per cell (random position in the cell, random heading).")
+              help="Images per cell, at most (random position in the cell, random heading).")
+@click.option("--sequential/--no-sequential", default=True, show_default=True,
+              help="Localize a cell's images only until its success share is known to --width, and skip "
+                   "cells no image can localize from; --no-sequential localizes every image of every cell.")
+@click.option("--width", "stop_width", type=finite_float(0.0, 1.0, min_open=True), default=None, metavar="W",
+              help="Width of the 95 % interval of success at which a cell stops (default: the widest "
+                   "interval of a fixed --samples run, 0.44 for 16).")
 @click.option("--prior", type=finite_float(0.0, MAX_PRIOR_RADIUS, min_open=True), default=None, metavar="R",
               help="Give each image a position prior of radius R metres (ambiguity stays lost-in-space).")
 @click.option("--seed", type=click.IntRange(0, None), default=0, show_default=True,
@@ -64,14 +70,15 @@ def _labels(value: str | None) -> tuple[str, ...] | None:
 @debug_option
 @handle_errors
 def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, pixel_std, miss_rate, spurious_rate,
-            label_noise, labels, samples, prior, seed, scenarios_file, jobs, scheduler, timeout_s, overwrite,
-            parents, quiet, debug):
+            label_noise, labels, samples, sequential, stop_width, prior, seed, scenarios_file, jobs, scheduler,
+            timeout_s, overwrite, parents, quiet, debug):
     """Simulate images over every cell of a grid on MAP and measure where they localize.
 
     Per cell: objects in view, success, false positives, error, ambiguity (0: the cell's pattern is
     unique, 1: indistinguishable from another place), objects and map bytes per km², and for a map with
-    elevation the relief in view (relief_m). Cells from which no image can show 4 objects are decided
-    without simulating. Writes a GeoTIFF (a band per measure),
+    elevation the relief in view (relief_m). A cell stops localizing images once its success share is
+    known to --width (simulated and success_low/success_high say how many and how well). Cells from which
+    no image can show 4 objects are decided without simulating. Writes a GeoTIFF (a band per measure),
     a PNG, a GeoPackage of the cells and summary.json into OUTDIR, which appears only when complete.
     """
     if jobs is not None and scheduler is not None:
@@ -80,7 +87,8 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
 
     base = SampleConfig(altitude=altitude, fov_deg=fov, size=size, attitude_std=attitude_std, pixel_std=pixel_std,
                         miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
-                        labels=_labels(labels), samples=samples, prior=prior, seed=seed)
+                        labels=_labels(labels), samples=samples, prior=prior, seed=seed, sequential=sequential,
+                        width=stop_width)
     configs = read_scenarios(scenarios_file, base) if scenarios_file else {"": base}
     bbox_values = bbox.split(",") if bbox is not None else None
     say = progress_printer(quiet)

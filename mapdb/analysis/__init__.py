@@ -23,6 +23,12 @@ by the default (fast) matcher, as ``mapdb analyze`` does.  Per cell:
 * **objects_per_km2** and **bytes_per_km2**: the map's objects in the cell and the bytes of the map file
   they stand for (each page's bytes shared by its objects).
 
+* **images**, **localizable**, **simulated**: the images drawn, those showing four objects or more, and
+  those localized; **success_low**, **success_high**: the 95 % interval of the success share a run of every
+  localizable image gives.  By default a cell localizes its images only until that interval is as narrow as
+  a fixed 16-image run's widest (the sequential rule of :mod:`~mapdb.analysis.measures`); cells from which
+  no image can show four objects are skipped before any work (``images`` 0, ``visible`` no value).
+
 A sample that shows fewer than four objects is not simulated (the matcher needs a quad of four true
 objects: success is 0 there, exactly), and cells from which no image can show four objects are decided
 without simulating.  Every cell's images are drawn from ``(seed, cell)`` only, so the measures are the same

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import MapdbIOError, OutputClashError
 from ..outputs import pid_alive, refuse_existing
 from .grid import Grid
-from .measures import MIN_VISIBLE
+from .measures import MIN_VISIBLE, SampleConfig
 from .run import Analysis
 
 __all__ = ["NODATA", "SUCCESS_LEVEL", "comparison", "outcome", "output_folder", "parameters", "summary",
@@ -173,7 +173,23 @@ def parameters(analysis: Analysis) -> dict[str, Any]:
             "label_noise": cfg.label_noise, "labels": list(cfg.labels) if cfg.labels else "all",
             "samples": cfg.samples, "prior_m": cfg.prior, "seed": cfg.seed,
             "fp_threshold_m": cfg.fp_threshold, "heading": "random", "position": "uniform in the cell",
-            "method": "fast", "min_visible": MIN_VISIBLE, "ambiguity_separation_m": round(cfg.separation_m, 3)}
+            "method": "fast", "min_visible": MIN_VISIBLE, "ambiguity_separation_m": round(cfg.separation_m, 3),
+            **_rule(cfg)}
+
+
+def _rule(cfg: SampleConfig) -> dict[str, Any]:
+    """How many images a cell drew: the sequential rule and its width, or a fixed number (see
+    :mod:`mapdb.analysis.measures`)."""
+    if not cfg.sequential:
+        return {"images_per_cell": f"fixed: {cfg.samples}", "sequential": False,
+                "interval": "Wilson score, 95 %", "stop_width": None}
+    return {"images_per_cell": f"sequential: at most {cfg.samples}", "sequential": True,
+            "interval": "Wilson score, 95 %", "stop_width": round(cfg.stop_width, 4),
+            "stop_rule": "every image's pose and view is drawn; of the localizable ones (at least min_visible "
+                         "objects in view), a cell localizes at least 2, in order, until the 95 % Wilson "
+                         "intervals of its success and false shares, times the localizable share, are each at "
+                         "most stop_width wide; cells with fewer than min_visible analysed objects within reach "
+                         "are skipped (images 0)"}
 
 
 def _fraction(mask: np.ndarray, within: np.ndarray) -> float | None:
@@ -189,10 +205,12 @@ def _lonlat(crs: str, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def _most_ambiguous(analysis: Analysis) -> list[dict[str, Any]]:
-    """The cells of highest ambiguity among those where at least half the images were simulated (a cell whose
-    one lucky image saw four objects says little about its pattern), most ambiguous first."""
+    """The cells of highest ambiguity among those where at least half the images drawn showed enough objects to
+    be localized (a cell whose one lucky image saw four objects says little about its pattern), most ambiguous
+    first."""
     amb = analysis.measures["ambiguity"]
-    seen = analysis.measures["simulated"] >= analysis.config.samples / 2
+    m = analysis.measures
+    seen = (m["localizable"] >= m["images"] / 2) & (m["images"] > 0)
     rows, cols = np.nonzero(~np.isnan(amb) & seen)
     if not rows.size:
         return []
@@ -217,6 +235,11 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
     return {
         "success_at_least_95": {"fraction_of_area": _fraction(works, everywhere),
                                 "fraction_of_objects_bearing_area": _fraction(works, bearing)},
+        # The sequential rule's interval carried through the classification: the share of the area where
+        # success is certainly (low end) and possibly (high end) at least the level (the same for a fixed run).
+        "success_at_least_95_within_interval": {
+            "low": _fraction(m["success_low"] >= SUCCESS_LEVEL, bearing),
+            "high": _fraction(m["success_high"] >= SUCCESS_LEVEL, bearing), "of": "objects-bearing area"},
         "false_above_0": {"fraction_of_area": _fraction(fooled, everywhere),
                           "fraction_of_objects_bearing_area": _fraction(fooled, bearing)},
         "mean_success_objects_bearing_area": None if not bearing.any() else round(float(m["success"][bearing].mean()),
@@ -225,7 +248,21 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
                       "median": None if not amb.size else round(float(np.median(amb)), 4),
                       "cells_at_least_0.5": int((amb >= 0.5).sum())},
         "images_localized": analysis.stats.get("images_localized"),
+        "images_localizable": analysis.stats.get("images_localizable"),
+        "images_localized_per_simulated_cell": _per_cell(m["simulated"], analysis.counts.within_reach >= MIN_VISIBLE),
+        "success_width": _widths(m["success_high"] - m["success_low"], analysis.counts.within_reach >= MIN_VISIBLE),
     }
+
+
+def _per_cell(images: np.ndarray, simulated: np.ndarray) -> float | None:
+    return None if not simulated.any() else round(float(images[simulated].mean()), 4)
+
+
+def _widths(width: np.ndarray, simulated: np.ndarray) -> dict[str, float | None]:
+    """The 95 % interval widths of success over the cells images were simulated in."""
+    if not simulated.any():
+        return {"median": None, "max": None}
+    return {"median": round(float(np.median(width[simulated])), 4), "max": round(float(width[simulated].max()), 4)}
 
 
 def summary(analyses: Sequence[Analysis]) -> dict[str, Any]:

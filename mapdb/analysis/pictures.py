@@ -140,7 +140,8 @@ def _what(analysis: Analysis) -> str:
                                                        ("label noise", c.label_noise)) if value]
     labels = ", ".join(c.labels) if c.labels else "all labels"
     prior = f"; prior {c.prior:g} m (ambiguity: no prior)" if c.prior else "; no prior"
-    return (f"{c.samples} images per {analysis.grid.cell_m:g} m cell, random position and heading: "
+    rule = f" (localized until success is known to {c.stop_width:.2f})" if c.sequential else ""
+    return (f"{c.samples} images per {analysis.grid.cell_m:g} m cell{rule}, random position and heading: "
             f"{c.altitude:g} m, {c.fov_deg:g}° field of view, {c.size[0]}x{c.size[1]} px; "
             f"errors: {', '.join(errors)}; {labels}{prior}; seed {c.seed}")
 

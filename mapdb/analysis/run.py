@@ -2,8 +2,19 @@
 
 The cells are sent to workers in blocks of :data:`BLOCK_CELLS` x :data:`BLOCK_CELLS` (fixed by the grid,
 not by the number of workers), each block a task of :func:`mapdb.analysis.measures.measure_cells`.  Cells
-that no image taken from them could show an object in are not sent at all.  Before the run, a warm-up task
-(a spread of :data:`WARMUP_CELLS` cells to simulate) is timed and the cost of the rest estimated from it.
+that no image taken from them could show an object in are not sent at all.  With the sequential rule (the
+default), neither are the cells from which no image can show :data:`~mapdb.analysis.measures.MIN_VISIBLE`
+analysed objects (fewer within reach): they are *skipped* before any work, no image drawn, their success
+and false shares 0 exactly (interval width 0), ``images`` 0 and ``visible`` no value (the outputs' mark of a
+skipped cell: within reach of an object, ``images`` 0).  A fixed run (``sequential`` False) samples every
+cell within reach, as before.  Before the run, a warm-up task (a spread of :data:`WARMUP_CELLS` cells to
+simulate) is timed and the cost of the rest estimated from it.
+
+What a worker reads: the objects its images can show come from the map pages around its cells (a block's
+box widened by an image's reach, :func:`~mapdb.analysis.measures.measure_cells`).  The localization is a
+lost-in-space search over the whole map (the ambiguity measure is defined by it: the best *wrong* place
+anywhere), so a worker also uses the whole map's quad index (the stored ``.qidx``, read as the images' keys
+need it) and the whole map's object index (:class:`~mapdb.localize.Localizer`): not narrowed to its cells.
 """
 
 from __future__ import annotations
@@ -40,6 +51,11 @@ MEASURES: dict[str, tuple[str, str]] = {
     "objects_per_km2": ("objects/km2", "map objects (all labels) per square kilometre"),
     "bytes_per_km2": ("bytes/km2", "map file bytes per square kilometre (its objects' share of their pages)"),
     "simulated": ("images", "images simulated and localized (the others showed too few objects)"),
+    "images": ("images", "images drawn: poses and the objects they show (0: skipped, fewer than 4 analysed "
+                         "objects within reach)"),
+    "localizable": ("images", "images drawn that show at least 4 analysed objects (simulated: those localized)"),
+    "success_low": ("fraction", "95 % interval of the success a run of every localizable image gives: low end"),
+    "success_high": ("fraction", "95 % interval of the success a run of every localizable image gives: high end"),
 }
 # A map with elevation (format version 2) adds these bands after the per-label ones.
 TERRAIN_MEASURES: dict[str, tuple[str, str]] = {
@@ -155,7 +171,9 @@ def _run(map_path: str, grid: Grid, counts: CellCounts, config: SampleConfig, in
     bands = _empty_bands(grid, label_names)
     workers = worker_count(client)
     warm = _warmup_cells(np.flatnonzero(heavy))
-    task_cells = [warm] + _blocks(rows, cols, np.setdiff1d(np.arange(rows.size), warm))
+    # Sequential: the cells no image can localize from are skipped before any work (their bands set below).
+    sent = np.flatnonzero(heavy) if config.sequential else np.arange(rows.size)
+    task_cells = [warm] + _blocks(rows, cols, np.setdiff1d(sent, warm))
     tasks = [(map_path, config, grid.cell_m, np.column_stack(grid.absolute(rows[c], cols[c]))) for c in task_cells]
     # The warm-up runs alone, so that the estimate comes before the rest starts; then the blocks with the
     # most cells to simulate first, so that no long block is left for the end.
@@ -172,8 +190,12 @@ def _run(map_path: str, grid: Grid, counts: CellCounts, config: SampleConfig, in
         say.advance(int(heavy[index].sum()))
     say.done()
     _density_bands(bands, counts, grid)
+    _mark_skipped(bands, rows[~heavy], cols[~heavy], config.sequential)
     stats = {"cells": grid.size, "cells_within_reach": int(rows.size), "cells_simulated": int(heavy.sum()),
-             "images_localized": int(np.nansum(bands["simulated"])), "workers": workers,
+             "cells_skipped": int((~heavy).sum()) if config.sequential else 0,
+             "images_localized": int(np.nansum(bands["simulated"])),
+             "images_drawn": int(np.nansum(bands["images"])),
+             "images_localizable": int(np.nansum(bands["localizable"])), "workers": workers,
              "estimate_s": None if estimate_s is None else round(estimate_s, 1),
              "seconds": round(time.perf_counter() - start, 1)}
     return Analysis(map_path, grid, config, counts, bands, info, stats, name)
@@ -188,10 +210,21 @@ def _empty_bands(grid: Grid, label_names: Sequence[str]) -> dict[str, np.ndarray
     return bands
 
 
+def _mark_skipped(bands: dict[str, np.ndarray], rows: np.ndarray, cols: np.ndarray, sequential: bool) -> None:
+    """Cells within reach of fewer than MIN_VISIBLE analysed objects: success 0 exactly; skipped by the
+    sequential rule, their objects in view unknown (no image drawn)."""
+    if sequential:
+        for band in bands:
+            if band == "visible" or band.startswith("visible_"):
+                bands[band][rows, cols] = np.nan
+
+
 def _place(bands: dict[str, np.ndarray], result: CellMeasures, rows: np.ndarray, cols: np.ndarray) -> None:
     for band, values in (("success", result.success), ("false_fixes", result.false), ("error_m", result.error),
                          ("ambiguity", result.ambiguity), ("visible", result.visible),
-                         ("simulated", result.simulated)):
+                         ("simulated", result.simulated), ("images", result.images),
+                         ("localizable", result.localizable), ("success_low", result.low),
+                         ("success_high", result.high)):
         bands[band][rows, cols] = values
     for k, label in enumerate(result.label_names):
         bands[f"visible_{label}"][rows, cols] = result.per_label[:, k]
@@ -227,11 +260,17 @@ def _announce(say: Any, prefix: str, grid: Grid, within: int, heavy: int, config
     estimate = per_cell * max(heavy - n_warm, 0) / workers
     say(f"{prefix}{grid.size:,} cells of {grid.cell_m:g} m ({grid.size * grid.cell_km2:,.1f} km²): {within:,} "
         f"within an image's reach of a map object, {heavy:,} to simulate ({config.samples} images each at "
-        f"most); the other {grid.size - heavy:,} are decided without simulating")
+        f"most{_rule(config)}); the other {grid.size - heavy:,} are decided without simulating")
     if n_warm:
         say(f"{prefix}warm-up: {per_cell * 1000:,.0f} ms a cell over {n_warm} cells; estimated "
             f"{_duration(estimate)} with {workers} worker{'s' if workers > 1 else ''}")
     return estimate if n_warm else None
+
+
+def _rule(config: SampleConfig) -> str:
+    if not config.sequential:
+        return ", all of them"
+    return f", localized until the 95 % interval of success is {config.stop_width:.3f} wide"
 
 
 def _duration(seconds: float) -> str:
