@@ -36,7 +36,7 @@ from ...errors import MapFormatError, open_regular, reading
 from ...mapfile.layout import MAGIC as MAP_MAGIC
 from ...mapfile.reader import MetaMap
 from .layout import cell_keys, cells_of
-from .lookup import Section
+from .directory import Coordinates
 
 __all__ = ["IDENTITY_KEYS", "PageBoxes", "check_filed", "check_identity", "check_positions", "map_identity",
            "mismatch"]
@@ -114,7 +114,7 @@ class PageBoxes:
         self.checked = np.zeros(len(table), bool)
         self.where, self.map_path = where, map_path
 
-    def check(self, coords: Section, ids: np.ndarray) -> None:
+    def check(self, coords: Coordinates, ids: np.ndarray) -> None:
         """Check the coordinates of every page holding one of ``ids`` (in range) not checked yet."""
         if self.checked.all() or not ids.size:
             return
@@ -122,10 +122,13 @@ class PageBoxes:
         todo = pages[~self.checked[pages]]
         if not todo.size:
             return
-        coords.check_ranges(self.start[todo], self.start[todo + 1])  # their blocks' CRC-32 first
-        for p in todo.tolist():
-            rows = coords.array[self.start[p] : self.start[p + 1]]
-            if (rows.min(axis=0) < self.lo[p]).any() or (rows.max(axis=0) > self.hi[p]).any():
+        size = self.start[todo + 1] - self.start[todo]
+        rows = coords.rows(np.repeat(self.start[todo], size) + np.arange(int(size.sum()))
+                           - np.repeat(np.cumsum(size) - size, size))  # their blocks checked and decoded
+        ends = np.cumsum(size)
+        for i, p in enumerate(todo.tolist()):
+            page = rows[ends[i] - size[i] : ends[i]]
+            if page.size and ((page.min(axis=0) < self.lo[p]).any() or (page.max(axis=0) > self.hi[p]).any()):
                 raise mismatch(self.where, f"coordinates of objects of map page {p} lie outside the page",
                                self.map_path)
         self.checked[todo] = True

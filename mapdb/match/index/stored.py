@@ -47,7 +47,7 @@ from ...mapfile.reader import MetaMap
 from ..quads import canonical_quads, label_keys
 from .binding import PageBoxes, check_filed, check_identity, check_positions, map_identity
 from .build import build_index
-from .directory import Directory, Neighbours
+from .directory import Coordinates, Directory, Neighbours
 from .layout import (
     INDEX_SUFFIX,
     check_sections,
@@ -148,6 +148,8 @@ class StoredQuadIndex:
                                     (c.cells, c.quads, c.dir_bytes, c.max_cell, c.pages), c.cell_bits, where)
         self._neighbours = Neighbours(read["nb_start"], read["nb_width"], read["nb_data"], c.objects,
                                       c.quad_neighbours, where)
+        self._coords = Coordinates(read["co_start"], read["co_width"], read["co_base"], read["co_data"], c.objects,
+                                   where)
 
     # ------------------------------------------------------------------------------------------ public
 
@@ -178,7 +180,7 @@ class StoredQuadIndex:
     def check_positions(self, x: np.ndarray, y: np.ndarray) -> None:
         """Refuse unless the index's coordinates are exactly the map's object positions ``x, y`` (map order):
         for a caller that holds the map's objects decoded anyway (it costs O(N))."""
-        self._sections["coords"].verify()
+        self._coords.verify()
         check_positions(self.coordinates(np.arange(self.n_objects)), np.asarray(x), np.asarray(y), self.where,
                         None if self._boxes is None else self._boxes.map_path)
 
@@ -225,8 +227,8 @@ class StoredQuadIndex:
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_objects):
             raise IndexError(f"object ids must be in [0, {self.n_objects})")
         if self._boxes is not None:
-            self._boxes.check(self._sections["coords"], ids)
-        c = self._sections["coords"].rows(ids.reshape(-1)).astype(np.int64)
+            self._boxes.check(self._coords, ids)
+        c = self._coords.rows(ids.reshape(-1))
         x = (c[:, 0] + self.origin[0]) * self.quantum
         y = (c[:, 1] + self.origin[1]) * self.quantum
         return (x + 1j * y).reshape(ids.shape)
