@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 from mapdb_cli.index import index as index_command
 
+from mapdb._scipy import cKDTree
 from mapdb.errors import MapdbIOError, MapFormatError
 from mapdb.mapfile.queries import MemoryMap
 from mapdb.mapfile.reader import open_map
@@ -19,7 +20,6 @@ from mapdb.mapfile.writer import write_map
 from mapdb.match.index import build as index_build
 from mapdb.match.index import generate as index_generate
 from mapdb.match.index import lookup as index_lookup
-from mapdb._scipy import cKDTree
 from mapdb.match.index.layout import QUAD_NEIGHBOURS, QUAD_TRIPLES
 from mapdb.match.index.stored import StoredQuadIndex, build_index, index_path, open_index
 from mapdb.match.quads import QuadIndex, canonical_quads, label_keys, nearest_others, neighbour_quads

@@ -35,8 +35,8 @@ import numpy as np
 from ...errors import MapFormatError, open_regular, reading
 from ...mapfile.layout import MAGIC as MAP_MAGIC
 from ...mapfile.reader import MetaMap
-from .layout import cell_keys, cells_of
 from .directory import Coordinates
+from .layout import cell_keys, cells_of
 
 __all__ = ["IDENTITY_KEYS", "PageBoxes", "check_filed", "check_identity", "check_positions", "map_identity",
            "mismatch"]

@@ -103,8 +103,8 @@ def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str]
         The index file; default :func:`~mapdb.match.index.layout.index_path` of the map (``MAP.qidx``).
     neighbours : int
         The matcher's neighbours per anchor the index serves (``FastOptions.map_neighbours``; 3 to 12): the
-        quads are each object with the triples ``QUAD_TRIPLES`` of its ``min(neighbours, QUAD_NEIGHBOURS)`` (5) nearest, a
-        subset of the quads of its ``neighbours`` nearest.
+        quads are each object with the triples ``QUAD_TRIPLES`` of its ``min(neighbours, QUAD_NEIGHBOURS)`` (5)
+        nearest, a subset of the quads of its ``neighbours`` nearest.
     target_occupancy : float
         Other quads expected in a quad's cell: sets each label combination's cell size (the lookup
         radius is clamped to it).  Larger: fewer clamped lookups, more candidates per lookup.

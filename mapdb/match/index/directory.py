@@ -202,7 +202,8 @@ class Coordinates:
                 or (hi > data.array.size - PAD).any()):
             raise _corrupt(self.where, "coordinate block out of range")
         data.check_ranges(lo, hi + PAD)
-        objects = np.repeat(todo * NB_BLOCK, size) + np.arange(int(size.sum())) - np.repeat(np.cumsum(size) - size, size)
+        objects = (np.repeat(todo * NB_BLOCK, size) + np.arange(int(size.sum()))
+                   - np.repeat(np.cumsum(size) - size, size))
         xy = coord_fields(data.array, np.repeat(lo, size), np.repeat(w, size, axis=0), np.repeat(b, size, axis=0),
                           objects)
         if xy.size and xy.max() >= 2**31:

@@ -24,8 +24,8 @@ import numpy as np
 from ...mapfile.codec import _bits_of, _read_fields, _unzigzag, _zigzag
 
 __all__ = ["NB_BLOCK", "PAGE_CELLS", "PAD", "cells_of_dense", "coord_fields", "dense_cells", "dense_side",
-           "directory_pages", "neighbour_fields", "pack_coords", "pack_neighbours", "pack_pages", "pack_records", "page_fields", "record_layout",
-           "unpack_records"]
+           "directory_pages", "neighbour_fields", "pack_coords", "pack_neighbours", "pack_pages", "pack_records",
+           "page_fields", "record_layout", "unpack_records"]
 
 NB_BLOCK = 64  # objects whose neighbours share one bit width
 PAGE_CELLS = 64  # cells of a directory page (the fence, in memory, holds one row a page)
