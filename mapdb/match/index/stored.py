@@ -1,14 +1,14 @@
 """A disk-backed lost-in-space quad index: built in bounded memory, opened in milliseconds, memory-mapped.
 
 The whole-map :class:`~mapdb.match.quads.QuadIndex` keeps every quad's complex coordinates and labels and
-a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds a tenth of
-those quads, each object's closest (:func:`~mapdb.match.quads.neighbour_quads` of its 4 nearest, the same
-canonical order and invariants from :func:`~mapdb.match.quads.canonical_quads`), packed into about 30 bytes
-an object, in a sidecar file ``MAP.qidx`` beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the
-format (version 3) is in ``docs/index_format.md``.
+a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds a ninth of
+those quads, each object's closest (six triples of its 5 nearest, :data:`~mapdb.match.index.layout.QUAD_TRIPLES`;
+the canonical order and invariants from :func:`~mapdb.match.quads.canonical_quads`), packed with the objects'
+coordinates into about 35 bytes an object, in a sidecar file ``MAP.qidx`` beside the map (``monaco.mapdb`` ->
+``monaco.mapdb.qidx``); the format (version 4) is in ``docs/index_format.md``.
 
 How it works (``docs/index_format.md`` in full)
-    A quad is an anchor object and a triple of its 4 nearest neighbours, filed by its label combination
+    A quad is an anchor object and a triple of its 5 nearest neighbours, filed by its label combination
     and the cell of its invariants (side ``c`` per combination) with its position inside the cell; a
     lookup reads the cells its ball reaches and recomputes the candidates the positions do not rule out.
     **The lookup radius is clamped to the cell size** (:meth:`StoredQuadIndex.cell_size`): where ``c`` is
@@ -92,7 +92,7 @@ class StoredQuadIndex:
     labels : tuple of str
         The map's label names: label codes in lookups index into them.
     neighbours : int
-        The matcher's neighbours per anchor the index serves (its quads are of each object's 4 nearest).
+        The matcher's neighbours per anchor the index serves (its quads are of each object's 5 nearest).
     blocks_left_out : bool
         True for the index of a map with blocks of buildings: its quads are those of the map without the blocks.
     n_objects, n_quads, n_cells : int
