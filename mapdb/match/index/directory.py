@@ -9,6 +9,8 @@ reads it, into arrays kept for the next lookups, so a query reads only the pages
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ...errors import MapFormatError
@@ -182,6 +184,13 @@ class Coordinates:
         self.n, self.where = n, where
         self.decoded = np.zeros(width.array.shape[0], bool)
         self.xy = np.zeros((n, 2), np.int32)  # filled block by block (untouched pages cost no memory)
+        self.check: Callable[[np.ndarray, np.ndarray], None] | None = None
+
+    def bind(self, check: Callable[[np.ndarray, np.ndarray], None]) -> None:
+        """Have ``check(ids, xy)`` (the map's page boxes) refuse every block decoded from now on; the blocks
+        decoded before are decoded again."""
+        self.check = check
+        self.decoded[:] = False
 
     def rows(self, objects: np.ndarray) -> np.ndarray:
         """Positions ``(m, 2)`` (int64 quanta) of objects (already checked below ``n``)."""
@@ -208,6 +217,8 @@ class Coordinates:
                           objects)
         if xy.size and xy.max() >= 2**31:
             raise _corrupt(self.where, "holds a coordinate out of range")
+        if self.check is not None:
+            self.check(objects, xy)
         self.xy[objects] = xy
         self.decoded[todo] = True
 

@@ -21,7 +21,7 @@ Safety
     checked before use, a lookup's memory is bounded, and its pages are asked for at once
     (``MADV_WILLNEED``: 5M objects, about 0.6 s for a cold image's lookups instead of 2 s).  The index is
     bound to its map (:mod:`~mapdb.match.index.binding`): the header's ``map`` section when it is opened with
-    its map, each map page's coordinates against the page's box, and each resolved quad (with a few the
+    its map, each block of coordinates against its objects' page boxes, and each resolved quad (with a few the
     bounds dropped, and each label combination's first cell) against the cell it was found in.
 
 The code is in the modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
@@ -173,9 +173,10 @@ class StoredQuadIndex:
 
     def check_map(self, map_: MetaMap) -> None:
         """Refuse (:class:`MapFormatError`) unless this index was built from exactly this map file; then bind
-        it to the map: lookups check each page's coordinates against the map's page boxes."""
+        it to the map: each block of coordinates decoded from then on is checked against the map's page boxes."""
         check_identity(self.identity, map_, self.where)
         self._boxes = PageBoxes(map_.page_directory, self.origin, self.where, map_.path)
+        self._coords.bind(self._boxes.check)
 
     def check_positions(self, x: np.ndarray, y: np.ndarray) -> None:
         """Refuse unless the index's coordinates are exactly the map's object positions ``x, y`` (map order):
@@ -226,8 +227,6 @@ class StoredQuadIndex:
         ids = np.asarray(ids, np.int64)
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_objects):
             raise IndexError(f"object ids must be in [0, {self.n_objects})")
-        if self._boxes is not None:
-            self._boxes.check(self._coords, ids)
         c = self._coords.rows(ids.reshape(-1))
         x = (c[:, 0] + self.origin[0]) * self.quantum
         y = (c[:, 1] + self.origin[1]) * self.quantum
