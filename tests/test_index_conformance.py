@@ -43,29 +43,9 @@ def _unzigzag(z: int) -> int:
     return z // 2 if z % 2 == 0 else -(z + 1) // 2
 
 
-def read_as_documented(path: Path) -> dict:
-    """Everything the document says an index holds, read by its words."""
-    data = path.read_bytes()
-    magic, version, _flags, h_off, h_len, h_crc = struct.unpack_from("<8sHHQII", data, 0)
-    assert magic == b"\x89MAPDBQX" and version == 4
-    assert struct.unpack_from("<I", data, 28)[0] == zlib.crc32(data[:28])
-    assert h_off + h_len == len(data) and zlib.crc32(data[h_off:]) == h_crc
-    h = json.loads(data[h_off:].decode("utf-8"))
-    sec = h["sections"]
-
-    def raw(name: str) -> bytes:
-        return data[sec[name]["offset"] : sec[name]["offset"] + sec[name]["length"]]
-
-    # Every 4096-byte block of every section, its CRC in the table.
-    table = struct.unpack(f"<{sec['crc']['length'] // 4}I", raw("crc"))
-    assert zlib.crc32(raw("crc")) == h["crc_crc32"]
-    for name, s in sec.items():
-        if name != "crc":
-            for b in range(-(-s["length"] // 4096)):
-                assert zlib.crc32(raw(name)[b * 4096 : (b + 1) * 4096]) == table[s["first_block"] + b]
-    n, ku, q = h["objects"], h["quad_neighbours"], h["quads"]
-    # Coordinates: blocks of 64 objects, offsets from the block's base at its two widths.
-    co_start = struct.unpack(f"<{sec['co_start']['length'] // 8}Q", raw("co_start"))
+def _coords_as_documented(raw, n: int, h: dict) -> list[tuple[int, int]]:
+    """Coordinates: blocks of 64 objects, offsets from the block's base at its two widths."""
+    co_start = struct.unpack(f"<{len(raw('co_start')) // 8}Q", raw("co_start"))
     coords = []
     for j in range(len(co_start) - 1):
         wx, wy = raw("co_width")[2 * j : 2 * j + 2]
@@ -76,34 +56,11 @@ def read_as_documented(path: Path) -> dict:
             coords.append((bx + bits.read(wx), by + bits.read(wy)))
         assert co_start[j + 1] - co_start[j] == math.ceil(len(objects) * (wx + wy) / 8)
     assert len(coords) == n and co_start[-1] == h["co_bytes"]
-    # Neighbours: blocks of 64 objects, zigzag differences at the block's width.
-    nb_start = struct.unpack(f"<{sec['nb_start']['length'] // 8}Q", raw("nb_start"))
-    widths, nb_data = raw("nb_width"), raw("nb_data")
-    neighbours = []
-    for j, w in enumerate(widths):
-        bits = Bits(nb_data, nb_start[j])
-        objects = range(64 * j, min(n, 64 * j + 64))
-        for i in objects:
-            neighbours.append([i + _unzigzag(bits.read(w)) for _ in range(ku)])
-        assert nb_start[j + 1] - nb_start[j] == math.ceil(len(objects) * ku * w / 8)
-    # Records.
-    # The document's triples of places, those below KU.
-    triples = [t for t in ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3), (0, 1, 4), (0, 2, 4)) if max(t) < ku]
-    assert h["quad_triples"] == [list(t) for t in triples]
-    id_bits = max(1, (n - 1).bit_length())
-    tb = max(1, (len(triples) - 1).bit_length())
-    rb = math.ceil((id_bits + tb + 16) / 8)
-    sb = min(8, (8 * rb - id_bits - tb) // 4)
-    assert (h["record_bytes"], h["sub_bits"]) == (rb, sb)
-    records = []
-    for r in range(q):
-        v = int.from_bytes(raw("quads")[r * rb : (r + 1) * rb], "little")
-        sub = [(v >> (sb * (3 - j))) & ((1 << sb) - 1) for j in range(4)]
-        v >>= 4 * sb
-        anchor, triple = v >> tb, v & ((1 << tb) - 1)
-        members = [anchor] + [neighbours[anchor][t] for t in triples[triple]]
-        records.append((members, sub))
-    # Directory pages.
+    return coords
+
+
+def _cells_as_documented(raw, h: dict) -> list[tuple[int, int, int]]:
+    """Directory pages: every cell's key, first quad and quad count."""
     fence = [struct.unpack_from("<4Q", raw("fence"), 32 * p) for p in range(h["pages"] + 1)]
     b = h["key_cell_bits"]
     cell_of = dict((int(k), c) for k, c in h["combos"])
@@ -131,6 +88,59 @@ def read_as_documented(path: Path) -> dict:
             cells.append((label_key << 4 * b | g0 << 3 * b | g1 << 2 * b | g2 << b | g3, at, counts[i]))
             at += counts[i]
         assert at == fence[p + 1][2]
+    return cells
+
+
+def read_as_documented(path: Path) -> dict:
+    """Everything the document says an index holds, read by its words."""
+    data = path.read_bytes()
+    magic, version, _flags, h_off, h_len, h_crc = struct.unpack_from("<8sHHQII", data, 0)
+    assert magic == b"\x89MAPDBQX" and version == 4
+    assert struct.unpack_from("<I", data, 28)[0] == zlib.crc32(data[:28])
+    assert h_off + h_len == len(data) and zlib.crc32(data[h_off:]) == h_crc
+    h = json.loads(data[h_off:].decode("utf-8"))
+    sec = h["sections"]
+
+    def raw(name: str) -> bytes:
+        return data[sec[name]["offset"] : sec[name]["offset"] + sec[name]["length"]]
+
+    # Every 4096-byte block of every section, its CRC in the table.
+    table = struct.unpack(f"<{sec['crc']['length'] // 4}I", raw("crc"))
+    assert zlib.crc32(raw("crc")) == h["crc_crc32"]
+    for name, s in sec.items():
+        if name != "crc":
+            for b in range(-(-s["length"] // 4096)):
+                assert zlib.crc32(raw(name)[b * 4096 : (b + 1) * 4096]) == table[s["first_block"] + b]
+    n, ku, q = h["objects"], h["quad_neighbours"], h["quads"]
+    coords = _coords_as_documented(raw, n, h)
+    # Neighbours: blocks of 64 objects, zigzag differences at the block's width.
+    nb_start = struct.unpack(f"<{sec['nb_start']['length'] // 8}Q", raw("nb_start"))
+    widths, nb_data = raw("nb_width"), raw("nb_data")
+    neighbours = []
+    for j, w in enumerate(widths):
+        bits = Bits(nb_data, nb_start[j])
+        objects = range(64 * j, min(n, 64 * j + 64))
+        for i in objects:
+            neighbours.append([i + _unzigzag(bits.read(w)) for _ in range(ku)])
+        assert nb_start[j + 1] - nb_start[j] == math.ceil(len(objects) * ku * w / 8)
+    # Records.
+    # The document's triples of places, those below KU.
+    triples = [t for t in ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3), (0, 1, 4), (0, 2, 4)) if max(t) < ku]
+    assert h["quad_triples"] == [list(t) for t in triples]
+    id_bits = max(1, (n - 1).bit_length())
+    tb = max(1, (len(triples) - 1).bit_length())
+    rb = math.ceil((id_bits + tb + 16) / 8)
+    sb = min(8, (8 * rb - id_bits - tb) // 4)
+    assert (h["record_bytes"], h["sub_bits"]) == (rb, sb)
+    records = []
+    for r in range(q):
+        v = int.from_bytes(raw("quads")[r * rb : (r + 1) * rb], "little")
+        sub = [(v >> (sb * (3 - j))) & ((1 << sb) - 1) for j in range(4)]
+        v >>= 4 * sb
+        anchor, triple = v >> tb, v & ((1 << tb) - 1)
+        members = [anchor] + [neighbours[anchor][t] for t in triples[triple]]
+        records.append((members, sub))
+    cells = _cells_as_documented(raw, h)
     return {"header": h, "coords": coords, "neighbours": neighbours, "records": records, "cells": cells}
 
 
