@@ -45,10 +45,8 @@ import resource
 import shutil
 import statistics
 import struct
-import subprocess
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 
@@ -58,6 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import synthetic_world as _world  # noqa: E402
 from _baseline import as_json, import_baseline  # noqa: E402
+from _lis_children import BUILD, FIRST_ANSWER, OPEN, QUADINDEX, _child  # noqa: E402
 from synthetic_world import extract_maps, synthetic_world  # noqa: E402
 
 from mapdb.camera import image_plane  # noqa: E402
@@ -73,6 +72,8 @@ MAX_RADIUS = 0.3
 HITS = 16
 REPEATS = 3
 FIRST_ANSWERS = 5  # fresh processes, one image each, for the first answer
+STATE_OBJECTS = 20_000_000  # --state: a state's worth of objects (issue 31: "Lost in space on a state")
+STATE_JITTER = 2.0
 IMAGE_NEIGHBOURS = 5
 
 
@@ -277,140 +278,12 @@ def _quadindex_lookups(map_path: Path, images: list[dict]) -> dict:
             "build_s": build_s, "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
-# --------------------------------------------------------------------------------------------- children
-
-
-def _tree_memory(pid: int) -> tuple[int, int]:
-    """Resident and proportional (PSS) bytes of a process and all its descendants.
-
-    The resident sets count pages the worker processes share with their parent (forked, copy-on-write)
-    once per process: an upper bound.  PSS divides each shared page among its sharers: the real use.
-    """
-    import psutil
-
-    try:
-        p = psutil.Process(pid)
-        procs = [p, *p.children(recursive=True)]
-    except psutil.Error:
-        return 0, 0
-    rss = pss = 0
-    for q in procs:
-        try:
-            info = q.memory_full_info()
-            rss, pss = rss + info.rss, pss + info.pss
-        except psutil.Error:
-            pass
-    return rss, pss
-
-
-def _child(code: str, *args: str) -> dict:
-    """Run ``code`` in a fresh Python (it prints one JSON line last); its result, wall time and peak memory."""
-    peak = [0, 0]
-    start = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, text=True,
-                            cwd=Path(__file__).resolve().parents[1])
-    done = threading.Event()
-
-    def watch() -> None:
-        while not done.is_set():
-            rss, pss = _tree_memory(proc.pid)
-            peak[0], peak[1] = max(peak[0], rss), max(peak[1], pss)
-            time.sleep(0.2)
-
-    watcher = threading.Thread(target=watch, daemon=True)
-    watcher.start()
-    out, _ = proc.communicate()
-    done.set()
-    watcher.join()
-    wall = time.perf_counter() - start
-    if proc.returncode:
-        raise RuntimeError(f"child failed ({proc.returncode}): {code[:80]}...")
-    result = json.loads(out.strip().splitlines()[-1])
-    result.update(wall_s=wall, peak_rss_mb=peak[0] / 2**20, peak_pss_mb=peak[1] / 2**20,
-                  maxrss_children_mb=resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024)
-    return result
-
-
-BUILD = """
-import json, sys
-from pathlib import Path
-sys.path.insert(0, "benchmarks")
-if len(sys.argv) > 3:  # a baseline revision's build_index, imported as mapdb_baseline
-    from _baseline import import_baseline
-    build_index = import_baseline(sys.argv[3], Path(sys.argv[4]), "match.index.stored").build_index
-else:
-    from mapdb.match.index.stored import build_index
-print(json.dumps(build_index(sys.argv[1], workers=int(sys.argv[2]))))
-"""
-
-# Drops the map and its index from the page cache, in the child processes below.
-DROP_CACHE = """
-for path in (sys.argv[1], index_path(sys.argv[1])):
-    fd = os.open(path, os.O_RDONLY)
-    os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
-    os.close(fd)
-"""
-
-OPEN = """
-import time
-t0 = time.perf_counter()
-import json, os, sys
-sys.path.insert(0, "benchmarks")
-import numpy as np
-from lost_in_space_index import _image_arrays, image_queries
-from mapdb.match.index.stored import StoredQuadIndex, index_path
-from mapdb.mapfile.reader import open_map
-image = json.loads(sys.argv[2])
-""" + DROP_CACHE + """t1 = time.perf_counter()
-m = open_map(sys.argv[1])
-ix = StoredQuadIndex.for_map(m)
-t2 = time.perf_counter()
-z, label, truth = _image_arrays(image, tuple(m.labels))
-inv, lab, radius, ids = image_queries(z, label)
-row, hit = ix.lookup(inv, lab, radius, 16)
-map_z = ix.coordinates(hit)
-t3 = time.perf_counter()
-print(json.dumps({"imports_s": t1 - t0, "open_s": t2 - t1, "lookup_s": t3 - t2, "open_to_answer_s": t3 - t1,
-                  "start_to_answer_s": t3 - t0, "hits": int(len(row))}))
-"""
-
-FIRST_ANSWER = """
-import time
-t0 = time.perf_counter()
-import importlib, json, os, sys
-from pathlib import Path
-sys.path.insert(0, "benchmarks")
-package = "mapdb"
-if sys.argv[3]:  # a baseline revision, imported as mapdb_baseline
-    from _baseline import import_baseline
-    import_baseline(sys.argv[3], Path(sys.argv[4]))
-    package = "mapdb_baseline"
-Localizer = importlib.import_module(package + ".localize").Localizer
-index_path = importlib.import_module(package + ".match.index.layout").index_path
-open_map = importlib.import_module(package + ".store").open_map
-image = json.loads(sys.argv[2])
-""" + DROP_CACHE + """t1 = time.perf_counter()
-m = open_map(sys.argv[1])
-answer = Localizer(m).localize(image)
-t2 = time.perf_counter()
-status = answer.status if hasattr(answer, "status") else answer["status"]
-print(json.dumps({"open_to_answer_s": t2 - t1, "start_to_answer_s": t2 - t0, "status": status}))
-"""
-
-QUADINDEX = """
-import json, sys
-sys.path.insert(0, "benchmarks")
-from pathlib import Path
-from lost_in_space_index import _quadindex_lookups
-images = json.loads(Path(sys.argv[2]).read_text())
-r = _quadindex_lookups(Path(sys.argv[1]), images)
-print(json.dumps(r))
-"""
-
-
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--worlds", type=int, nargs="*", default=[1_000_000, 5_000_000], help="world sizes")
+    parser.add_argument("--state", action="store_true",
+                        help=f"also the {STATE_OBJECTS / 1e6:g}M-object world (jittered by {STATE_JITTER:g} m), "
+                             "a state's worth of objects: no QuadIndex, no baseline build")
     parser.add_argument("--images", type=int, default=100, help="images per map")
     parser.add_argument("--workers", type=int, default=2, help="processes building an index")
     parser.add_argument("--quadindex-world", type=int, default=1_000_000,
@@ -426,13 +299,39 @@ def main(argv: list[str] | None = None) -> int:
                         help="also time this git revision's first answers (processes alternating with this tree's)")
     parser.add_argument("--first-answers", type=int, default=FIRST_ANSWERS,
                         help="fresh processes (one image each) timed for the first answer")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
     if not _world.DATA.is_dir():  # a worktree beside the repository: the shared data's absolute place
         _world.DATA = Path("/work/shared/data/osm")
     if not _world.DATA.is_dir():
         print(f"no shared data at {_world.DATA}: nothing to measure", file=sys.stderr)
         return 1
     args.workdir.mkdir(parents=True, exist_ok=True)
+    maps, quadindex_path, state_path = _maps(args)
+    rows, whole, index_rows, states = [], [], [], []
+    for name, path in maps.items():
+        baseline = args.baseline if path != state_path else None  # the state's world: this tree's index only
+        row, located, index_row = _measure(name, path, args, baseline, len(rows) % 2 == 0)
+        rows.append(row)
+        whole.append((name, located))
+        states.append((name, row[1], row[3], located))
+        if index_row is not None:
+            index_rows.append(index_row)
+        if name == "Andorra" or (not args.lookups_only and path == quadindex_path):
+            rows.append(_quadindex_row(name, path, args, row))
+    _lookup_table(rows)
+    _whole_table(whole)
+    _index_table(index_rows, args.baseline)
+    _state_table(states)
+    return 0
+
+
+def _maps(args: argparse.Namespace) -> tuple[dict[str, Path], Path | None, Path | None]:
+    """Andorra and the worlds to measure (assembled and written once into the work directory), the world the
+    in-memory QuadIndex indexes too, and the state's world (``--state``)."""
     extracts = extract_maps()
     # Andorra's map copied into the work directory: its index is built beside it, not in the shared cache
     # (where another run's index of another format may be).
@@ -440,73 +339,88 @@ def main(argv: list[str] | None = None) -> int:
     if not andorra.exists():
         shutil.copyfile(extracts[0], andorra)
     maps = {"Andorra": andorra}
-    world_path = {}
-    for n in args.worlds:
-        for jitter in args.jitter:
-            path = args.workdir / (f"world-{n}.mapdb" if not jitter else f"world-{n}-jitter{jitter:g}.mapdb")
-            if not path.exists():
-                start = time.perf_counter()
-                write_map(path, synthetic_world(extracts, n, seed=0, jitter_m=jitter))
-                print(f"{path.name}: assembled and written in {time.perf_counter() - start:.0f} s", flush=True)
-            maps[f"world {n / 1e6:g}M" + (f" jitter {jitter:g} m" if jitter else "")] = path
-            world_path.setdefault(n, path)
+    world_path: dict[int, Path] = {}
+    worlds = [(n, jitter) for n in args.worlds for jitter in args.jitter]
+    if args.state and (STATE_OBJECTS, STATE_JITTER) not in worlds:
+        worlds.append((STATE_OBJECTS, STATE_JITTER))
+    for n, jitter in worlds:
+        path = args.workdir / (f"world-{n}.mapdb" if not jitter else f"world-{n}-jitter{jitter:g}.mapdb")
+        if not path.exists():
+            start = time.perf_counter()
+            # Rotated copies, every object jittered: no window of the world repeats another exactly.
+            write_map(path, synthetic_world(extracts, n, seed=0, jitter_m=jitter))
+            print(f"{path.name}: assembled and written in {time.perf_counter() - start:.0f} s", flush=True)
+        maps[f"world {n / 1e6:g}M" + (f" jitter {jitter:g} m" if jitter else "")] = path
+        world_path.setdefault(n, path)
+    state = world_path.get(STATE_OBJECTS) if args.state else None
+    return maps, world_path.get(args.quadindex_world) if args.quadindex_world else None, state
 
-    rows, whole, index_rows = [], [], []
-    for name, path in maps.items():
-        with open_map(path) as m:
-            n_objects, map_bytes = len(m), path.stat().st_size
-        # With a baseline, its own index beside a link to the same map (this tree's may be another format);
-        # the two builds in alternating order, map by map.
-        base_path = _baseline_map(path, args.workdir) if args.baseline else None
-        builds = {}
-        for who in (("tree", "baseline") if len(rows) % 2 == 0 else ("baseline", "tree")):
-            if who == "baseline" and base_path is None:
-                continue
-            target = path if who == "tree" else base_path
-            if args.lookups_only:
-                builds[who] = _index_facts(target)
-            else:
-                extra = () if who == "tree" else (args.baseline, str(args.workdir))
-                builds[who] = _child(BUILD, str(target), str(args.workers), *extra)
-            builds[who]["bytes"] = Path(str(target) + ".qidx").stat().st_size
-        build = builds["tree"]
+
+def _measure(name: str, path: Path, args: argparse.Namespace, baseline: str | None,
+             tree_first: bool) -> tuple[tuple, dict, tuple | None]:
+    """One map: its index built (this tree's and the baseline's, in alternating order), fresh first answers,
+    lookups and whole answers; its row of the lookup table, its whole answers, its row of the index table."""
+    with open_map(path) as m:
+        n_objects, map_bytes = len(m), path.stat().st_size
+    # With a baseline, its own index beside a link to the same map (this tree's may be another format).
+    base_path = _baseline_map(path, args.workdir) if baseline else None
+    builds = {}
+    for who in (("tree", "baseline") if tree_first else ("baseline", "tree")):
+        if who == "baseline" and base_path is None:
+            continue
+        target = path if who == "tree" else base_path
+        if args.lookups_only:
+            builds[who] = _index_facts(target)
+        else:
+            extra = () if who == "tree" else (baseline, str(args.workdir))
+            builds[who] = _child(BUILD, str(target), str(args.workers), *extra)
+        builds[who]["bytes"] = Path(str(target) + ".qidx").stat().st_size
+    build = builds["tree"]
+    images = _images(path, args.images, args.seed)
+    first = _child(OPEN, str(path), json.dumps(images[0]))
+    located = _first_answers(name, path, images, args, baseline, base_path)
+    look = _stored_lookups(path, images)
+    located.update(_localize_times(path, images, (baseline, args.workdir, base_path) if base_path else None))
+    print(f"{name}: {n_objects} objects, index {build['bytes'] / 2**20:.0f} MiB ({build['quads']} quads) built "
+          f"in {build.get('wall_s', math.nan):.1f} s, peak {build.get('peak_pss_mb', math.nan):.0f} MB; open+first "
+          f"answer {first['open_to_answer_s'] * 1000:.0f} ms; lookups median "
+          f"{statistics.median(look['ms']):.2f} ms; localize median {statistics.median(located['ms']):.2f} ms"
+          f" ({statistics.median(located['first_ms']):.2f} ms the first time)", flush=True)
+    index_row = (name, n_objects, builds["tree"], builds["baseline"]) if base_path is not None else None
+    return (name, n_objects, map_bytes, build, first, look), located, index_row
+
+
+def _first_answers(name: str, path: Path, images: list[dict], args: argparse.Namespace, baseline: str | None,
+                   base_path: Path | None) -> dict:
+    """Fresh processes' first answers (one image each), with a baseline's processes alternating image by image
+    (the same load on both)."""
+    mine, theirs = [], []
+    for image in images[: args.first_answers]:
+        mine.append(_child(FIRST_ANSWER, str(path), json.dumps(image), "", "")["open_to_answer_s"])
         if base_path is not None:
-            index_rows.append((name, n_objects, builds["tree"], builds["baseline"]))
-        images = _images(path, args.images, args.seed)
-        first = _child(OPEN, str(path), json.dumps(images[0]))
-        # With a baseline, the two versions' processes alternate image by image (the same load on both).
-        first_answers, first_baseline = [], []
-        for image in images[:args.first_answers]:
-            first_answers.append(_child(FIRST_ANSWER, str(path), json.dumps(image), "", "")["open_to_answer_s"])
-            if args.baseline:
-                first_baseline.append(_child(FIRST_ANSWER, str(base_path), json.dumps(image), args.baseline,
-                                             str(args.workdir))["open_to_answer_s"])
-        look = _stored_lookups(path, images)
-        located = _localize_times(path, images, (args.baseline, args.workdir, base_path) if base_path else None)
-        located["first_answer_s"] = statistics.median(first_answers)
-        located["first_answer_max_s"] = max(first_answers)
-        located["first_answers_s"] = first_answers
-        if first_baseline:
-            print(f"{name}: first answers (s), this tree {[round(t, 2) for t in first_answers]} median "
-                  f"{statistics.median(first_answers):.2f} max {max(first_answers):.2f}; baseline {args.baseline} "
-                  f"{[round(t, 2) for t in first_baseline]} median {statistics.median(first_baseline):.2f} max "
-                  f"{max(first_baseline):.2f}", flush=True)
-        rows.append((name, n_objects, map_bytes, build, first, look))
-        whole.append((name, located))
-        print(f"{name}: {n_objects} objects, index {build['bytes'] / 2**20:.0f} MiB ({build['quads']} quads) built "
-              f"in {build.get('wall_s', math.nan):.1f} s, peak {build.get('peak_pss_mb', math.nan):.0f} MB; open+first "
-              f"answer {first['open_to_answer_s'] * 1000:.0f} ms; lookups median "
-              f"{statistics.median(look['ms']):.2f} ms; localize median {statistics.median(located['ms']):.2f} ms"
-              f" ({statistics.median(located['first_ms']):.2f} ms the first time)", flush=True)
-        if name == "Andorra" or (args.quadindex_world and not args.lookups_only
-                                 and path == world_path.get(args.quadindex_world)):
-            images_file = args.workdir / f"{path.stem}-images.json"
-            images_file.write_text(json.dumps(images))
-            qi = _child(QUADINDEX, str(path), str(images_file))
-            rows.append((f"{name} QuadIndex", n_objects, map_bytes, None, None, qi))
-            print(f"{name} QuadIndex: built in {qi['build_s']:.0f} s, peak {qi['peak_pss_mb']:.0f} MB; lookups "
-                  f"median {statistics.median(qi['ms']):.2f} ms", flush=True)
+            theirs.append(_child(FIRST_ANSWER, str(base_path), json.dumps(image), str(baseline),
+                                 str(args.workdir))["open_to_answer_s"])
+    if theirs:
+        print(f"{name}: first answers (s), this tree {[round(t, 2) for t in mine]} median "
+              f"{statistics.median(mine):.2f} max {max(mine):.2f}; baseline {baseline} "
+              f"{[round(t, 2) for t in theirs]} median {statistics.median(theirs):.2f} max {max(theirs):.2f}",
+              flush=True)
+    return {"first_answer_s": statistics.median(mine), "first_answer_max_s": max(mine), "first_answers_s": mine}
 
+
+def _quadindex_row(name: str, path: Path, args: argparse.Namespace, row: tuple) -> tuple:
+    """The in-memory QuadIndex on the same map and images, in a child process."""
+    images = _images(path, args.images, args.seed)
+    images_file = args.workdir / f"{path.stem}-images.json"
+    images_file.write_text(json.dumps(images))
+    qi = _child(QUADINDEX, str(path), str(images_file))
+    print(f"{name} QuadIndex: built in {qi['build_s']:.0f} s, peak {qi['peak_pss_mb']:.0f} MB; lookups "
+          f"median {statistics.median(qi['ms']):.2f} ms", flush=True)
+    return (f"{name} QuadIndex", row[1], row[2], None, None, qi)
+
+
+def _lookup_table(rows: list) -> None:
+    """The lookups of every map's images: index, build, open, lookup times, how often the true quad is found."""
     print()
     print(f"{'map':<28} {'objects':>9} {'quads':>11} {'index MiB':>9} {'B/obj':>6} {'build s':>8} {'PSS MB':>7}"
           f" {'RSS MB':>7} {'open+1st ms':>11} {'1st pass':>8} {'lookup ms':>9} {'p95 ms':>7} {'CPU ms':>7}"
@@ -536,9 +450,23 @@ def main(argv: list[str] | None = None) -> int:
           " in CPU time (process_time: what other processes on the machine do not inflate);"
           " queries: lookups per image, hits: per image; true"
           " found: image quads of real objects whose true map quad is among the hits")
-    _whole_table(whole)
-    _index_table(index_rows, args.baseline)
-    return 0
+
+
+def _state_table(states: list[tuple[str, int, dict, dict]]) -> None:
+    """Lost in space on a state: every map's recall, wrong answers, time per image, first answer, index and build,
+    side by side (with ``--state``, the state's world beside Andorra)."""
+    print(f"\n{'lost in space':<28} {'objects':>10} {'<=2 m':>7} {'wrong':>5} {'median ms':>9} {'p99 ms':>7}"
+          f" {'1st answer s (max)':>18} {'index MiB':>9} {'B/obj':>6} {'build s':>8} {'PSS MB':>7} {'RSS MB':>7}")
+    for name, n, build, r in states:
+        print(f"{name:<28} {n:>10} {r['within_2m']:>3}/{r['images']:<3} {r['wrong']:>5}"
+              f" {statistics.median(r['ms']):>9.2f} {np.percentile(r['ms'], 99):>7.2f}"
+              f" {r['first_answer_s']:>11.2f} ({r['first_answer_max_s']:4.2f}) {build['bytes'] / 2**20:>9.0f}"
+              f" {build['bytes'] / n:>6.1f} {build.get('wall_s', math.nan):>8.0f}"
+              f" {build.get('peak_pss_mb', math.nan):>7.0f} {build.get('peak_rss_mb', math.nan):>7.0f}")
+    print("<=2 m: images localized within 2 m of the truth (Localizer.localize, no prior, the map's stored index);"
+          " wrong: accepted more than 5 m away; median and p99: per image, the fastest of 3 passes; 1st answer:"
+          " fresh processes, map and index dropped from the page cache; index: its file; build: wall time and peak"
+          " memory of the building process and its workers")
 
 
 def _baseline_map(path: Path, workdir: Path) -> Path:

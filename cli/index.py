@@ -20,7 +20,7 @@ from .options import (
 @click.option("-o", "--output", type=click.Path(), help="Index file [default: MAP.qidx, beside the map].")
 @click.option("--neighbours", default=8, show_default=True, type=click.IntRange(3, 12),
               help="The fast matcher's map_neighbours the index serves (its quads are each object's with "
-                   "triples of its 4 nearest, a subset of these).")
+                   "triples of its 5 nearest, a subset of these).")
 @click.option("--workers", type=click.IntRange(1, 64), help="Processes generating quads [default: up to 2].")
 @overwrite_option
 @json_option

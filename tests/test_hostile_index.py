@@ -29,6 +29,7 @@ from mapdb.errors import MapdbIOError, MapFormatError
 from mapdb.mapfile.queries import MemoryMap
 from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
+from mapdb.match.index import build as index_build
 from mapdb.match.index.stored import build_index, index_path, open_index
 from mapdb.match.quads import canonical_quads
 from mapdb.objects import Objects
@@ -118,9 +119,31 @@ def _recrc(data: bytearray, header: dict) -> None:
     header["crc_crc32"] = zlib.crc32(table.tobytes())
 
 
+def _with_coords(path: Path, edit) -> None:
+    """Write the index ``path`` of its map again with every object's coordinates (quanta, ``(N, 2)`` int32, as the
+    writer packs them) replaced by ``edit(coords)``, all else genuine: a forger who packed them again."""
+    original = index_build._quantize
+
+    def forged(*args):
+        coords, origin = original(*args)
+        return np.asarray(edit(coords), np.int32), origin
+
+    patch = pytest.MonkeyPatch()
+    patch.setattr(index_build, "_quantize", forged)
+    try:
+        path.unlink()
+        build_index(Path(str(path)[: -len(".qidx")]), path, workers=1)
+    finally:
+        patch.undo()
+
+
 def forge(path: Path, header=None, section=None, version: int | None = None) -> None:
-    """Rewrite an index: ``section = (name, f)`` replaces that section's array by ``f(array)``, ``header(h)``
-    edits the JSON header; every checksum (blocks, table, header, prefix) is made right again."""
+    """Rewrite an index: ``section = (name, f)`` replaces that section's array by ``f(array)`` (``coords``: the
+    unpacked coordinates, packed again), ``header(h)`` edits the JSON header; every checksum (blocks, table,
+    header, prefix) is made right again."""
+    if section is not None and section[0] == "coords":
+        _with_coords(path, section[1])
+        section = None
     data = bytearray(path.read_bytes())
     _, ver, flags, h_off, h_len, _ = PREFIX.unpack_from(data)
     h = json.loads(bytes(data[h_off : h_off + h_len]))
@@ -163,7 +186,7 @@ def _permuted_in_page(a: np.ndarray) -> np.ndarray:
 def _bits_set(a: np.ndarray, byte, mask) -> np.ndarray:
     """Quad records with the bytes ``byte`` masked by ``mask`` (permuted among records for None)."""
     a = a.copy()
-    assert a.shape[1] == 4  # 1500 objects: 11-bit anchors, 2-bit triples, four 4-bit positions
+    assert a.shape[1] == 4  # 1500 objects: 11-bit anchors, 3-bit triples, four 4-bit positions
     a[:, byte] = _permuted(a[:, byte]) if mask is None else a[:, byte] & mask
     return a
 
@@ -208,10 +231,13 @@ HEADER_CASES = {
     "cell sides doubled": _set("combos", value=lambda c: [[k, min(0.5, s * 2 ** 0.5)] for k, s in c]),
     "cell side off the ladder": _set("combos", value=lambda c: [[c[0][0], 0.3], *c[1:]]),
     "quads offset": _set("sections", "quads", "offset", value=lambda o: o + 64),
-    "coords offset": _set("sections", "coords", "offset", value=lambda o: o + 4096),
+    "coords offset": _set("sections", "co_data", "offset", value=lambda o: o + 4096),
+    "coordinate bytes": _set("co_bytes", value=lambda b: b - 1),
+    "quad triples": _set("quad_triples", value=lambda t: t[::-1]),
+    "quad triples of 4 nearest": _set("quad_triples", value=lambda t: t[:4]),
     "quads first block": _set("sections", "quads", "first_block", value=lambda b: b + 1),
     "crc table crc": _set("crc_crc32", value=lambda c: c ^ 1),
-    "format version 4 in the header": _set("format_version", value=4),
+    "format version 5 in the header": _set("format_version", value=5),
     "sections gone": _set("sections", value={}),
     "blocks not the documented value": _set("blocks", value=1),  # (the key is written for maps with blocks)
     "blocks said of a map without": _set("blocks", value="left out"),
@@ -225,12 +251,18 @@ SECTION_CASES = {
     "coords zeroed": ("coords", np.zeros_like),
     "coords scaled": ("coords", lambda a: a // 2),
     "one object moved a quantum": ("coords", _one_moved),
+    "coordinate data permuted": ("co_data", _permuted),
+    "coordinate widths": ("co_width", lambda a: a + 1),
+    "coordinate widths 40": ("co_width", lambda a: np.full_like(a, 40)),
+    "coordinate bases": ("co_base", lambda a: a + 1),
+    "coordinate bases negative": ("co_base", lambda a: a - 2**30),
+    "coordinate blocks shifted": ("co_start", lambda a: np.concatenate([[0], a[2:], [a[-1]]])),
     "neighbours permuted": ("nb_data", _permuted),
     "neighbours zeroed": ("nb_data", np.zeros_like),
     "neighbour widths": ("nb_width", lambda a: a + 1),
     "neighbour blocks shifted": ("nb_start", lambda a: np.concatenate([[0], a[2:], [a[-1]]])),
     "anchor permuted": ("quads", _permuted),  # whole records: each quad filed under another's key
-    "triple zeroed": ("quads", lambda a: _bits_set(a, 2, 0xFC)),  # (4-byte records: 4 positions of 4 bits first)
+    "triple zeroed": ("quads", lambda a: _bits_set(a, 2, 0xF8)),  # (4-byte records: 4 positions of 4 bits first)
     "sub zeroed": ("quads", lambda a: _bits_set(a, slice(0, 2), 0)),
     "sub permuted": ("quads", lambda a: _bits_set(a, slice(0, 2), None)),
     "dir data permuted": ("dir_data", _permuted),
@@ -244,6 +276,7 @@ SECTION_CASES = {
 DEFAULT_CASES = {"origin shifted", "origin 1e30 (N7)", "quantum doubled", "combos empty", "cell sides halved",
                  "coords shifted", "coords permuted", "coords permuted in a page", "coords zeroed", "sub zeroed",
                  "neighbours permuted", "anchor permuted", "dir data permuted", "blocks not the documented value",
+                 "coordinate data permuted", "quad triples",
                  "blocks said of a map without"}
 
 
@@ -290,6 +323,12 @@ def test_forged_section_content_makes_the_query_search_in_memory(setup, case) ->
 def test_an_index_of_format_version_1_is_not_read(setup) -> None:
     result = _run_forged(setup, header=_set("format_version", value=1), version=1)
     _fallback(setup, result, "version 1", "rebuild with mapdb index")
+
+
+def test_an_index_of_format_version_3_is_not_read(setup) -> None:
+    # Version 3 (3 quads an object, coordinates unpacked) is refused, not converted: an index is derived data.
+    result = _run_forged(setup, header=_set("format_version", value=3), version=3)
+    _fallback(setup, result, "version 3", "rebuild with mapdb index")
 
 
 def test_an_index_of_format_version_2_is_not_read(setup) -> None:
@@ -363,7 +402,8 @@ def _lookup_stored_quads(ix, root: Path, objects: Objects) -> None:
 
 
 @pytest.mark.parametrize("case", ["coords shifted by one quantum", "coords permuted", "coords zeroed",
-                                  "coords scaled", "coords permuted in a page", "neighbours permuted",
+                                  "coords scaled", "coords permuted in a page", "coordinate data permuted",
+                                  "coordinate bases", "neighbours permuted",
                                   "sub zeroed", "anchor permuted"])
 def test_the_reader_bound_to_its_map_refuses_forged_sections_at_lookup(setup, case) -> None:
     # Without the exact comparison a caller holding the whole map makes (a big map): the page boxes and the

@@ -7,7 +7,6 @@ library's, and every quad must lie in the cell and at the position its record gi
 
 from __future__ import annotations
 
-import itertools
 import json
 import math
 import struct
@@ -44,54 +43,24 @@ def _unzigzag(z: int) -> int:
     return z // 2 if z % 2 == 0 else -(z + 1) // 2
 
 
-def read_as_documented(path: Path) -> dict:
-    """Everything the document says an index holds, read by its words."""
-    data = path.read_bytes()
-    magic, version, _flags, h_off, h_len, h_crc = struct.unpack_from("<8sHHQII", data, 0)
-    assert magic == b"\x89MAPDBQX" and version == 3
-    assert struct.unpack_from("<I", data, 28)[0] == zlib.crc32(data[:28])
-    assert h_off + h_len == len(data) and zlib.crc32(data[h_off:]) == h_crc
-    h = json.loads(data[h_off:].decode("utf-8"))
-    sec = h["sections"]
-
-    def raw(name: str) -> bytes:
-        return data[sec[name]["offset"] : sec[name]["offset"] + sec[name]["length"]]
-
-    # Every 4096-byte block of every section, its CRC in the table.
-    table = struct.unpack(f"<{sec['crc']['length'] // 4}I", raw("crc"))
-    assert zlib.crc32(raw("crc")) == h["crc_crc32"]
-    for name, s in sec.items():
-        if name != "crc":
-            for b in range(-(-s["length"] // 4096)):
-                assert zlib.crc32(raw(name)[b * 4096 : (b + 1) * 4096]) == table[s["first_block"] + b]
-    n, ku, q = h["objects"], h["quad_neighbours"], h["quads"]
-    coords = [struct.unpack_from("<ii", raw("coords"), 8 * i) for i in range(n)]
-    # Neighbours: blocks of 64 objects, zigzag differences at the block's width.
-    nb_start = struct.unpack(f"<{sec['nb_start']['length'] // 8}Q", raw("nb_start"))
-    widths, nb_data = raw("nb_width"), raw("nb_data")
-    neighbours = []
-    for j, w in enumerate(widths):
-        bits = Bits(nb_data, nb_start[j])
+def _coords_as_documented(raw, n: int, h: dict) -> list[tuple[int, int]]:
+    """Coordinates: blocks of 64 objects, offsets from the block's base at its two widths."""
+    co_start = struct.unpack(f"<{len(raw('co_start')) // 8}Q", raw("co_start"))
+    coords = []
+    for j in range(len(co_start) - 1):
+        wx, wy = raw("co_width")[2 * j : 2 * j + 2]
+        bx, by = struct.unpack_from("<ii", raw("co_base"), 8 * j)
+        bits = Bits(raw("co_data"), co_start[j])
         objects = range(64 * j, min(n, 64 * j + 64))
-        for i in objects:
-            neighbours.append([i + _unzigzag(bits.read(w)) for _ in range(ku)])
-        assert nb_start[j + 1] - nb_start[j] == math.ceil(len(objects) * ku * w / 8)
-    # Records.
-    id_bits = max(1, (n - 1).bit_length())
-    tb = max(1, (math.comb(ku, 3) - 1).bit_length())
-    rb = math.ceil((id_bits + tb + 16) / 8)
-    sb = min(8, (8 * rb - id_bits - tb) // 4)
-    assert (h["record_bytes"], h["sub_bits"]) == (rb, sb)
-    triples = list(itertools.combinations(range(ku), 3))
-    records = []
-    for r in range(q):
-        v = int.from_bytes(raw("quads")[r * rb : (r + 1) * rb], "little")
-        sub = [(v >> (sb * (3 - j))) & ((1 << sb) - 1) for j in range(4)]
-        v >>= 4 * sb
-        anchor, triple = v >> tb, v & ((1 << tb) - 1)
-        members = [anchor] + [neighbours[anchor][t] for t in triples[triple]]
-        records.append((members, sub))
-    # Directory pages.
+        for _ in objects:
+            coords.append((bx + bits.read(wx), by + bits.read(wy)))
+        assert co_start[j + 1] - co_start[j] == math.ceil(len(objects) * (wx + wy) / 8)
+    assert len(coords) == n and co_start[-1] == h["co_bytes"]
+    return coords
+
+
+def _cells_as_documented(raw, h: dict) -> list[tuple[int, int, int]]:
+    """Directory pages: every cell's key, first quad and quad count."""
     fence = [struct.unpack_from("<4Q", raw("fence"), 32 * p) for p in range(h["pages"] + 1)]
     b = h["key_cell_bits"]
     cell_of = dict((int(k), c) for k, c in h["combos"])
@@ -119,6 +88,59 @@ def read_as_documented(path: Path) -> dict:
             cells.append((label_key << 4 * b | g0 << 3 * b | g1 << 2 * b | g2 << b | g3, at, counts[i]))
             at += counts[i]
         assert at == fence[p + 1][2]
+    return cells
+
+
+def read_as_documented(path: Path) -> dict:
+    """Everything the document says an index holds, read by its words."""
+    data = path.read_bytes()
+    magic, version, _flags, h_off, h_len, h_crc = struct.unpack_from("<8sHHQII", data, 0)
+    assert magic == b"\x89MAPDBQX" and version == 4
+    assert struct.unpack_from("<I", data, 28)[0] == zlib.crc32(data[:28])
+    assert h_off + h_len == len(data) and zlib.crc32(data[h_off:]) == h_crc
+    h = json.loads(data[h_off:].decode("utf-8"))
+    sec = h["sections"]
+
+    def raw(name: str) -> bytes:
+        return data[sec[name]["offset"] : sec[name]["offset"] + sec[name]["length"]]
+
+    # Every 4096-byte block of every section, its CRC in the table.
+    table = struct.unpack(f"<{sec['crc']['length'] // 4}I", raw("crc"))
+    assert zlib.crc32(raw("crc")) == h["crc_crc32"]
+    for name, s in sec.items():
+        if name != "crc":
+            for b in range(-(-s["length"] // 4096)):
+                assert zlib.crc32(raw(name)[b * 4096 : (b + 1) * 4096]) == table[s["first_block"] + b]
+    n, ku, q = h["objects"], h["quad_neighbours"], h["quads"]
+    coords = _coords_as_documented(raw, n, h)
+    # Neighbours: blocks of 64 objects, zigzag differences at the block's width.
+    nb_start = struct.unpack(f"<{sec['nb_start']['length'] // 8}Q", raw("nb_start"))
+    widths, nb_data = raw("nb_width"), raw("nb_data")
+    neighbours = []
+    for j, w in enumerate(widths):
+        bits = Bits(nb_data, nb_start[j])
+        objects = range(64 * j, min(n, 64 * j + 64))
+        for i in objects:
+            neighbours.append([i + _unzigzag(bits.read(w)) for _ in range(ku)])
+        assert nb_start[j + 1] - nb_start[j] == math.ceil(len(objects) * ku * w / 8)
+    # Records.
+    # The document's triples of places, those below KU.
+    triples = [t for t in ((0, 1, 2), (0, 1, 3), (0, 2, 3), (1, 2, 3), (0, 1, 4), (0, 2, 4)) if max(t) < ku]
+    assert h["quad_triples"] == [list(t) for t in triples]
+    id_bits = max(1, (n - 1).bit_length())
+    tb = max(1, (len(triples) - 1).bit_length())
+    rb = math.ceil((id_bits + tb + 16) / 8)
+    sb = min(8, (8 * rb - id_bits - tb) // 4)
+    assert (h["record_bytes"], h["sub_bits"]) == (rb, sb)
+    records = []
+    for r in range(q):
+        v = int.from_bytes(raw("quads")[r * rb : (r + 1) * rb], "little")
+        sub = [(v >> (sb * (3 - j))) & ((1 << sb) - 1) for j in range(4)]
+        v >>= 4 * sb
+        anchor, triple = v >> tb, v & ((1 << tb) - 1)
+        members = [anchor] + [neighbours[anchor][t] for t in triples[triple]]
+        records.append((members, sub))
+    cells = _cells_as_documented(raw, h)
     return {"header": h, "coords": coords, "neighbours": neighbours, "records": records, "cells": cells}
 
 
@@ -137,8 +159,28 @@ def small(tmp_path_factory):
     return path
 
 
-def test_the_document_describes_version_3() -> None:
-    assert DOC.read_text().startswith("# The lost-in-space quad index file, format version 3\n")
+def test_the_document_describes_version_4() -> None:
+    assert DOC.read_text().startswith("# The lost-in-space quad index file, format version 4\n")
+
+
+def test_the_worked_example_of_the_document(tmp_path: Path) -> None:
+    """Its three objects: no quads, one coordinate block of the bytes the document spells out."""
+    x = 500_000.0 + np.array([0.3, 0.0, 0.5])
+    y = 4_650_000.0 + np.array([0.0, 0.3, 0.0])
+    path = tmp_path / "three.mapdb"
+    write_map(path, Objects(x, y, np.zeros(3, np.int64), np.zeros(3), ("building",), "EPSG:32631"))
+    build_index(path, workers=1)
+    doc = read_as_documented(Path(str(path) + ".qidx"))
+    h = doc["header"]
+    assert (h["quads"], h["cells"], h["pages"], h["quad_neighbours"], h["quad_triples"]) == (0, 0, 0, 0, [])
+    assert doc["coords"] == [(3, 0), (5, 0), (0, 3)] and doc["neighbours"] == [] and doc["cells"] == []
+    data = Path(str(path) + ".qidx").read_bytes()
+    co = h["sections"]["co_data"]
+    assert data[co["offset"] : co["offset"] + co["length"]] == bytes([0x65, 0x06]) + bytes(8)
+    with open_map(path) as m, open_index(Path(str(path) + ".qidx"), m) as ix:
+        objects = m.all()
+        assert np.array_equal(ix.coordinates(np.arange(3)), objects.x + 1j * objects.y)
+        assert np.allclose(np.sort(objects.x), np.sort(x), rtol=0, atol=1e-6)
 
 
 def test_a_reader_written_from_the_document_reads_what_the_library_reads(small) -> None:
@@ -153,7 +195,7 @@ def test_a_reader_written_from_the_document_reads_what_the_library_reads(small) 
         quantum = h["map"]["quantum"]
         x = np.array([(c[0] + ox) * quantum for c in doc["coords"]])
         assert np.array_equal(x, objects.x)
-        # Neighbours: each object's 4 nearest, as the library decodes them.
+        # Neighbours: each object's 5 nearest, as the library decodes them.
         assert np.array_equal(ix._neighbours.rows(np.arange(ix.n_objects)), np.array(doc["neighbours"]))
         # Cells: every page decoded by the library gives the same keys, first quads and counts.
         ix._directory.decode(np.arange(h["pages"]))

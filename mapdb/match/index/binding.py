@@ -8,10 +8,9 @@ map it serves, which is checked in three steps, each where it costs little:
   map's header CRC-32, file size, object count, quantum, labels, the ``origin`` of the index's
   coordinates and ``pages_sha256``, the SHA-256 of the map's page directory) must equal what the open
   map gives (:func:`map_identity`; the directory is already in memory, so this costs microseconds);
-* **the first time a lookup resolves an object of a map page** (:class:`PageBoxes`): every coordinate the
-  index holds for that page must lie inside the page's box from the map's directory, so that an index
-  whose coordinates were shifted, scaled, zeroed or permuted between pages is refused before its first
-  answer;
+* **the first time a lookup reads an object's block of coordinates** (:class:`PageBoxes`): each of the
+  block's objects must lie inside its page's box from the map's directory, so that an index whose
+  coordinates were shifted, scaled, zeroed or permuted between pages is refused before its first answer;
 * **every quad a lookup resolves** (:func:`check_filed`): its invariants, recomputed from the coordinates,
   must put it in the cell it was found in and at the position inside the cell that the index stores, so
   that coordinates, neighbours, anchors, triples, directory or cell sides altered in any way a lookup
@@ -36,7 +35,6 @@ from ...errors import MapFormatError, open_regular, reading
 from ...mapfile.layout import MAGIC as MAP_MAGIC
 from ...mapfile.reader import MetaMap
 from .layout import cell_keys, cells_of
-from .lookup import Section
 
 __all__ = ["IDENTITY_KEYS", "PageBoxes", "check_filed", "check_identity", "check_positions", "map_identity",
            "mismatch"]
@@ -94,8 +92,8 @@ def check_identity(recorded: dict[str, Any], map_: MetaMap, where: str) -> None:
 
 
 class PageBoxes:
-    """The map's page boxes (quanta relative to the index's origin), to check the index's coordinates
-    page by page, each page the first time a lookup resolves one of its objects.
+    """The map's page boxes (quanta relative to the index's origin), to check the index's coordinates as they are
+    decoded (:class:`~mapdb.match.index.directory.Coordinates` calls :meth:`check` with each block it decodes).
 
     Parameters
     ----------
@@ -111,24 +109,17 @@ class PageBoxes:
         self.start = np.concatenate([[0], np.cumsum(table["count"].astype(np.int64))])
         self.lo = np.column_stack([table["ox"] - origin[0], table["oy"] - origin[1]]).astype(np.int64)
         self.hi = self.lo + np.column_stack([table["ex"], table["ey"]]).astype(np.int64)
-        self.checked = np.zeros(len(table), bool)
+        self.checked = np.zeros(len(table), bool)  # pages some of whose objects were checked
         self.where, self.map_path = where, map_path
 
-    def check(self, coords: Section, ids: np.ndarray) -> None:
-        """Check the coordinates of every page holding one of ``ids`` (in range) not checked yet."""
-        if self.checked.all() or not ids.size:
-            return
-        pages = np.unique(np.searchsorted(self.start, ids.reshape(-1), side="right") - 1)
-        todo = pages[~self.checked[pages]]
-        if not todo.size:
-            return
-        coords.check_ranges(self.start[todo], self.start[todo + 1])  # their blocks' CRC-32 first
-        for p in todo.tolist():
-            rows = coords.array[self.start[p] : self.start[p + 1]]
-            if (rows.min(axis=0) < self.lo[p]).any() or (rows.max(axis=0) > self.hi[p]).any():
-                raise mismatch(self.where, f"coordinates of objects of map page {p} lie outside the page",
-                               self.map_path)
-        self.checked[todo] = True
+    def check(self, ids: np.ndarray, xy: np.ndarray) -> None:
+        """Refuse unless every object ``ids`` (in range) at ``xy`` (quanta, ``(m, 2)``) lies inside its page's box."""
+        page = np.searchsorted(self.start, ids, side="right") - 1
+        outside = ((xy < self.lo[page]) | (xy > self.hi[page])).any(axis=1)
+        if outside.any():
+            raise mismatch(self.where, f"coordinates of objects of map page {int(page[outside][0])} lie outside "
+                                       f"the page", self.map_path)
+        self.checked[page] = True
 
 
 def check_filed(inv: np.ndarray, key: np.ndarray, sub: np.ndarray, cell: np.ndarray, bits: int, sub_bits: int,

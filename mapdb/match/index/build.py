@@ -60,7 +60,7 @@ from .layout import (
     write_header,
 )
 from .packed import NB_BLOCK, PAGE_CELLS, directory_pages, pack_records, record_layout
-from .sections import write_directory, write_neighbours
+from .sections import write_directory, write_objects
 
 __all__ = ["build_index"]
 
@@ -103,8 +103,8 @@ def build_index(map_path: str | os.PathLike[str], output: str | os.PathLike[str]
         The index file; default :func:`~mapdb.match.index.layout.index_path` of the map (``MAP.qidx``).
     neighbours : int
         The matcher's neighbours per anchor the index serves (``FastOptions.map_neighbours``; 3 to 12): the
-        quads are each object with the triples of its ``min(neighbours, QUAD_NEIGHBOURS)`` (4) nearest, a
-        subset of the quads of its ``neighbours`` nearest.
+        quads are each object with the triples ``QUAD_TRIPLES`` of its ``min(neighbours, QUAD_NEIGHBOURS)`` (5)
+        nearest, a subset of the quads of its ``neighbours`` nearest.
     target_occupancy : float
         Other quads expected in a quad's cell: sets each label combination's cell size (the lookup
         radius is clamped to it).  Larger: fewer clamped lookups, more candidates per lookup.
@@ -324,8 +324,7 @@ def _write_sorted(b: _Build, combo_keys: np.ndarray, combo_cell: np.ndarray, siz
     q = int(sizes.sum())
     # 3. Sections one after another: coordinates, packed neighbours, quad records in key order, the directory.
     layout = SectionPlan()
-    layout.place("coords", "<i4", (b.n, 2))
-    nb_bytes = write_neighbours(b.tmp, b.workdir / "nb_data", layout, b.coords, b.table)
+    co_bytes, nb_bytes = write_objects(b.tmp, b.workdir, layout, b.coords, b.table)
     rb, sb, tb = record_layout(b.n, len(triples(b.ku)) if b.k >= 3 else 0)
     layout.place("quads", "u1", (q, rb))
     b.say(f"sorting {q} quads in {sizes.size} buckets ...")
@@ -340,8 +339,9 @@ def _write_sorted(b: _Build, combo_keys: np.ndarray, combo_cell: np.ndarray, siz
     layout.place("crc", "<u4", (crc_table.size,))
     summary = {"objects": b.n, "neighbours": b.k if b.k >= 3 else 0, "quad_neighbours": b.ku if b.k >= 3 else 0,
                "quads": q, "cells": int(keys.size), "pages": pages,
-               "max_cell": int(counts.max(initial=0)), "nb_bytes": nb_bytes, "dir_bytes": dir_bytes,
-               "record_bytes": rb, "sub_bits": sb}
+               "max_cell": int(counts.max(initial=0)), "nb_bytes": nb_bytes, "co_bytes": co_bytes,
+               "dir_bytes": dir_bytes, "record_bytes": rb, "sub_bits": sb,
+               "quad_triples": triples(b.ku if b.k >= 3 else 0).tolist()}
     header = _header(b, summary, list(zip(used.tolist(), cell_for(used, combo_keys, combo_cell).tolist(),
                                           strict=True)), layout, crc_table)
     with open(b.tmp, "r+b") as out:

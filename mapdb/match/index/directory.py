@@ -1,20 +1,33 @@
-"""A version-3 index's packed parts as a lookup reads them: the cell directory and the neighbour table.
+"""A version-4 index's packed parts as a lookup reads them: the cell directory, the neighbours, the coordinates.
 
 :class:`Directory` finds cells by key: the fence (one row a page, in memory) names the page that can hold a
 key; a page is decoded (:func:`~mapdb.match.index.packed.page_fields`) and checked the first time a lookup
 reads it, into arrays kept for the next lookups, so a query reads only the pages it needs.
-:class:`Neighbours` gives the neighbours of anchors from their packed blocks, each block checked before use.
+:class:`Neighbours` gives the neighbours of anchors from their packed blocks, each block checked before use;
+:class:`Coordinates` the positions of objects, each block decoded and checked the first time, then kept.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
 from ...errors import MapFormatError
 from .lookup import Section
-from .packed import NB_BLOCK, PAD, PAGE_CELLS, cells_of_dense, dense_cells, dense_side, neighbour_fields, page_fields
+from .packed import (
+    NB_BLOCK,
+    PAD,
+    PAGE_CELLS,
+    cells_of_dense,
+    coord_fields,
+    dense_cells,
+    dense_side,
+    neighbour_fields,
+    page_fields,
+)
 
-__all__ = ["Directory", "Neighbours"]
+__all__ = ["Coordinates", "Directory", "Neighbours"]
 
 _TOP = np.uint64(2**64 - 1)
 
@@ -157,3 +170,59 @@ class Neighbours:
         if ids.size and (ids.min() < 0 or ids.max() >= self.n):
             raise _corrupt(self.where, "holds an object id out of range")
         return ids
+
+
+class Coordinates:
+    """Each object's position in quanta relative to the index's origin, packed in blocks of :data:`NB_BLOCK`
+    objects (``co_start``, ``co_width``, ``co_base``, ``co_data``).  A block is checked (widths at most 31 bits,
+    base at least 0, its length exactly what its widths give, inside ``co_data``, every position below 2^31) and
+    decoded the first time it is read; its positions are kept (int32, 8 bytes an object at most) for later reads.
+    """
+
+    def __init__(self, start: Section, width: Section, base: Section, data: Section, n: int, where: str) -> None:
+        self.sections = (start, width, base, data)
+        self.n, self.where = n, where
+        self.decoded = np.zeros(width.array.shape[0], bool)
+        self.xy = np.zeros((n, 2), np.int32)  # filled block by block (untouched pages cost no memory)
+        self.check: Callable[[np.ndarray, np.ndarray], None] | None = None
+
+    def bind(self, check: Callable[[np.ndarray, np.ndarray], None]) -> None:
+        """Have ``check(ids, xy)`` (the map's page boxes) refuse every block decoded from now on; the blocks
+        decoded before are decoded again."""
+        self.check = check
+        self.decoded[:] = False
+
+    def rows(self, objects: np.ndarray) -> np.ndarray:
+        """Positions ``(m, 2)`` (int64 quanta) of objects (already checked below ``n``)."""
+        block = objects // NB_BLOCK
+        todo = np.unique(block[~self.decoded[block]])
+        if todo.size:
+            self._decode(todo)
+        return self.xy[objects].astype(np.int64)
+
+    def _decode(self, todo: np.ndarray) -> None:
+        start, width, base, data = self.sections
+        lo = start.rows(todo).astype(np.int64)
+        hi = start.rows(todo + 1).astype(np.int64)
+        w = width.rows(todo).astype(np.int64)
+        b = base.rows(todo).astype(np.int64)
+        size = np.minimum(self.n - todo * NB_BLOCK, NB_BLOCK)
+        if ((w > 31).any() or (b < 0).any() or (hi - lo != -(-(size * w.sum(axis=1)) // 8)).any() or (lo < 0).any()
+                or (hi > data.array.size - PAD).any()):
+            raise _corrupt(self.where, "coordinate block out of range")
+        data.check_ranges(lo, hi + PAD)
+        objects = (np.repeat(todo * NB_BLOCK, size) + np.arange(int(size.sum()))
+                   - np.repeat(np.cumsum(size) - size, size))
+        xy = coord_fields(data.array, np.repeat(lo, size), np.repeat(w, size, axis=0), np.repeat(b, size, axis=0),
+                          objects)
+        if xy.size and xy.max() >= 2**31:
+            raise _corrupt(self.where, "holds a coordinate out of range")
+        if self.check is not None:
+            self.check(objects, xy)
+        self.xy[objects] = xy
+        self.decoded[todo] = True
+
+    def verify(self) -> None:
+        """Check every block of the four sections."""
+        for section in self.sections:
+            section.verify()

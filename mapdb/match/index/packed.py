@@ -1,12 +1,14 @@
-"""The compact parts of a version-3 quad index (``docs/index_format.md``): packed records, neighbours and directory.
+"""The compact parts of a version-4 quad index (``docs/index_format.md``): packed records, objects and directory.
 
-Three codes, each read at random without decoding more than a lookup needs:
+Four codes, each read at random without decoding more than a lookup needs:
 
 * **quad records** of ``record_bytes`` bytes (a little-endian integer: anchor id, triple number, the four
   positions inside the cell), one per quad in key order (:func:`pack_records`, :func:`unpack_records`);
 * **neighbours**: each object's ``quad_neighbours`` nearest as zigzag differences from its own id, in blocks
   of :data:`NB_BLOCK` objects bit-packed at the block's width (:func:`pack_neighbours`,
   :func:`neighbour_fields`);
+* **coordinates**: each object's position as offsets from the smallest x and y of its block of
+  :data:`NB_BLOCK` objects, bit-packed at the block's two widths (:func:`pack_coords`, :func:`coord_fields`);
 * **directory pages** of at most :data:`PAGE_CELLS` cells of one label combination: the gaps between the
   cells' dense numbers and their quad counts, bit-packed at the page's two widths (:func:`pack_pages`,
   :func:`page_fields`).
@@ -21,9 +23,9 @@ import numpy as np
 
 from ...mapfile.codec import _bits_of, _read_fields, _unzigzag, _zigzag
 
-__all__ = ["NB_BLOCK", "PAGE_CELLS", "PAD", "cells_of_dense", "dense_cells", "dense_side", "directory_pages",
-           "neighbour_fields", "pack_neighbours", "pack_pages", "pack_records", "page_fields", "record_layout",
-           "unpack_records"]
+__all__ = ["NB_BLOCK", "PAGE_CELLS", "PAD", "cells_of_dense", "coord_fields", "dense_cells", "dense_side",
+           "directory_pages", "neighbour_fields", "pack_coords", "pack_neighbours", "pack_pages", "pack_records",
+           "page_fields", "record_layout", "unpack_records"]
 
 NB_BLOCK = 64  # objects whose neighbours share one bit width
 PAGE_CELLS = 64  # cells of a directory page (the fence, in memory, holds one row a page)
@@ -92,6 +94,34 @@ def neighbour_fields(data: np.ndarray, block_start: np.ndarray, width: np.ndarra
     start = block_start[:, None] * 8 + pos * width[:, None]
     z = _read_fields(data, start.reshape(-1), np.repeat(width, k))
     return objects[:, None] + _unzigzag(z).reshape(-1, k)
+
+
+def pack_coords(coords: np.ndarray, first: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Coordinates ``(m, 2)`` (quanta, at least 0) of objects ``first ..`` (a multiple of :data:`NB_BLOCK`) as
+    packed blocks: each object's offsets from its block's smallest x and y, at the block's two widths.
+
+    Returns the bytes, each block's length in bytes, its widths ``(b, 2)`` (uint8) and its base ``(b, 2)``.
+    """
+    m = len(coords)
+    starts = np.append(np.arange(0, m, NB_BLOCK), m)
+    c = coords.astype(np.int64)
+    base = np.minimum.reduceat(c, starts[:-1], axis=0) if m else np.zeros((0, 2), np.int64)
+    top = np.maximum.reduceat(c, starts[:-1], axis=0) - base if m else np.zeros((0, 2), np.int64)
+    widths = np.array([int(t).bit_length() for t in top.reshape(-1).tolist()], np.int64).reshape(-1, 2)
+    counts = np.diff(starts)
+    block = np.repeat(np.arange(counts.size), counts)
+    values = (c - base[block]).reshape(-1)  # x, y of each object in turn
+    data, lengths = _packed_groups(values, widths[block].reshape(-1), starts * 2, counts * widths.sum(axis=1))
+    return data, lengths, widths.astype(np.uint8), base
+
+
+def coord_fields(data: np.ndarray, block_start: np.ndarray, width: np.ndarray, base: np.ndarray,
+                 objects: np.ndarray) -> np.ndarray:
+    """Coordinates ``(m, 2)`` (int64 quanta) of ``objects`` from the packed data, given their blocks' first byte,
+    widths ``(m, 2)`` and bases ``(m, 2)`` (all already checked against the data's length)."""
+    at = block_start * 8 + (objects % NB_BLOCK) * (width[:, 0] + width[:, 1])
+    xy = _read_fields(data, np.column_stack([at, at + width[:, 0]]).reshape(-1), width.reshape(-1))
+    return base + xy.astype(np.int64).reshape(-1, 2)
 
 
 def dense_side(cell: np.ndarray) -> np.ndarray:

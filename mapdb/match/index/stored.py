@@ -1,14 +1,14 @@
 """A disk-backed lost-in-space quad index: built in bounded memory, opened in milliseconds, memory-mapped.
 
 The whole-map :class:`~mapdb.match.quads.QuadIndex` keeps every quad's complex coordinates and labels and
-a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds a tenth of
-those quads, each object's closest (:func:`~mapdb.match.quads.neighbour_quads` of its 4 nearest, the same
-canonical order and invariants from :func:`~mapdb.match.quads.canonical_quads`), packed into about 30 bytes
-an object, in a sidecar file ``MAP.qidx`` beside the map (``monaco.mapdb`` -> ``monaco.mapdb.qidx``); the
-format (version 3) is in ``docs/index_format.md``.
+a cKDTree in memory, built at the first query (1M objects: 250 s, 13.8 GB).  This index holds a ninth of
+those quads, each object's closest (six triples of its 5 nearest, :data:`~mapdb.match.index.layout.QUAD_TRIPLES`;
+the canonical order and invariants from :func:`~mapdb.match.quads.canonical_quads`), packed with the objects'
+coordinates into about 35 bytes an object, in a sidecar file ``MAP.qidx`` beside the map (``monaco.mapdb`` ->
+``monaco.mapdb.qidx``); the format (version 4) is in ``docs/index_format.md``.
 
 How it works (``docs/index_format.md`` in full)
-    A quad is an anchor object and a triple of its 4 nearest neighbours, filed by its label combination
+    A quad is an anchor object and a triple of its 5 nearest neighbours, filed by its label combination
     and the cell of its invariants (side ``c`` per combination) with its position inside the cell; a
     lookup reads the cells its ball reaches and recomputes the candidates the positions do not rule out.
     **The lookup radius is clamped to the cell size** (:meth:`StoredQuadIndex.cell_size`): where ``c`` is
@@ -21,7 +21,7 @@ Safety
     checked before use, a lookup's memory is bounded, and its pages are asked for at once
     (``MADV_WILLNEED``: 5M objects, about 0.6 s for a cold image's lookups instead of 2 s).  The index is
     bound to its map (:mod:`~mapdb.match.index.binding`): the header's ``map`` section when it is opened with
-    its map, each map page's coordinates against the page's box, and each resolved quad (with a few the
+    its map, each block of coordinates against its objects' page boxes, and each resolved quad (with a few the
     bounds dropped, and each label combination's first cell) against the cell it was found in.
 
 The code is in the modules beside this one (the reader): :mod:`~mapdb.match.index.layout` (the format:
@@ -47,7 +47,7 @@ from ...mapfile.reader import MetaMap
 from ..quads import canonical_quads, label_keys
 from .binding import PageBoxes, check_filed, check_identity, check_positions, map_identity
 from .build import build_index
-from .directory import Directory, Neighbours
+from .directory import Coordinates, Directory, Neighbours
 from .layout import (
     INDEX_SUFFIX,
     check_sections,
@@ -92,7 +92,7 @@ class StoredQuadIndex:
     labels : tuple of str
         The map's label names: label codes in lookups index into them.
     neighbours : int
-        The matcher's neighbours per anchor the index serves (its quads are of each object's 4 nearest).
+        The matcher's neighbours per anchor the index serves (its quads are of each object's 5 nearest).
     blocks_left_out : bool
         True for the index of a map with blocks of buildings: its quads are those of the map without the blocks.
     n_objects, n_quads, n_cells : int
@@ -148,6 +148,8 @@ class StoredQuadIndex:
                                     (c.cells, c.quads, c.dir_bytes, c.max_cell, c.pages), c.cell_bits, where)
         self._neighbours = Neighbours(read["nb_start"], read["nb_width"], read["nb_data"], c.objects,
                                       c.quad_neighbours, where)
+        self._coords = Coordinates(read["co_start"], read["co_width"], read["co_base"], read["co_data"], c.objects,
+                                   where)
 
     # ------------------------------------------------------------------------------------------ public
 
@@ -171,14 +173,15 @@ class StoredQuadIndex:
 
     def check_map(self, map_: MetaMap) -> None:
         """Refuse (:class:`MapFormatError`) unless this index was built from exactly this map file; then bind
-        it to the map: lookups check each page's coordinates against the map's page boxes."""
+        it to the map: each block of coordinates decoded from then on is checked against the map's page boxes."""
         check_identity(self.identity, map_, self.where)
         self._boxes = PageBoxes(map_.page_directory, self.origin, self.where, map_.path)
+        self._coords.bind(self._boxes.check)
 
     def check_positions(self, x: np.ndarray, y: np.ndarray) -> None:
         """Refuse unless the index's coordinates are exactly the map's object positions ``x, y`` (map order):
         for a caller that holds the map's objects decoded anyway (it costs O(N))."""
-        self._sections["coords"].verify()
+        self._coords.verify()
         check_positions(self.coordinates(np.arange(self.n_objects)), np.asarray(x), np.asarray(y), self.where,
                         None if self._boxes is None else self._boxes.map_path)
 
@@ -224,9 +227,7 @@ class StoredQuadIndex:
         ids = np.asarray(ids, np.int64)
         if ids.size and (ids.min() < 0 or ids.max() >= self.n_objects):
             raise IndexError(f"object ids must be in [0, {self.n_objects})")
-        if self._boxes is not None:
-            self._boxes.check(self._sections["coords"], ids)
-        c = self._sections["coords"].rows(ids.reshape(-1)).astype(np.int64)
+        c = self._coords.rows(ids.reshape(-1))
         x = (c[:, 0] + self.origin[0]) * self.quantum
         y = (c[:, 1] + self.origin[1]) * self.quantum
         return (x + 1j * y).reshape(ids.shape)
