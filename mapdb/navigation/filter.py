@@ -23,7 +23,10 @@ heading or scale a little off, rooftops moving faster than the ground, an IMU's 
 puts the position ``b tau`` off ``tau`` seconds after the last applied fix, which no velocity update can
 see.  The prediction therefore also spreads the positions so that their variance grows as ``(sigma_b
 tau)^2`` per axis: each step adds ``sigma_b^2 ((tau + dt)^2 - tau^2)``, with ``sigma_b = DRIFT_FLOOR_MPS
-+ DRIFT_FRACTION |v|``.  An applied fix (or a new start) sets ``tau`` back to 0, so on a flight fixed
++ DRIFT_FRACTION |v|`` unless ``drift_of`` gives it: the navigator measures the velocity's persistent
+error against its fixes (:mod:`mapdb.navigation.bias`), so that an ideal flight's cloud stays as narrow
+as its velocity error (a cloud far wider lets the estimate wander in it) and a rendered one covers its
+bias.  An applied fix (or a new start) sets ``tau`` back to 0, so on a flight fixed
 every frame the spread added is a few centimetres.  The fix gate widens with it (:meth:`update_fix`).
 
 Measurement models
@@ -60,6 +63,7 @@ copies of one particle.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -145,6 +149,9 @@ class ParticleFilter:
         self.velocity_known = False
         self.since_fix = 0.0  # seconds since the last applied fix or start (module docs, drift)
         self.last_dt = 0.0  # the last prediction's step (s)
+        # The persistent velocity error allowed (m/s per axis) at a speed, when the navigator measures it
+        # (:mod:`mapdb.navigation.bias`); None: DRIFT_FLOOR_MPS + DRIFT_FRACTION |v|.
+        self.drift_of: Callable[[float], float] | None = None
 
     # ------------------------------------------------------------------------------------- state
 
@@ -210,7 +217,8 @@ class ParticleFilter:
         the last applied fix (module docs, drift)."""
         since = self.since_fix if since is None else since
         speed = abs(complex(np.sum(self.weights * self.v))) if self.initialised else 0.0
-        return (DRIFT_FLOOR_MPS + DRIFT_FRACTION * speed) * since
+        rate = DRIFT_FLOOR_MPS + DRIFT_FRACTION * speed if self.drift_of is None else self.drift_of(speed)
+        return rate * since
 
     # ------------------------------------------------------------------------------ measurements
 

@@ -53,6 +53,7 @@ from ..answers import Answer
 from ..camera import Camera
 from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
+from .bias import VelocityBias
 from .filter import FixComponent, ParticleFilter
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
 from .stitch import DEFAULT_FRAMES, History, Seen, min_stitched_score
@@ -156,6 +157,10 @@ class Navigator:
         self.ground = GroundModel.of(map)  # the map's elevation, for the barometer (mapdb.navigation.terrain)
         self.history = History(self.options.stitch_frames)
         self._motion: FrameMotion | None = None  # the current frame's similarity to the previous one
+        self._raw_velocity: complex | None = None  # the current frame's velocity as measured (before the bias)
+        # The velocity's persistent error, measured against the fixes: corrects it and sizes the drift.
+        self.bias = VelocityBias()
+        self.filter.drift_of = lambda speed: self.bias.drift(speed)
         if initial is not None:
             self.filter.initialise(complex(initial[0], initial[1]), initial[2])
 
@@ -198,7 +203,9 @@ class Navigator:
         timing["filter"] = time.perf_counter() - t0
         points = self._points(frame)
         self._motion = None
+        self._raw_velocity = None
         record.velocity_measurement = self._velocity(frame, points, dt, timing)
+        self._displacement(record.velocity_measurement, dt)
         self._remember(frame, points)
         record.fix = self._fix(frame, record, timing)
         if record.fix.get("status") in ("used", "initialised"):
@@ -247,13 +254,15 @@ class Navigator:
         self.previous = _Previous()
         self.last_velocity = None
         self.history.clear()
+        self.bias.reset()
 
     def _snapshot(self) -> tuple[Any, ...]:
         previous = replace(self.previous, pending=list(self.previous.pending))
-        return (self.filter.snapshot(), replace(self.orientation), previous, self.last_velocity, self.history.copy())
+        return (self.filter.snapshot(), replace(self.orientation), previous, self.last_velocity, self.history.copy(),
+                self.bias.copy())
 
     def _restore(self, saved: tuple[Any, ...]) -> None:
-        filter_state, self.orientation, self.previous, self.last_velocity, self.history = saved
+        filter_state, self.orientation, self.previous, self.last_velocity, self.history, self.bias = saved
         self.filter.restore(filter_state)
 
     def _failed(self, doc: Any, where: str, exc: Exception, start: float) -> TrackRecord:
@@ -391,14 +400,29 @@ class Navigator:
                                    heading_sigma_deg=o.heading_sigma)
         if not abs(vel.v) <= MAX_SPEED_MPS:  # a mismatch, or a scale from absurd sensors: not a velocity
             return {"status": "none", "reason": f"measured speed {abs(vel.v):g} m/s is over {MAX_SPEED_MPS:g} m/s"}
+        raw = vel.v
+        vel = replace(vel, v=self.bias.correct(raw), cov=vel.cov * abs(1.0 + self.bias.c) ** 2)
         self.last_velocity = vel.v
         self._motion = motion
+        self._raw_velocity = raw
         sigma = math.sqrt(float(np.max(np.linalg.eigvalsh(vel.cov))))
         used = self.filter.update_velocity(vel.v, vel.cov) if self.filter.initialised else False
         status = "used" if used else ("rejected" if self.filter.initialised else "measured")
         return {"status": status, "velocity_mps": [round(vel.v.real, 3), round(vel.v.imag, 3)],
-                "sigma_mps": round(sigma, 3), "inliers": motion.inliers,
+                "sigma_mps": round(sigma, 3), "bias": [round(self.bias.c.real, 4), round(self.bias.c.imag, 4)],
+                "inliers": motion.inliers,
                 "method": "guided" if motion.guided else "quads"}
+
+    def _displacement(self, measurement: dict[str, Any], dt: float) -> None:
+        """The frame's displacement as measured, for the bias (:mod:`mapdb.navigation.bias`): the filter's
+        velocity, unbiased back, on a frame without a measurement the filter used."""
+        if not self.filter.initialised or dt <= 0:
+            return
+        if measurement.get("status") == "used" and self._raw_velocity is not None:
+            self.bias.add_displacement(self._raw_velocity * dt)
+        elif self.filter.velocity_known:
+            velocity = complex(np.sum(self.filter.weights * self.filter.v))
+            self.bias.add_displacement(self.bias.uncorrect(velocity) * dt)
 
     # --------------------------------------------------------------------------------------- fix
 
@@ -511,7 +535,10 @@ class Navigator:
             info["reason"] = answer.reason or "no usable place"
             return info
         if not self.filter.initialised:
-            return self._initialise(answer, components, info)
+            info = self._initialise(answer, components, info)
+            if info["status"] == "initialised" and frame.time_s is not None:
+                self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
+            return info
         area = math.pi * prior[2] ** 2 if prior else self._map_area()
         outcome = self.filter.update_fix(components, area)
         info["inlier_probability"] = round(outcome.inlier_probability, 4)
@@ -520,6 +547,8 @@ class Navigator:
             info["status"] = "used"
             info["components"] = len(components)
             self._fixed(answer, frame)
+            if answer.ok and frame.time_s is not None:
+                self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
         info["status"] = "rejected"
         info["reason"] = (f"outlier: {outcome.distance_m:.1f} m from the estimate, "
