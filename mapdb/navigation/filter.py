@@ -250,7 +250,8 @@ class ParticleFilter:
         self._reweigh(-0.5 * m2)
         return True
 
-    def update_fix(self, components: list[FixComponent], area_m2: float, gate_sigma_m: float = 2.0) -> FixOutcome:
+    def update_fix(self, components: list[FixComponent], area_m2: float, gate_sigma_m: float = 2.0,
+                   shared_sigma_m: float = 0.0) -> FixOutcome:
         """Weigh particles by a (multi-modal) fix with an outlier floor (module docs).
 
         ``gate_sigma_m``, combined with the drift since the last applied fix (:meth:`drift_sigma`), widens
@@ -260,6 +261,10 @@ class ParticleFilter:
         ``w' ∝ w (P_in g / E[g] + 1 - P_in)`` with ``g`` the sharp mixture: recomputing the floor against
         the sharp ``g`` would let a fix 2-3 m from every particle (``g`` far below the floor everywhere)
         pass the gate, be reported used, and change no weight (issue 29).
+
+        ``shared_sigma_m`` is the part of the fix's error that consecutive fixes share (per axis): after
+        the update the cloud's spread is kept at least that wide (:meth:`_keep_spread`), since fusing
+        fixes as independent would shrink it below the error they have in common.
         """
         w = self.weights
         gate = math.hypot(gate_sigma_m, self.drift_sigma())
@@ -282,8 +287,23 @@ class ParticleFilter:
             self._redraw(components, w)
         else:
             self._reweigh(loglik)
+        self._keep_spread(shared_sigma_m)
         self.since_fix = 0.0
         return FixOutcome(True, p_in, distance)
+
+    def _keep_spread(self, sigma_m: float) -> None:
+        """Widen the cloud (positions only) so that its spread is at least ``sigma_m`` per axis.
+
+        Adds ``N(0, sigma_m^2 - s^2)`` along each axis whose spread ``s`` is narrower: the mean stays where
+        it is and the stated covariance no longer falls below an error the fixes share.
+        """
+        if sigma_m <= 0.0:
+            return
+        sd = np.sqrt(np.diag(_covariance(self.p, self.weights)))
+        add = np.sqrt(np.maximum(sigma_m**2 - sd**2, 0.0))
+        if np.any(add > 0.0):
+            noise = self._normal(self.n)
+            self.p = self.p + (add[0] * noise.real + 1j * add[1] * noise.imag)
 
     def _coverage(self, components: list[FixComponent], w: np.ndarray) -> float:
         """The cloud's weight inside the fix: ``sum_j pi_j sum_i w_i exp(-|p_i - c_j|^2 / 2 s_j^2)``.
