@@ -524,19 +524,21 @@ class Navigator:
         return [FixComponent(z, math.hypot(sigma or 1.0, floor), 10.0 ** max(score - top, -300.0))
                 for z, sigma, score in places]
 
-    def _shared_sigma(self, answer: Answer, frame: Frame) -> float:
-        """The error consecutive fixes from blobs share, per axis: ``BLOB_FIX_FLOOR_PX`` at the fix's scale.
+    def _shared_sigma(self, frame: Frame, components: list[FixComponent]) -> float:
+        """The error consecutive fixes from blobs share, per axis: the fix's own (its stated error with the
+        blob floor, ``_components``).
 
-        Relief, merging and cuts move the same buildings' centroids the same way in consecutive frames:
-        measured on rendered masks at 120 m (Monaco and Andorra), applied fixes were 0.5 m off per axis
-        (RMS), with a correlation of 0.35-0.47 from one frame's fix to the next; fused as independent, ten
-        fixes stated 0.3 m while the estimate was 1-1.7 m off (beyond 3 sigma on 2-4 % of the frames).
-        Centroid detections (no ``area_px``, no ``border``) share nothing: 0.
+        Relief, merging and cuts move the same buildings' centroids the same way in consecutive frames, and
+        the fit's error comes from those same buildings: measured on rendered masks at 120 m (Monaco and
+        Andorra), applied fixes were 0.5 m off per axis (RMS), with a correlation of 0.35-0.47 from one
+        frame's fix to the next, and runs of six fixes 2.5 m off; fused as independent, ten fixes stated
+        0.3 m while the estimate was 1-1.7 m off (beyond 3 sigma on 2-4 % of the frames).  Centroid
+        detections (no ``area_px``, no ``border``) share nothing: 0.
         """
         image = frame.image
-        if image is None or (image.area_px is None and image.border is None):
+        if image is None or (image.area_px is None and image.border is None) or not components:
             return 0.0
-        return BLOB_FIX_FLOOR_PX * (answer.scale_m_per_px or self.orientation.scale or 0.0)
+        return max(c.sigma_m for c in components if c.weight >= 1.0)
 
     def _apply_fix(self, frame: Frame, answer: Answer, prior: tuple[float, float, float] | None,
                    recover: bool = True) -> dict[str, Any]:
@@ -554,7 +556,7 @@ class Navigator:
                 self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
         area = math.pi * prior[2] ** 2 if prior else self._map_area()
-        outcome = self.filter.update_fix(components, area, shared_sigma_m=self._shared_sigma(answer, frame))
+        outcome = self.filter.update_fix(components, area, shared_sigma_m=self._shared_sigma(frame, components))
         info["inlier_probability"] = round(outcome.inlier_probability, 4)
         info["distance_m"] = round(outcome.distance_m, 3)
         if outcome.applied:
