@@ -160,7 +160,8 @@ class Navigator:
         self._raw_velocity: complex | None = None  # the current frame's velocity as measured (before the bias)
         # The velocity's persistent error, measured against the fixes: corrects it and sizes the drift.
         self.bias = VelocityBias()
-        self.filter.drift_of = lambda speed: self.bias.drift(speed)
+        self._imu = False  # whether the current frame's inertial velocity was fused (its bias is not measured)
+        self.filter.drift_of = self._drift
         if initial is not None:
             self.filter.initialise(complex(initial[0], initial[1]), initial[2])
 
@@ -196,6 +197,7 @@ class Navigator:
         dt = 0.0 if previous_t is None else frame.time_s - previous_t
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
+        self._imu = frame.imu is not None
         self.filter.predict(dt, self._turn(frame))
         record.altitude = height_above_ground(frame, self.ground, self.filter, self.options.baro_std_m,
                                               self.options.terrain)
@@ -412,6 +414,13 @@ class Navigator:
                 "sigma_mps": round(sigma, 3), "bias": [round(self.bias.c.real, 4), round(self.bias.c.imag, 4)],
                 "inliers": motion.inliers,
                 "method": "guided" if motion.guided else "quads"}
+
+    def _drift(self, speed: float) -> float:
+        """The filter's persistent velocity error (m/s per axis): the frame-to-frame velocity's, measured
+        (:mod:`mapdb.navigation.bias`), or, when an inertial velocity is fused, at least its stated error:
+        its bias is what the filter's velocity keeps, and the fixes do not measure it."""
+        drift = self.bias.drift(speed)
+        return max(drift, self.options.imu_std_mps) if self._imu else drift
 
     def _displacement(self, measurement: dict[str, Any], dt: float) -> None:
         """The frame's displacement as measured, for the bias (:mod:`mapdb.navigation.bias`): the filter's
