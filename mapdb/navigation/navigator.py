@@ -18,13 +18,16 @@ Per frame (:meth:`Navigator.step`), in this order:
    missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
    over the focal length before any fix).  Both ratios telescope, so neither drifts frame by frame.
 4. **Velocity** from the previous frame (:mod:`mapdb.navigation.velocity`), guessed from the filter's
-   velocity; and the inertial velocity when the frame has one.
+   velocity, corrected by its persistent error as measured against the applied fixes (rooftops moving
+   faster than the ground, cut blobs slower, a scale or heading a little off: :mod:`mapdb.navigation.bias`,
+   which also sizes the filter's drift allowance); and the inertial velocity when the frame has one.
 5. **Fix**: unless the flight withholds the map, the frame is localized with the filter's prediction as the
    prior, radius from the particle cloud (99 % of the weight or its stated 3 sigma, whichever is wider,
    plus the attitude errors' floor; the cloud spreads with the time since the last applied fix).  After
    ``widen_after`` queries in a row without an applied fix the radius doubles every frame, and past
    ``max_radius_m`` the query is lost-in-space.  The answer and its runner-up candidates update the
-   filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`).  Fixes rejected as outliers
+   filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`); a fix from blobs keeps the cloud at
+   least as wide as its own error, which the next frames' fixes share (``_shared_sigma``).  Fixes rejected as outliers
    ``recover_after`` times in a row at places consistent with the filter's velocity draw half the
    particles to them: a filter started far off, or captured, gets back.
    When the frame alone is not decisive (no fix, or one rejected as an outlier), the objects of the last
