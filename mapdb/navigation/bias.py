@@ -114,6 +114,14 @@ class VelocityBias:
         if self._anchor is not None:
             self._anchor.measured += raw
 
+    def add_frame(self, measured: complex | None, filter_velocity: complex | None, dt: float) -> None:
+        """One frame's step of ``dt`` seconds: the velocity measured (uncorrected) when the filter used it,
+        else the filter's velocity unbiased back (module docs); neither: nothing is added."""
+        if measured is not None:
+            self.add_displacement(measured * dt)
+        elif filter_velocity is not None:
+            self.add_displacement(self.uncorrect(filter_velocity) * dt)
+
     def add_fix(self, time_s: float, place: complex, var_m2: float) -> None:
         """An applied fix at ``place`` with per-axis variance ``var_m2``: a sample when the anchor is far
         enough back, and the new anchor (module docs)."""
@@ -139,8 +147,12 @@ class VelocityBias:
         c = self._sum_c / (PRIOR_SIGMA**-2 + self._weight)
         self.c = c if abs(c) <= MAX_C else c / abs(c) * MAX_C
 
-    def drift(self, speed_mps: float) -> float:
-        """The per-axis velocity error allowed between fixes (m/s), the filter's ``sigma_b`` (module docs)."""
+    def drift(self, speed_mps: float, least_mps: float = 0.0) -> float:
+        """The per-axis velocity error allowed between fixes (m/s), the filter's ``sigma_b`` (module docs), at
+        least ``least_mps`` (an inertial velocity's stated error: its bias is not measured here)."""
+        return max(self._drift(speed_mps), least_mps)
+
+    def _drift(self, speed_mps: float) -> float:
         if self.samples < MIN_SAMPLES:
             return DRIFT_FLOOR_MPS + PRIOR_SIGMA * speed_mps
         total = PRIOR_SIGMA**-2 + self._weight

@@ -27,9 +27,9 @@ Per frame (:meth:`Navigator.step`), in this order:
    ``widen_after`` queries in a row without an applied fix the radius doubles every frame, and past
    ``max_radius_m`` the query is lost-in-space.  The answer and its runner-up candidates update the
    filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`); a fix from blobs keeps the cloud at
-   least as wide as its own error, which the next frames' fixes share (``_shared_sigma``).  Fixes rejected as outliers
-   ``recover_after`` times in a row at places consistent with the filter's velocity draw half the
-   particles to them: a filter started far off, or captured, gets back.
+   least as wide as its own error, which the next frames' fixes share (:func:`~.filter.shared_sigma`).
+   Fixes rejected as outliers ``recover_after`` times in a row at places consistent with the filter's
+   velocity draw half the particles to them: a filter started far off, or captured, gets back.
    When the frame alone is not decisive (no fix, or one rejected as an outlier), the objects of the last
    ``stitch_frames`` frames, carried into this one by the frame-to-frame similarities of step 4, are
    queried as one image (:mod:`mapdb.navigation.stitch`); the record's ``fix_frames`` names the frames a
@@ -57,7 +57,7 @@ from ..camera import Camera
 from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
 from .bias import VelocityBias
-from .filter import FixComponent, ParticleFilter
+from .filter import FixComponent, ParticleFilter, shared_sigma
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
 from .stitch import DEFAULT_FRAMES, History, Seen, min_stitched_score
 from .terrain import GroundModel, height_above_ground
@@ -160,11 +160,10 @@ class Navigator:
         self.ground = GroundModel.of(map)  # the map's elevation, for the barometer (mapdb.navigation.terrain)
         self.history = History(self.options.stitch_frames)
         self._motion: FrameMotion | None = None  # the current frame's similarity to the previous one
-        self._raw_velocity: complex | None = None  # the current frame's velocity as measured (before the bias)
-        # The velocity's persistent error, measured against the fixes: corrects it and sizes the drift.
-        self.bias = VelocityBias()
-        self._imu = False  # whether the current frame's inertial velocity was fused (its bias is not measured)
-        self.filter.drift_of = self._drift
+        self._raw_velocity: complex | None = None  # this frame's velocity as measured (before the bias)
+        self.bias = VelocityBias()  # the velocity's persistent error, measured against the fixes
+        self._imu = False  # an inertial velocity fused: its stated error is the least drift (bias unmeasured)
+        self.filter.drift_of = lambda speed: self.bias.drift(speed, self.options.imu_std_mps if self._imu else 0.0)
         if initial is not None:
             self.filter.initialise(complex(initial[0], initial[1]), initial[2])
 
@@ -418,23 +417,12 @@ class Navigator:
                 "inliers": motion.inliers,
                 "method": "guided" if motion.guided else "quads"}
 
-    def _drift(self, speed: float) -> float:
-        """The filter's persistent velocity error (m/s per axis): the frame-to-frame velocity's, measured
-        (:mod:`mapdb.navigation.bias`), or, when an inertial velocity is fused, at least its stated error:
-        its bias is what the filter's velocity keeps, and the fixes do not measure it."""
-        drift = self.bias.drift(speed)
-        return max(drift, self.options.imu_std_mps) if self._imu else drift
-
     def _displacement(self, measurement: dict[str, Any], dt: float) -> None:
-        """The frame's displacement as measured, for the bias (:mod:`mapdb.navigation.bias`): the filter's
-        velocity, unbiased back, on a frame without a measurement the filter used."""
-        if not self.filter.initialised or dt <= 0:
-            return
-        if measurement.get("status") == "used" and self._raw_velocity is not None:
-            self.bias.add_displacement(self._raw_velocity * dt)
-        elif self.filter.velocity_known:
-            velocity = complex(np.sum(self.filter.weights * self.filter.v))
-            self.bias.add_displacement(self.bias.uncorrect(velocity) * dt)
+        """The frame's displacement as measured, for the bias (:meth:`VelocityBias.add_frame`)."""
+        if self.filter.initialised and dt > 0:
+            used = self._raw_velocity if measurement.get("status") == "used" else None
+            velocity = complex(np.sum(self.filter.weights * self.filter.v)) if self.filter.velocity_known else None
+            self.bias.add_frame(used, velocity, dt)
 
     # --------------------------------------------------------------------------------------- fix
 
@@ -536,22 +524,6 @@ class Navigator:
         return [FixComponent(z, math.hypot(sigma or 1.0, floor), 10.0 ** max(score - top, -300.0))
                 for z, sigma, score in places]
 
-    def _shared_sigma(self, frame: Frame, components: list[FixComponent]) -> float:
-        """The error consecutive fixes from blobs share, per axis: the fix's own (its stated error with the
-        blob floor, ``_components``).
-
-        Relief, merging and cuts move the same buildings' centroids the same way in consecutive frames, and
-        the fit's error comes from those same buildings: measured on rendered masks at 120 m (Monaco and
-        Andorra), applied fixes were 0.5 m off per axis (RMS), with a correlation of 0.35-0.47 from one
-        frame's fix to the next, and runs of six fixes 2.5 m off; fused as independent, ten fixes stated
-        0.3 m while the estimate was 1-1.7 m off (beyond 3 sigma on 2-4 % of the frames).  Centroid
-        detections (no ``area_px``, no ``border``) share nothing: 0.
-        """
-        image = frame.image
-        if image is None or (image.area_px is None and image.border is None) or not components:
-            return 0.0
-        return max(c.sigma_m for c in components if c.weight >= 1.0)
-
     def _apply_fix(self, frame: Frame, answer: Answer, prior: tuple[float, float, float] | None,
                    recover: bool = True) -> dict[str, Any]:
         components = self._components(answer, frame)
@@ -567,8 +539,9 @@ class Navigator:
             if info["status"] == "initialised" and frame.time_s is not None:
                 self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
-        area = math.pi * prior[2] ** 2 if prior else self._map_area()
-        outcome = self.filter.update_fix(components, area, shared_sigma_m=self._shared_sigma(frame, components))
+        x0, y0, x1, y1 = self.map.bounds  # lost in space: the fix could have come from the map's whole box
+        area = math.pi * prior[2] ** 2 if prior else max((x1 - x0) * (y1 - y0), 1.0)
+        outcome = self.filter.update_fix(components, area, shared_sigma_m=shared_sigma(frame.image, components))
         info["inlier_probability"] = round(outcome.inlier_probability, 4)
         info["distance_m"] = round(outcome.distance_m, 3)
         if outcome.applied:
@@ -585,11 +558,6 @@ class Navigator:
         if recover and answer.ok and self._recover(frame, complex(answer.x or 0.0, answer.y or 0.0)):
             info["reason"] += f"; {self.options.recover_after} consistent rejected fixes: particles drawn there"
         return info
-
-    def _map_area(self) -> float:
-        """Where a lost-in-space fix could have come from: the map's bounding box (square metres)."""
-        x0, y0, x1, y1 = self.map.bounds
-        return max((x1 - x0) * (y1 - y0), 1.0)
 
     def _initialise(self, answer: Answer, components: list[FixComponent], info: dict[str, Any]) -> dict[str, Any]:
         if not answer.ok or (answer.score or 0.0) < self.options.init_min_score:
