@@ -38,6 +38,9 @@ position) and ``initial`` (``--initial`` at the true start, radius 30 m).  Per f
 ``--stitch K1,K2,...`` navigates every flight with each number of stitched frames (0: single frames only),
 side by side in the same process, one row each.
 
+``--variants "velocity_bias=off;velocity_bias=significant"`` navigates every flight with each set of
+:class:`~mapdb.navigation.navigator.NavigatorOptions` changes, side by side in the same process, one row each.
+
 ``--baseline REV`` also navigates every flight with the mapdb of git revision ``REV`` in the same
 process, frame by frame alternating which goes first, and prints its row under each row of this tree.
 Flights are rendered once and kept in ``--cache`` (keyed by their parameters and the simulator's source).
@@ -226,6 +229,19 @@ def _navigators(maps: list[Any], versions: list[tuple[Any, ...]], frames: list[d
             for m, (_, mod, _, changes) in zip(maps, versions, strict=True)]
 
 
+def _changes(variant: str) -> dict[str, Any]:
+    """``field=value,...`` as NavigatorOptions changes (values typed as the fields' defaults)."""
+    from mapdb.navigation.navigator import NavigatorOptions
+
+    defaults = NavigatorOptions()
+    changes: dict[str, Any] = {}
+    for item in variant.split(","):
+        name, _, value = item.partition("=")
+        kind = type(getattr(defaults, name))
+        changes[name] = value.lower() in ("1", "true", "yes") if kind is bool else kind(value)
+    return changes
+
+
 def main() -> None:
     """Parse the options, render (or read) the flights, navigate them, print the table."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -238,6 +254,9 @@ def main() -> None:
     parser.add_argument("--baseline", default=None, metavar="REV", help="also navigate with this git revision")
     parser.add_argument("--stitch", default=None, metavar="K,...",
                         help="navigate with each of these numbers of stitched frames (default: the navigator's)")
+    parser.add_argument("--variants", default=None, metavar="FIELD=VALUE;...",
+                        help="navigate with each of these NavigatorOptions changes (';' between variants, "
+                             "',' within one)")
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "mapdb-bench-nav-masks")
     args = parser.parse_args()
     names = args.maps.split(",")
@@ -250,6 +269,8 @@ def main() -> None:
     versions: list[tuple[Any, ...]] = [(reader, navigator, "now", None)]
     if args.stitch:
         versions = [(reader, navigator, f"K={k}", {"stitch_frames": int(k)}) for k in args.stitch.split(",")]
+    if args.variants:
+        versions = [(reader, navigator, v, _changes(v)) for v in args.variants.split(";")]
     if args.baseline:
         work = args.cache / "baseline"
         versions.append((import_baseline(args.baseline, work, "mapfile.reader"),

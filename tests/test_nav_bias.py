@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from navworld import fly, synthetic_world
 
-from mapdb.navigation.bias import DRIFT_FLOOR_MPS, MIN_SAMPLES, PRIOR_SIGMA, VelocityBias
-from mapdb.navigation.navigator import Navigator
+from mapdb.navigation.bias import BIAS_MODES, DRIFT_FLOOR_MPS, MIN_SAMPLES, PRIOR_SIGMA, SIGNIFICANT, VelocityBias
+from mapdb.navigation.navigator import Navigator, NavigatorOptions
 
 world = pytest.fixture(scope="module", name="world")(synthetic_world)  # the synthetic world (tests/navworld.py)
 
@@ -77,3 +77,31 @@ def test_an_ideal_flight_calibrates_and_narrows_the_drift_allowance(world) -> No
     assert navigator.bias.samples >= MIN_SAMPLES
     assert navigator.bias.drift(20.0) < 0.5 * (DRIFT_FLOOR_MPS + PRIOR_SIGMA * 20.0), navigator.bias.drift(20.0)
     assert abs(navigator.bias.c) < 0.01
+
+
+def test_significant_mode_takes_out_only_what_stands_above_its_noise() -> None:
+    # A 4 % scale error and no rotation, fixes good to 0.5 m: the scale is taken out, the rotation estimate
+    # (noise only) is not; a velocity without bias is left as measured.
+    biased = VelocityBias(mode="significant")
+    _fly(biased, -0.04, 120.0, 0.5, seed=3)
+    se = biased.standard_error()
+    assert abs(biased.c.real) > SIGNIFICANT * se and biased.applied.real == biased.c.real
+    assert biased.c.imag != 0.0 and abs(biased.c.imag) < SIGNIFICANT * se and biased.applied.imag == 0.0
+    unbiased = VelocityBias(mode="significant")
+    _fly(unbiased, 0.0, 120.0, 0.5, seed=4)
+    assert unbiased.c != 0j and unbiased.applied == 0j
+    assert unbiased.correct(20.0 + 0j) == 20.0 + 0j
+
+
+def test_off_mode_corrects_nothing_and_allows_for_the_bias_it_leaves() -> None:
+    full, off = VelocityBias(mode="full"), VelocityBias(mode="off")
+    for b in (full, off):
+        _fly(b, -0.04, 120.0, 0.3)
+    assert off.c == full.c and off.applied == 0j and off.correct(20.0 + 0j) == 20.0 + 0j
+    # The 4 % left in the velocity (0.8 m/s at 20 m/s, 0.57 per axis) is in the allowance.
+    assert off.drift(20.0) > 0.5 > full.drift(20.0), (off.drift(20.0), full.drift(20.0))
+
+
+def test_the_navigator_takes_its_mode_from_the_options(world) -> None:
+    for mode in BIAS_MODES:
+        assert Navigator(world, options=NavigatorOptions(velocity_bias=mode)).bias.mode == mode

@@ -39,8 +39,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
-__all__ = ["CALIBRATED_FLOOR_MPS", "DRIFT_FLOOR_MPS", "FORGET", "MIN_SAMPLES", "MIN_SPAN_S", "PRIOR_SIGMA",
-           "VelocityBias"]
+__all__ = ["BIAS_MODES", "CALIBRATED_FLOOR_MPS", "DRIFT_FLOOR_MPS", "FORGET", "MIN_SAMPLES", "MIN_SPAN_S",
+           "PRIOR_SIGMA", "SIGNIFICANT", "VelocityBias"]
 
 # Before any sample: the allowance of the consistent filter (0.1 m/s + 3 % of the speed, module docs).
 DRIFT_FLOOR_MPS = 0.1
@@ -57,6 +57,10 @@ CALIBRATED_FLOOR_MPS = 0.02
 MAX_SAMPLE = 0.2
 # The estimate is never taken beyond this (a tenth of the speed).
 MAX_C = 0.1
+# What is taken out of the velocity: "full" the estimate, "off" nothing (the estimate only sizes the
+# allowance), "significant" its scale and its rotation each only when beyond SIGNIFICANT standard errors.
+BIAS_MODES = ("full", "off", "significant")
+SIGNIFICANT = 2.0
 
 
 @dataclass
@@ -86,6 +90,7 @@ class VelocityBias:
 
     c: complex = 0j
     samples: int = 0
+    mode: str = "full"  # of BIAS_MODES: what :meth:`correct` takes out
     _weight: float = 0.0  # sum f_k w_k
     _sum_c: complex = 0j  # sum f_k w_k c_k
     _sum_c2: float = 0.0  # sum f_k w_k |c_k|^2
@@ -101,13 +106,38 @@ class VelocityBias:
         """Forget the anchor (a restart of the filter); the estimate stays."""
         self._anchor = None
 
+    @property
+    def applied(self) -> complex:
+        """The part of the estimate :meth:`correct` takes out (``mode``, :data:`BIAS_MODES`)."""
+        if self.mode == "off" or (self.mode == "significant" and self.samples < MIN_SAMPLES):
+            return 0j
+        if self.mode == "full":
+            return self.c
+        # Significant: an estimate within its noise would only add that noise to a better velocity.
+        se = SIGNIFICANT * self.standard_error()
+        return complex(self.c.real if abs(self.c.real) > se else 0.0, self.c.imag if abs(self.c.imag) > se else 0.0)
+
+    def standard_error(self) -> float:
+        """The estimate's standard error per axis: the fixes' share and the samples' excess spread's."""
+        if self._weight <= 0.0:
+            return PRIOR_SIGMA
+        total = PRIOR_SIGMA**-2 + self._weight
+        return math.sqrt(1.0 / total + self._excess() / 2.0 / max(self._count, 1.0))
+
+    def _excess(self) -> float:
+        """The samples' spread (both axes) beyond what the fixes' errors alone give it."""
+        mean = self._sum_c / self._weight
+        spread = max(self._sum_c2 / self._weight - abs(mean) ** 2, 0.0)  # var_w(c_k), both axes
+        noise = 2.0 * self._sum_n / self._weight
+        return max(spread - noise, 0.0)
+
     def correct(self, v: complex) -> complex:
         """The velocity (or displacement) with the estimated bias taken out."""
-        return v * (1.0 + self.c)
+        return v * (1.0 + self.applied)
 
     def uncorrect(self, v: complex) -> complex:
         """The raw measurement a corrected velocity corresponds to (the filter's, on frames without one)."""
-        return v / (1.0 + self.c)
+        return v / (1.0 + self.applied)
 
     def add_displacement(self, raw: complex) -> None:
         """One frame's frame-to-frame displacement (metres, as measured, uncorrected)."""
@@ -156,8 +186,7 @@ class VelocityBias:
         if self.samples < MIN_SAMPLES:
             return DRIFT_FLOOR_MPS + PRIOR_SIGMA * speed_mps
         total = PRIOR_SIGMA**-2 + self._weight
-        mean = self._sum_c / self._weight
-        spread = max(self._sum_c2 / self._weight - abs(mean) ** 2, 0.0)  # var_w(c_k), both axes
-        noise = 2.0 * self._sum_n / self._weight  # what the fixes' errors alone give it, both axes
-        sigma_c = math.sqrt(1.0 / total + max(spread - noise, 0.0) / 2.0)
+        # The part of the estimate left in the velocity (mode) is error the allowance must hold too.
+        left = abs(self.c - self.applied) ** 2 / 2.0
+        sigma_c = math.sqrt(1.0 / total + self._excess() / 2.0 + left)
         return CALIBRATED_FLOOR_MPS + min(sigma_c, MAX_C) * speed_mps

@@ -96,6 +96,7 @@ class NavigatorOptions:
     stitch_frames: int = DEFAULT_FRAMES
     seed: int = 0
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
+    velocity_bias: str = "significant"  # what of the measured bias is taken out (bias.BIAS_MODES)
 
 
 @dataclass
@@ -161,7 +162,7 @@ class Navigator:
         self.history = History(self.options.stitch_frames)
         self._motion: FrameMotion | None = None  # the current frame's similarity to the previous one
         self._raw_velocity: complex | None = None  # this frame's velocity as measured (before the bias)
-        self.bias = VelocityBias()  # the velocity's persistent error, measured against the fixes
+        self.bias = VelocityBias(mode=self.options.velocity_bias)  # the velocity's persistent error (fixes)
         self._imu = False  # an inertial velocity fused: its stated error is the least drift (bias unmeasured)
         self.filter.drift_of = lambda speed: self.bias.drift(speed, self.options.imu_std_mps if self._imu else 0.0)
         if initial is not None:
@@ -405,7 +406,7 @@ class Navigator:
         if not abs(vel.v) <= MAX_SPEED_MPS:  # a mismatch, or a scale from absurd sensors: not a velocity
             return {"status": "none", "reason": f"measured speed {abs(vel.v):g} m/s is over {MAX_SPEED_MPS:g} m/s"}
         raw = vel.v
-        vel = replace(vel, v=self.bias.correct(raw), cov=vel.cov * abs(1.0 + self.bias.c) ** 2)
+        vel = replace(vel, v=self.bias.correct(raw), cov=vel.cov * abs(1.0 + self.bias.applied) ** 2)
         self.last_velocity = vel.v
         self._motion = motion
         self._raw_velocity = raw
