@@ -100,6 +100,10 @@ def test_off_mode_corrects_nothing_and_allows_for_the_bias_it_leaves() -> None:
     assert off.c == full.c and off.applied == 0j and off.correct(20.0 + 0j) == 20.0 + 0j
     # The 4 % left in the velocity (0.8 m/s at 20 m/s, 0.57 per axis) is in the allowance.
     assert off.drift(20.0) > 0.5 > full.drift(20.0), (off.drift(20.0), full.drift(20.0))
+    fixed = VelocityBias(mode="fixed")  # main's rule: no correction, the prior's allowance throughout
+    _fly(fixed, -0.04, 120.0, 0.3)
+    assert fixed.c == full.c and fixed.applied == 0j
+    assert fixed.drift(20.0) == pytest.approx(DRIFT_FLOOR_MPS + PRIOR_SIGMA * 20.0)
 
 
 def test_the_navigator_takes_its_mode_from_the_options(world) -> None:

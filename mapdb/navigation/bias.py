@@ -18,14 +18,24 @@ weighted by ``FORGET`` per newer sample (the bias changes with the buildings bel
 
     c = sum f_k w_k c_k / (1 / PRIOR_SIGMA^2 + sum f_k w_k)
 
-The navigator multiplies each frame-to-frame velocity by ``1 + c`` (:meth:`VelocityBias.correct`).
+The navigator multiplies each frame-to-frame velocity by ``1 + c_applied`` (:meth:`VelocityBias.correct`),
+``c_applied`` by ``mode`` (the navigator's ``velocity_bias`` option): ``"full"`` the estimate ``c``;
+``"off"`` nothing (the estimate only sizes the allowance); ``"fixed"`` nothing, and the allowance always
+the prior's below; ``"significant"`` its real part (the scale) and
+its imaginary part (the rotation) each only when beyond ``SIGNIFICANT`` standard errors, after
+``MIN_SAMPLES`` samples (an estimate within its noise would only add that noise to the velocity).  The
+standard error per axis is ``sqrt(1 / W + excess / (2 n))``, ``excess`` the samples' spread beyond their
+fixes' errors (below) and ``n`` the forgetting-weighted number of samples.
 
 **The drift allowance** (:meth:`VelocityBias.drift`, the particle filter's ``sigma_b``, :mod:`.filter`) is
 what remains of the error after that correction, per axis, as a fraction of the speed: the estimate's own
 uncertainty ``1 / sqrt(total weight)`` and, when the samples scatter more than their fix errors explain
 (the bias changing from stretch to stretch, velocity noise integrated over the span), that excess spread::
 
-    sigma_c^2 = 1 / W + max(0, var_w(c_k) - 2 mean_w(1 / w_k)) / 2          (per axis; var_w over both)
+    sigma_c^2 = 1 / W + max(0, var_w(c_k) - 2 mean_w(1 / w_k)) / 2 + |c - c_applied|^2 / 2
+                                                         (per axis; var_w over both)
+
+the last term the part of the estimate ``mode`` leaves in the velocity.
 
 Until ``MIN_SAMPLES`` samples exist the allowance is the prior's (``DRIFT_FLOOR_MPS + PRIOR_SIGMA |v|``,
 0.7 m/s at 20 m/s: a 1 degree heading bias and rooftops before any fix could measure them); after, the
@@ -58,8 +68,9 @@ MAX_SAMPLE = 0.2
 # The estimate is never taken beyond this (a tenth of the speed).
 MAX_C = 0.1
 # What is taken out of the velocity: "full" the estimate, "off" nothing (the estimate only sizes the
-# allowance), "significant" its scale and its rotation each only when beyond SIGNIFICANT standard errors.
-BIAS_MODES = ("full", "off", "significant")
+# allowance), "significant" its scale and its rotation each only when beyond SIGNIFICANT standard errors,
+# "fixed" nothing and the allowance always the prior's (main's fixed rule).
+BIAS_MODES = ("full", "off", "significant", "fixed")
 SIGNIFICANT = 2.0
 
 
@@ -109,7 +120,7 @@ class VelocityBias:
     @property
     def applied(self) -> complex:
         """The part of the estimate :meth:`correct` takes out (``mode``, :data:`BIAS_MODES`)."""
-        if self.mode == "off" or (self.mode == "significant" and self.samples < MIN_SAMPLES):
+        if self.mode in ("off", "fixed") or (self.mode == "significant" and self.samples < MIN_SAMPLES):
             return 0j
         if self.mode == "full":
             return self.c
@@ -183,7 +194,7 @@ class VelocityBias:
         return max(self._drift(speed_mps), least_mps)
 
     def _drift(self, speed_mps: float) -> float:
-        if self.samples < MIN_SAMPLES:
+        if self.samples < MIN_SAMPLES or self.mode == "fixed":
             return DRIFT_FLOOR_MPS + PRIOR_SIGMA * speed_mps
         total = PRIOR_SIGMA**-2 + self._weight
         # The part of the estimate left in the velocity (mode) is error the allowance must hold too.

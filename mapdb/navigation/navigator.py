@@ -18,9 +18,9 @@ Per frame (:meth:`Navigator.step`), in this order:
    missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
    over the focal length before any fix).  Both ratios telescope, so neither drifts frame by frame.
 4. **Velocity** from the previous frame (:mod:`mapdb.navigation.velocity`), guessed from the filter's
-   velocity, corrected by its persistent error as measured against the applied fixes (rooftops moving
-   faster than the ground, cut blobs slower, a scale or heading a little off: :mod:`mapdb.navigation.bias`,
-   which also sizes the filter's drift allowance); and the inertial velocity when the frame has one.
+   velocity; its persistent error, measured against the applied fixes (rooftops moving faster than the ground,
+   cut blobs slower, a scale or heading a little off: :mod:`mapdb.navigation.bias`), sizes the filter's drift
+   allowance and is taken out as ``velocity_bias`` says; and the inertial velocity when the frame has one.
 5. **Fix**: unless the flight withholds the map, the frame is localized with the filter's prediction as the
    prior, radius from the particle cloud (99 % of the weight or its stated 3 sigma, whichever is wider,
    plus the attitude errors' floor; the cloud spreads with the time since the last applied fix).  After
@@ -96,7 +96,7 @@ class NavigatorOptions:
     stitch_frames: int = DEFAULT_FRAMES
     seed: int = 0
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
-    velocity_bias: str = "significant"  # what of the measured bias is taken out (bias.BIAS_MODES)
+    velocity_bias: str = "off"  # what of the measured bias is taken out (bias.BIAS_MODES; off: measured only)
 
 
 @dataclass
