@@ -41,7 +41,8 @@ from mapdb.navigation.flight import FlightOptions, simulate_flight
 from mapdb.navigation.navigator import Navigator
 from mapdb.navigation.track import plot_track
 
-OSM = Path(__file__).resolve().parents[2] / "shared" / "data" / "osm"
+OSM = next((p for p in (Path(__file__).resolve().parents[2] / "shared" / "data" / "osm", Path("/work/shared/data/osm"))
+            if p.exists()), Path(__file__).resolve().parents[2] / "shared" / "data" / "osm")
 MAPS = {"Andorra": "andorra-2021-06-22.osm.pbf", "Monaco": "monaco-2021-12-03.osm.pbf"}
 FLIGHT = {"length_m": 5000.0, "altitude_m": 150.0, "fps": 10.0, "pixel_std": 1.0, "attitude_std": 0.1,
           "miss_rate": 0.2, "blackouts": ((60.0, 2.0),)}

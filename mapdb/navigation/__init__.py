@@ -7,6 +7,8 @@
   velocity) and the truth;
 * :mod:`~mapdb.navigation.velocity` -- velocity from frame to frame: the same objects matched image to
   image by a similarity (the matcher's own pieces), turned into metres per second;
+* :mod:`~mapdb.navigation.bias` -- the frame-to-frame velocity's persistent error, measured against the
+  applied fixes: it corrects the velocity and sizes the filter's drift allowance;
 * :mod:`~mapdb.navigation.filter` -- the particle filter that fuses velocities and absolute fixes (with
   their runner-up candidates);
 * :mod:`~mapdb.navigation.navigator` -- the loop: each frame's query uses the filter's prediction as its

@@ -18,15 +18,18 @@ Per frame (:meth:`Navigator.step`), in this order:
    missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
    over the focal length before any fix).  Both ratios telescope, so neither drifts frame by frame.
 4. **Velocity** from the previous frame (:mod:`mapdb.navigation.velocity`), guessed from the filter's
-   velocity; and the inertial velocity when the frame has one.
+   velocity; its persistent error, measured against the applied fixes (rooftops moving faster than the ground,
+   cut blobs slower, a scale or heading a little off: :mod:`mapdb.navigation.bias`), sizes the filter's drift
+   allowance and is taken out as ``velocity_bias`` says; and the inertial velocity when the frame has one.
 5. **Fix**: unless the flight withholds the map, the frame is localized with the filter's prediction as the
    prior, radius from the particle cloud (99 % of the weight or its stated 3 sigma, whichever is wider,
    plus the attitude errors' floor; the cloud spreads with the time since the last applied fix).  After
    ``widen_after`` queries in a row without an applied fix the radius doubles every frame, and past
    ``max_radius_m`` the query is lost-in-space.  The answer and its runner-up candidates update the
-   filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`).  Fixes rejected as outliers
-   ``recover_after`` times in a row at places consistent with the filter's velocity draw half the
-   particles to them: a filter started far off, or captured, gets back.
+   filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`); a fix from blobs keeps the cloud at
+   least as wide as its own error, which the next frames' fixes share (:func:`~.filter.shared_sigma`).
+   Fixes rejected as outliers ``recover_after`` times in a row at places consistent with the filter's
+   velocity draw half the particles to them: a filter started far off, or captured, gets back.
    When the frame alone is not decisive (no fix, or one rejected as an outlier), the objects of the last
    ``stitch_frames`` frames, carried into this one by the frame-to-frame similarities of step 4, are
    queried as one image (:mod:`mapdb.navigation.stitch`); the record's ``fix_frames`` names the frames a
@@ -53,7 +56,8 @@ from ..answers import Answer
 from ..camera import Camera
 from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
-from .filter import FixComponent, ParticleFilter
+from .bias import VelocityBias
+from .filter import FixComponent, ParticleFilter, shared_sigma
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
 from .stitch import DEFAULT_FRAMES, History, Seen, min_stitched_score
 from .terrain import GroundModel, height_above_ground
@@ -92,6 +96,7 @@ class NavigatorOptions:
     stitch_frames: int = DEFAULT_FRAMES
     seed: int = 0
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
+    velocity_bias: str = "off"  # what of the measured bias is taken out (bias.BIAS_MODES; off: measured only)
 
 
 @dataclass
@@ -156,6 +161,10 @@ class Navigator:
         self.ground = GroundModel.of(map)  # the map's elevation, for the barometer (mapdb.navigation.terrain)
         self.history = History(self.options.stitch_frames)
         self._motion: FrameMotion | None = None  # the current frame's similarity to the previous one
+        self._raw_velocity: complex | None = None  # this frame's velocity as measured (before the bias)
+        self.bias = VelocityBias(mode=self.options.velocity_bias)  # the velocity's persistent error (fixes)
+        self._imu = False  # an inertial velocity fused: its stated error is the least drift (bias unmeasured)
+        self.filter.drift_of = lambda speed: self.bias.drift(speed, self.options.imu_std_mps if self._imu else 0.0)
         if initial is not None:
             self.filter.initialise(complex(initial[0], initial[1]), initial[2])
 
@@ -191,6 +200,7 @@ class Navigator:
         dt = 0.0 if previous_t is None else frame.time_s - previous_t
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
+        self._imu = frame.imu is not None
         self.filter.predict(dt, self._turn(frame))
         record.altitude = height_above_ground(frame, self.ground, self.filter, self.options.baro_std_m,
                                               self.options.terrain)
@@ -198,7 +208,9 @@ class Navigator:
         timing["filter"] = time.perf_counter() - t0
         points = self._points(frame)
         self._motion = None
+        self._raw_velocity = None
         record.velocity_measurement = self._velocity(frame, points, dt, timing)
+        self._displacement(record.velocity_measurement, dt)
         self._remember(frame, points)
         record.fix = self._fix(frame, record, timing)
         if record.fix.get("status") in ("used", "initialised"):
@@ -247,13 +259,15 @@ class Navigator:
         self.previous = _Previous()
         self.last_velocity = None
         self.history.clear()
+        self.bias.reset()
 
     def _snapshot(self) -> tuple[Any, ...]:
         previous = replace(self.previous, pending=list(self.previous.pending))
-        return (self.filter.snapshot(), replace(self.orientation), previous, self.last_velocity, self.history.copy())
+        return (self.filter.snapshot(), replace(self.orientation), previous, self.last_velocity, self.history.copy(),
+                self.bias.copy())
 
     def _restore(self, saved: tuple[Any, ...]) -> None:
-        filter_state, self.orientation, self.previous, self.last_velocity, self.history = saved
+        filter_state, self.orientation, self.previous, self.last_velocity, self.history, self.bias = saved
         self.filter.restore(filter_state)
 
     def _failed(self, doc: Any, where: str, exc: Exception, start: float) -> TrackRecord:
@@ -391,14 +405,25 @@ class Navigator:
                                    heading_sigma_deg=o.heading_sigma)
         if not abs(vel.v) <= MAX_SPEED_MPS:  # a mismatch, or a scale from absurd sensors: not a velocity
             return {"status": "none", "reason": f"measured speed {abs(vel.v):g} m/s is over {MAX_SPEED_MPS:g} m/s"}
+        raw = vel.v
+        vel = replace(vel, v=self.bias.correct(raw), cov=vel.cov * abs(1.0 + self.bias.applied) ** 2)
         self.last_velocity = vel.v
         self._motion = motion
+        self._raw_velocity = raw
         sigma = math.sqrt(float(np.max(np.linalg.eigvalsh(vel.cov))))
         used = self.filter.update_velocity(vel.v, vel.cov) if self.filter.initialised else False
         status = "used" if used else ("rejected" if self.filter.initialised else "measured")
         return {"status": status, "velocity_mps": [round(vel.v.real, 3), round(vel.v.imag, 3)],
-                "sigma_mps": round(sigma, 3), "inliers": motion.inliers,
+                "sigma_mps": round(sigma, 3), "bias": [round(self.bias.c.real, 4), round(self.bias.c.imag, 4)],
+                "inliers": motion.inliers,
                 "method": "guided" if motion.guided else "quads"}
+
+    def _displacement(self, measurement: dict[str, Any], dt: float) -> None:
+        """The frame's displacement as measured, for the bias (:meth:`VelocityBias.add_frame`)."""
+        if self.filter.initialised and dt > 0:
+            used = self._raw_velocity if measurement.get("status") == "used" else None
+            velocity = complex(np.sum(self.filter.weights * self.filter.v)) if self.filter.velocity_known else None
+            self.bias.add_frame(used, velocity, dt)
 
     # --------------------------------------------------------------------------------------- fix
 
@@ -511,15 +536,21 @@ class Navigator:
             info["reason"] = answer.reason or "no usable place"
             return info
         if not self.filter.initialised:
-            return self._initialise(answer, components, info)
-        area = math.pi * prior[2] ** 2 if prior else self._map_area()
-        outcome = self.filter.update_fix(components, area)
+            info = self._initialise(answer, components, info)
+            if info["status"] == "initialised" and frame.time_s is not None:
+                self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
+            return info
+        x0, y0, x1, y1 = self.map.bounds  # lost in space: the fix could have come from the map's whole box
+        area = math.pi * prior[2] ** 2 if prior else max((x1 - x0) * (y1 - y0), 1.0)
+        outcome = self.filter.update_fix(components, area, shared_sigma_m=shared_sigma(frame.image, components))
         info["inlier_probability"] = round(outcome.inlier_probability, 4)
         info["distance_m"] = round(outcome.distance_m, 3)
         if outcome.applied:
             info["status"] = "used"
             info["components"] = len(components)
             self._fixed(answer, frame)
+            if answer.ok and frame.time_s is not None:
+                self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
         info["status"] = "rejected"
         info["reason"] = (f"outlier: {outcome.distance_m:.1f} m from the estimate, "
@@ -528,11 +559,6 @@ class Navigator:
         if recover and answer.ok and self._recover(frame, complex(answer.x or 0.0, answer.y or 0.0)):
             info["reason"] += f"; {self.options.recover_after} consistent rejected fixes: particles drawn there"
         return info
-
-    def _map_area(self) -> float:
-        """Where a lost-in-space fix could have come from: the map's bounding box (square metres)."""
-        x0, y0, x1, y1 = self.map.bounds
-        return max((x1 - x0) * (y1 - y0), 1.0)
 
     def _initialise(self, answer: Answer, components: list[FixComponent], info: dict[str, Any]) -> dict[str, Any]:
         if not answer.ok or (answer.score or 0.0) < self.options.init_min_score:

@@ -8,7 +8,8 @@ One :class:`TrackRecord` per frame (``mapdb navigate`` writes its :meth:`TrackRe
      "cov_m2": [[xx, xy], [xy, yy]], "sigma_m": 0.31,          # the largest axis of the position covariance
      "fix": {"status": "used", "x": ..., "y": ..., "score": 23.1, "inlier_probability": 1.0, ...},
      "fix_frames": [11.9, 12.1, 12.3],                      # the times of the frames whose objects the fix used
-     "velocity": {"status": "used", "velocity_mps": [...], "sigma_mps": 3.1, "inliers": 14},
+     "velocity": {"status": "used", "velocity_mps": [...], "sigma_mps": 3.1, "bias": [-0.012, 0.001],
+                  "inliers": 14},                     # velocity_mps corrected by (1 + bias): mapdb.navigation.bias
      "prior_radius_m": 10.0, "notes": [...],
      "time_ms": {"total": 9.1, "query": 5.2, "velocity": 2.3, "filter": 1.2},
      "altitude": {"baro_m": 212.4, "ground_m": 92.1, "above_ground_m": 120.3, "sigma_m": 0.6, "used": true},
