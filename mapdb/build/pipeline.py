@@ -26,8 +26,10 @@ from ..progress import Progress, ProgressLike, as_progress
 from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
-from ..sources.spool import ObjectSpool, release_freed_memory
+from ..sources.layers import layer_batches
+from ..sources.spool import ObjectSpool, check_room, release_freed_memory, spool_bytes
 from .blocks import BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines, blocks_spool, forms_blocks
+from .tiles import OUTLINES_IN_MEMORY, SpillingOutlines
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 from .elevation import ElevationTally
 from .inputs import duplicate_input, file_fingerprint, file_sha256
@@ -456,20 +458,25 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     counts: Counter[str] = Counter()
     read_options, osm_options = dict(options[0]), options[1]
     gap = read_options.pop("block_gap", None)
-    outlines = BuildingOutlines(table.code(BUILDING_LABEL)) if forms_blocks(table.labels, gap) else None
-    if source_kind(path) == "osm":
+    kind = source_kind(path)
+    outlines = _outlines(table, gap, spool_dir if kind == "layer" else None)
+    if spool_dir is not None and kind in ("osm", "layer"):
+        check_room(path, spool_dir, spool_bytes(path, outlines is not None))
+    if kind == "osm":
         wkb = outlines.add_wkb if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
                                   spool_dir=spool_dir, outlines=wkb, **osm_options)
         small = path.stat().st_size < TRIM_INPUT_BYTES
+    elif kind == "layer":
+        spools = [_layer_spool(path, table, read_options, counts, outlines, say, spool_dir)]
+        small = False
     else:
-        objects = read_source(path, table, progress=say, counts=counts,
-                              outlines=outlines.add_geometries if outlines is not None else None, **read_options)
+        objects = read_source(path, table, progress=say, counts=counts, **read_options)
         lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
         spools = [ObjectSpool(objects.labels, "EPSG:4326")]
         spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
         del objects
-        small = False  # a raster's windows or a layer's features may have taken much more than the file
+        small = False  # a raster's windows may have taken much more than the file
     if outlines is not None and gap is not None:
         spools.append(blocks_spool(outlines, table.labels, gap, read_options["bbox"], say))
     if not small:
@@ -482,6 +489,27 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
 
 
 _EARTH = (-180.0, -90.0, 180.0, 90.0)
+
+
+def _outlines(table: LabelTable, gap: float | None, spool_dir: str | None) -> BuildingOutlines | None:
+    """What keeps a source's building footprints for its blocks (None: no blocks): in memory, or, for a layer
+    read into files, in tile files past :data:`OUTLINES_IN_MEMORY` footprints (:mod:`mapdb.build.tiles`)."""
+    if not forms_blocks(table.labels, gap):
+        return None
+    code = table.code(BUILDING_LABEL)
+    return BuildingOutlines(code) if spool_dir is None else SpillingOutlines(code, spool_dir, OUTLINES_IN_MEMORY)
+
+
+def _layer_spool(path: Path, table: LabelTable, options: dict[str, Any], counts: Counter[str],
+                 outlines: BuildingOutlines | None, say: Progress | None, spool_dir: str | None) -> ObjectSpool:
+    """A layer's objects in lon/lat, read a batch at a time into a spool (a file in ``spool_dir``)."""
+    spool = ObjectSpool(table.labels, "EPSG:4326", spool_dir, "layer-")
+    for objects in layer_batches(path, table.labels, options["label_column"], options["layer_crs"], options["bbox"],
+                                 counts, label=options["label"], label_map=options["label_map"],
+                                 outlines=outlines.add_geometries if outlines is not None else None, notes=say):
+        lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
+        spool.add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
+    return spool
 
 
 
@@ -513,7 +541,7 @@ class _Spooling(NamedTuple):
         held, dirs = 0, []
         for path in paths:
             try:
-                size = path.stat().st_size if source_kind(path) == "osm" else 0
+                size = path.stat().st_size if source_kind(path) in ("osm", "layer") else 0
             except OSError:  # the reader says what is wrong with it
                 size = 0
             memory = self.spool == "memory" or (self.spool == "auto" and held + size < SPOOL_INPUT_BYTES)
