@@ -26,13 +26,12 @@ from ..progress import Progress, ProgressLike, as_progress
 from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
-from ..sources.layers import layer_batches
 from ..sources.spool import ObjectSpool, check_room, release_freed_memory, spool_bytes
-from .blocks import BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines, blocks_spool, forms_blocks
-from .tiles import OUTLINES_IN_MEMORY, SpillingOutlines
+from .blocks import DEFAULT_GAP_M, MAX_GAP_M, blocks_spool
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 from .elevation import ElevationTally
 from .inputs import duplicate_input, file_fingerprint, file_sha256
+from .layersource import layer_spool, source_outlines
 
 __all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
            "utm_crs_for"]
@@ -447,28 +446,30 @@ _ReadOptions = tuple[dict[str, Any], dict[str, Any]]
 
 
 def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None = None,
-                    spool_dir: str | None = None) -> tuple[list[ObjectSpool], Counter[str]]:
+                    spool_dir: str | None = None, scratch: str | None = None
+                    ) -> tuple[list[ObjectSpool], Counter[str]]:
     """One source's objects in lon/lat (those not on Earth dropped and counted) and what its reader skipped.
 
     A whole build's worth of one source: the unit of work of a parallel build (a Dask task).  The objects come
     as spools of blocks (:class:`mapdb.sources.spool.ObjectSpool`), in ``EPSG:4326``: an OSM source read with a
     ``spool_dir`` is written there block by block as it is read (the caller removes the files), anything else
-    is held in memory.
+    is held in memory; a layer is read a batch at a time, and its building footprints past
+    :data:`~mapdb.build.layersource.OUTLINES_IN_MEMORY` wait for their blocks in tile files in ``scratch``.
     """
     counts: Counter[str] = Counter()
     read_options, osm_options = dict(options[0]), options[1]
     gap = read_options.pop("block_gap", None)
     kind = source_kind(path)
-    outlines = _outlines(table, gap, spool_dir if kind == "layer" else None)
-    if spool_dir is not None and kind in ("osm", "layer"):
-        check_room(path, spool_dir, spool_bytes(path, outlines is not None))
+    outlines = source_outlines(table, gap, scratch if kind == "layer" else None)
+    if kind in ("osm", "layer") and (spool_dir or scratch):
+        check_room(path, str(spool_dir or scratch), spool_bytes(path, spool_dir is not None, outlines is not None))
     if kind == "osm":
         wkb = outlines.add_wkb if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
                                   spool_dir=spool_dir, outlines=wkb, **osm_options)
         small = path.stat().st_size < TRIM_INPUT_BYTES
     elif kind == "layer":
-        spools = [_layer_spool(path, table, read_options, counts, outlines, say, spool_dir)]
+        spools = [layer_spool(path, table, read_options, counts, outlines, say, spool_dir)]
         small = False
     else:
         objects = read_source(path, table, progress=say, counts=counts, **read_options)
@@ -489,28 +490,6 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
 
 
 _EARTH = (-180.0, -90.0, 180.0, 90.0)
-
-
-def _outlines(table: LabelTable, gap: float | None, spool_dir: str | None) -> BuildingOutlines | None:
-    """What keeps a source's building footprints for its blocks (None: no blocks): in memory, or, for a layer
-    read into files, in tile files past :data:`OUTLINES_IN_MEMORY` footprints (:mod:`mapdb.build.tiles`)."""
-    if not forms_blocks(table.labels, gap):
-        return None
-    code = table.code(BUILDING_LABEL)
-    return BuildingOutlines(code) if spool_dir is None else SpillingOutlines(code, spool_dir, OUTLINES_IN_MEMORY)
-
-
-def _layer_spool(path: Path, table: LabelTable, options: dict[str, Any], counts: Counter[str],
-                 outlines: BuildingOutlines | None, say: Progress | None, spool_dir: str | None) -> ObjectSpool:
-    """A layer's objects in lon/lat, read a batch at a time into a spool (a file in ``spool_dir``)."""
-    spool = ObjectSpool(table.labels, "EPSG:4326", spool_dir, "layer-")
-    for objects in layer_batches(path, table.labels, options["label_column"], options["layer_crs"], options["bbox"],
-                                 counts, label=options["label"], label_map=options["label_map"],
-                                 outlines=outlines.add_geometries if outlines is not None else None, notes=say):
-        lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
-        spool.add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
-    return spool
-
 
 
 def _on_earth(block: Objects) -> np.ndarray:
@@ -555,7 +534,7 @@ def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say:
     results = []
     for path, spool_dir in zip(paths, spooling.spool_dirs(paths), strict=True):
         say(f"reading {path} ...")
-        results.append(read_one_source(path, table, options, say, spool_dir))
+        results.append(read_one_source(path, table, options, say, spool_dir, spooling.directory))
         say(f"  {_count(results[-1][0])} objects from {path.name}")
         say.advance()
     return results

@@ -16,8 +16,10 @@ measured in the same projection (about the median of all the footprints' centroi
 the margin** (a terrace reaching more than ``margin_m`` beyond its first building's tile) is cut where the
 reach ends: each tile that holds the first footprint of one of its parts stores that part as a block, so
 such a block is stored as two or more overlapping blocks; they are counted (:attr:`FootprintTiles.cut`).
-The margin, 500 m, is longer than any block of the shared extracts (``benchmarks/layer_memory.py
---blocks``) and makes a tile's reach about 2.2 times its area at 50 degrees of latitude.
+The margin, 1,000 m, is about twice the longest block of the shared extracts (the box diagonals of the
+longest: Andorra 336 m, Liechtenstein 321 m, Monaco 506 m; ``python benchmarks/layer_memory.py --blocks``)
+and makes a tile's reach about 2.1 times its area at 50 degrees of latitude (42 km^2: some 80,000 footprints
+in a town's densest part, about 100 MB while its blocks are formed).
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ __all__ = ["DEFAULT_MARGIN_M", "OUTLINES_IN_MEMORY", "TILE_DEG", "FootprintTiles
 OUTLINES_IN_MEMORY = 1 << 16
 
 TILE_DEG = 0.05
-DEFAULT_MARGIN_M = 500.0
+DEFAULT_MARGIN_M = 1000.0
 _M_PER_DEG = 111_000.0  # metres a degree of latitude, a little under the least (110,574 m at the equator)
 _ROUND = 1e-9  # degrees: float rounding of the boxes' edges, never the difference between in and out
 
@@ -191,7 +193,9 @@ class FootprintTiles:
 
     def _read(self, tile: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         data = self._path(tile).read_bytes()
-        seqs, homes, blobs = [], [], []
+        seqs: list[np.ndarray] = []
+        homes: list[np.ndarray] = []
+        blobs: list[bytes] = []
         at = 0
         while at < len(data):
             n = int(np.frombuffer(data, np.int64, 1, at)[0])

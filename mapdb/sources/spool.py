@@ -171,11 +171,11 @@ def release_freed_memory() -> None:
         pass
 
 
-def spool_bytes(path: str | os.PathLike[str], footprints: bool = False) -> int:
-    """The disk a source's spool may need, foreseen from its size: its objects (:data:`RECORD_BYTES` each,
-    twice: a copy less the objects outside the box or off the Earth is written beside the first) and, for a
-    layer whose buildings form blocks, its footprints (twice the file: WKB, a footprint near a tile's edge
-    written to each tile it reaches).  An upper estimate, not a promise.
+def spool_bytes(path: str | os.PathLike[str], objects: bool = True, footprints: bool = False) -> int:
+    """The disk a source's spool may need, foreseen from its size: its ``objects`` (:data:`RECORD_BYTES`
+    each, twice: a copy less the objects outside the box or off the Earth is written beside the first) and,
+    for a layer whose buildings form blocks, its ``footprints`` (twice the file: WKB, a footprint near a
+    tile's edge written to each tile it reaches).  An upper estimate, not a promise.
 
     Examples
     --------
@@ -185,10 +185,13 @@ def spool_bytes(path: str | os.PathLike[str], footprints: bool = False) -> int:
     >>> spool_bytes(p)
     74760
     """
-    size = os.stat(path).st_size
+    try:
+        size = os.stat(path).st_size
+    except OSError:  # the reader says what is wrong with the file
+        return 0
     name = os.fspath(path).lower()
     kind = "osm" if ".osm" in name else "csv" if name.endswith(".csv") else "layer"
-    need = 2 * RECORD_BYTES * math.ceil(size * _OBJECTS_A_BYTE[kind])
+    need = 2 * RECORD_BYTES * math.ceil(size * _OBJECTS_A_BYTE[kind]) if objects else 0
     return need + (2 * size if footprints and kind == "layer" else 0)
 
 
