@@ -16,10 +16,12 @@ measured in the same projection (about the median of all the footprints' centroi
 the margin** (a terrace reaching more than ``margin_m`` beyond its first building's tile) is cut where the
 reach ends: each tile that holds the first footprint of one of its parts stores that part as a block, so
 such a block is stored as two or more overlapping blocks; they are counted (:attr:`FootprintTiles.cut`).
-The margin, 1,000 m, is about twice the longest block of the shared extracts (the box diagonals of the
-longest: Andorra 336 m, Liechtenstein 321 m, Monaco 506 m; ``python benchmarks/layer_memory.py --blocks``)
-and makes a tile's reach about 2.1 times its area at 50 degrees of latitude (42 km^2: some 80,000 footprints
-in a town's densest part, about 100 MB while its blocks are formed).
+The margin, 750 m, is half as long again as the longest block of the shared extracts (the box diagonals
+of the longest: Andorra 336 m, Liechtenstein 321 m, Monaco 506 m; ``python benchmarks/layer_memory.py
+--blocks``).  A tile of 0.1 degrees is 80 km^2 at 50 degrees of latitude and its reach 1.37 times that: the
+footprints formed into blocks twice (those of the margins) cost that much more time than blocks formed at
+once, and a city's densest tile (2,000 buildings a km^2) holds some 220,000 footprints, about 250 MB while
+its blocks are formed, whatever the size of the layer.
 """
 
 from __future__ import annotations
@@ -48,8 +50,8 @@ __all__ = ["DEFAULT_MARGIN_M", "OUTLINES_IN_MEMORY", "TILE_DEG", "FootprintTiles
 # Footprints a layer's outlines keep in memory (about 13 MB of WKB); past them, they go to tile files.
 OUTLINES_IN_MEMORY = 1 << 16
 
-TILE_DEG = 0.05
-DEFAULT_MARGIN_M = 1000.0
+TILE_DEG = 0.1
+DEFAULT_MARGIN_M = 750.0
 _M_PER_DEG = 111_000.0  # metres a degree of latitude, a little under the least (110,574 m at the equator)
 _ROUND = 1e-9  # degrees: float rounding of the boxes' edges, never the difference between in and out
 
