@@ -33,7 +33,7 @@ def source_outlines(table: LabelTable, gap: float | None, scratch: str | None) -
     if not forms_blocks(table.labels, gap):
         return None
     code = table.code(BUILDING_LABEL)
-    return BuildingOutlines(code) if scratch is None else SpillingOutlines(code, scratch, OUTLINES_IN_MEMORY)
+    return BuildingOutlines(code) if scratch is None else SpillingOutlines(code, scratch)
 
 
 def layer_spool(path: Path, table: LabelTable, options: dict[str, Any], counts: Counter[str],

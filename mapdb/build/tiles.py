@@ -8,14 +8,15 @@ whose *reach* (the tile widened by ``margin_m`` metres on each side) its box mee
 one tile at a time from the footprints within its reach, so a build holds one tile's footprints at a time.
 
 Which tile stores a block: the components of the tile's footprints (:func:`~mapdb.build.blocks.block_members`)
-are its candidate blocks, and a tile stores those whose first footprint (in reading order) has its home
-there.  A block all of whose footprints (grown by the gap) lie inside the reach of its first footprint's
-tile is whole there: it is the block the whole layer gives, with the same members in the same order,
-measured in the same projection (about the median of all the footprints' centroids, as
-:meth:`BuildingOutlines.blocks` does), so the same centroid and area to the last bit.  **A block longer than
-the margin** (a terrace reaching more than ``margin_m`` beyond its first building's tile) is cut where the
-reach ends: each tile that holds the first footprint of one of its parts stores that part as a block, so
-such a block is stored as two or more overlapping blocks; they are counted (:attr:`FootprintTiles.cut`).
+are its candidate blocks.  A component none of whose footprints (grown by the gap) leaves the reach is a
+whole block, stored by the tile where its first footprint (in reading order) has its home: it is the block
+the whole layer gives, with the same members in the same order, measured in the same projection (about the
+median of all the footprints' centroids, as :meth:`BuildingOutlines.blocks` does), so the same centroid and
+area to the last bit.  **A block longer than the margin** may reach beyond a tile's reach: the tile then
+stores the part of it made of the buildings whose home it is (if two or more), so such a block is cut along
+tile edges into parts, each stored as a block, counted in :attr:`FootprintTiles.cut`.  A block shorter than
+the margin is always whole (every tile that holds one of its buildings' homes sees all of it); a longer one
+whole in one tile's reach and cut in another's may be stored both whole and in a part.
 The margin, 750 m, is half as long again as the longest block of the shared extracts (the box diagonals
 of the longest: Andorra 336 m, Liechtenstein 321 m, Monaco 506 m; ``python benchmarks/layer_memory.py
 --blocks``).  A tile of 0.1 degrees is 80 km^2 at 50 degrees of latitude and its reach 1.37 times that: the
@@ -160,13 +161,18 @@ class FootprintTiles:
         near = _near_edge(shapely.bounds(geoms), tile, self.margin_m, gap)
         cut = np.zeros(first.size, bool)
         cut[block[inside][near[inside]]] = True
-        stored = home[first]
-        self.cut += int((stored & cut).sum())
+        # A whole block is stored by its first footprint's tile; of a cut one, each tile stores its own buildings.
+        taken = np.zeros(block.size, bool)
+        taken[inside] = np.where(cut[block[inside]], home[inside], home[first[block[inside]]])
+        size = np.bincount(block[taken], minlength=first.size)
+        taken[inside] &= size[block[inside]] >= 2
+        self.cut += int((cut & (size >= 2)).sum())
+        members = np.flatnonzero(taken)
+        if not members.size:
+            return np.zeros((0, 2)), np.zeros(0)
         # The stored blocks' members in their order, parts grouped by block: blocks_of's union, block by block.
-        members = inside[stored[block[inside]]]
         parts, owner = shapely.get_parts(metric[members], return_index=True)
-        rank = np.cumsum(stored) - 1
-        part_block = rank[block[members][owner]]
+        part_block = np.searchsorted(np.unique(block[members]), block[members])[owner]
         order = np.argsort(part_block, kind="stable")
         union = shapely.buffer(shapely.multipolygons(parts[order], indices=part_block[order]), 0)
         return shapely.get_coordinates(shapely.centroid(union)), shapely.area(union)
@@ -262,11 +268,11 @@ class SpillingOutlines(BuildingOutlines):
     Below ``memory`` footprints the blocks are those of :class:`BuildingOutlines`, by the same code.
     """
 
-    def __init__(self, code: int, directory: str | os.PathLike[str], memory: int = OUTLINES_IN_MEMORY,
+    def __init__(self, code: int, directory: str | os.PathLike[str], memory: int | None = None,
                  margin_m: float = DEFAULT_MARGIN_M) -> None:
         super().__init__(code)
         self.directory = directory
-        self.memory = memory
+        self.memory = OUTLINES_IN_MEMORY if memory is None else memory
         self.margin_m = margin_m
         self.tiles: FootprintTiles | None = None
 

@@ -103,7 +103,9 @@ def geometries(path: Path, wkb: np.ndarray, counts: Any) -> np.ndarray:
     """WKB to shapely geometries; a ring that does not close is fixed by shapely where it can be (counted as
     repaired) or the feature lost (counted as invalid)."""
     try:
-        return shapely.from_wkb(wkb)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # shapely's note on a NaN coordinate: counted later
+            return shapely.from_wkb(wkb)
     except shapely.errors.ShapelyError:
         broken = shapely.is_missing(shapely.from_wkb(wkb, on_invalid="ignore")) & np.asarray(
             [w is not None for w in wkb], bool)

@@ -50,7 +50,8 @@ from ..classmap import ClassTable
 from ..errors import MapdbIOError, SourceError
 from ..geo import check_bbox, in_bbox
 from ..objects import Objects, concat
-from .layerfiles import BATCH_ROWS, geometries, open_vector, sound_coordinates
+from . import layerfiles
+from .layerfiles import geometries, open_vector, sound_coordinates
 from .parquet import OVERTURE_LABEL
 
 __all__ = ["LAYER_SUFFIXES", "LayerOutlineSink", "is_layer_path", "layer_batches", "read_layer"]
@@ -139,9 +140,9 @@ def layer_batches(path: str | os.PathLike[str], labels: Sequence[str], label_col
                   crs: str | None = None, bbox: tuple[float, float, float, float] | None = None,
                   counts: Counter[str] | None = None, *, label: str | None = None,
                   label_map: ClassTable | None = None, outlines: LayerOutlineSink | None = None,
-                  rows: int = BATCH_ROWS, notes: Callable[[str], None] | None = None) -> Iterator[Objects]:
-    """:func:`read_layer`'s objects a batch of at most ``rows`` features at a time (multipoints split), in the
-    layer's CRS: what a read holds does not grow with the layer (:mod:`mapdb.sources.layerfiles`).
+                  rows: int | None = None, notes: Callable[[str], None] | None = None) -> Iterator[Objects]:
+    """:func:`read_layer`'s objects a batch of at most ``rows`` features (default
+    :data:`~mapdb.sources.layerfiles.BATCH_ROWS`) at a time (multipoints split), in the layer's CRS: what a read holds does not grow with the layer (:mod:`mapdb.sources.layerfiles`).
 
     The same objects as :func:`read_layer`, in the same order batch by batch; the first batch is always
     given, empty when the layer has no object.  ``notes`` is handed what is said once about the file (a
@@ -151,6 +152,7 @@ def layer_batches(path: str | os.PathLike[str], labels: Sequence[str], label_col
     labels = tuple(labels)
     counts = counts if counts is not None else Counter()
     bbox = None if bbox is None else check_bbox(bbox)
+    rows = rows or layerfiles.BATCH_ROWS  # looked up now: a test may make batches small
     _check_path(path)
     rule = _LabelRule(label_map.column or label_column if label_map else label_column, label,
                       _map_lookup(label_map) if label_map else None)

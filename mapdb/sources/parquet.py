@@ -110,11 +110,16 @@ def open_parquet(path: Path, box: tuple[float, float, float, float] | None) -> P
 def parquet_batches(layer: ParquetLayer, columns: list[str], rows: int) -> Iterator[tuple[Any, np.ndarray]]:
     """The chosen row groups, ``rows`` at a time: each batch's other ``columns`` (a pyarrow table) and its
     geometries as an object array of WKB (None where missing)."""
+    import pyarrow.parquet as pq
+
     wanted = [c for c in dict.fromkeys([layer.geometry, *columns]) if c in layer.columns]
     if not layer.row_groups:
         return
     try:
-        for batch in layer.handle.iter_batches(batch_size=rows, row_groups=layer.row_groups, columns=wanted,
+        # A reader of its own: two passes at once over one ParquetFile (a layer's extent read while its
+        # batches wait) would share its position.
+        handle = pq.ParquetFile(layer.path)
+        for batch in handle.iter_batches(batch_size=rows, row_groups=layer.row_groups, columns=wanted,
                                                use_threads=False):
             wkb = batch.column(layer.geometry).to_numpy(zero_copy_only=False)
             yield batch, np.asarray(wkb, dtype=object)
