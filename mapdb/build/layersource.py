@@ -8,6 +8,7 @@ directory above the spool threshold) batch by batch as they are read, and the fo
 
 from __future__ import annotations
 
+import functools
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -49,8 +50,16 @@ def layer_spool(path: Path, table: LabelTable, options: dict[str, Any], counts: 
 
 
 def _to_lonlat(objects: Objects) -> tuple[np.ndarray, np.ndarray]:
-    crs = CRS.from_user_input(objects.crs)
-    if crs.equals(CRS.from_epsg(4326), ignore_axis_order=True):
+    to_lonlat = _lonlat_transformer(str(objects.crs))
+    if to_lonlat is None:
         return objects.x, objects.y
-    lon, lat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(objects.x, objects.y)
+    lon, lat = to_lonlat.transform(objects.x, objects.y)
     return np.asarray(lon), np.asarray(lat)
+
+
+@functools.lru_cache(maxsize=4)
+def _lonlat_transformer(crs: str) -> Transformer | None:
+    """From a layer's CRS to lon/lat (None: it is lon/lat), made once for all its batches."""
+    if CRS.from_user_input(crs).equals(CRS.from_epsg(4326), ignore_axis_order=True):
+        return None
+    return Transformer.from_crs(crs, "EPSG:4326", always_xy=True)

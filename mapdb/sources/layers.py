@@ -31,6 +31,7 @@ longitude and ``y`` the latitude, whatever the CRS's official axis order.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import os
 from collections import Counter
@@ -142,7 +143,8 @@ def layer_batches(path: str | os.PathLike[str], labels: Sequence[str], label_col
                   label_map: ClassTable | None = None, outlines: LayerOutlineSink | None = None,
                   rows: int | None = None, notes: Callable[[str], None] | None = None) -> Iterator[Objects]:
     """:func:`read_layer`'s objects a batch of at most ``rows`` features (default
-    :data:`~mapdb.sources.layerfiles.BATCH_ROWS`) at a time (multipoints split), in the layer's CRS: what a read holds does not grow with the layer (:mod:`mapdb.sources.layerfiles`).
+    :data:`~mapdb.sources.layerfiles.BATCH_ROWS`) at a time (multipoints split), in the layer's CRS: what a
+    read holds does not grow with the layer (:mod:`mapdb.sources.layerfiles`).
 
     The same objects as :func:`read_layer`, in the same order batch by batch; the first batch is always
     given, empty when the layer has no object.  ``notes`` is handed what is said once about the file (a
@@ -232,8 +234,13 @@ def _parse_crs(path: Path, crs: str) -> CRS:
 def _to_lonlat(crs: CRS, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if crs.is_geographic:
         return x, y
-    lon, lat = Transformer.from_crs(crs, _LONLAT, always_xy=True).transform(x, y)
+    lon, lat = _lonlat_from(crs).transform(x, y)
     return np.asarray(lon), np.asarray(lat)
+
+
+@functools.lru_cache(maxsize=4)
+def _lonlat_from(crs: CRS) -> Transformer:
+    return Transformer.from_crs(crs, _LONLAT, always_xy=True)
 
 
 def _label_strings(values: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -421,17 +428,21 @@ def _centroids_and_areas(geoms: np.ndarray, crs: CRS, centre: tuple[float, float
         if centre is None:
             minx, miny, maxx, maxy = shapely.total_bounds(geoms)
             centre = ((minx + maxx) / 2, (miny + maxy) / 2)
-        # On the layer's own datum, so going there and back involves no datum shift.
-        local = ProjectedCRS(
-            LambertAzimuthalEqualAreaConversion(centre[1], centre[0]), geodetic_crs=crs.geodetic_crs
-        )
-        forward = Transformer.from_crs(crs, local, always_xy=True)
+        forward, back = _equal_area(crs, (float(centre[0]), float(centre[1])))
         projected = shapely.transform(geoms, lambda xy: np.column_stack(forward.transform(xy[:, 0], xy[:, 1])))
         centroids = shapely.centroid(projected)
         area = shapely.area(projected)
-        back = Transformer.from_crs(local, crs, always_xy=True)
         x, y = back.transform(shapely.get_x(centroids), shapely.get_y(centroids))
         return np.asarray(x), np.asarray(y), area
     unit = crs.axis_info[0].unit_conversion_factor if crs.axis_info else 1.0
     centroids = shapely.centroid(geoms)
     return shapely.get_x(centroids), shapely.get_y(centroids), shapely.area(geoms) * unit * unit
+
+
+@functools.lru_cache(maxsize=4)
+def _equal_area(crs: CRS, centre: tuple[float, float]) -> tuple[Transformer, Transformer]:
+    """The transformations to and from the Lambert azimuthal equal-area projection about ``centre`` (lon, lat),
+    made once for all the batches of a layer (each takes a tenth of a second or more)."""
+    # On the layer's own datum, so going there and back involves no datum shift.
+    local = ProjectedCRS(LambertAzimuthalEqualAreaConversion(centre[1], centre[0]), geodetic_crs=crs.geodetic_crs)
+    return Transformer.from_crs(crs, local, always_xy=True), Transformer.from_crs(local, crs, always_xy=True)
