@@ -8,11 +8,11 @@ three shared extracts' maps, at least N objects), in a temporary directory delet
   in row groups of 65,536 rows: objects with an area are squares of that area (buildings among them form
   blocks where their squares touch), the others points; ``label`` column.
 
-Each is built in a fresh process (``mapdb build -q --crs EPSG:32631``, sampled from ``/proc`` every 0.2 s;
-peak RSS is the kernel's VmHWM) by the working tree ("after") and by the commit given by ``--baseline``
-("before", extracted with ``git archive``), runs alternating, ``--repeats`` each; the medians are printed,
-then the ratio of the 5M peak to the 1M peak of each, and whether before and after wrote the same bytes
-(``SOURCE_DATE_EPOCH`` fixed, so that the header's date is too).  Run::
+Each is built in a fresh process (``mapdb build -q --crs EPSG:32631``, run in the temporary directory,
+sampled from ``/proc`` every 0.2 s; peak RSS is the kernel's VmHWM) by the working tree ("after") and by the
+commit given by ``--baseline`` ("before", extracted with ``git archive``), runs alternating, ``--repeats``
+each; the medians are printed, then the ratio of the 5M peak to the 1M peak of each, and whether before and
+after wrote the same bytes (``SOURCE_DATE_EPOCH`` fixed, so that the header's date is too).  Run::
 
     python benchmarks/layer_memory.py [--sizes 1000000 5000000] [--repeats 1] [--baseline HEAD] [--no-before]
 
@@ -115,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     os.environ["SOURCE_DATE_EPOCH"] = "1700000000"
     with tempfile.TemporaryDirectory(prefix="layer-memory-") as tmp_name:
         tmp = Path(tmp_name)
+        # The builds run here: a child's ``python -c`` looks for packages in its working directory first, and
+        # from the checkout it would find the working tree's mapdb where the baseline's is meant.
+        os.chdir(tmp)
         before = None if args.no_before else _memory.baseline_tree(args.baseline, tmp / "baseline")
         print(f"before: {args.baseline if before else '(not run)'}; after: the working tree; {args.repeats} "
               "repeat(s), alternating\n")
