@@ -192,6 +192,7 @@ def test_a_geoparquet_without_bbox_statistics_is_read_whole_and_said_once(tmp_pa
     assert result.exit_code == 0 and result.stderr.count("no bbox statistics") == 1
 
 
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")  # the test's own NaN polygon
 def test_rows_without_geometry_or_with_bad_coordinates_are_counted_and_said(tmp_path: Path) -> None:
     houses = [box(LON0 + i * 2 * D, LAT0, LON0 + i * 2 * D + D, LAT0 + D) for i in range(4)]
     nan = shapely.Polygon([(LON0, LAT0 + 5 * D), (np.nan, LAT0 + 6 * D), (LON0 + D, LAT0 + 5 * D)])
@@ -303,3 +304,21 @@ def test_a_large_layer_build_writes_the_map_of_one_read(tmp_path: Path, monkeypa
 def test_a_missing_spool_directory_is_one_line(tmp_path: Path) -> None:
     with pytest.raises(MapdbIOError, match="cannot hold the footprints read"):
         FootprintTiles(tmp_path / "absent")
+
+
+def test_jobs_on_small_sources_read_here_and_write_the_same_map(tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    paths = []
+    for i in range(2):
+        path = tmp_path / f"town{i}.gpkg"
+        _town(50, seed=i).to_file(path, engine="pyogrio")
+        paths.append(path)
+    here = build_map(paths, tmp_path / "here.mapdb")
+    say: list[str] = []
+    jobs = build_map(paths, tmp_path / "jobs.mapdb", jobs=2, progress=say.append)
+    # No cluster is started for sources that small: said, and the same map.
+    assert [m for m in say if m.startswith("--jobs 2: reading here, in one process")]
+    assert not [m for m in say if "Dask workers" in m]
+    assert here["labels"] == jobs["labels"]
+    assert (tmp_path / "here.mapdb").read_bytes() == (tmp_path / "jobs.mapdb").read_bytes()

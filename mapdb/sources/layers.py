@@ -15,14 +15,20 @@ counted (``"unmapped_labels"``); or, for a layer without that column (a building
 ``label`` gives every feature one label (``mapdb build --label``).
 
 Broken input is skipped or repaired, and counted, rather than failing the read:
+a labelled feature without geometry (null or empty) is skipped (``"missing_geometries"``);
 a coordinate that is not finite (or, in a geographic CRS, lies outside lon
 [-180, 180] / lat [-90, 90]) drops its feature (``"invalid_coordinates"``); a
 polygon whose rings do not close or cross themselves is repaired with shapely
 (``"repaired_geometries"``) or dropped when nothing with an area is left
 (``"invalid_geometries"``).
 
+A layer is read in batches (:func:`layer_batches`, :mod:`mapdb.sources.layerfiles`), never whole, so what
+a read holds does not grow with the layer; with a box, GDAL's formats are asked only for the features whose
+envelope meets it and GeoParquet's row groups outside it are skipped (:mod:`mapdb.sources.parquet`, also
+for Overture Maps buildings).
+
 Centroids and areas of polygons in a geographic layer are computed in a
-Lambert azimuthal equal-area projection centred on the layer (areas exact,
+Lambert azimuthal equal-area projection centred on the layer's polygons' box (areas exact,
 centroids good to well under a metre for features up to a few km across) and
 brought back to the layer's CRS.  Objects come back in the layer's CRS, like
 every source; the caller reprojects.  In a geographic CRS ``x`` is the
