@@ -51,9 +51,9 @@ MAX_AUTO_CRS_SPAN_DEG = 12.0
 SPOOL_CHOICES = ("auto", "memory", "file")
 SPOOL_INPUT_BYTES = FILE_INDEX_BYTES
 
-# A local Dask cluster (--jobs) costs seconds to start and stop, and reads one source a task: it pays only when
-# the sources besides the largest (what workers read beside it) add up to this much (the shared extracts,
-# 2.8 MB in all, were built 2.3 times slower with two workers than in one process).
+# A local Dask cluster (--jobs) costs seconds to start and reads one source a task: only the sources besides the
+# largest can gain, when they take longer than the cluster costs (issue 31: the shared extracts, 2.8 MB, built
+# 2.3 times slower with two workers).  32 MB, some 30 s of OSM reading, is a chosen bound, not a measured one.
 JOBS_MIN_BYTES = 32 << 20
 
 
