@@ -119,10 +119,13 @@ def parquet_batches(layer: ParquetLayer, columns: list[str], rows: int) -> Itera
         # A reader of its own: two passes at once over one ParquetFile (a layer's extent read while its
         # batches wait) would share its position.
         handle = pq.ParquetFile(layer.path)
-        for batch in handle.iter_batches(batch_size=rows, row_groups=layer.row_groups, columns=wanted,
-                                               use_threads=False):
-            wkb = batch.column(layer.geometry).to_numpy(zero_copy_only=False)
-            yield batch, np.asarray(wkb, dtype=object)
+        # One iterator a row group: a single one over all of them holds more memory the more it has read
+        # (5M rows of footprints: 405 MB against 174 MB for 1M; one a row group: 120 MB for both).
+        for group in layer.row_groups:
+            for batch in handle.iter_batches(batch_size=rows, row_groups=[group], columns=wanted,
+                                             use_threads=False):
+                wkb = batch.column(layer.geometry).to_numpy(zero_copy_only=False)
+                yield batch, np.asarray(wkb, dtype=object)
     except (OSError, ValueError) as exc:  # pyarrow's errors on a damaged file derive from these
         raise SourceError(f"{layer.path}: not a readable vector layer ({' '.join(str(exc).split())})") from None
 
