@@ -161,7 +161,7 @@ def test_progress_reports_the_share_read_and_the_time_left(tmp_path: Path) -> No
 def test_a_build_on_dask_equals_the_sequential_build(tmp_path: Path) -> None:
     sources = [town().write(tmp_path / "west.osm"), town(offset=2000.0, size=4).write(tmp_path / "east.osm")]
     build_map(sources, tmp_path / "here.mapdb")
-    summary = build_map(sources, tmp_path / "dask.mapdb", jobs=2)
+    summary = build_map(sources, tmp_path / "dask.mapdb", jobs=2, jobs_min_bytes=0)
     assert summary["count"] > 100
     assert content_digest(tmp_path / "here.mapdb") == content_digest(tmp_path / "dask.mapdb")
 
@@ -173,7 +173,7 @@ def test_a_source_failing_on_dask_fails_the_build_naming_it(tmp_path: Path) -> N
     bad.write_text('<?xml version="1.0"?><osm version="0.6"><node id="1" lat="1" lon="1"><tag k=', encoding="utf-8")
     out = tmp_path / "out.mapdb"
     with pytest.raises(SourceError, match="bad.osm: not a readable OSM file"):
-        build_map([good, bad], out, jobs=2)
+        build_map([good, bad], out, jobs=2, jobs_min_bytes=0)
     assert not out.exists() and [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
@@ -183,7 +183,7 @@ def test_the_real_extracts_with_two_jobs_give_the_same_map(tmp_path: Path) -> No
     if not extracts:
         pytest.skip(f"no real data at {DATA} (../shared/data beside the checkout)")
     build_map(extracts, tmp_path / "here.mapdb")
-    build_map(extracts, tmp_path / "jobs.mapdb", jobs=2)
+    build_map(extracts, tmp_path / "jobs.mapdb", jobs=2, jobs_min_bytes=0)
     assert content_digest(tmp_path / "here.mapdb") == content_digest(tmp_path / "jobs.mapdb")
 
 

@@ -268,7 +268,9 @@ def test_geojson_with_bad_coordinates_and_broken_polygons(tmp_path: Path) -> Non
     path.write_text(text)
     counts: Counter[str] = Counter()
     objects = read_layer(path, TABLE.labels, counts=counts)
-    assert +counts == {"invalid_coordinates": 4, "repaired_geometries": 2, "invalid_geometries": 1}
+    # GDAL's Arrow stream hands the point at NaN over as an empty point: skipped as a missing geometry.
+    assert +counts == {"invalid_coordinates": 3, "missing_geometries": 1, "repaired_geometries": 2,
+                       "invalid_geometries": 1}
     assert len(objects) == 4
     areas = np.sort(objects.area)
     assert areas[0] == 0.0 and areas[-1] > 0  # the point, and polygons with their areas

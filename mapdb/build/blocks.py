@@ -163,7 +163,23 @@ class BuildingOutlines:
         if not source.equals(CRS.from_epsg(4326), ignore_axis_order=True):
             to_lonlat = Transformer.from_crs(source, "EPSG:4326", always_xy=True)
             geoms = shapely.transform(geoms, lambda xy: np.column_stack(to_lonlat.transform(xy[:, 0], xy[:, 1])))
+        self.keep(geoms)
+
+    def keep(self, geoms: np.ndarray) -> None:
+        """Keep footprints in lon/lat until the blocks are made (here: in memory, as binary WKB)."""
         self.wkb.extend(shapely.to_wkb(geoms).tolist())
+
+    def spool(self, labels: Sequence[str], gap: float, bbox: tuple[float, float, float, float] | None,
+              say: Progress | None) -> ObjectSpool:
+        """The blocks, as one more spool of the source's objects (in memory: blocks are a few percent of the
+        objects); the footprints are then dropped."""
+        blocks = self.blocks(labels, gap, bbox)
+        if say is not None:
+            say(f"  {len(blocks):,} blocks of touching buildings (gap {gap:g} m) from {len(self):,} footprints")
+        self.wkb.clear()
+        spool = ObjectSpool(labels, "EPSG:4326")
+        spool.add(blocks)
+        return spool
 
     def __len__(self) -> int:
         return len(self.wkb)
@@ -213,12 +229,6 @@ def forms_blocks(labels: Sequence[str], gap: float | None) -> bool:
 
 def blocks_spool(outlines: BuildingOutlines, labels: Sequence[str], gap: float,
                  bbox: tuple[float, float, float, float] | None, say: Progress | None) -> ObjectSpool:
-    """The blocks of a source's building footprints, as one more spool of the source's objects (in memory:
-    blocks are a few percent of the objects); the footprints are then dropped."""
-    blocks = outlines.blocks(labels, gap, bbox)
-    if say is not None:
-        say(f"  {len(blocks):,} blocks of touching buildings (gap {gap:g} m) from {len(outlines):,} footprints")
-    outlines.wkb.clear()
-    spool = ObjectSpool(labels, "EPSG:4326")
-    spool.add(blocks)
-    return spool
+    """The blocks of a source's building footprints, as one more spool of the source's objects
+    (:meth:`BuildingOutlines.spool`); the footprints are then dropped."""
+    return outlines.spool(labels, gap, bbox, say)

@@ -26,14 +26,15 @@ from ..progress import Progress, ProgressLike, as_progress
 from ..sources import SKIPPED_KINDS, read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
-from ..sources.spool import ObjectSpool, release_freed_memory
-from .blocks import BUILDING_LABEL, DEFAULT_GAP_M, MAX_GAP_M, BuildingOutlines, blocks_spool, forms_blocks
+from ..sources.spool import ObjectSpool, check_room, release_freed_memory, spool_bytes
+from .blocks import DEFAULT_GAP_M, MAX_GAP_M, blocks_spool
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 from .elevation import ElevationTally
 from .inputs import duplicate_input, file_fingerprint, file_sha256
+from .layersource import layer_spool, source_outlines
 
-__all__ = ["MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map", "read_one_source",
-           "utm_crs_for"]
+__all__ = ["JOBS_MIN_BYTES", "MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map",
+           "read_one_source", "utm_crs_for"]
 
 # With ``crs="auto"`` the map is projected in one UTM zone (6 degrees of longitude wide).  Sources whose
 # objects span more longitude than two zones put some of them about 6 degrees or more from the zone's
@@ -49,6 +50,11 @@ MAX_AUTO_CRS_SPAN_DEG = 12.0
 # a few percent of its time writing and reading them back.
 SPOOL_CHOICES = ("auto", "memory", "file")
 SPOOL_INPUT_BYTES = FILE_INDEX_BYTES
+
+# A local Dask cluster (--jobs) costs seconds to start and reads one source a task: only the sources besides the
+# largest can gain, when they take longer than the cluster costs (issue 31: the shared extracts, 2.8 MB, built
+# 2.3 times slower with two workers).  32 MB, some 30 s of OSM reading, is a chosen bound, not a measured one.
+JOBS_MIN_BYTES = 32 << 20
 
 
 def utm_crs_for(lon: float, lat: float) -> str:
@@ -140,7 +146,7 @@ def build_map(
     label: str | None = None, label_map: str | Path | None = None, node_index: str = "auto",
     index_dir: str | Path | None = None, spool: str = "auto", jobs: int | None = None,
     scheduler: str | None = None, progress: ProgressLike = None, blocks: bool = True,
-    block_gap: float = DEFAULT_GAP_M, dem: Sequence[str | Path] = (),
+    block_gap: float = DEFAULT_GAP_M, dem: Sequence[str | Path] = (), jobs_min_bytes: int | None = None,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -179,7 +185,9 @@ def build_map(
     jobs, scheduler : int, str, optional
         Read the sources in parallel, one Dask task a source, on a local cluster of ``jobs`` worker
         processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
-        the one read in this process.  A source that fails fails the build, naming the source.
+        the one read in this process.  A source that fails fails the build, naming the source.  A local
+        cluster is started only when the sources besides the largest add up to ``jobs_min_bytes`` (default
+        :data:`JOBS_MIN_BYTES`): below that they are read in this process (and it is said).
     dem : sequence of paths
         Elevation rasters (GeoTIFF or SRTM ``.hgt``, any CRS, a mosaic in the order given): the map stores
         each object's ground elevation (:mod:`mapdb.build.elevation`; a version 2 map).  Objects off the DEMs
@@ -223,6 +231,7 @@ def build_map(
         raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")
     if spool not in SPOOL_CHOICES:
         raise SourceError(f"spool {spool!r}: not one of {', '.join(SPOOL_CHOICES)}")
+    jobs = _paying_jobs(sources, jobs, JOBS_MIN_BYTES if jobs_min_bytes is None else jobs_min_bytes, say)
     with open_client(jobs, scheduler) as client, _scratch(index_dir) as directory:
         read = _gather(sources, table, (read_options, osm_options), target, say, client, _Spooling(directory, spool))
         return _built(output, read, table, quantum, say, elevation, {
@@ -445,31 +454,38 @@ _ReadOptions = tuple[dict[str, Any], dict[str, Any]]
 
 
 def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None = None,
-                    spool_dir: str | None = None) -> tuple[list[ObjectSpool], Counter[str]]:
+                    spool_dir: str | None = None, scratch: str | None = None
+                    ) -> tuple[list[ObjectSpool], Counter[str]]:
     """One source's objects in lon/lat (those not on Earth dropped and counted) and what its reader skipped.
 
     A whole build's worth of one source: the unit of work of a parallel build (a Dask task).  The objects come
     as spools of blocks (:class:`mapdb.sources.spool.ObjectSpool`), in ``EPSG:4326``: an OSM source read with a
     ``spool_dir`` is written there block by block as it is read (the caller removes the files), anything else
-    is held in memory.
+    is held in memory; a layer is read a batch at a time, and its building footprints past
+    :data:`~mapdb.build.layersource.OUTLINES_IN_MEMORY` wait for their blocks in tile files in ``scratch``.
     """
     counts: Counter[str] = Counter()
     read_options, osm_options = dict(options[0]), options[1]
     gap = read_options.pop("block_gap", None)
-    outlines = BuildingOutlines(table.code(BUILDING_LABEL)) if forms_blocks(table.labels, gap) else None
-    if source_kind(path) == "osm":
+    kind = source_kind(path)
+    outlines = source_outlines(table, gap, scratch if kind == "layer" else None)
+    if kind in ("osm", "layer") and (spool_dir or scratch):
+        check_room(path, str(spool_dir or scratch), spool_bytes(path, spool_dir is not None, outlines is not None))
+    if kind == "osm":
         wkb = outlines.add_wkb if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
                                   spool_dir=spool_dir, outlines=wkb, **osm_options)
         small = path.stat().st_size < TRIM_INPUT_BYTES
+    elif kind == "layer":
+        spools = [layer_spool(path, table, read_options, counts, outlines, say, spool_dir)]
+        small = False
     else:
-        objects = read_source(path, table, progress=say, counts=counts,
-                              outlines=outlines.add_geometries if outlines is not None else None, **read_options)
+        objects = read_source(path, table, progress=say, counts=counts, **read_options)
         lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
         spools = [ObjectSpool(objects.labels, "EPSG:4326")]
         spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
         del objects
-        small = False  # a raster's windows or a layer's features may have taken much more than the file
+        small = False  # a raster's windows may have taken much more than the file
     if outlines is not None and gap is not None:
         spools.append(blocks_spool(outlines, table.labels, gap, read_options["bbox"], say))
     if not small:
@@ -482,7 +498,6 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
 
 
 _EARTH = (-180.0, -90.0, 180.0, 90.0)
-
 
 
 def _on_earth(block: Objects) -> np.ndarray:
@@ -513,7 +528,7 @@ class _Spooling(NamedTuple):
         held, dirs = 0, []
         for path in paths:
             try:
-                size = path.stat().st_size if source_kind(path) == "osm" else 0
+                size = path.stat().st_size if source_kind(path) in ("osm", "layer") else 0
             except OSError:  # the reader says what is wrong with it
                 size = 0
             memory = self.spool == "memory" or (self.spool == "auto" and held + size < SPOOL_INPUT_BYTES)
@@ -527,7 +542,7 @@ def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say:
     results = []
     for path, spool_dir in zip(paths, spooling.spool_dirs(paths), strict=True):
         say(f"reading {path} ...")
-        results.append(read_one_source(path, table, options, say, spool_dir))
+        results.append(read_one_source(path, table, options, say, spool_dir, spooling.directory))
         say(f"  {_count(results[-1][0])} objects from {path.name}")
         say.advance()
     return results
@@ -563,6 +578,19 @@ def _read_task(path: Path, table: LabelTable, options: _ReadOptions) -> tuple[li
     except Exception as exc:
         detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
         raise SourceError(f"{path}: reading failed on a Dask worker ({exc.__class__.__name__}: {detail})") from None
+
+
+def _paying_jobs(sources: Sequence[str | Path], jobs: int | None, least: int, say: Progress) -> int | None:
+    """``jobs``, or None (read here) when the sources besides the largest add up to less than ``least`` bytes."""
+    if jobs is None:
+        return None
+    sizes = sorted(Path(p).stat().st_size if Path(p).is_file() else 0 for p in sources)
+    beside = sum(sizes[:-1])
+    if beside >= least:
+        return jobs
+    say(f"--jobs {jobs}: reading here, in one process: the sources besides the largest add up to "
+        f"{beside / 1e6:,.1f} MB, less than the {least / 1e6:,.0f} MB from which workers pay")
+    return None
 
 
 def _checked_node_index(node_index: str) -> str:

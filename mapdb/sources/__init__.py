@@ -42,6 +42,7 @@ SKIPPED_KINDS = {
     "repaired_geometries": "invalid polygons repaired (shapely make_valid) and kept",
     "outside_crs": "objects skipped: no position in the map's CRS",
     "unmapped_labels": "layer features skipped: their value is not in the --label-map",
+    "missing_geometries": "layer features skipped: a label but no geometry (null or empty)",
 }
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import math
 import os
+import shutil
 import tempfile
 from collections.abc import Iterable, Iterator, Sequence
 
@@ -19,12 +20,19 @@ import numpy as np
 from ..errors import MapdbIOError
 from ..objects import Objects
 
-__all__ = ["READ_BLOCK", "ObjectSpool", "joined", "release_freed_memory"]
+__all__ = ["RECORD_BYTES", "READ_BLOCK", "ObjectSpool", "check_room", "joined", "release_freed_memory",
+           "spool_bytes"]
 
 # Objects read back at once (7 MB of records).
 READ_BLOCK = 1 << 18
 
 _RECORD = np.dtype([("x", "<f8"), ("y", "<f8"), ("area", "<f8"), ("label", "<i4")])
+RECORD_BYTES = _RECORD.itemsize
+
+# Objects a byte of input, at most, as the room a source's spool needs is foreseen: OSM PBF gives about 6,000
+# objects a MB (0.006 a byte) and XML far fewer; a CSV line of a point takes 12 bytes or more; a GeoParquet
+# or GeoPackage row of a polygon 60 or more.
+_OBJECTS_A_BYTE = {"osm": 0.01, "csv": 1 / 12, "layer": 1 / 40}
 
 
 class ObjectSpool:
@@ -161,3 +169,44 @@ def release_freed_memory() -> None:
         ctypes.CDLL(None).malloc_trim(0)
     except (OSError, AttributeError):
         pass
+
+
+def spool_bytes(path: str | os.PathLike[str], objects: bool = True, footprints: bool = False) -> int:
+    """The disk a source's spool may need, foreseen from its size: its ``objects`` (:data:`RECORD_BYTES`
+    each, twice: a copy less the objects outside the box or off the Earth is written beside the first) and,
+    for a layer whose buildings form blocks, its ``footprints`` (twice the file: WKB, a footprint near a
+    tile's edge written to each tile it reaches).  An upper estimate, not a promise.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "points.csv"
+    >>> _ = p.write_text("lon,lat,label\\n" + "7.44,46.95,park\\n" * 1000)
+    >>> spool_bytes(p)
+    74760
+    """
+    try:
+        size = os.stat(path).st_size
+    except OSError:  # the reader says what is wrong with the file
+        return 0
+    name = os.fspath(path).lower()
+    kind = "osm" if ".osm" in name else "csv" if name.endswith(".csv") else "layer"
+    need = 2 * RECORD_BYTES * math.ceil(size * _OBJECTS_A_BYTE[kind]) if objects else 0
+    return need + (2 * size if footprints and kind == "layer" else 0)
+
+
+def check_room(path: str | os.PathLike[str], directory: str | os.PathLike[str], need: int) -> None:
+    """MapdbIOError, in one line, when ``directory`` has less free space than the ``need`` bytes of ``path``'s
+    spool: before anything is read, not once the disk is full."""
+    try:
+        free = shutil.disk_usage(directory).free
+    except OSError:  # the spool says what is wrong with the directory when it writes there
+        return
+    if need > free:
+        raise MapdbIOError(f"{path}: too large for the free disk: its objects need about {_mb(need)} of temporary "
+                           f"files in {directory}, which has {_mb(free)} free; free some space or choose another "
+                           "directory (--index-dir)")
+
+
+def _mb(n: int) -> str:
+    return f"{n / 1e6:,.0f} MB" if n >= 1e6 else f"{n / 1e6:.2f} MB"
