@@ -41,7 +41,7 @@ from ..progress import Progress
 from ..sources.spool import ObjectSpool
 
 __all__ = ["BLOCK_LABEL", "BUILDING_LABEL", "DEFAULT_GAP_M", "MAX_GAP_M", "BuildingOutlines", "block_members",
-           "blocks_of", "blocks_spool", "forms_blocks"]
+           "block_objects", "blocks_of", "blocks_spool", "forms_blocks"]
 
 # BLOCK_LABEL, the label of blocks, is declared in mapdb/data/labels.toml after every other, so that no code
 # moves; BUILDING_LABEL's footprints form them.
@@ -214,12 +214,22 @@ class BuildingOutlines:
         if not len(area):
             return empty
         back = Transformer.from_crs(zone, "EPSG:4326", always_xy=True)
-        block_lon, block_lat = (np.asarray(v) for v in back.transform(xy[:, 0], xy[:, 1]))
-        keep = np.isfinite(block_lon) & np.isfinite(block_lat)
-        if bbox is not None:
-            keep &= in_bbox(bbox, block_lon, block_lat)
-        code = np.full(int(keep.sum()), labels.index(BLOCK_LABEL), np.int32)
-        return Objects(block_lon[keep], block_lat[keep], code, area[keep], labels, "EPSG:4326")
+        return block_objects(xy, area, back, labels, bbox)
+
+
+def block_objects(xy: np.ndarray, area: np.ndarray, back: Transformer, labels: Sequence[str],
+                  bbox: Sequence[float] | None) -> Objects:
+    """Blocks found in a metric zone as lon/lat :class:`Objects` of :data:`BLOCK_LABEL`.
+
+    ``back`` turns the zone's ``xy`` (n x 2 metres) into lon/lat; blocks whose centroid does not come back
+    finite, or lies outside ``bbox``, are dropped, as the readers drop objects.
+    """
+    block_lon, block_lat = (np.asarray(v) for v in back.transform(xy[:, 0], xy[:, 1]))
+    keep = np.isfinite(block_lon) & np.isfinite(block_lat)
+    if bbox is not None:
+        keep &= in_bbox(bbox, block_lon, block_lat)
+    code = np.full(int(keep.sum()), list(labels).index(BLOCK_LABEL), np.int32)
+    return Objects(block_lon[keep], block_lat[keep], code, area[keep], tuple(labels), "EPSG:4326")
 
 
 def forms_blocks(labels: Sequence[str], gap: float | None) -> bool:

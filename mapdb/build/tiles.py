@@ -38,12 +38,10 @@ import shapely
 from pyproj import Transformer
 
 from ..errors import MapdbIOError
-from ..geo import in_bbox
-from ..labels import BLOCK_LABEL
 from ..objects import Objects
 from ..progress import Progress
 from ..sources.spool import ObjectSpool
-from .blocks import DEFAULT_GAP_M, BuildingOutlines, block_members
+from .blocks import DEFAULT_GAP_M, BuildingOutlines, block_members, block_objects
 from .blockstats import median_of
 
 __all__ = ["DEFAULT_MARGIN_M", "OUTLINES_IN_MEMORY", "TILE_DEG", "FootprintTiles", "SpillingOutlines"]
@@ -130,12 +128,7 @@ class FootprintTiles:
             xy, area = self._tile_blocks(tile, to_zone, gap)
             if not len(area):
                 continue
-            block_lon, block_lat = (np.asarray(v) for v in back.transform(xy[:, 0], xy[:, 1]))
-            keep = np.isfinite(block_lon) & np.isfinite(block_lat)
-            if bbox is not None:
-                keep &= in_bbox(bbox, block_lon, block_lat)
-            code = np.full(int(keep.sum()), labels.index(BLOCK_LABEL), np.int32)
-            yield Objects(block_lon[keep], block_lat[keep], code, area[keep], labels, "EPSG:4326")
+            yield block_objects(xy, area, back, labels, bbox)
 
     def discard(self) -> None:
         """Remove the tile files."""
