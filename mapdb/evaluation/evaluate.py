@@ -309,6 +309,14 @@ def _worker_spec(map_: Any) -> tuple[str, Any]:
     return ("memory", (map_.all(), getattr(map_, "quantum", DEFAULT_QUANTUM)))
 
 
+def _pool(jobs: int, map_: Any, method: str) -> Any:
+    # Workers from a fork server, not forked from this process: a forked worker inherits this process's
+    # threads' locks and the CLI's signal handlers, and a pool terminated after a worker's error could then
+    # wait forever for a worker blocked on the task queue's lock (seen in the test suite).
+    context = multiprocessing.get_context("forkserver")
+    return context.Pool(jobs, initializer=_init_worker, initargs=(_worker_spec(map_), method))
+
+
 def _run_budgeted(
     map_: Any,
     images: Sequence[dict[str, Any]],
@@ -331,7 +339,7 @@ def _run_budgeted(
     spent_ms, spent_cost = 0.0, 0.0
     pending = list(range(len(images)))
     # The pool's context exit terminates its workers, which is what stops images running at the deadline.
-    with multiprocessing.Pool(max(jobs, 1), initializer=_init_worker, initargs=(_worker_spec(map_), method)) as pool:
+    with _pool(max(jobs, 1), map_, method) as pool:
         running: dict[int, Any] = {}
         while pending or running:
             while pending and len(running) < max(jobs, 1):
@@ -410,7 +418,7 @@ def evaluate_images(
             results.append(_localize_timed(map, image, method))
             say.advance()
     else:
-        with multiprocessing.Pool(jobs, initializer=_init_worker, initargs=(_worker_spec(map), method)) as pool:
+        with _pool(jobs, map, method) as pool:
             chunk = max(1, len(images) // (8 * jobs))
             for result in pool.imap(_worker_run, images, chunksize=chunk):
                 results.append(result)
