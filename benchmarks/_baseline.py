@@ -17,6 +17,16 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def shared_data(*parts: str) -> Path:
+    """``../shared/data/PARTS`` beside the checkout, or the machine's shared copy for a git worktree elsewhere.
+
+    Returns the path beside the checkout when neither exists, so that the caller's message names it.
+    """
+    beside = ROOT.parent.joinpath("shared", "data", *parts)
+    machine = Path("/work/shared/data").joinpath(*parts)
+    return next((p for p in (beside, machine) if p.exists()), beside)
+
+
 def import_baseline(rev: str, workdir: Path, module: str = "localize") -> ModuleType:
     """``mapdb.<module>`` as of git revision ``rev``, imported as package ``mapdb_baseline``.
 

@@ -32,11 +32,9 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, as_json, cached_maps, import_baseline  # noqa: E402
+from _baseline import as_json, cached_maps, import_baseline, shared_data  # noqa: E402
 
-# Beside the checkout (``../shared/data``), or the machine's shared copy for a worktree elsewhere.
-DATA = next((d for d in (ROOT.parent / "shared" / "data" / "osm", Path("/work/shared/data/osm")) if d.is_dir()),
-            ROOT.parent / "shared" / "data" / "osm")
+DATA = shared_data("osm")
 EXTRACTS = {
     "monaco": "monaco-2021-12-03.osm.pbf",
     "andorra": "andorra-2021-06-22.osm.pbf",

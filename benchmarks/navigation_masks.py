@@ -70,10 +70,9 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, import_baseline  # noqa: E402
+from _baseline import ROOT, import_baseline, shared_data  # noqa: E402
 
-DATA = next((p for p in (ROOT.parent / "shared" / "data" / "osm", Path("/work/shared/data/osm")) if p.exists()),
-            ROOT.parent / "shared" / "data" / "osm")
+DATA = shared_data("osm")
 EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-03.osm.pbf",
             "liechtenstein": "liechtenstein-2013-08-03.osm.pbf"}
 CASES = {"heights": {}, "flat": {"heights": False}, "thin15": {"thin": 0.15}, "erode2": {"mask_offset_px": -2},

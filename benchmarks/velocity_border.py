@@ -30,10 +30,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, cached_maps  # noqa: E402
+from _baseline import cached_maps, shared_data  # noqa: E402
 
-DATA = next((p for p in (ROOT.parent / "shared" / "data" / "osm", Path("/work/shared/data/osm")) if p.exists()),
-            ROOT.parent / "shared" / "data" / "osm")
+DATA = shared_data("osm")
 EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-03.osm.pbf"}
 CACHE = Path(tempfile.gettempdir()) / "mapdb-bench-maps"
 ALTITUDE, FOV, STEP_M, DT = 120.0, 60.0, 4.0, 0.2
