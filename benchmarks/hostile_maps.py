@@ -35,7 +35,9 @@ import sys
 import tempfile
 import time
 import tracemalloc
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -188,22 +190,12 @@ def page_decode(path: Path, page: int = 0) -> tuple[float, float, str]:
     return seconds * 1000.0, peak / 2**20, outcome
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--workdir", type=Path, default=None)
-    args = parser.parse_args()
-    if not ANDORRA.exists():
-        sys.exit(f"{ANDORRA} is absent: this benchmark compares with the Andorra extract (../shared/data)")
-    work = args.workdir or Path(tempfile.mkdtemp(prefix="hostile_maps."))
-    work.mkdir(parents=True, exist_ok=True)
-    rows = []
+Row = tuple[str, str, int, Any, Any, Any]
 
-    def measure(tier: str, name: str, path: Path, images: Path | None) -> None:
-        info = run("info", str(path))
-        query = run("query", str(path), str(images)) if images else None
-        rows.append((tier, name, path.stat().st_size, header_count(path), info, query))
 
-    # --- tier 1: the size of Andorra
+def small_tier(work: Path, measure: Callable[[str, str, Path, Path | None], None]) -> tuple[Path, Path]:
+    """Tier 1, maps the size of Andorra's: the genuine map and its hostile twins.  The valid and hostile
+    65,535-object pages, for the in-process page decode."""
     andorra = work / "andorra.mapdb"
     subprocess.run([sys.executable, "-m", "mapdb_cli", "build", str(ANDORRA), "-o", str(andorra), "--overwrite"],
                    check=True, capture_output=True)
@@ -223,8 +215,11 @@ def main() -> None:
     page_ok, page_bad = big_page(work / "page_ok.mapdb", False), big_page(work / "page_bad.mapdb", True)
     measure("27 KB", "65,535-object page (valid)", page_ok, save_images(page_ok, work / "page.jsonl", altitude=12.0))
     measure("27 KB", "65,535-object page (hostile)", page_bad, work / "page.jsonl")
+    return page_ok, page_bad
 
-    # --- tier 2: the size of the issue's 1.16 MB map
+
+def large_tier(work: Path, measure: Callable[[str, str, Path, Path | None], None]) -> Path:
+    """Tier 2, maps the size of the issue's 1.16 MB map.  The genuine map, for the in-process page decode."""
     target = 1_160_000
     # Queries with a prior of 300 m (carried by each image), so that only the tiles around it are indexed.
     genuine, _ = sized(lambda n: genuine_random(work / "genuine_big.mapdb", n), target, 400_000)
@@ -242,7 +237,11 @@ def main() -> None:
     measure("1.16 MB", "max-density 0.1 m (info only)", dense_big, None)
     tiny_big, _ = sized(lambda n: tiny_pages(work / "tiny_big.mapdb", n), target, 25_000)
     measure("1.16 MB", "tiny pages (prior)", tiny_big, big_images)
+    return genuine
 
+
+def print_rows(rows: list[Row], work: Path) -> None:
+    """The table: each map's times and memory beside its tier's genuine map."""
     print(f"work directory: {work}\n")
     print(f"{'tier':8} {'map':34} {'bytes':>9} {'objects':>22} | {'info s':>7} {'MB':>6} {'x time':>6} {'x mem':>6} |"
           f" {'query s':>7} {'MB':>6} {'x time':>6} {'x mem':>6} | outcome")
@@ -262,6 +261,25 @@ def main() -> None:
         outcome = outcome.replace(str(work) + "/", "")
         print(f"{tier:8} {name:34} {nbytes:9,} {count:>22} | {cells[0]} | {cells[1]} | {outcome[:90]}")
 
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--workdir", type=Path, default=None)
+    args = parser.parse_args()
+    if not ANDORRA.exists():
+        sys.exit(f"{ANDORRA} is absent: this benchmark compares with the Andorra extract (../shared/data)")
+    work = args.workdir or Path(tempfile.mkdtemp(prefix="hostile_maps."))
+    work.mkdir(parents=True, exist_ok=True)
+    rows: list[Row] = []
+
+    def measure(tier: str, name: str, path: Path, images: Path | None) -> None:
+        info = run("info", str(path))
+        query = run("query", str(path), str(images)) if images else None
+        rows.append((tier, name, path.stat().st_size, header_count(path), info, query))
+
+    page_ok, page_bad = small_tier(work, measure)
+    genuine = large_tier(work, measure)
+    print_rows(rows, work)
     print("\nOne page read and decoded in-process (tracemalloc peak):")
     genuine_page = page_decode(genuine)
     for name, path in (("genuine page (400k map)", genuine), ("65,535-object page (valid)", page_ok),
