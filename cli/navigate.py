@@ -79,13 +79,14 @@ def _open_mavlink(address: str | None, vision: bool, ground_alt: float, options:
     return out
 
 
-def _altitude(doc: Any) -> float | None:
-    """A frame's barometric height above ground, if it has a finite positive one (for the MAVLink altitude)."""
-    value = doc.get("altitude_m") if isinstance(doc, dict) else None
+def _number(doc: Any, field: str, positive: bool) -> float | None:
+    """A frame's ``field`` if it is a finite number (and positive, if asked), else None: the MAVLink altitude
+    from a height above ground (positive) or a barometric altitude above mean sea level (any sign)."""
+    value = doc.get(field) if isinstance(doc, dict) else None
     if isinstance(value, bool) or not isinstance(value, int | float):
         return None
     value = float(value)
-    return value if math.isfinite(value) and value > 0 else None
+    return value if math.isfinite(value) and (value > 0 or not positive) else None
 
 
 @click.command()
@@ -114,7 +115,8 @@ def _altitude(doc: Any) -> float | None:
               help="With --mavlink, also send GLOBAL_VISION_POSITION_ESTIMATE with its covariance.")
 @click.option("--mavlink-ground-alt", type=finite_float(-1000.0, 10000.0), default=0.0, show_default=True,
               metavar="M", help="With --mavlink, the ground's height above mean sea level, added to each "
-                                "frame's altitude_m (height above ground) for GPS_INPUT's altitude.")
+                                "frame's altitude_m (height above ground) for GPS_INPUT's altitude (a frame's "
+                                "baro_altitude_m, above mean sea level, is sent as it is).")
 @overwrite_option
 @parents_option
 @quiet_option
@@ -154,7 +156,7 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
                 if streaming:
                     out.flush()  # the record reaches a reader on a pipe before the next frame is read
                 if link is not None:
-                    link.send(record, _altitude(doc))
+                    link.send(record, _number(doc, "altitude_m", True), _number(doc, "baro_altitude_m", False))
                 frames, placed = frames + 1, placed + record.placed
                 if keep:
                     records.append(record)

@@ -182,3 +182,35 @@ def test_docs_name_every_field_and_flag_as_pymavlink_defines_them() -> None:
     for name in ("ALT", "VEL_HORIZ", "VEL_VERT", "SPEED_ACCURACY", "VERTICAL_ACCURACY"):
         value = getattr(common, f"GPS_INPUT_IGNORE_FLAG_{name}")
         assert f"`{name}` ({value})" in doc or f"`GPS_INPUT_IGNORE_FLAG_{name}` ({value})" in doc, name
+
+
+def test_a_barometric_altitude_above_sea_level_is_sent_as_it_is(flight, tmp_path) -> None:
+    """A frame's ``baro_altitude_m`` (above mean sea level) is GPS_INPUT's altitude itself; ``altitude_m``
+    (above ground) gets ``--mavlink-ground-alt`` added; a frame with neither leaves the altitude ignored."""
+    map_path, frames = flight
+    docs = [json.loads(line) for line in frames.read_text().splitlines()]
+    for i, doc in enumerate(docs):
+        doc.pop("altitude_m", None)
+        if i % 3 == 0:
+            doc["baro_altitude_m"] = 512.5 + i
+        elif i % 3 == 1:
+            doc["altitude_m"] = 100.0 + i
+    edited = tmp_path / "baro.jsonl"
+    edited.write_text("".join(json.dumps(doc) + "\n" for doc in docs))
+    sock, port = _listener()
+    with sock:
+        result = _navigate(map_path, edited, tmp_path / "track.jsonl", "--mavlink", f"udpout:127.0.0.1:{port}",
+                           "--mavlink-ground-alt", "30", "-q")
+        assert result.exit_code == 0, result.output
+        gps = [m for m in _received(sock) if m.get_type() == "GPS_INPUT"]
+    assert len(gps) == len(docs)
+    placed = [(i, m) for i, m in enumerate(gps) if m.fix_type == 3]
+    assert len(placed) > 20
+    for i, message in placed:
+        ignored = bool(message.ignore_flags & 1)
+        if i % 3 == 0:
+            assert not ignored and message.alt == pytest.approx(512.5 + i)
+        elif i % 3 == 1:
+            assert not ignored and message.alt == pytest.approx(130.0 + i)
+        else:
+            assert ignored

@@ -4,8 +4,9 @@ Each :class:`~mapdb.navigation.track.TrackRecord` becomes one ``GPS_INPUT`` mess
 ``vision=True``, one ``GLOBAL_VISION_POSITION_ESTIMATE``), sent over UDP as soon as the record is made.
 ``docs/mavlink.md`` documents every field; in short:
 
-* position: the record's lon/lat in 1e-7 degree (``lat``, ``lon``); altitude the frame's barometric height
-  above ground plus the ground's height above mean sea level (``ground_alt_m``);
+* position: the record's lon/lat in 1e-7 degree (``lat``, ``lon``); altitude the frame's barometric altitude
+  above mean sea level (``baro_altitude_m``, over a map with elevation), else its barometric height above
+  ground plus the ground's height above mean sea level (``ground_alt_m``);
 * velocity: the track's (map grid) velocity turned to true north and scaled to ground metres;
 * accuracies: ``horiz_accuracy`` the 1-sigma of the position covariance's major axis; ``speed_accuracy``
   the frame-to-frame velocity's stated 1-sigma, or ``sqrt(2) sigma / dt`` without one; ``vert_accuracy``
@@ -55,6 +56,7 @@ __all__ = [
     "altitude_of",
     "ground_frame",
     "gps_input_fields",
+    "message_altitude",
     "gps_time",
     "parse_address",
     "vision_fields",
@@ -175,12 +177,22 @@ def _speed_accuracy(record: TrackRecord, dt: float | None) -> float | None:
     return math.sqrt(2.0) * sigma / dt
 
 
+def message_altitude(altitude_m: float | None, amsl_m: float | None, options: MavlinkOptions) -> float | None:
+    """The altitude the messages carry, metres above mean sea level: the frame's barometric altitude above the
+    datum (``amsl_m``, a frame's ``baro_altitude_m``) when it has one, else its height above ground
+    (``altitude_m``) plus ``options.ground_alt_m``; None when the frame gives neither."""
+    if amsl_m is not None:
+        return float(amsl_m)
+    return None if altitude_m is None else float(options.ground_alt_m + altitude_m)
+
+
 def gps_input_fields(record: TrackRecord, altitude_m: float | None, options: MavlinkOptions, start_unix: float,
-                     dt: float | None = None) -> dict[str, Any]:
+                     dt: float | None = None, amsl_m: float | None = None) -> dict[str, Any]:
     """The ``GPS_INPUT`` fields of a record (module docs; ``docs/mavlink.md``).
 
-    ``altitude_m``: the frame's barometric height above ground (None: altitude ignored); ``dt``: seconds
-    since the previous record (for the speed accuracy without a measured velocity).
+    ``altitude_m``: the frame's barometric height above ground; ``amsl_m``: its barometric altitude above mean
+    sea level, which wins (both None: altitude ignored); ``dt``: seconds since the previous record (for the
+    speed accuracy without a measured velocity).
     """
     unix = _time_unix(record, start_unix)
     week, week_ms = gps_time(unix)
@@ -197,10 +209,11 @@ def gps_input_fields(record: TrackRecord, altitude_m: float | None, options: Mav
     fields.update(fix_type=FIX_3D, lat=int(round(record.lat * 1e7)), lon=int(round(record.lon * 1e7)),
                   hdop=NOMINAL_DOP, vdop=NOMINAL_DOP, satellites_visible=NOMINAL_SATELLITES,
                   horiz_accuracy=float(record.sigma_m or 0.0))
-    if altitude_m is None:
+    alt = message_altitude(altitude_m, amsl_m, options)
+    if alt is None:
         ignore |= IGNORE_ALT | IGNORE_VERT_ACCURACY
     else:
-        fields.update(alt=float(options.ground_alt_m + altitude_m), vert_accuracy=float(options.vert_accuracy_m))
+        fields.update(alt=alt, vert_accuracy=float(options.vert_accuracy_m))
     if record.velocity is None:
         ignore |= IGNORE_VEL_HORIZ | IGNORE_SPEED_ACCURACY
     else:
@@ -223,7 +236,8 @@ def _upper_triangle(matrix: np.ndarray) -> list[float]:
 def vision_fields(record: TrackRecord, altitude_m: float | None, origin: tuple[float, float, float],
                   options: MavlinkOptions, start_unix: float, reset_counter: int) -> dict[str, Any]:
     """The ``GLOBAL_VISION_POSITION_ESTIMATE`` fields of a placed record: metres north, east and down of
-    ``origin`` (lon, lat, altitude above ground of the first placed record), with the 6x6 covariance."""
+    ``origin`` (lon, lat, altitude of the first placed record), with the 6x6 covariance; ``altitude_m`` the
+    record's altitude as :func:`message_altitude` gives it, None when unknown."""
     from ..localize.lonlat import transformer
 
     assert record.lon is not None and record.lat is not None and record.cov is not None
@@ -320,14 +334,19 @@ class MavlinkOut:
         """Messages the receiver refused (or that could not be sent)."""
         return self.link.lost
 
-    def send(self, record: TrackRecord, altitude_m: float | None = None) -> None:
-        """Send a record as ``GPS_INPUT`` (and the vision estimate); a record without a time is not sent."""
+    def send(self, record: TrackRecord, altitude_m: float | None = None, amsl_m: float | None = None) -> None:
+        """Send a record as ``GPS_INPUT`` (and the vision estimate); a record without a time is not sent.
+
+        ``altitude_m``: the frame's barometric height above ground; ``amsl_m``: its barometric altitude above
+        mean sea level (``baro_altitude_m``), which wins (:func:`message_altitude`).
+        """
         if record.time_s is None:
             self.untimed += 1
             return
         dt = None if self.previous_time is None else record.time_s - self.previous_time
         self.previous_time = record.time_s
-        self.mav.gps_input_send(**gps_input_fields(record, altitude_m, self.options, self.start_unix, dt))
+        self.mav.gps_input_send(**gps_input_fields(record, altitude_m, self.options, self.start_unix, dt, amsl_m))
+        altitude = message_altitude(altitude_m, amsl_m, self.options)
         self.sent += 1
         placed = record.placed and record.cov is not None and record.lon is not None and record.lat is not None
         if placed and not self.was_placed and self.origin is not None:
@@ -336,9 +355,9 @@ class MavlinkOut:
         if self.options.vision and placed:
             if self.origin is None:
                 assert record.lon is not None and record.lat is not None
-                self.origin = (record.lon, record.lat, altitude_m or 0.0)
+                self.origin = (record.lon, record.lat, altitude or 0.0)
             self.mav.global_vision_position_estimate_send(
-                **vision_fields(record, altitude_m, self.origin, self.options, self.start_unix, self.resets))
+                **vision_fields(record, altitude, self.origin, self.options, self.start_unix, self.resets))
             self.sent += 1
 
     def close(self) -> None:
