@@ -10,6 +10,7 @@ import importlib
 import shutil
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -30,23 +31,26 @@ def shared_data(*parts: str) -> Path:
 def import_baseline(rev: str, workdir: Path, module: str = "localize") -> ModuleType:
     """``mapdb.<module>`` as of git revision ``rev``, imported as package ``mapdb_baseline``.
 
-    The revision's ``mapdb/`` is extracted under ``workdir/baseline`` (once per revision).
+    The revision's ``mapdb/`` is extracted under ``workdir/baseline-COMMIT`` (once per commit): into a
+    temporary folder renamed into place, so that two benchmarks started at once on the same workdir each
+    import a complete copy (the first rename wins; the other's copy is dropped).
 
     mapdb's modules import each other relatively, so the old package works under another name.
     """
-    pkg_dir = workdir / "baseline"
     commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--verify", f"{rev}^{{commit}}"], check=True,
                             capture_output=True, text=True).stdout.strip()
-    stamp = pkg_dir / "COMMIT"
-    # A workdir kept between runs may hold another revision's copy: extracted again unless it is this one.
-    if not (pkg_dir / "mapdb_baseline").is_dir() or not stamp.is_file() or stamp.read_text() != commit:
-        shutil.rmtree(pkg_dir, ignore_errors=True)
-        pkg_dir.mkdir(parents=True, exist_ok=True)
+    pkg_dir = workdir / f"baseline-{commit}"
+    if not (pkg_dir / "mapdb_baseline").is_dir():
+        workdir.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".baseline-", dir=workdir))
         archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb"], check=True,
                                  capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(pkg_dir)], input=archive, check=True)
-        (pkg_dir / "mapdb").rename(pkg_dir / "mapdb_baseline")
-        stamp.write_text(commit)
+        subprocess.run(["tar", "-x", "-C", str(staging)], input=archive, check=True)
+        (staging / "mapdb").rename(staging / "mapdb_baseline")
+        try:
+            staging.rename(pkg_dir)
+        except OSError:  # another benchmark's copy got there first
+            shutil.rmtree(staging, ignore_errors=True)
     if str(pkg_dir) not in sys.path:
         sys.path.insert(0, str(pkg_dir))
     return importlib.import_module(f"mapdb_baseline.{module}")
