@@ -65,6 +65,35 @@ def _parse_mavlink(ctx: click.Context | None, param: click.Parameter | None, val
     return value
 
 
+def _parse_mavlink_in(ctx: click.Context | None, param: click.Parameter | None, value: str | None) -> str | None:
+    """``udpin:HOST:PORT``, checked for its form (whether it opens is checked before any frame is read)."""
+    if value is None:
+        return None
+    kind, _, rest = value.partition(":")
+    host, _, port = rest.rpartition(":")
+    if kind != "udpin" or not host or not port.isdigit() or not 0 <= int(port) < 65536:
+        raise click.BadParameter(f"{value}: not udpin:HOST:PORT")
+    return value
+
+
+def _open_mavlink_in(address: str | None, stack: ExitStack) -> Any:
+    """The autopilot's altitude input (None without ``--mavlink-in``), closed when ``stack`` closes."""
+    if address is None:
+        return None
+    from mapdb.navigation.mavlink import MavlinkIn
+
+    return stack.enter_context(MavlinkIn(address))
+
+
+def _with_altitude(doc: Any, heard: Any, elevation: bool, home_elevation: float | None) -> Any:
+    """The frame with the autopilot's latest altitude (``docs/mavlink.md``, *Input*) when it carries no altitude of
+    its own and the autopilot has said one; else the frame as it is."""
+    if heard is None or not isinstance(doc, dict) or "altitude_m" in doc or "baro_altitude_m" in doc:
+        return doc
+    fields = heard.poll().frame_fields(elevation=elevation, home_elevation_m=home_elevation)
+    return {**doc, **fields} if fields else doc
+
+
 def _open_mavlink(address: str | None, vision: bool, ground_alt: float, options: NavigatorOptions,
                   stack: ExitStack) -> Any:
     """The MAVLink output (None without ``--mavlink``), closed when ``stack`` closes."""
@@ -117,13 +146,21 @@ def _number(doc: Any, field: str, positive: bool) -> float | None:
               metavar="M", help="With --mavlink, the ground's height above mean sea level, added to each "
                                 "frame's altitude_m (height above ground) for GPS_INPUT's altitude (a frame's "
                                 "baro_altitude_m, above mean sea level, is sent as it is).")
+@click.option("--mavlink-in", "mavlink_in", callback=_parse_mavlink_in, default=None, metavar="udpin:HOST:PORT",
+              help="Hear the autopilot's altitude (ALTITUDE, GLOBAL_POSITION_INT, VFR_HUD) on this UDP port and give "
+                   "the latest to each frame that carries no altitude of its own (a live stream; needs "
+                   "'mapdb[mavlink]'; docs/mavlink.md).")
+@click.option("--home-elevation", type=finite_float(-1000.0, 10000.0), default=None, metavar="M",
+              help="With --mavlink-in, the take-off ground's height above mean sea level, for an autopilot that "
+                   "says only its altitude above home.")
 @overwrite_option
 @parents_option
 @quiet_option
 @debug_option
 @handle_errors
 def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, initial_crs, particles, attitude_std,
-             seed, mavlink, mavlink_vision, mavlink_ground_alt, overwrite, parents, quiet, debug):
+             seed, mavlink, mavlink_vision, mavlink_ground_alt, mavlink_in, home_elevation, overwrite, parents, quiet,
+             debug):
     """Navigate the frames of FLIGHT.jsonl ('-' for stdin) over MAP: one track record per frame.
 
     A particle filter fuses the velocity from frame to frame with absolute fixes (the answer and its
@@ -135,7 +172,8 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     all is an error.  One record per non-blank line.
 
     With --mavlink each record is also sent to an autopilot as it is made; a receiver that goes away
-    does not stop the navigation: the messages it refused are counted and reported at the end.
+    does not stop the navigation: the messages it refused are counted and reported at the end.  With
+    --mavlink-in a frame without an altitude gets the one the autopilot said last before the frame was read.
     """
     check_paths([output, geojson_file, geojson_file and line_path(geojson_file), plot_file],
                 [*with_index(map_file), _stdin_file() if flight_file == "-" else flight_file], overwrite=overwrite,
@@ -146,11 +184,13 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
     records, frames, placed = [], 0, 0
     with ExitStack() as stack, open_map(map_file) as m:
         link = _open_mavlink(mavlink, mavlink_vision, mavlink_ground_alt, options, stack)  # before any frame
+        heard = _open_mavlink_in(mavlink_in, stack)
         navigator = Navigator(m, options, initial=_initial(initial, initial_crs, m))
         documents = read_image_documents(flight_file)
         with atomic_open(output) as out:
             streaming = output == "-"
             for where, doc in documents:
+                doc = _with_altitude(doc, heard, m.has_elevation, home_elevation)
                 record = navigator.step(doc, where)
                 out.write(_line(record, where) + "\n")
                 if streaming:

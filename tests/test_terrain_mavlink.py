@@ -119,3 +119,59 @@ def test_the_documented_input_fields_are_pymavlinks_and_the_ones_read() -> None:
         setattr(changed, field, getattr(changed, field) + 1000)
         assert (altitude_of(changed) != before) == ((message, field) in documented), (message, field)
         setattr(changed, field, getattr(changed, field) - 1000)
+
+
+def test_navigate_gives_frames_without_altitude_the_autopilots(maps, tmp_path) -> None:  # noqa: F811
+    """``mapdb navigate --mavlink-in``: frames that carry no altitude get the autopilot's latest (ALTITUDE, above
+    mean sea level over this map with elevation); a frame with its own keeps it; a bad address is one line."""
+    import json
+    import threading
+
+    from clichecks import assert_one_line_error
+    from click.testing import CliRunner
+    from mapdb_cli.main import cli
+
+    with open_map(maps["dem"]) as m:
+        frames = simulate_flight(m, replace(OPTIONS, seed=7), waypoints(m), terrain=terrain_of(m))[:10]
+    datum, own = frames[0]["baro_altitude_m"], frames[5]["baro_altitude_m"]  # one pressure altitude, plus noise
+    for i, frame in enumerate(frames):
+        if i != 5:
+            frame.pop("baro_altitude_m")
+    flight = tmp_path / "flight.jsonl"
+    flight.write_text("".join(json.dumps(f) + "\n" for f in frames))
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    stop = threading.Event()
+
+    def autopilot() -> None:  # says its altitude every few milliseconds, as a flight controller does
+        sender = Autopilot(port)
+        while not stop.is_set():
+            try:
+                sender.altitude(datum + 0.5, 0.0)
+            except ConnectionRefusedError:  # nobody listens yet (before the command binds, or after it ends)
+                pass
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=autopilot, daemon=True)
+    thread.start()
+    try:
+        time.sleep(0.05)
+        track = tmp_path / "track.jsonl"
+        result = CliRunner().invoke(cli, ["navigate", str(maps["dem"]), str(flight), "-o", str(track),
+                                          "--mavlink-in", f"udpin:127.0.0.1:{port}", "-q"])
+    finally:
+        stop.set()
+        thread.join(timeout=2)
+    assert result.exit_code == 0, result.output
+    records = [json.loads(line) for line in track.read_text().splitlines()]
+    baro = [r.get("altitude", {}).get("baro_m") for r in records]
+    heard_frames = [i for i, b in enumerate(baro) if b is not None and i != 5]
+    assert len(heard_frames) >= len(frames) - 3  # the first datagrams may come after the first frames
+    assert all(baro[i] == pytest.approx(datum + 0.5, abs=1e-3) for i in heard_frames)
+    assert baro[5] == pytest.approx(own, abs=1e-3) and abs(own - datum - 0.5) > 0.01  # the frame's own wins
+    result = CliRunner().invoke(cli, ["navigate", str(maps["dem"]), str(flight), "-o", str(tmp_path / "t2.jsonl"),
+                                      "--mavlink-in", "udpin:203.0.113.1:14550"])
+    assert_one_line_error(result, "udpin:203.0.113.1:14550", "cannot open MAVLink input")
+    assert not (tmp_path / "t2.jsonl").exists()
