@@ -13,9 +13,10 @@ Run from the repository root (about 2 minutes alone for 500 images)::
     python benchmarks/diagnostics/terrain_withheld.py 300 500 1 0   # the flat control
 
 Prints the summary (images, accepted, within 2 m, accepted beyond 2 m), then one line per image not
-accepted: its reason, objects seen, the distance from the nadir to the nearest object and to the objects'
-centroid (objects all to one side: the ground's extrapolation to the nadir is uncertain), the candidate's
-error and stated sigma, and the terrain fit's variance (the camera height's part of sigma^2).
+accepted: its reason, objects seen, the distance from the nadir to the map's nearest object with a height,
+to the nearest matched object and to the matched objects' centroid (objects all to one side: the ground's
+extrapolation to the nadir is uncertain), the candidate's error and stated sigma, and the terrain fit's
+variance (the camera height's part of sigma^2).
 ``--out FILE.json`` keeps every image's record.  The maps are built once into ``benchmarks/terrain.py``'s
 cache.
 """
@@ -72,6 +73,9 @@ def image_row(i: int, image: dict, answer: Any, seen: dict[str, Any]) -> dict:
     cand = None
     if result is not None:
         cand = result.best if result.best is not None else (result.candidates[0] if result.candidates else None)
+    terrain = getattr(seen.get("objects"), "terrain", None)
+    if terrain is not None:  # the nearest map object with a height, whether matched or not
+        row["map_nearest_m"] = float(terrain[0].query([truth.real, truth.imag], k=1)[0])
     if cand is None:
         return row
     mz = seen["objects"].z[cand.pairs[:, 1]]
@@ -102,15 +106,15 @@ def report(rows: list[dict]) -> None:
     ok = [r for r in rows if r["status"] == "ok"]
     print(f"{len(rows)} images: accepted {len(ok)}, within 2 m {sum(r['err_m'] <= 2 for r in ok)},"
           f" accepted beyond 2 m {sum(r['err_m'] > 2 for r in ok)}; not accepted {len(rows) - len(ok)}")
-    print(f"{'image':>5} {'objects':>7} {'nearest m':>9} {'centroid m':>10} {'err m':>6} {'sigma m':>7}"
-          f" {'fit var m2':>10}  reason")
+    print(f"{'image':>5} {'objects':>7} {'map nearest m':>13} {'nearest m':>9} {'centroid m':>10} {'err m':>6}"
+          f" {'sigma m':>7} {'fit var m2':>10}  reason")
     for r in rows:
         if r["status"] == "ok":
             continue
         cells = [f"{r[k]:.2f}" if r.get(k) is not None else "-" for k in
-                 ("nearest_m", "centroid_m", "err_m", "sigma_m", "fit_var_m2")]
-        print(f"{r['i']:>5} {r['objects']:>7} {cells[0]:>9} {cells[1]:>10} {cells[2]:>6} {cells[3]:>7}"
-              f" {cells[4]:>10}  {r['reason']}")
+                 ("map_nearest_m", "nearest_m", "centroid_m", "err_m", "sigma_m", "fit_var_m2")]
+        print(f"{r['i']:>5} {r['objects']:>7} {cells[0]:>13} {cells[1]:>9} {cells[2]:>10} {cells[3]:>6} {cells[4]:>7}"
+              f" {cells[5]:>10}  {r['reason']}")
 
 
 def main(argv: list[str] | None = None) -> int:
