@@ -56,6 +56,18 @@ def import_baseline(rev: str, workdir: Path, module: str = "localize") -> Module
     return importlib.import_module(f"mapdb_baseline.{module}")
 
 
+def code_digest() -> str:
+    """A digest of the code that writes maps (build, sources, map file): cached maps built by other code (an
+    older tree, another worktree) are not reused, as a map built before blocks existed once was."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for folder in ("build", "sources", "mapfile"):
+        for path in sorted((ROOT / "mapdb" / folder).rglob("*.py")):
+            digest.update(path.read_bytes())
+    return digest.hexdigest()[:10]
+
+
 def as_json(answer: Any) -> dict:
     """An answer as JSON, from this revision (an :class:`mapdb.answers.Answer`) or an older one (a dict)."""
     return answer.to_json() if hasattr(answer, "to_json") else answer
@@ -63,13 +75,13 @@ def as_json(answer: Any) -> dict:
 
 def cached_maps(extracts: dict[str, str], data: Path, cache: Path) -> dict[str, Path]:
     """Each extract's map (``name -> file name`` under ``data``), built once into ``cache``, outside the
-    repository."""
+    repository, by this tree's map-writing code (:func:`code_digest` in the file name)."""
     from mapdb.build.pipeline import build_map
 
     cache.mkdir(exist_ok=True)
     paths = {}
     for name, pbf in extracts.items():
-        path = cache / f"{name}.mapdb"
+        path = cache / f"{name}.{code_digest()}.mapdb"
         if not path.exists():
             build_map([data / pbf], path)
         paths[name] = path

@@ -23,13 +23,14 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from _baseline import code_digest, shared_data
 
 from mapdb.build.pipeline import build_map
 from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
 from mapdb.objects import Objects, concat
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "osm"
+DATA = shared_data("osm")
 EXTRACTS = ("andorra-2021-06-22.osm.pbf", "liechtenstein-2013-08-03.osm.pbf", "monaco-2021-12-03.osm.pbf")
 CACHE = Path("/tmp/mapdb-synthetic-cache")
 SLOT_MARGIN_M = 1000.0
@@ -99,11 +100,12 @@ def synthetic_world(map_paths: Sequence[str | Path], n_objects: int, seed: int =
 
 
 def extract_maps(extracts: Sequence[str] = EXTRACTS, cache: Path = CACHE) -> list[Path]:
-    """Maps of the OSM extracts in ``../shared/data/osm``, built once into ``cache``."""
+    """Maps of the OSM extracts in ``../shared/data/osm``, built once into ``cache`` by this tree's map-writing
+    code (its digest in the file name: a map built by other code is not reused)."""
     cache.mkdir(parents=True, exist_ok=True)
     paths = []
     for name in extracts:
-        out = cache / (name.split("-")[0] + ".mapdb")
+        out = cache / f"{name.split('-')[0]}.{code_digest()}.mapdb"
         if not out.exists():
             build_map([DATA / name], out)
         paths.append(out)

@@ -44,20 +44,10 @@ DEM = SHARED / "dem" / "N43E007.hgt"
 CACHE = Path(tempfile.gettempdir()) / "mapdb-bench-terrain"
 
 
-def code_digest() -> str:
-    """A digest of the code that writes maps (build, sources, map file): cached maps built by other code (an
-    older tree, another worktree) are not reused, as a map built before blocks existed once was."""
-    import hashlib
-
-    digest = hashlib.sha256()
-    for folder in ("build", "sources", "mapfile"):
-        for path in sorted((ROOT / "mapdb" / folder).rglob("*.py")):
-            digest.update(path.read_bytes())
-    return digest.hexdigest()[:10]
-
-
 def build(source: Path, out: Path, dem: Path | None = None) -> Path:
     """A map of ``source`` (with ``dem``), built once into the cache (by this tree's map-writing code)."""
+    from _baseline import code_digest
+
     from mapdb.build.pipeline import build_map
 
     out = out.with_name(f"{out.stem}.{code_digest()}{out.suffix}")
