@@ -237,3 +237,25 @@ def test_a_build_of_osm_extracts_imports_no_raster_reader() -> None:
         print(mapdb.sources.source_kind("clc.tif"), "rasterio" in sys.modules, "scipy.ndimage" in sys.modules)
     """)
     assert out.split() == ["landcover", "False", "False"]
+
+
+def test_a_lost_in_space_answer_from_the_stored_index_does_not_import_numpy_ma(paper_setup, tmp_path: Path) -> None:
+    """The stored index's lookups (its blocks checked, its label combinations audited) use
+    :func:`mapdb.match.arrays.sorted_unique`, not ``np.unique``/``setdiff1d``/``union1d``, whose plain call imports
+    numpy.ma: 0.03 of a first answer's 0.06 s of CPU on Andorra (``benchmarks/diagnostics/first_answers.py``)."""
+    map_path, images = paper_setup
+    indexed = tmp_path / "indexed.mapdb"
+    indexed.write_bytes(map_path.read_bytes())
+    from mapdb.match.index.stored import build_index
+
+    build_index(indexed)
+    (tmp_path / "two.jsonl").write_text("\n".join(json.dumps(image) for image in images[:2]) + "\n")
+    out = _python("""
+        import json, sys
+        from mapdb_cli.main import cli
+        cli(["query", sys.argv[1], sys.argv[2]], standalone_mode=False)
+        print(json.dumps(["numpy.ma" in sys.modules, "mapdb.match.index.stored" in sys.modules]))
+    """, str(indexed), str(tmp_path / "two.jsonl"))
+    *answers, loaded = (json.loads(line) for line in out.splitlines())
+    assert [a["status"] for a in answers] == ["ok"] * 2
+    assert loaded == [False, True]  # the stored index answered, and numpy.ma stayed out

@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ...errors import MapFormatError
+from ..arrays import sorted_unique
 from .lookup import Section
 from .packed import (
     NB_BLOCK,
@@ -82,7 +83,7 @@ class Directory:
 
     def decode(self, pages: np.ndarray) -> None:
         """Decode and check the pages not decoded yet among ``pages``."""
-        todo = np.unique(pages[~self.decoded[pages]])
+        todo = sorted_unique(pages[~self.decoded[pages]])
         if not todo.size:
             return
         lo, hi, n = self.first_byte[todo], self.first_byte[todo + 1], self.page_cells[todo]
@@ -154,7 +155,7 @@ class Neighbours:
     def rows(self, objects: np.ndarray) -> np.ndarray:
         """Neighbour ids ``(m, k)`` (int64, each checked below ``n``) of objects (already checked below ``n``)."""
         block = objects // NB_BLOCK
-        todo = np.unique(block[~self.checked[block]])
+        todo = sorted_unique(block[~self.checked[block]])
         if todo.size:
             lo = self.start.rows(todo).astype(np.int64)
             hi = self.start.rows(todo + 1).astype(np.int64)
@@ -195,7 +196,7 @@ class Coordinates:
     def rows(self, objects: np.ndarray) -> np.ndarray:
         """Positions ``(m, 2)`` (int64 quanta) of objects (already checked below ``n``)."""
         block = objects // NB_BLOCK
-        todo = np.unique(block[~self.decoded[block]])
+        todo = sorted_unique(block[~self.decoded[block]])
         if todo.size:
             self._decode(todo)
         return self.xy[objects].astype(np.int64)

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import MapFormatError
+from ..arrays import sorted_unique
 from .layout import BLOCK, BLOCK_BITS, cell_keys, pread, whole
 
 __all__ = ["LOOKUP_CANDIDATES", "Best", "Section", "bound_candidates", "map_sections", "pieces", "query_cells",
@@ -66,7 +67,7 @@ class Section:
         self.all_checked = crcs.size == 0
 
     def _check(self, blocks: np.ndarray) -> None:
-        todo = np.unique(blocks[~self.checked[blocks]])
+        todo = sorted_unique(blocks[~self.checked[blocks]])
         if todo.size > 1:
             self._prefetch(todo)
         for b in todo.tolist():

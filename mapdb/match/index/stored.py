@@ -44,6 +44,7 @@ import numpy as np
 
 from ...errors import MapdbIOError, MapFormatError, open_regular, reading
 from ...mapfile.reader import MetaMap
+from ..arrays import sorted_unique
 from ..quads import canonical_quads, label_keys
 from .binding import PageBoxes, check_filed, check_identity, check_positions, map_identity
 from .build import build_index
@@ -281,7 +282,7 @@ class StoredQuadIndex:
         cell = self._combo_cell[pos[rows]]
         q = inv[rows]
         r = np.minimum(radius[rows], cell)
-        self._audit(np.unique(self._combo_keys[pos[rows]]))
+        self._audit(sorted_unique(self._combo_keys[pos[rows]]))
         which, start, length, rel, keys = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
         best = Best(k)
         for piece, idx in pieces(start, length, LOOKUP_CANDIDATES):
@@ -294,7 +295,10 @@ class StoredQuadIndex:
         """The first lookup of each label combination resolves the first quad of its first cell and checks that
         it is filed there (``check_filed``): a forged cell side would make lookups of the combination miss
         every cell, finding nothing to check and nothing to answer with."""
-        new = np.setdiff1d(lk, self._audited)
+        # sorted_unique and isin, not setdiff1d and union1d: their np.unique imports numpy.ma (0.05 s of a first
+        # answer), see mapdb.match.arrays.
+        new = sorted_unique(lk)
+        new = new[~np.isin(new, self._audited, assume_unique=True)]
         if not new.size:
             return
         at = self._directory.first_cells(new)
@@ -303,7 +307,7 @@ class StoredQuadIndex:
         _, inv = self._resolve(records[0], records[1])
         check_filed(inv, self._directory.key[at], records[2], self._combo_cell[np.searchsorted(self._combo_keys, new)],
                     self._bits, self._sub_bits, self.where)
-        self._audited = np.union1d(self._audited, new)
+        self._audited = sorted_unique(np.concatenate([self._audited, new]))
 
     def _cell_ranges(self, q: np.ndarray, r: np.ndarray, cell: np.ndarray,
                      lk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -340,7 +344,7 @@ class StoredQuadIndex:
         which, kept = bound_candidates(which, np.arange(idx.size), rel, sub, r, cell, k, 1 << self._sub_bits)
         # A few candidates the bounds dropped are resolved and checked too: forged positions in cells (or cell
         # sides) would otherwise make every candidate look far, and lookups find nothing without a word.
-        audit = np.unique(np.linspace(0, idx.size - 1, min(idx.size, AUDITED)).astype(np.int64))
+        audit = sorted_unique(np.linspace(0, idx.size - 1, min(idx.size, AUDITED)).astype(np.int64))
         both = np.concatenate([kept, audit])
         ids, inv = self._resolve(anchor[both], triple[both])
         check_filed(inv, key[both], take_rows(sub, both), cell[which_all[both]], self._bits, self._sub_bits,

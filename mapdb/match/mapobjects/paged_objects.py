@@ -31,6 +31,7 @@ import numpy as np
 import shapely
 
 from ...objects import Objects, concat
+from ..arrays import sorted_unique
 from .kd_forest import Forest
 from .object_index import ObjectIndex
 
@@ -111,7 +112,7 @@ class PagedObjectIndex(ObjectIndex):
         new = ~np.isin(key, self._checked, assume_unique=True)
         if not new.any():
             return False
-        self._checked = np.union1d(self._checked, key[new])
+        self._checked = sorted_unique(np.concatenate([self._checked, key[new]]))  # np.union1d imports numpy.ma
         cx, cy, reach = cells[first[new]].T
         q = self._map.quantum
         boxes = shapely.box((cx - reach) * g / q, (cy - reach) * g / q, (cx + 1 + reach) * g / q,
