@@ -108,7 +108,9 @@ class SampleConfig:
     image (success is then that of the prior-aided search; ambiguity stays that of the search without
     one).  ``fp_threshold`` is the error (m) above which an accepted answer is false.  ``sequential``: a
     cell stops drawing images once its shares are known to ``stop_width`` (see :mod:`mapdb.analysis.measures`);
-    ``width`` overrides that width; ``samples`` is then the most images a cell draws.
+    ``width`` overrides that width; ``samples`` is then the most images a cell draws.  ``adaptive`` (with
+    ``sequential`` only): a coarse lattice of cells first, the cells between it only where it disagrees, the
+    others inferred (see :mod:`mapdb.analysis.adaptive`).
     """
 
     altitude: float = 150.0
@@ -126,6 +128,7 @@ class SampleConfig:
     fp_threshold: float = DEFAULT_FP_THRESHOLD_M
     sequential: bool = True
     width: float | None = None
+    adaptive: bool = True
 
     @property
     def stop_width(self) -> float:
@@ -317,27 +320,41 @@ def _known(successes: int, false: int, run: int, ready: int, drawn: int, width: 
     return scale * wilson_width(successes, run) <= width and scale * wilson_width(false, run) <= width
 
 
-def _draw(ctx: _Context, i: int, j: int, s: int) -> tuple[Pose, np.random.Generator, Any, np.ndarray]:
-    """Sample ``s`` of cell ``(i, j)``: its pose, its generator (left where the image's errors start), the
-    analysed objects near it and which of them its image shows."""
+def _draws(ctx: _Context, i: int, j: int) -> list[tuple[Pose, np.random.Generator, np.ndarray, np.ndarray]]:
+    """Every sample of cell ``(i, j)``: its pose, its generator (left where the image's errors start), the
+    indices (into ``ctx.objects``, sorted) of the analysed objects within reach and which of them its image
+    shows.  The objects within reach of all the samples are found in one query of the tree."""
     cfg = ctx.config
-    rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
-    where = rng.random(2)
-    heading = float(rng.uniform(0.0, 360.0))
-    roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
-    pose = Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
-                heading, roll, pitch)
-    local, seen = _in_view(ctx, pose)
-    return pose, rng, local, seen
+    poses = []
+    for s in range(cfg.samples):
+        rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
+        where = rng.random(2)
+        heading = float(rng.uniform(0.0, 360.0))
+        roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
+        poses.append((Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
+                           heading, roll, pitch), rng))
+    if ctx.tree is None:
+        return [(pose, rng, np.zeros(0, np.int64), np.zeros(0, bool)) for pose, rng in poses]
+    centres = np.array([[pose.x, pose.y] for pose, _ in poses])
+    reached = ctx.tree.query_ball_point(centres, cfg.reach_m)
+    camera = cfg.camera
+    out = []
+    for (pose, rng), found in zip(poses, reached, strict=True):
+        near = np.sort(np.asarray(found, np.int64))
+        u, v = project_to_image(ctx.objects.x[near], ctx.objects.y[near], pose, camera)
+        seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+        out.append((pose, rng, near, seen))
+    return out
 
 
 def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) -> None:
     """Sample one cell (every localizable image, or until the sequential rule stops it) and write its measures
     into row ``row`` of ``out``."""
     cfg = ctx.config
-    drawn = [_draw(ctx, i, j, s) for s in range(cfg.samples)]
-    visible = np.array([np.bincount(local.label[seen], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
-                        for _, _, local, seen in drawn], np.int64).reshape(cfg.samples, len(ctx.codes))
+    drawn = _draws(ctx, i, j)
+    labels = ctx.objects.label
+    visible = np.array([np.bincount(labels[near[seen]], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
+                        for _, _, near, seen in drawn], np.int64).reshape(cfg.samples, len(ctx.codes))
     ready = [s for s, (_, _, _, seen) in enumerate(drawn) if seen.sum() >= MIN_VISIBLE]
     correct: list[float] = []
     amb: list[float] = []
@@ -346,8 +363,8 @@ def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) ->
         if cfg.sequential and _known(len(correct), false, run, len(ready), cfg.samples, cfg.stop_width):
             break
         run += 1
-        pose, rng, local, _ = drawn[s]
-        error, lost = _localize(ctx, local, pose, rng, f"{i},{j},{s}")
+        pose, rng, near, _ = drawn[s]
+        error, lost = _localize(ctx, ctx.objects.take(near), pose, rng, f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
@@ -370,18 +387,6 @@ def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) ->
     defined = [a for a in amb if not math.isnan(a)]
     if defined:
         out.ambiguity[row] = np.median(defined)
-
-
-def _in_view(ctx: _Context, pose: Pose) -> tuple[Any, np.ndarray]:
-    """The analysed objects near a pose, and which of them its image shows."""
-    if ctx.tree is None:
-        return ctx.objects, np.zeros(0, bool)
-    near = np.sort(np.asarray(ctx.tree.query_ball_point([pose.x, pose.y], ctx.config.reach_m), np.int64))
-    local = ctx.objects.take(near)
-    camera = ctx.config.camera
-    u, v = project_to_image(local.x, local.y, pose, camera)
-    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    return local, seen
 
 
 def _localize(ctx: _Context, local: Any, pose: Pose, rng: np.random.Generator,

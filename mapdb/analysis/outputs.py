@@ -21,17 +21,24 @@ import numpy as np
 
 from ..errors import MapdbIOError, OutputClashError
 from ..outputs import pid_alive, refuse_existing
+from .adaptive import DECISION_LEVEL
 from .grid import Grid
 from .measures import MIN_VISIBLE, SampleConfig
 from .run import Analysis
 
 __all__ = ["NODATA", "SUCCESS_LEVEL", "comparison", "outcome", "output_folder", "parameters", "summary",
-           "write_cells", "write_geotiff", "write_outputs", "write_summary"]
+           "write_cells", "write_geotiff", "write_outputs", "write_summary", "ADAPTIVE_RULE"]
 
 # The GeoTIFF's no-data value (error and ambiguity where there is none); NULL in the GeoPackage.
 NODATA = -9999.0
 # The success rate a cell must reach to count as "works here" in the summary.
-SUCCESS_LEVEL = 0.95
+SUCCESS_LEVEL = DECISION_LEVEL
+# How the adaptive cells are chosen (mapdb.analysis.adaptive), as summary.json records it.
+ADAPTIVE_RULE = ("cells with both absolute indices even (a coarse lattice) are simulated first; a cell between "
+                 "them is simulated only if its lattice neighbours' success intervals do not all overlap, their "
+                 "success lies on both sides of 0.95, or one had a false fix; otherwise it is inferred "
+                 "(inferred 1, images 0): success, false_fixes, error_m, ambiguity the neighbours' means, the "
+                 "interval from their lowest low end to their highest high end")
 # Most ambiguous cells listed in the summary.
 TOP_AMBIGUOUS = 10
 # Long folder names are cut in the temporary names beside them (a name is at most 255 bytes).
@@ -184,7 +191,8 @@ def _rule(cfg: SampleConfig) -> dict[str, Any]:
         return {"images_per_cell": f"fixed: {cfg.samples}", "sequential": False,
                 "interval": "Wilson score, 95 %", "stop_width": None}
     return {"images_per_cell": f"sequential: at most {cfg.samples}", "sequential": True,
-            "interval": "Wilson score, 95 %", "stop_width": round(cfg.stop_width, 4),
+            "interval": "Wilson score, 95 %", "stop_width": round(cfg.stop_width, 4), "adaptive": cfg.adaptive,
+            **({"adaptive_rule": ADAPTIVE_RULE} if cfg.adaptive else {}),
             "stop_rule": "every image's pose and view is drawn; of the localizable ones (at least min_visible "
                          "objects in view), a cell localizes at least 2, in order, until the 95 % Wilson "
                          "intervals of its success and false shares, times the localizable share, are each at "
@@ -232,6 +240,8 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
     bearing = analysis.counts.objects > 0
     works, fooled = m["success"] >= SUCCESS_LEVEL, m["false_fixes"] > 0
     amb = m["ambiguity"][~np.isnan(m["ambiguity"])]
+    inferred = m["inferred"] > 0
+    simulated = (analysis.counts.within_reach >= MIN_VISIBLE) & ~inferred
     return {
         "success_at_least_95": {"fraction_of_area": _fraction(works, everywhere),
                                 "fraction_of_objects_bearing_area": _fraction(works, bearing)},
@@ -249,8 +259,10 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
                       "cells_at_least_0.5": int((amb >= 0.5).sum())},
         "images_localized": analysis.stats.get("images_localized"),
         "images_localizable": analysis.stats.get("images_localizable"),
-        "images_localized_per_simulated_cell": _per_cell(m["simulated"], analysis.counts.within_reach >= MIN_VISIBLE),
-        "success_width": _widths(m["success_high"] - m["success_low"], analysis.counts.within_reach >= MIN_VISIBLE),
+        "images_localized_per_simulated_cell": _per_cell(m["simulated"], simulated),
+        "success_width": _widths(m["success_high"] - m["success_low"], simulated),
+        "cells_inferred": int(inferred.sum()),
+        "success_width_inferred": _widths(m["success_high"] - m["success_low"], inferred),
     }
 
 
