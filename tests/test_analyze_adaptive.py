@@ -19,47 +19,62 @@ from test_analyze_sequential import CELL, write_world
 import mapdb.analysis.measures as measures
 from mapdb.analysis import SampleConfig, adaptive
 from mapdb.analysis.grid import Grid
+from mapdb.analysis.measures import wilson_interval
 from mapdb.analysis.run import Analysis, analyze
 
-BANDS = ("success", "false_fixes", "error_m", "ambiguity", "success_low", "success_high")
+BANDS = ("success", "false_fixes", "error_m", "ambiguity", "localizable", "simulated", "images")
 
 
-def lattice_bands(grid: Grid, cells: dict[tuple[int, int], tuple[float, float, float, float]]) -> dict:
-    """Bands with the given lattice cells' (success, low, high, false) set, everything else 0 (no image can
-    localize there): error 1 m and ambiguity 0.2 where a cell has success."""
+def lattice_bands(grid: Grid, cells: dict[tuple[int, int], tuple[int, int, int, int]]) -> dict:
+    """Bands with the given lattice cells' (localizable L, images run m, correct k, false) of 16 set as the
+    sequential rule writes them, everything else as a cell no image can localize from; error 1 m and
+    ambiguity 0.2 where a cell has a correct image."""
     bands = {name: np.zeros(grid.shape) for name in BANDS}
     bands["error_m"][:] = np.nan
     bands["ambiguity"][:] = np.nan
-    for (i, j), (success, low, high, false) in cells.items():
+    for (i, j), (ready, run, k, false) in cells.items():
         r, c = grid.nrows - 1 - (j - grid.j0), i - grid.i0
-        bands["success"][r, c], bands["success_low"][r, c], bands["success_high"][r, c] = success, low, high
-        bands["false_fixes"][r, c] = false
-        if success:
+        bands["images"][r, c], bands["localizable"][r, c], bands["simulated"][r, c] = 16, ready, run
+        bands["success"][r, c], bands["false_fixes"][r, c] = k * ready / (16 * run), false * ready / (16 * run)
+        if k:
             bands["error_m"][r, c], bands["ambiguity"][r, c] = 1.0, 0.2
     return bands
 
 
-def test_the_rule_on_hand_made_lattice_measures() -> None:
+def test_the_lattice_tells_the_cells_between_it_what_it_knows() -> None:
     grid = Grid(100.0, 0, 0, 7, 3, "EPSG:32631")  # cells i 0..6, j 0..2
-    bands = lattice_bands(grid, {(0, 0): (0.5, 0.3, 0.7, 0.0), (2, 0): (0.6, 0.4, 0.8, 0.0),
-                                 (4, 0): (0.1, 0.0, 0.3, 0.0), (0, 2): (0.5, 0.35, 0.65, 0.0),
-                                 (2, 2): (0.97, 0.6, 1.0, 0.0), (6, 0): (0.2, 0.05, 0.4, 0.0625),
-                                 (6, 2): (0.2, 0.05, 0.4, 0.0)})
-    i = np.array([1, 3, 0, 1, 5, 5])
-    j = np.array([0, 0, 1, 1, 0, 2])
-    d = adaptive.infer(grid, bands, i, j)
-    # (1, 0): between (0, 0) and (2, 0), overlapping, both below 0.95: inferred, the union of their intervals.
-    # (3, 0): (2, 0) and (4, 0) do not overlap (0.4 > 0.3): run.
-    # (0, 1): (0, 0) and (0, 2) agree: inferred.  (1, 1): its four corners include (2, 2) at 0.97: run.
-    # (5, 0): (6, 0) had a false fix: run.  (5, 2): (4, 2) (no image can localize: [0, 0]) and (6, 2) overlap at
-    # 0... no: 0.05 > 0, the intervals do not overlap: run.
-    assert d.run.tolist() == [1, 3, 4, 5] and d.infer.tolist() == [0, 2]
-    assert d.low.tolist() == [0.3, 0.3] and d.high.tolist() == [0.8, 0.7]
-    assert d.success == pytest.approx([0.55, 0.5]) and d.false.tolist() == [0.0, 0.0]
-    assert d.error.tolist() == [1.0, 1.0] and d.ambiguity == pytest.approx([0.2, 0.2])
-    # A cell with no neighbour in the grid is run.
+    bands = lattice_bands(grid, {(0, 0): (16, 5, 5, 0), (2, 0): (12, 3, 3, 0), (4, 0): (16, 6, 0, 0),
+                                 (0, 2): (8, 2, 2, 0), (6, 0): (16, 6, 3, 1), (6, 2): (10, 4, 2, 0)})
+    i = np.array([1, 3, 0, 5, 5, 1])
+    j = np.array([0, 0, 1, 0, 2, 1])
+    h = adaptive.hints(grid, bands, i, j)
+    assert adaptive.HINT_COLUMNS == ("run", "p_low", "p_high", "p_mean", "error_m", "ambiguity")
+    # (1, 0): between (0, 0) (5 of 5) and (2, 0) (3 of 3): p in the hull of their Wilson intervals.
+    assert h[0, 0] == 0 and h[0, 1:4] == pytest.approx([wilson_interval(3, 3)[0], 1.0, 1.0])
+    assert h[0, 4:].tolist() == [1.0, pytest.approx(0.2)]
+    # (3, 0): (2, 0) all correct, (4, 0) none of 6: the intervals do not overlap, run.
+    assert h[1, 0] == 1
+    # (0, 1): (0, 0) and (0, 2) agree.  (5, 0): (6, 0) had a false fix, run.  (5, 2): (4, 2), which no image can
+    # localize from, says nothing of p: the hint is (6, 2)'s alone.
+    assert h[2, 0] == 0 and h[3, 0] == 1
+    assert h[4, 0] == 0 and h[4, 1:3] == pytest.approx(wilson_interval(2, 4))
+    # (1, 1): its four corners (0, 0), (2, 0), (0, 2), (2, 2) -- the last says nothing -- agree.
+    assert h[5, 0] == 0 and h[5, 3] == 1.0
+    # A cell whose neighbours say nothing (none in the grid, or none with an image run) is run.
     lone = Grid(100.0, 1, 0, 1, 1, "EPSG:32631")
-    assert adaptive.infer(lone, lattice_bands(lone, {}), np.array([1]), np.array([0])).run.tolist() == [0]
+    assert adaptive.hints(lone, lattice_bands(lone, {}), np.array([1]), np.array([0]))[0, 0] == 1
+
+
+def test_the_inferred_interval_holds_the_fixed_share_for_every_p_of_the_hull() -> None:
+    """Simulated fixed runs of ``ready`` images at probabilities across the hull: their shares fall in the
+    interval at least about 95 % of the time at the worst p."""
+    rng = np.random.default_rng(0)
+    for p_lo, p_hi, ready in ((0.5, 0.8, 16), (0.9, 1.0, 12), (0.0, 0.2, 16), (0.3, 0.6, 4)):
+        low, high = measures.inferred_interval(p_lo, p_hi, ready, 16)
+        assert 0 <= low <= ready / 16 * p_lo <= ready / 16 * p_hi <= high <= ready / 16
+        for p in np.linspace(p_lo, p_hi, 5):
+            share = rng.binomial(ready, p, 4000) / 16
+            assert ((share >= low - 1e-9) & (share <= high + 1e-9)).mean() >= 0.9, (p_lo, p_hi, ready, p)
 
 
 def test_the_lattice_is_every_second_cell_each_way() -> None:
@@ -79,47 +94,53 @@ def runs(tmp_path_factory) -> tuple[Analysis, Analysis, Analysis]:
 
 
 def test_run_cells_are_the_full_runs_and_inferred_cells_follow_the_rule(runs) -> None:
-    a, every, _ = runs
+    a, every, fixed = runs
     s, e = a.measures, every.measures
     heavy = a.counts.within_reach >= measures.MIN_VISIBLE
     inferred = s["inferred"] > 0
     assert inferred.sum() == a.stats["cells_inferred"] >= 1
     assert a.stats["cells_simulated"] == int((heavy & ~inferred).sum()) and not (inferred & ~heavy).any()
-    # Every cell simulated: the same bytes as in the run of every cell (its images depend on nothing else).
+    # Every cell measured: the same bytes as in the run of every cell (its images depend on nothing else).
     for band in e:
         if band != "inferred":
             assert np.array_equal(s[band][~inferred], e[band][~inferred], equal_nan=True), band
-    # Inferred: no image, objects in view unknown, the figures those the rule gives from the lattice's.
-    assert (s["images"][inferred] == 0).all() and (s["simulated"][inferred] == 0).all()
-    assert np.isnan(s["visible"][inferred]).all()
+    # Inferred: its own draws (the same views), no image localized, the figures the rule gives.
+    for band in ("images", "localizable", "visible", "visible_building"):
+        assert np.array_equal(s[band][inferred], e[band][inferred]), band
+    assert (s["simulated"][inferred] == 0).all() and (s["false_fixes"][inferred] == 0).all()
     rows, cols = np.nonzero(heavy)
     i, j = a.grid.absolute(rows, cols)
     between = ~adaptive.coarse(i, j)
-    d = adaptive.infer(a.grid, e, i[between], j[between])
-    r, c = rows[between][d.infer], cols[between][d.infer]
-    assert inferred[r, c].all() and inferred.sum() == r.size
-    assert np.array_equal(s["success_low"][r, c], d.low.astype(np.float32))
-    assert np.array_equal(s["success_high"][r, c], d.high.astype(np.float32))
-    assert ((s["success_low"] <= s["success"]) & (s["success"] <= s["success_high"]))[inferred].all()
+    hint = adaptive.hints(a.grid, e, i[between], j[between])
+    width = SampleConfig().stop_width
+    for (r, c), h in zip(zip(rows[between], cols[between]), hint):
+        ready = int(e["localizable"][r, c])
+        low, high = measures.inferred_interval(h[1], h[2], ready, 16) if not h[0] and ready else (0.0, 1.0)
+        expected = not h[0] and ready and high - low <= width and not low < 0.95 <= high
+        assert inferred[r, c] == bool(expected), (r, c)
+        if expected:
+            assert (s["success_low"][r, c], s["success_high"][r, c]) == pytest.approx((low, high), abs=1e-6)
+            assert s["success"][r, c] == pytest.approx(ready / 16 * h[3], abs=1e-6)
+            assert low - 1e-6 <= fixed.measures["success"][r, c] <= high + 1e-6
     assert a.stats["images_localized"] < every.stats["images_localized"]
 
 
-def test_inferred_cells_reach_no_worker(tmp_path: Path, monkeypatch) -> None:
-    """Only the lattice's cells and the cells between it that are run are handed to measure_cells."""
+def test_every_cell_reaches_a_worker_once(tmp_path: Path, monkeypatch) -> None:
+    """Every cell that can show four objects is handed to measure_cells once (the cells between the lattice
+    draw their own views there), none twice."""
     import mapdb.analysis.run as run
 
     world = str(write_world(tmp_path / "world.mapdb"))
     seen: list[np.ndarray] = []
 
-    def counting(map_path, config, cell_m, cells):
+    def counting(map_path, config, cell_m, cells, hints=None):
         seen.append(np.asarray(cells))
-        return measures.measure_cells(map_path, config, cell_m, cells)
+        return measures.measure_cells(map_path, config, cell_m, cells, hints)
 
     monkeypatch.setattr(run, "measure_cells", counting)
     a = analyze(world, SampleConfig(samples=2), cell_m=CELL)
     sent = sorted(map(tuple, np.concatenate(seen).tolist()))
-    ran = (a.counts.within_reach >= measures.MIN_VISIBLE) & (a.measures["inferred"] == 0)
-    i, j = a.grid.absolute(*np.nonzero(ran))
+    i, j = a.grid.absolute(*np.nonzero(a.counts.within_reach >= measures.MIN_VISIBLE))
     assert sent == sorted(zip(i.tolist(), j.tolist(), strict=True))
 
 
@@ -143,4 +164,7 @@ def test_the_documented_rule_is_the_code() -> None:
     from mapdb.analysis.outputs import ADAPTIVE_RULE, SUCCESS_LEVEL
 
     assert SUCCESS_LEVEL == adaptive.DECISION_LEVEL and f"{adaptive.DECISION_LEVEL:g}" in ADAPTIVE_RULE
+    assert "1.96" in ADAPTIVE_RULE and "stop_width" in ADAPTIVE_RULE
     assert all(k in adaptive._NEIGHBOURS for k in ((1, 0), (0, 1), (1, 1)))
+    assert "0.44 for 16 images" in doc and f"{SampleConfig().stop_width:.2f}" == "0.44"
+    assert "``z`` 1.96" in doc and f"{measures.Z95:.2f}" == "1.96"

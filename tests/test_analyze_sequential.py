@@ -104,9 +104,9 @@ def test_skipped_cells_reach_no_worker(world: Path, monkeypatch) -> None:
 
     seen: list[np.ndarray] = []
 
-    def counting(map_path, config, cell_m, cells):
+    def counting(map_path, config, cell_m, cells, hints=None):
         seen.append(np.asarray(cells))
-        return measures.measure_cells(map_path, config, cell_m, cells)
+        return measures.measure_cells(map_path, config, cell_m, cells, hints)
 
     monkeypatch.setattr(run, "measure_cells", counting)
     a = analyze(str(world), SampleConfig(samples=2, adaptive=False), cell_m=CELL)

@@ -34,11 +34,13 @@ NODATA = -9999.0
 # The success rate a cell must reach to count as "works here" in the summary.
 SUCCESS_LEVEL = DECISION_LEVEL
 # How the adaptive cells are chosen (mapdb.analysis.adaptive), as summary.json records it.
-ADAPTIVE_RULE = ("cells with both absolute indices even (a coarse lattice) are simulated first; a cell between "
-                 "them is simulated only if its lattice neighbours' success intervals do not all overlap, their "
-                 "success lies on both sides of 0.95, or one had a false fix; otherwise it is inferred "
-                 "(inferred 1, images 0): success, false_fixes, error_m, ambiguity the neighbours' means, the "
-                 "interval from their lowest low end to their highest high end")
+ADAPTIVE_RULE = ("cells with both absolute indices even (a coarse lattice) are measured first; a cell between "
+                 "them draws its images' poses and views (L of N localizable) and is inferred, no image "
+                 "localized, unless a neighbour had a false fix, its neighbours' 95 % intervals of the success "
+                 "probability p of a localizable image (k of m) do not overlap or none has one, or the interval "
+                 "(L / N) (p -+ 1.96 sqrt(p (1 - p) / L)) over their hull is wider than stop_width or holds 0.95 "
+                 "without being above it; inferred cells (inferred 1): success (L / N) times the neighbours' mean "
+                 "k / m, false_fixes 0, error_m and ambiguity the neighbours' means")
 # Most ambiguous cells listed in the summary.
 TOP_AMBIGUOUS = 10
 # Long folder names are cut in the temporary names beside them (a name is at most 255 bytes).

@@ -30,9 +30,9 @@ import numpy as np
 from .. import __version__
 from ..cluster import run_tasks, worker_count
 from ..progress import ProgressLike, as_progress
-from .adaptive import Inferred, coarse, infer
+from .adaptive import coarse, hints
 from .grid import CellCounts, Grid, analysis_area, cell_counts, check_labels, make_grid
-from .measures import MIN_VISIBLE, CellMeasures, SampleConfig, measure_cells
+from .measures import HINT_COLUMNS, MIN_VISIBLE, CellMeasures, SampleConfig, measure_cells
 
 __all__ = ["BLOCK_CELLS", "MEASURES", "Analysis", "Plan", "analyze", "analyze_scenarios", "execute", "plan"]
 
@@ -57,8 +57,8 @@ MEASURES: dict[str, tuple[str, str]] = {
     "localizable": ("images", "images drawn that show at least 4 analysed objects (simulated: those localized)"),
     "success_low": ("fraction", "95 % interval of the success a run of every localizable image gives: low end"),
     "success_high": ("fraction", "95 % interval of the success a run of every localizable image gives: high end"),
-    "inferred": ("0/1", "1: no image drawn, the figures inferred from the coarse lattice's neighbouring cells "
-                        "(their mean; the interval covers theirs)"),
+    "inferred": ("0/1", "1: no image localized, the figures inferred from the coarse lattice's neighbouring cells "
+                        "and the cell's own views (mapdb.analysis.adaptive)"),
 }
 # A map with elevation (format version 2) adds these bands after the per-label ones.
 TERRAIN_MEASURES: dict[str, tuple[str, str]] = {
@@ -187,19 +187,17 @@ def _run(map_path: str, grid: Grid, counts: CellCounts, config: SampleConfig, in
     say.advance(len(warm))
     cells.round(client, _blocks(rows, cols, np.setdiff1d(first, warm)), say)
     between = np.setdiff1d(sent, first)
-    inferred = np.zeros(0, np.int64)
-    if adaptive and between.size:
-        decided = infer(grid, bands, i[between], j[between])
-        inferred = between[decided.infer]
-        _place_inferred(bands, decided, rows[inferred], cols[inferred])
-        say.advance(inferred.size)
-        cells.round(client, _blocks(rows, cols, between[decided.run]), say)
+    if adaptive and between.size:  # what the lattice says of each cell between it, for its worker to decide
+        cells.hints = np.full((rows.size, len(HINT_COLUMNS)), np.nan)
+        cells.hints[between] = hints(grid, bands, i[between], j[between])
+        cells.round(client, _blocks(rows, cols, between), say)
     say.done()
+    inferred = int((bands["inferred"] > 0).sum())
     _density_bands(bands, counts, grid)
     _mark_skipped(bands, rows[~heavy], cols[~heavy], config.sequential)
     stats = {"cells": grid.size, "cells_within_reach": int(rows.size),
-             "cells_simulated": int(heavy.sum()) - inferred.size,
-             "cells_skipped": int((~heavy).sum()) if config.sequential else 0, "cells_inferred": int(inferred.size),
+             "cells_simulated": int(heavy.sum()) - inferred,
+             "cells_skipped": int((~heavy).sum()) if config.sequential else 0, "cells_inferred": inferred,
              "images_localized": int(np.nansum(bands["simulated"])),
              "images_drawn": int(np.nansum(bands["images"])),
              "images_localizable": int(np.nansum(bands["localizable"])), "workers": worker_count(client),
@@ -219,12 +217,14 @@ class _Cells:
     cols: np.ndarray
     heavy: np.ndarray
     bands: dict[str, np.ndarray]
+    hints: np.ndarray | None = None  # a row a cell (NaN: none), for the cells between the lattice
 
     def round(self, client: Any, task_cells: list[np.ndarray], say: Any = None) -> CellMeasures:
         """Measure groups of cells, a task each (the groups with the most cells to simulate first, so that no
         long task is left for the end), their measures put in place; the last task's measures."""
         tasks = [(self.map_path, self.config, self.grid.cell_m,
-                  np.column_stack(self.grid.absolute(self.rows[c], self.cols[c]))) for c in task_cells]
+                  np.column_stack(self.grid.absolute(self.rows[c], self.cols[c])),
+                  None if self.hints is None else self.hints[c]) for c in task_cells]
         order = sorted(range(len(tasks)), key=lambda t: -int(self.heavy[task_cells[t]].sum()))
         result = CellMeasures.empty(0, ())
         for t, result in run_tasks(client, measure_cells, [tasks[t] for t in order]):
@@ -233,18 +233,6 @@ class _Cells:
             if say is not None:
                 say.advance(int(self.heavy[index].sum()))
         return result
-
-
-def _place_inferred(bands: dict[str, np.ndarray], decided: Inferred, rows: np.ndarray, cols: np.ndarray) -> None:
-    """The inferred cells' figures (from their lattice neighbours'); no image drawn, objects in view unknown."""
-    for band, values in (("success", decided.success), ("false_fixes", decided.false), ("error_m", decided.error),
-                         ("ambiguity", decided.ambiguity), ("success_low", decided.low),
-                         ("success_high", decided.high)):
-        bands[band][rows, cols] = values
-    bands["inferred"][rows, cols] = 1
-    for band in bands:
-        if band == "visible" or band.startswith("visible_"):
-            bands[band][rows, cols] = np.nan
 
 
 def _empty_bands(grid: Grid, label_names: Sequence[str]) -> dict[str, np.ndarray]:
@@ -270,7 +258,7 @@ def _place(bands: dict[str, np.ndarray], result: CellMeasures, rows: np.ndarray,
                          ("ambiguity", result.ambiguity), ("visible", result.visible),
                          ("simulated", result.simulated), ("images", result.images),
                          ("localizable", result.localizable), ("success_low", result.low),
-                         ("success_high", result.high)):
+                         ("success_high", result.high), ("inferred", result.inferred)):
         bands[band][rows, cols] = values
     for k, label in enumerate(result.label_names):
         bands[f"visible_{label}"][rows, cols] = result.per_label[:, k]
