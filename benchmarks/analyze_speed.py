@@ -163,7 +163,7 @@ def agreement(fixed: Path, sequential: Path) -> dict:
     for the cells it simulated and for those it inferred."""
     f, s = read_bands(fixed), read_bands(sequential)
     inferred = s.get("inferred", np.zeros_like(s["success"])) > 0
-    ran = s["images"] > 0  # the cells simulated (skipped ones: success 0 in both, exactly)
+    ran = (s["images"] > 0) & ~inferred  # the cells simulated (skipped ones: success 0 in both, exactly)
     width = s["success_high"] - s["success_low"]
     bearing = f["objects_per_km2"] > 0
     out = {"ran": int(ran.sum()), "inferred": int(inferred.sum())}
