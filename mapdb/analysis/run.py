@@ -7,8 +7,11 @@ default), neither are the cells from which no image can show :data:`~mapdb.analy
 analysed objects (fewer within reach): they are *skipped* before any work, no image drawn, their success
 and false shares 0 exactly (interval width 0), ``images`` 0 and ``visible`` no value (the outputs' mark of a
 skipped cell: within reach of an object, ``images`` 0).  A fixed run (``sequential`` False) samples every
-cell within reach, as before.  Before the run, a warm-up task (a spread of :data:`WARMUP_CELLS` cells to
-simulate) is timed and the cost of the rest estimated from it.
+cell within reach, as before.  Adaptive (the default with the sequential rule,
+:mod:`~mapdb.analysis.adaptive`): the cells on the coarse lattice go first, then the cells between it, each
+task carrying what the lattice says of its cells (their workers infer or measure them).  Before the run, a
+warm-up task (a spread of :data:`WARMUP_CELLS` cells to simulate) is timed and the cost of the rest estimated
+from it.
 
 What a worker reads: the objects its images can show come from the map pages around its cells (a block's
 box widened by an image's reach, :func:`~mapdb.analysis.measures.measure_cells`).  The localization is a
