@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import rasterio
 from click.testing import CliRunner
 from mapdb_cli.main import cli
 from test_analyze_sequential import CELL, write_world
@@ -155,6 +156,10 @@ def test_cli_records_the_rule_and_no_adaptive_runs_every_cell(tmp_path: Path) ->
         assert doc["parameters"]["adaptive"] is (flag == "--adaptive")
         assert (doc["cells_inferred"] > 0) is (flag == "--adaptive")
         assert doc["run"]["cells_inferred"] == doc["cells_inferred"]
+        with rasterio.open(out / "analysis.tif") as src:
+            inferred = src.read(list(src.descriptions).index("inferred") + 1)
+        # An inferred cell's ambiguity is borrowed from its neighbours: never listed as its own.
+        assert doc["most_ambiguous"] and all(inferred[c["row"], c["col"]] == 0 for c in doc["most_ambiguous"])
     assert "lattice" in doc["measures"]["inferred"]["description"]
 
 

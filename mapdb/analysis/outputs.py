@@ -215,12 +215,13 @@ def _lonlat(crs: str, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def _most_ambiguous(analysis: Analysis) -> list[dict[str, Any]]:
-    """The cells of highest ambiguity among those where at least half the images drawn showed enough objects to
-    be localized (a cell whose one lucky image saw four objects says little about its pattern), most ambiguous
-    first."""
+    """The cells of highest ambiguity among those (not inferred) where at least half the images drawn showed
+    enough objects to be localized (a cell whose one lucky image saw four objects says little about its
+    pattern), most ambiguous first."""
     amb = analysis.measures["ambiguity"]
     m = analysis.measures
-    seen = (m["localizable"] >= m["images"] / 2) & (m["images"] > 0)
+    # An inferred cell's ambiguity is its neighbours': not listed as its own.
+    seen = (m["localizable"] >= m["images"] / 2) & (m["images"] > 0) & (m["inferred"] == 0)
     rows, cols = np.nonzero(~np.isnan(amb) & seen)
     if not rows.size:
         return []
