@@ -50,6 +50,9 @@ def _labels(value: str | None) -> tuple[str, ...] | None:
 @click.option("--sequential/--no-sequential", default=True, show_default=True,
               help="Localize a cell's images only until its success share is known to --width, and skip "
                    "cells no image can localize from; --no-sequential localizes every image of every cell.")
+@click.option("--adaptive/--no-adaptive", default=True, show_default=True,
+              help="With --sequential: simulate every second cell each way first, and the cells between only "
+                   "where those around them disagree; the others are inferred (band 'inferred').")
 @click.option("--width", "stop_width", type=finite_float(0.0, 1.0, min_open=True), default=None, metavar="W",
               help="Width of the 95 % interval of success at which a cell stops (default: the widest "
                    "interval of a fixed --samples run, 0.44 for 16).")
@@ -70,15 +73,16 @@ def _labels(value: str | None) -> tuple[str, ...] | None:
 @debug_option
 @handle_errors
 def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, pixel_std, miss_rate, spurious_rate,
-            label_noise, labels, samples, sequential, stop_width, prior, seed, scenarios_file, jobs, scheduler,
-            timeout_s, overwrite, parents, quiet, debug):
+            label_noise, labels, samples, sequential, adaptive, stop_width, prior, seed, scenarios_file, jobs,
+            scheduler, timeout_s, overwrite, parents, quiet, debug):
     """Simulate images over every cell of a grid on MAP and measure where they localize.
 
     Per cell: objects in view, success, false positives, error, ambiguity (0: the cell's pattern is
     unique, 1: indistinguishable from another place), objects and map bytes per km², and for a map with
     elevation the relief in view (relief_m). A cell stops localizing images once its success share is
     known to --width (simulated and success_low/success_high say how many and how well). Cells from which
-    no image can show 4 objects are decided without simulating. Writes a GeoTIFF (a band per measure),
+    no image can show 4 objects are decided without simulating, and cells between a coarse lattice's that
+    agree are inferred from them (--no-adaptive simulates them all). Writes a GeoTIFF (a band per measure),
     a PNG, a GeoPackage of the cells and summary.json into OUTDIR, which appears only when complete.
     """
     if jobs is not None and scheduler is not None:
@@ -88,7 +92,7 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
     base = SampleConfig(altitude=altitude, fov_deg=fov, size=size, attitude_std=attitude_std, pixel_std=pixel_std,
                         miss_rate=miss_rate, spurious_rate=spurious_rate, label_noise=label_noise,
                         labels=_labels(labels), samples=samples, prior=prior, seed=seed, sequential=sequential,
-                        width=stop_width)
+                        width=stop_width, adaptive=adaptive)
     configs = read_scenarios(scenarios_file, base) if scenarios_file else {"": base}
     bbox_values = bbox.split(",") if bbox is not None else None
     say = progress_printer(quiet)

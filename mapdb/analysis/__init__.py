@@ -27,7 +27,10 @@ by the default (fast) matcher, as ``mapdb analyze`` does.  Per cell:
   those localized; **success_low**, **success_high**: the 95 % interval of the success share a run of every
   localizable image gives.  By default a cell localizes its images only until that interval is as narrow as
   a fixed 16-image run's widest (the sequential rule of :mod:`~mapdb.analysis.measures`); cells from which
-  no image can show four objects are skipped before any work (``images`` 0, ``visible`` no value).
+  no image can show four objects are skipped before any work (``images`` 0, ``visible`` no value);
+* **inferred** (1 or 0): by default a coarse lattice of cells (every second cell each way) is measured first,
+  and a cell between it localizes no image where its neighbours and its own views give an interval within
+  that width (:mod:`~mapdb.analysis.adaptive`); ``--no-adaptive`` measures every cell.
 
 A sample that shows fewer than four objects is not simulated (the matcher needs a quad of four true
 objects: success is 0 there, exactly), and cells from which no image can show four objects are decided
@@ -35,9 +38,10 @@ without simulating.  Every cell's images are drawn from ``(seed, cell)`` only, s
 bytes whatever the number of workers, the cluster or the partitioning.
 
 Modules: :mod:`~mapdb.analysis.grid` (cells, counts), :mod:`~mapdb.analysis.measures` (one cell's
-images), :mod:`~mapdb.analysis.run` (blocks of cells as tasks), :mod:`~mapdb.analysis.outputs` (GeoTIFF,
-GeoPackage, summary, the output folder), :mod:`~mapdb.analysis.pictures` (the PNG),
-:mod:`~mapdb.analysis.scenarios` (named configurations from TOML).
+images), :mod:`~mapdb.analysis.adaptive` (the coarse lattice and what it tells the cells between it),
+:mod:`~mapdb.analysis.run` (blocks of cells as tasks, in two rounds when adaptive),
+:mod:`~mapdb.analysis.outputs` (GeoTIFF, GeoPackage, summary, the output folder),
+:mod:`~mapdb.analysis.pictures` (the PNG), :mod:`~mapdb.analysis.scenarios` (named configurations from TOML).
 """
 
 from __future__ import annotations

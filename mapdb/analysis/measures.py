@@ -51,8 +51,8 @@ from ..answers import Answer
 from ..camera import Camera, Pose, project_to_image
 from ..evaluation.evaluate import DEFAULT_FP_THRESHOLD_M
 
-__all__ = ["MIN_VISIBLE", "Z95", "CellMeasures", "SampleConfig", "ambiguity", "measure_cells", "wilson_interval",
-           "wilson_width"]
+__all__ = ["DECISION_LEVEL", "HINT_COLUMNS", "MIN_VISIBLE", "Z95", "CellMeasures", "SampleConfig", "ambiguity",
+           "inferred_interval", "measure_cells", "wilson_interval", "wilson_width"]
 
 # The fewest true objects in view from which the fast matcher can find the true place (one quad).
 MIN_VISIBLE = 4
@@ -63,6 +63,11 @@ _KEEP_MAPS = 2
 # The fewest localizable images the sequential rule runs in a cell before it may stop (a share from one image is
 # all or nothing).
 MIN_RUN = 2
+# The success share at which a cell counts as "works here" (the summary's, outputs.SUCCESS_LEVEL; the
+# adaptive rule runs a cell whose inferred interval holds it).
+DECISION_LEVEL = 0.95
+# What the coarse lattice tells a worker of a cell between it (mapdb.analysis.adaptive.hints), in this order.
+HINT_COLUMNS = ("run", "p_low", "p_high", "p_mean", "error_m", "ambiguity")
 # The normal quantile of a two-sided 95 % interval (the sequential rule's and the outputs' widths).
 Z95 = 1.959963984540054
 # Cells whose objects are read from the map together (as run.BLOCK_CELLS): a task's cells are one such block,
@@ -108,7 +113,9 @@ class SampleConfig:
     image (success is then that of the prior-aided search; ambiguity stays that of the search without
     one).  ``fp_threshold`` is the error (m) above which an accepted answer is false.  ``sequential``: a
     cell stops drawing images once its shares are known to ``stop_width`` (see :mod:`mapdb.analysis.measures`);
-    ``width`` overrides that width; ``samples`` is then the most images a cell draws.
+    ``width`` overrides that width; ``samples`` is then the most images a cell draws.  ``adaptive`` (with
+    ``sequential`` only): a coarse lattice of cells first, the cells between it only where it disagrees, the
+    others inferred (see :mod:`mapdb.analysis.adaptive`).
     """
 
     altitude: float = 150.0
@@ -126,6 +133,7 @@ class SampleConfig:
     fp_threshold: float = DEFAULT_FP_THRESHOLD_M
     sequential: bool = True
     width: float | None = None
+    adaptive: bool = True
 
     @property
     def stop_width(self) -> float:
@@ -170,6 +178,7 @@ class CellMeasures:
     localizable: np.ndarray    # of them, those showing at least MIN_VISIBLE objects (``simulated`` of them ran)
     low: np.ndarray            # 95 % interval of the success share a run of every localizable image reports
     high: np.ndarray
+    inferred: np.ndarray       # 1: no image localized, the figures inferred (mapdb.analysis.adaptive)
     seconds: float = 0.0       # time spent measuring (set-up excluded)
     label_names: tuple[str, ...] = field(default=())
 
@@ -180,7 +189,7 @@ class CellMeasures:
         return cls(np.zeros(n, np.float32), np.zeros((n, len(label_names)), np.float32), np.zeros(n, np.float32),
                    np.zeros(n, np.float32), nothing, nothing.copy(), np.zeros(n, np.int32),
                    np.zeros(n, np.int32), np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32),
-                   label_names=label_names)
+                   np.zeros(n, np.int8), label_names=label_names)
 
 
 def _natural(v: int) -> int:
@@ -266,11 +275,14 @@ class _Context:
     label_counts: dict[str, int]
 
 
-def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.ndarray) -> CellMeasures:
+def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.ndarray,
+                  hints: np.ndarray | None = None) -> CellMeasures:
     """The measures of cells given by absolute indices (rows ``(i, j)`` of ``cells``).
 
     The objects images can show are read block by block (cells of one ``_READ_BLOCK`` square, with an image's
-    reach around them): only the map pages around the cells, whatever their spread.
+    reach around them): only the map pages around the cells, whatever their spread.  ``hints`` (one row a
+    cell, :data:`HINT_COLUMNS`, from :func:`mapdb.analysis.adaptive.hints`): cells between the coarse lattice,
+    each inferred from its own draws and its hint where the rule of :mod:`mapdb.analysis.adaptive` allows.
     """
     m, localizer = _opened(map_path)
     cells = np.asarray(cells, np.int64).reshape(-1, 2)
@@ -289,7 +301,8 @@ def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.
         rows = np.flatnonzero((blocks == block).all(axis=1))
         ctx = _context(m, localizer, config, cell_m, cells[rows], names, codes, label_counts)
         for row in rows.tolist():
-            _measure_cell(ctx, int(cells[row, 0]), int(cells[row, 1]), out, row)
+            hint = None if hints is None else hints[row]
+            _measure_cell(ctx, int(cells[row, 0]), int(cells[row, 1]), out, row, hint)
     out.seconds = time.perf_counter() - start
     return out
 
@@ -317,28 +330,48 @@ def _known(successes: int, false: int, run: int, ready: int, drawn: int, width: 
     return scale * wilson_width(successes, run) <= width and scale * wilson_width(false, run) <= width
 
 
-def _draw(ctx: _Context, i: int, j: int, s: int) -> tuple[Pose, np.random.Generator, Any, np.ndarray]:
-    """Sample ``s`` of cell ``(i, j)``: its pose, its generator (left where the image's errors start), the
-    analysed objects near it and which of them its image shows."""
+def _draws(ctx: _Context, i: int, j: int) -> list[tuple[Pose, np.random.Generator, np.ndarray, np.ndarray]]:
+    """Every sample of cell ``(i, j)``: its pose, its generator (left where the image's errors start), the
+    indices (into ``ctx.objects``, sorted) of the analysed objects within reach and which of them its image
+    shows.  The objects within reach of all the samples are found in one query of the tree."""
     cfg = ctx.config
-    rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
-    where = rng.random(2)
-    heading = float(rng.uniform(0.0, 360.0))
-    roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
-    pose = Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
-                heading, roll, pitch)
-    local, seen = _in_view(ctx, pose)
-    return pose, rng, local, seen
+    poses = []
+    for s in range(cfg.samples):
+        rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
+        where = rng.random(2)
+        heading = float(rng.uniform(0.0, 360.0))
+        roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
+        poses.append((Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
+                           heading, roll, pitch), rng))
+    if ctx.tree is None:
+        return [(pose, rng, np.zeros(0, np.int64), np.zeros(0, bool)) for pose, rng in poses]
+    centres = np.array([[pose.x, pose.y] for pose, _ in poses])
+    reached = ctx.tree.query_ball_point(centres, cfg.reach_m)
+    camera = cfg.camera
+    out = []
+    for (pose, rng), found in zip(poses, reached, strict=True):
+        near = np.sort(np.asarray(found, np.int64))
+        u, v = project_to_image(ctx.objects.x[near], ctx.objects.y[near], pose, camera)
+        seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+        out.append((pose, rng, near, seen))
+    return out
 
 
-def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) -> None:
-    """Sample one cell (every localizable image, or until the sequential rule stops it) and write its measures
-    into row ``row`` of ``out``."""
+def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int, hint: np.ndarray | None) -> None:
+    """Sample one cell (every localizable image, or until the sequential rule stops it, or none where its
+    ``hint`` lets it be inferred) and write its measures into row ``row`` of ``out``."""
     cfg = ctx.config
-    drawn = [_draw(ctx, i, j, s) for s in range(cfg.samples)]
-    visible = np.array([np.bincount(local.label[seen], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
-                        for _, _, local, seen in drawn], np.int64).reshape(cfg.samples, len(ctx.codes))
+    drawn = _draws(ctx, i, j)
+    labels = ctx.objects.label
+    visible = np.array([np.bincount(labels[near[seen]], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
+                        for _, _, near, seen in drawn], np.int64).reshape(cfg.samples, len(ctx.codes))
     ready = [s for s, (_, _, _, seen) in enumerate(drawn) if seen.sum() >= MIN_VISIBLE]
+    out.visible[row] = np.median(visible.sum(axis=1))
+    out.per_label[row] = np.median(visible, axis=0)
+    out.images[row] = cfg.samples
+    out.localizable[row] = len(ready)
+    if hint is not None and _inferred(hint, len(ready), cfg, out, row):
+        return
     correct: list[float] = []
     amb: list[float] = []
     false = run = 0
@@ -346,8 +379,8 @@ def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) ->
         if cfg.sequential and _known(len(correct), false, run, len(ready), cfg.samples, cfg.stop_width):
             break
         run += 1
-        pose, rng, local, _ = drawn[s]
-        error, lost = _localize(ctx, local, pose, rng, f"{i},{j},{s}")
+        pose, rng, near, _ = drawn[s]
+        error, lost = _localize(ctx, ctx.objects.take(near), pose, rng, f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
@@ -356,13 +389,9 @@ def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) ->
     # The shares the fixed run would report: the localizable share (known) times the share of those that ran
     # (integers divided once: the fixed run's k / samples exactly when every localizable image ran).
     n, k = cfg.samples * max(run, 1), len(correct)
-    out.visible[row] = np.median(visible.sum(axis=1))
-    out.per_label[row] = np.median(visible, axis=0)
     out.success[row] = k * len(ready) / n
     out.false[row] = false * len(ready) / n
     out.simulated[row] = run
-    out.images[row] = cfg.samples
-    out.localizable[row] = len(ready)
     low, high = wilson_interval(k, run) if run < len(ready) else (k / max(run, 1), k / max(run, 1))
     out.low[row], out.high[row] = low * len(ready) / cfg.samples, high * len(ready) / cfg.samples
     if correct:
@@ -372,16 +401,38 @@ def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int) ->
         out.ambiguity[row] = np.median(defined)
 
 
-def _in_view(ctx: _Context, pose: Pose) -> tuple[Any, np.ndarray]:
-    """The analysed objects near a pose, and which of them its image shows."""
-    if ctx.tree is None:
-        return ctx.objects, np.zeros(0, bool)
-    near = np.sort(np.asarray(ctx.tree.query_ball_point([pose.x, pose.y], ctx.config.reach_m), np.int64))
-    local = ctx.objects.take(near)
-    camera = ctx.config.camera
-    u, v = project_to_image(local.x, local.y, pose, camera)
-    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    return local, seen
+def inferred_interval(p_lo: float, p_hi: float, ready: int, samples: int, z: float = Z95) -> tuple[float, float]:
+    """The share ``k / samples`` a fixed run reports, ``k`` of its ``ready`` localizable images correct, each with
+    a probability anywhere in ``[p_lo, p_hi]``: ``ready / samples`` times ``p -+ z sqrt(p (1 - p) / ready)``,
+    its extremes over the range (taken at 33 points of it), clipped to [0, 1].
+
+    Examples
+    --------
+    >>> [round(v, 3) for v in inferred_interval(0.8, 1.0, 16, 16)]
+    [0.604, 1.0]
+    >>> [round(v, 3) for v in inferred_interval(0.0, 0.3, 2, 16)]  # at most 2 / 16, whatever p
+    [0.0, 0.117]
+    """
+    p = np.linspace(p_lo, p_hi, 33)
+    spread = z * np.sqrt(p * (1.0 - p) / ready)
+    scale = ready / samples
+    return scale * float(np.clip(p - spread, 0.0, 1.0).min()), scale * float(np.clip(p + spread, 0.0, 1.0).max())
+
+
+def _inferred(hint: np.ndarray, ready: int, cfg: SampleConfig, out: CellMeasures, row: int) -> bool:
+    """Infer a cell between the coarse lattice from its hint (:data:`HINT_COLUMNS`) and its ``ready`` localizable
+    images, if the rule of :mod:`mapdb.analysis.adaptive` lets it (its figures then written): whether it did."""
+    run, p_lo, p_hi, p_mean, error, amb = (float(v) for v in hint)
+    if run or not ready:  # no localizable image: no image to run anyway (success 0 exactly, not inferred)
+        return False
+    low, high = inferred_interval(p_lo, p_hi, ready, cfg.samples)
+    if high - low > cfg.stop_width or low < DECISION_LEVEL <= high:
+        return False
+    out.success[row] = ready / cfg.samples * p_mean
+    out.low[row], out.high[row] = low, high
+    out.error[row], out.ambiguity[row] = error, amb
+    out.inferred[row] = 1
+    return True
 
 
 def _localize(ctx: _Context, local: Any, pose: Pose, rng: np.random.Generator,

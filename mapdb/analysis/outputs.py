@@ -21,17 +21,26 @@ import numpy as np
 
 from ..errors import MapdbIOError, OutputClashError
 from ..outputs import pid_alive, refuse_existing
+from .adaptive import DECISION_LEVEL
 from .grid import Grid
 from .measures import MIN_VISIBLE, SampleConfig
 from .run import Analysis
 
 __all__ = ["NODATA", "SUCCESS_LEVEL", "comparison", "outcome", "output_folder", "parameters", "summary",
-           "write_cells", "write_geotiff", "write_outputs", "write_summary"]
+           "write_cells", "write_geotiff", "write_outputs", "write_summary", "ADAPTIVE_RULE"]
 
 # The GeoTIFF's no-data value (error and ambiguity where there is none); NULL in the GeoPackage.
 NODATA = -9999.0
 # The success rate a cell must reach to count as "works here" in the summary.
-SUCCESS_LEVEL = 0.95
+SUCCESS_LEVEL = DECISION_LEVEL
+# How the adaptive cells are chosen (mapdb.analysis.adaptive), as summary.json records it.
+ADAPTIVE_RULE = ("cells with both absolute indices even (a coarse lattice) are measured first; a cell between "
+                 "them draws its images' poses and views (L of N localizable) and is inferred, no image "
+                 "localized, unless a neighbour had a false fix, its neighbours' 95 % intervals of the success "
+                 "probability p of a localizable image (k of m) do not overlap or none has one, or the interval "
+                 "(L / N) (p -+ 1.96 sqrt(p (1 - p) / L)) over their hull is wider than stop_width or holds 0.95 "
+                 "without being above it; inferred cells (inferred 1): success (L / N) times the neighbours' mean "
+                 "k / m, false_fixes 0, error_m and ambiguity the neighbours' means")
 # Most ambiguous cells listed in the summary.
 TOP_AMBIGUOUS = 10
 # Long folder names are cut in the temporary names beside them (a name is at most 255 bytes).
@@ -184,7 +193,8 @@ def _rule(cfg: SampleConfig) -> dict[str, Any]:
         return {"images_per_cell": f"fixed: {cfg.samples}", "sequential": False,
                 "interval": "Wilson score, 95 %", "stop_width": None}
     return {"images_per_cell": f"sequential: at most {cfg.samples}", "sequential": True,
-            "interval": "Wilson score, 95 %", "stop_width": round(cfg.stop_width, 4),
+            "interval": "Wilson score, 95 %", "stop_width": round(cfg.stop_width, 4), "adaptive": cfg.adaptive,
+            **({"adaptive_rule": ADAPTIVE_RULE} if cfg.adaptive else {}),
             "stop_rule": "every image's pose and view is drawn; of the localizable ones (at least min_visible "
                          "objects in view), a cell localizes at least 2, in order, until the 95 % Wilson "
                          "intervals of its success and false shares, times the localizable share, are each at "
@@ -205,12 +215,13 @@ def _lonlat(crs: str, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def _most_ambiguous(analysis: Analysis) -> list[dict[str, Any]]:
-    """The cells of highest ambiguity among those where at least half the images drawn showed enough objects to
-    be localized (a cell whose one lucky image saw four objects says little about its pattern), most ambiguous
-    first."""
+    """The cells of highest ambiguity among those (not inferred) where at least half the images drawn showed
+    enough objects to be localized (a cell whose one lucky image saw four objects says little about its
+    pattern), most ambiguous first."""
     amb = analysis.measures["ambiguity"]
     m = analysis.measures
-    seen = (m["localizable"] >= m["images"] / 2) & (m["images"] > 0)
+    # An inferred cell's ambiguity is its neighbours': not listed as its own.
+    seen = (m["localizable"] >= m["images"] / 2) & (m["images"] > 0) & (m["inferred"] == 0)
     rows, cols = np.nonzero(~np.isnan(amb) & seen)
     if not rows.size:
         return []
@@ -232,6 +243,8 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
     bearing = analysis.counts.objects > 0
     works, fooled = m["success"] >= SUCCESS_LEVEL, m["false_fixes"] > 0
     amb = m["ambiguity"][~np.isnan(m["ambiguity"])]
+    inferred = m["inferred"] > 0
+    simulated = (analysis.counts.within_reach >= MIN_VISIBLE) & ~inferred
     return {
         "success_at_least_95": {"fraction_of_area": _fraction(works, everywhere),
                                 "fraction_of_objects_bearing_area": _fraction(works, bearing)},
@@ -249,8 +262,10 @@ def outcome(analysis: Analysis) -> dict[str, Any]:
                       "cells_at_least_0.5": int((amb >= 0.5).sum())},
         "images_localized": analysis.stats.get("images_localized"),
         "images_localizable": analysis.stats.get("images_localizable"),
-        "images_localized_per_simulated_cell": _per_cell(m["simulated"], analysis.counts.within_reach >= MIN_VISIBLE),
-        "success_width": _widths(m["success_high"] - m["success_low"], analysis.counts.within_reach >= MIN_VISIBLE),
+        "images_localized_per_simulated_cell": _per_cell(m["simulated"], simulated),
+        "success_width": _widths(m["success_high"] - m["success_low"], simulated),
+        "cells_inferred": int(inferred.sum()),
+        "success_width_inferred": _widths(m["success_high"] - m["success_low"], inferred),
     }
 
 

@@ -7,8 +7,11 @@ default), neither are the cells from which no image can show :data:`~mapdb.analy
 analysed objects (fewer within reach): they are *skipped* before any work, no image drawn, their success
 and false shares 0 exactly (interval width 0), ``images`` 0 and ``visible`` no value (the outputs' mark of a
 skipped cell: within reach of an object, ``images`` 0).  A fixed run (``sequential`` False) samples every
-cell within reach, as before.  Before the run, a warm-up task (a spread of :data:`WARMUP_CELLS` cells to
-simulate) is timed and the cost of the rest estimated from it.
+cell within reach, as before.  Adaptive (the default with the sequential rule,
+:mod:`~mapdb.analysis.adaptive`): the cells on the coarse lattice go first, then the cells between it, each
+task carrying what the lattice says of its cells (their workers infer or measure them).  Before the run, a
+warm-up task (a spread of :data:`WARMUP_CELLS` cells to simulate) is timed and the cost of the rest estimated
+from it.
 
 What a worker reads: the objects its images can show come from the map pages around its cells (a block's
 box widened by an image's reach, :func:`~mapdb.analysis.measures.measure_cells`).  The localization is a
@@ -30,8 +33,9 @@ import numpy as np
 from .. import __version__
 from ..cluster import run_tasks, worker_count
 from ..progress import ProgressLike, as_progress
+from .adaptive import coarse, hints
 from .grid import CellCounts, Grid, analysis_area, cell_counts, check_labels, make_grid
-from .measures import MIN_VISIBLE, CellMeasures, SampleConfig, measure_cells
+from .measures import HINT_COLUMNS, MIN_VISIBLE, CellMeasures, SampleConfig, measure_cells
 
 __all__ = ["BLOCK_CELLS", "MEASURES", "Analysis", "Plan", "analyze", "analyze_scenarios", "execute", "plan"]
 
@@ -56,6 +60,8 @@ MEASURES: dict[str, tuple[str, str]] = {
     "localizable": ("images", "images drawn that show at least 4 analysed objects (simulated: those localized)"),
     "success_low": ("fraction", "95 % interval of the success a run of every localizable image gives: low end"),
     "success_high": ("fraction", "95 % interval of the success a run of every localizable image gives: high end"),
+    "inferred": ("0/1", "1: no image localized, the figures inferred from the coarse lattice's neighbouring cells "
+                        "and the cell's own views (mapdb.analysis.adaptive)"),
 }
 # A map with elevation (format version 2) adds these bands after the per-label ones.
 TERRAIN_MEASURES: dict[str, tuple[str, str]] = {
@@ -163,42 +169,73 @@ def execute(planned: Plan, client: Any = None, progress: ProgressLike = None) ->
 
 def _run(map_path: str, grid: Grid, counts: CellCounts, config: SampleConfig, info: dict[str, Any], name: str,
          client: Any, say: Any) -> Analysis:
-    """Sample every cell within reach of an object, in blocks, and put the measures in place."""
+    """Sample every cell within reach of an object (or, adaptive, the lattice's and those between it where it
+    disagrees), in blocks, and put the measures in place."""
     start = time.perf_counter()
     rows, cols = np.nonzero(counts.within_reach > 0)
     heavy = counts.within_reach[rows, cols] >= MIN_VISIBLE
-    label_names = config.labels or tuple(info["labels"])
-    bands = _empty_bands(grid, label_names)
-    workers = worker_count(client)
-    warm = _warmup_cells(np.flatnonzero(heavy))
+    bands = _empty_bands(grid, config.labels or tuple(info["labels"]))
     # Sequential: the cells no image can localize from are skipped before any work (their bands set below).
     sent = np.flatnonzero(heavy) if config.sequential else np.arange(rows.size)
-    task_cells = [warm] + _blocks(rows, cols, np.setdiff1d(sent, warm))
-    tasks = [(map_path, config, grid.cell_m, np.column_stack(grid.absolute(rows[c], cols[c]))) for c in task_cells]
-    # The warm-up runs alone, so that the estimate comes before the rest starts; then the blocks with the
-    # most cells to simulate first, so that no long block is left for the end.
-    order = sorted(range(1, len(tasks)), key=lambda t: -int(heavy[task_cells[t]].sum()))
+    i, j = grid.absolute(rows, cols)
+    adaptive = config.sequential and config.adaptive
+    first = sent[coarse(i[sent], j[sent])] if adaptive else sent
+    cells = _Cells(map_path, grid, config, rows, cols, heavy, bands)
     prefix = f"{name}: " if name else ""
-    [(_, result)] = list(run_tasks(client, measure_cells, tasks[:1]))
-    _place(bands, result, rows[warm], cols[warm])
-    estimate_s = _announce(say, prefix, grid, rows.size, int(heavy.sum()), config, result, len(warm), workers)
+    warm = _warmup_cells(first[heavy[first]])
+    result = cells.round(client, [warm])
+    estimate_s = _announce(say, prefix, grid, rows.size, int(heavy.sum()), config, result, len(warm),
+                           worker_count(client))
     say.start(int(heavy.sum()), f"{prefix}analyze")
     say.advance(len(warm))
-    for t, result in run_tasks(client, measure_cells, [tasks[t] for t in order]):
-        index = task_cells[order[t]]
-        _place(bands, result, rows[index], cols[index])
-        say.advance(int(heavy[index].sum()))
+    cells.round(client, _blocks(rows, cols, np.setdiff1d(first, warm)), say)
+    between = np.setdiff1d(sent, first)
+    if adaptive and between.size:  # what the lattice says of each cell between it, for its worker to decide
+        cells.hints = np.full((rows.size, len(HINT_COLUMNS)), np.nan)
+        cells.hints[between] = hints(grid, bands, i[between], j[between])
+        cells.round(client, _blocks(rows, cols, between), say)
     say.done()
+    inferred = int((bands["inferred"] > 0).sum())
     _density_bands(bands, counts, grid)
     _mark_skipped(bands, rows[~heavy], cols[~heavy], config.sequential)
-    stats = {"cells": grid.size, "cells_within_reach": int(rows.size), "cells_simulated": int(heavy.sum()),
-             "cells_skipped": int((~heavy).sum()) if config.sequential else 0,
+    stats = {"cells": grid.size, "cells_within_reach": int(rows.size),
+             "cells_simulated": int(heavy.sum()) - inferred,
+             "cells_skipped": int((~heavy).sum()) if config.sequential else 0, "cells_inferred": inferred,
              "images_localized": int(np.nansum(bands["simulated"])),
              "images_drawn": int(np.nansum(bands["images"])),
-             "images_localizable": int(np.nansum(bands["localizable"])), "workers": workers,
+             "images_localizable": int(np.nansum(bands["localizable"])), "workers": worker_count(client),
              "estimate_s": None if estimate_s is None else round(estimate_s, 1),
              "seconds": round(time.perf_counter() - start, 1)}
     return Analysis(map_path, grid, config, counts, bands, info, stats, name)
+
+
+@dataclass
+class _Cells:
+    """The cells within reach (indices into ``rows``, ``cols``), and the bands their measures go to."""
+
+    map_path: str
+    grid: Grid
+    config: SampleConfig
+    rows: np.ndarray
+    cols: np.ndarray
+    heavy: np.ndarray
+    bands: dict[str, np.ndarray]
+    hints: np.ndarray | None = None  # a row a cell (NaN: none), for the cells between the lattice
+
+    def round(self, client: Any, task_cells: list[np.ndarray], say: Any = None) -> CellMeasures:
+        """Measure groups of cells, a task each (the groups with the most cells to simulate first, so that no
+        long task is left for the end), their measures put in place; the last task's measures."""
+        tasks = [(self.map_path, self.config, self.grid.cell_m,
+                  np.column_stack(self.grid.absolute(self.rows[c], self.cols[c])),
+                  None if self.hints is None else self.hints[c]) for c in task_cells]
+        order = sorted(range(len(tasks)), key=lambda t: -int(self.heavy[task_cells[t]].sum()))
+        result = CellMeasures.empty(0, ())
+        for t, result in run_tasks(client, measure_cells, [tasks[t] for t in order]):
+            index = task_cells[order[t]]
+            _place(self.bands, result, self.rows[index], self.cols[index])
+            if say is not None:
+                say.advance(int(self.heavy[index].sum()))
+        return result
 
 
 def _empty_bands(grid: Grid, label_names: Sequence[str]) -> dict[str, np.ndarray]:
@@ -224,7 +261,7 @@ def _place(bands: dict[str, np.ndarray], result: CellMeasures, rows: np.ndarray,
                          ("ambiguity", result.ambiguity), ("visible", result.visible),
                          ("simulated", result.simulated), ("images", result.images),
                          ("localizable", result.localizable), ("success_low", result.low),
-                         ("success_high", result.high)):
+                         ("success_high", result.high), ("inferred", result.inferred)):
         bands[band][rows, cols] = values
     for k, label in enumerate(result.label_names):
         bands[f"visible_{label}"][rows, cols] = result.per_label[:, k]
