@@ -7,8 +7,8 @@ images a cell, 150 m, 45 degrees, in one process so that CPU time is core time),
 (the order reversed every repeat) so that a neighbour's load falls on all alike::
 
     today:      mapdb analyze MAP -o OUT --no-sequential   # the baseline revision's code (--baseline REV)
-    sequential: mapdb analyze MAP -o OUT --no-adaptive     # this tree: every cell to simulate, sequential rule
-    adaptive:   mapdb analyze MAP -o OUT                   # this tree's default: adaptive cells
+    sequential: mapdb analyze MAP -o OUT                   # this tree's default: every cell simulated, sequential rule
+    adaptive:   mapdb analyze MAP -o OUT --adaptive        # this tree: adaptive cells
 
     python benchmarks/analyze_speed.py [--repeat 2] [--maps andorra,monaco] [--workdir DIR]
                                        [--country Germany:357588:45e6] [--baseline 402f56b] [--identity]
@@ -59,7 +59,7 @@ EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-0
             "liechtenstein": "liechtenstein-2013-08-03.osm.pbf"}
 # mode -> (code: "base" the baseline revision's, "tree" this one's; options)
 MODES = {"today": ("base", ["--no-sequential"]), "sequential": ("tree", ["--no-adaptive"]),
-         "adaptive": ("tree", []), "base-sequential": ("base", [])}
+         "adaptive": ("tree", ["--adaptive"]), "base-sequential": ("base", [])}
 BASELINE = "402f56b"
 
 

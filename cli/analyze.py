@@ -50,9 +50,10 @@ def _labels(value: str | None) -> tuple[str, ...] | None:
 @click.option("--sequential/--no-sequential", default=True, show_default=True,
               help="Localize a cell's images only until its success share is known to --width, and skip "
                    "cells no image can localize from; --no-sequential localizes every image of every cell.")
-@click.option("--adaptive/--no-adaptive", default=True, show_default=True,
+@click.option("--adaptive/--no-adaptive", default=False, show_default=True,
               help="With --sequential: simulate every second cell each way first, and the cells between only "
-                   "where those around them disagree; the others are inferred (band 'inferred').")
+                   "where those around them disagree; the others are inferred (band 'inferred': their false "
+                   "fixes are not seen, their error and ambiguity are their neighbours').")
 @click.option("--width", "stop_width", type=finite_float(0.0, 1.0, min_open=True), default=None, metavar="W",
               help="Width of the 95 % interval of success at which a cell stops (default: the widest "
                    "interval of a fixed --samples run, 0.44 for 16).")
@@ -81,8 +82,8 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
     unique, 1: indistinguishable from another place), objects and map bytes per km², and for a map with
     elevation the relief in view (relief_m). A cell stops localizing images once its success share is
     known to --width (simulated and success_low/success_high say how many and how well). Cells from which
-    no image can show 4 objects are decided without simulating, and cells between a coarse lattice's that
-    agree are inferred from them (--no-adaptive simulates them all). Writes a GeoTIFF (a band per measure),
+    no image can show 4 objects are decided without simulating; with --adaptive, cells between a coarse
+    lattice's that agree are inferred from them. Writes a GeoTIFF (a band per measure),
     a PNG, a GeoPackage of the cells and summary.json into OUTDIR, which appears only when complete.
     """
     if jobs is not None and scheduler is not None:

@@ -89,7 +89,7 @@ def test_the_lattice_is_every_second_cell_each_way() -> None:
 def runs(tmp_path_factory) -> tuple[Analysis, Analysis, Analysis]:
     """The adaptive run, the sequential run of every cell, the fixed-16 run (200 m cells)."""
     world = str(write_world(tmp_path_factory.mktemp("adaptive") / "world.mapdb"))
-    return (analyze(world, SampleConfig(samples=16), cell_m=CELL),
+    return (analyze(world, SampleConfig(samples=16, adaptive=True), cell_m=CELL),
             analyze(world, SampleConfig(samples=16, adaptive=False), cell_m=CELL),
             analyze(world, SampleConfig(samples=16, sequential=False), cell_m=CELL))
 
@@ -139,7 +139,7 @@ def test_every_cell_reaches_a_worker_once(tmp_path: Path, monkeypatch) -> None:
         return measures.measure_cells(map_path, config, cell_m, cells, hints)
 
     monkeypatch.setattr(run, "measure_cells", counting)
-    a = analyze(world, SampleConfig(samples=2), cell_m=CELL)
+    a = analyze(world, SampleConfig(samples=2, adaptive=True), cell_m=CELL)
     sent = sorted(map(tuple, np.concatenate(seen).tolist()))
     i, j = a.grid.absolute(*np.nonzero(a.counts.within_reach >= measures.MIN_VISIBLE))
     assert sent == sorted(zip(i.tolist(), j.tolist(), strict=True))

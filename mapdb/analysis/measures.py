@@ -133,7 +133,7 @@ class SampleConfig:
     fp_threshold: float = DEFAULT_FP_THRESHOLD_M
     sequential: bool = True
     width: float | None = None
-    adaptive: bool = True
+    adaptive: bool = False  # opt-in: an inferred cell's false fixes are not seen (mapdb.analysis.adaptive)
 
     @property
     def stop_width(self) -> float:
