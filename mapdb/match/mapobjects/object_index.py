@@ -17,7 +17,7 @@ from ...objects import Objects
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 
-__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "ObjectIndex"]
+__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "Neighbours", "ObjectIndex"]
 
 # Normalised residual beyond which an object counts as unmatched (a random point would be that close
 # with probability 1 - e^-3 = 95%): also the search bound of the nearest-neighbour queries.
@@ -31,6 +31,40 @@ AREA_NEIGHBOURS = 8
 # Fixed sample of the unit disc (sunflower pattern) for the share of a density disc inside the map.
 _DISC = np.sqrt((np.arange(256) + 0.5) / 256) * np.exp(1j * np.arange(256) * math.pi * (3 - math.sqrt(5)))
 
+
+class Neighbours:
+    """The ``k`` nearest map objects of their own label of projected image objects ``(H, n)``, found once and
+    read by every query of the same points (:meth:`ObjectIndex.neighbours`).
+
+    A round's decision, its label densities around each projected object and its refinement's first
+    association all ask about the same projections; one KD-tree query answers all three (a query costs tens
+    of microseconds whatever its size), and a query of the ``k`` nearest with no bound holds the answer of any
+    query of fewer neighbours within any bound: the first ones within the bound.
+
+    Attributes
+    ----------
+    dist, index : arrays (H * n, k)
+        Distances and indices of each point's ``k`` nearest, nearest first (``inf`` and ``len(index)`` where
+        its label has fewer objects).
+    shape : (H, n)
+        The projections' shape.
+    """
+
+    def __init__(self, dist: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> None:
+        self.dist, self.index, self.shape = dist, index, shape
+
+    @property
+    def k(self) -> int:
+        """Neighbours held per point."""
+        return int(self.dist.shape[1])
+
+    def take(self, rows: np.ndarray | list[int]) -> Neighbours:
+        """The table of the hypotheses ``rows`` (indices into the first axis of ``shape``), in that order."""
+        h, n = self.shape
+        k = self.k
+        rows = np.asarray(rows, np.int64)
+        return Neighbours(self.dist.reshape(h, n, k)[rows].reshape(-1, k),
+                          self.index.reshape(h, n, k)[rows].reshape(-1, k), (rows.size, n))
 
 
 class ObjectIndex:
@@ -119,14 +153,26 @@ class ObjectIndex:
             count[:, present] = np.maximum(np.asarray(found).reshape(h, present.size), 1)
         return count / area[:, None]
 
-    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int) -> np.ndarray:
+    def neighbours(self, w: np.ndarray, img_label: np.ndarray, k: int) -> Neighbours | None:
+        """The ``k`` nearest map objects of each projected image object's label (``w``: ``(H, n)`` complex,
+        ``img_label``: ``(n,)``), for :meth:`nearest` and :meth:`knn_density` of the same ``w`` (their ``near``);
+        None where one query cannot serve them (no objects; an index reading pages as queries need them)."""
+        if self.tree is None or type(self).nearest is not ObjectIndex.nearest:
+            return None
+        labels = np.broadcast_to(img_label, w.shape).ravel()
+        d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(0.5 * self.gap))
+        return Neighbours(d.reshape(labels.size, k), i.reshape(labels.size, k), w.shape)
+
+    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int,
+                    near: Neighbours | None = None) -> np.ndarray:
         """Objects per square metre of each projected image object's label around where it lands.
 
         ``(k - 1) / (pi d_k^2)``, ``d_k`` the distance to the ``k``-th nearest map object of that label: a
         density that follows the map's clustering (a dense old town beside empty slopes), where one
         density over the footprint would make chance alignments in the town look significant.  A label
         with a single map object gets ``1 / (pi d_1^2)``; a label absent from the map, the region's floor.
-        ``w`` is ``(H, n)`` complex; ``img_label`` ``(n,)``.  Returns ``(H, n)``.
+        ``w`` is ``(H, n)`` complex; ``img_label`` ``(n,)``.  Returns ``(H, n)``.  ``near``: :meth:`neighbours` of
+        the same ``w`` with at least ``k`` (used instead of a query of its own).
         """
         shape = w.shape
         labels = np.broadcast_to(img_label, shape).ravel()
@@ -135,22 +181,27 @@ class ObjectIndex:
         sel = np.flatnonzero(kk > 0)
         if self.tree is None or not sel.size:
             return out.reshape(shape)
-        k_max = int(kk[sel].max())
-        d, _ = self.tree.query(self._points(w.ravel()[sel], labels[sel]), k=k_max,
-                               distance_upper_bound=self._bound(0.5 * self.gap))
-        d = d.reshape(sel.size, k_max)[np.arange(sel.size), kk[sel] - 1]
+        if near is not None and near.k >= k:
+            d = near.dist[sel, kk[sel] - 1]
+        else:
+            k_max = int(kk[sel].max())
+            d, _ = self.tree.query(self._points(w.ravel()[sel], labels[sel]), k=k_max,
+                                   distance_upper_bound=self._bound(0.5 * self.gap))
+            d = d.reshape(sel.size, k_max)[np.arange(sel.size), kk[sel] - 1]
         out[sel] = np.maximum(kk[sel] - 1, 1) / (math.pi * np.maximum(d, 1e-3) ** 2)
         return out.reshape(shape)
 
     def nearest(
-        self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray, exclude: np.ndarray | None = None
+        self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray, exclude: np.ndarray | None = None,
+        near: Neighbours | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Distance to, and index of, the nearest map object of each projected image object's label.
 
         ``w`` has shape ``(H, n)`` (map metres, complex); ``img_label`` is ``(n,)`` or ``(H, n)``;
         ``density`` is ``(L,)`` or ``(H, L)``.  Objects with nothing of their label within the
         normalised residual ``U_MAX`` get ``inf`` and -1.  ``exclude`` (complex, ``(H, m)``) lists map
-        positions that row ``h`` may not use: the map points a hypothesis was built from.
+        positions that row ``h`` may not use: the map points a hypothesis was built from.  ``near``:
+        :meth:`neighbours` of the same ``w`` (read instead of a query of its own when it holds enough).
         """
         shape = w.shape
         labels = np.broadcast_to(img_label, shape).ravel()
@@ -158,7 +209,12 @@ class ObjectIndex:
             return np.full(shape, np.inf), np.full(shape, -1, dtype=np.int64)
         reach = self._reach(density, labels)
         k = 1 if exclude is None else 1 + exclude.shape[1]
-        d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(reach.max()))
+        if near is not None and near.k >= k:
+            # Its first k within the reach are what a query of k bounded by the reach finds.
+            d, i = (near.dist[:, 0], near.index[:, 0]) if k == 1 else (near.dist[:, :k], near.index[:, :k])
+        else:
+            d, i = self.tree.query(self._points(w.ravel(), labels), k=k,
+                                   distance_upper_bound=self._bound(reach.max()))
         if k == 1:  # nothing to exclude: the nearest is the answer when within reach
             ok = d <= reach
             return np.where(ok, d, np.inf).reshape(shape), np.where(ok, i, -1).reshape(shape)
