@@ -180,6 +180,29 @@ def label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
     return key
 
 
+# The last lookup's query points, with the arrays they were made from (held, so that identity means equality): a
+# prior's tiles are looked up one after another with the same image quads.
+_last_query: tuple = ()
+
+
+def _query_points(invariants: np.ndarray, labels: np.ndarray, n_labels: int, place: complex | None) -> np.ndarray:
+    """The tree points of image quads: invariants, label key and, for an index with positions, the prior's
+    centre ``place`` (tree units); the last ones again when asked again for the same arrays."""
+    global _last_query
+    last = _last_query
+    if last and last[0] is invariants and last[1] is labels and last[2] == n_labels and last[3] == place:
+        return last[4]
+    m = len(invariants)
+    query = np.empty((m, 5 if place is None else 7))
+    query[:, :4] = invariants
+    np.multiply(label_keys(labels, n_labels), LABEL_GAP, out=query[:, 4])
+    if place is not None:
+        query[:, 5] = place.real
+        query[:, 6] = place.imag
+    _last_query = (invariants, labels, n_labels, place, query)
+    return query
+
+
 class QuadIndex:
     """Quad invariants of map objects in a cKDTree: where image quads are looked up.
 
@@ -270,17 +293,16 @@ class QuadIndex:
         """
         if self.tree is None or not len(invariants):
             return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
-        columns = [invariants, label_keys(labels, len(self.labels)) * LABEL_GAP]
         bound = float(radius.max())
         place, reach = 0j, 0.0  # the prior's disc in tree units
         if self.positions:
             if near is None:
                 raise ValueError("an index with positions is looked up near a place")
             place, reach = complex(near[0]) * POSITION_WEIGHT, POSITION_WEIGHT * float(near[1])
-            columns += [np.full(len(invariants), place.real), np.full(len(invariants), place.imag)]
             bound += reach
         k = min(k, self.n_quads)
-        dist, hit = self.tree.query(np.column_stack(columns), k=k, distance_upper_bound=bound)
+        query = _query_points(invariants, labels, len(self.labels), place if self.positions else None)
+        dist, hit = self.tree.query(query, k=k, distance_upper_bound=bound)
         dist, hit = dist.reshape(len(invariants), k), hit.reshape(len(invariants), k)
         if not self.positions:
             rows, cols = np.nonzero(dist <= radius[:, None])

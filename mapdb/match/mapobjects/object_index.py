@@ -32,6 +32,13 @@ AREA_NEIGHBOURS = 8
 _DISC = np.sqrt((np.arange(256) + 0.5) / 256) * np.exp(1j * np.arange(256) * math.pi * (3 - math.sqrt(5)))
 
 
+def _flat_labels(img_label: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``np.broadcast_to(img_label, shape).ravel()`` for the usual ``(n,)`` labels of ``(H, n)`` points, in one call."""
+    if img_label.ndim == 1 and len(shape) == 2 and img_label.size == shape[1]:
+        return img_label[None, :].repeat(shape[0], axis=0).ravel()
+    return np.broadcast_to(img_label, shape).ravel()
+
+
 class Neighbours:
     """The ``k`` nearest map objects of their own label of projected image objects ``(H, n)``, found once and
     read by every query of the same points (:meth:`ObjectIndex.neighbours`).
@@ -116,6 +123,7 @@ class ObjectIndex:
         self.tree = quick_tree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
         self._area = objects.area
         self._log_area: np.ndarray | None = None  # made on first use: only images with areas need it
+        self._global_reach: tuple[np.ndarray, np.ndarray] | None = None  # (density, reaches): see ``_reach``
         # Each object's ground elevation (metres; NaN unknown), None for a flat map: the terrain evidence's
         # (:mod:`mapdb.match.evidence.terrain`), which keeps its tree in ``terrain``.
         self.elevation = objects.elevation
@@ -125,7 +133,12 @@ class ObjectIndex:
         return int(self.z.size)
 
     def _points(self, w: np.ndarray, labels: np.ndarray) -> np.ndarray:
-        return np.column_stack([w.real, w.imag, labels * self.gap])
+        """The tree points of map positions ``w`` (complex, 1-D) of ``labels``: ``(x, y, label * gap)``."""
+        points = np.empty((w.size, 3))  # filled column by column: a column_stack costs several calls more
+        points[:, 0] = w.real
+        points[:, 1] = w.imag
+        np.multiply(labels, self.gap, out=points[:, 2])
+        return points
 
     def _bound(self, reach: float) -> float:
         return float(min(reach, 0.5 * self.gap))
@@ -159,7 +172,7 @@ class ObjectIndex:
         None where one query cannot serve them (no objects; an index reading pages as queries need them)."""
         if self.tree is None or type(self).nearest is not ObjectIndex.nearest:
             return None
-        labels = np.broadcast_to(img_label, w.shape).ravel()
+        labels = _flat_labels(img_label, w.shape)
         d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(0.5 * self.gap))
         return Neighbours(d.reshape(labels.size, k), i.reshape(labels.size, k), w.shape)
 
@@ -175,7 +188,7 @@ class ObjectIndex:
         the same ``w`` with at least ``k`` (used instead of a query of its own).
         """
         shape = w.shape
-        labels = np.broadcast_to(img_label, shape).ravel()
+        labels = _flat_labels(img_label, shape)
         out = np.full(labels.size, 1.0 / self.area)
         kk = np.minimum(k, self.counts[labels])
         sel = np.flatnonzero(kk > 0)
@@ -204,7 +217,7 @@ class ObjectIndex:
         :meth:`neighbours` of the same ``w`` (read instead of a query of its own when it holds enough).
         """
         shape = w.shape
-        labels = np.broadcast_to(img_label, shape).ravel()
+        labels = _flat_labels(img_label, shape)
         if self.tree is None:
             return np.full(shape, np.inf), np.full(shape, -1, dtype=np.int64)
         reach = self._reach(density, labels)
@@ -231,6 +244,10 @@ class ObjectIndex:
         the answers are bit-identical with and without the cap."""
         if np.ndim(density) > 1:
             return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))[labels]
+        if density is self.density:  # the region's: the same reaches for every image, computed once
+            if self._global_reach is None or self._global_reach[0] is not density:
+                self._global_reach = density, np.minimum(np.sqrt(U_MAX / (math.pi * density)), GLOBAL_REACH_M)
+            return self._global_reach[1][labels]
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
 
     def _first_allowed(self, d: np.ndarray, i: np.ndarray, reach: np.ndarray, exclude: np.ndarray | None,
