@@ -40,9 +40,8 @@ def screen_neighbours(z: np.ndarray, opts: FastOptions) -> np.ndarray:
     """``(n, k)``: each image object's ``opts.screen_objects`` nearest image objects (itself first), the objects
     the screen projects for a hypothesis whose quad starts there."""
     n = z.size
-    return cKDTree(np.column_stack([z.real, z.imag])).query(
-        np.column_stack([z.real, z.imag]), k=min(opts.screen_objects, n)
-    )[1].reshape(n, -1)
+    xy = np.column_stack([z.real, z.imag])
+    return cKDTree(xy).query(xy, k=min(opts.screen_objects, n))[1].reshape(n, -1)
 
 
 def screen_round(hyps: Hypotheses, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, screen_of: np.ndarray,

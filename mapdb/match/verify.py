@@ -101,8 +101,8 @@ def decision_nfa(
         lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours, near=near))
     u = lam * share * math.pi * r2
     zq = z[img_ids]
-    mean = zq.mean(axis=1)
-    spread = (np.abs(zq - mean[:, None]) ** 2).sum(axis=1)
+    mean = np.add.reduce(zq, axis=1) / zq.shape[1]  # zq.mean(axis=1), without the method's Python wrapper
+    spread = np.add.reduce(np.abs(zq - mean[:, None]) ** 2, axis=1)
     shape = 1.25 + np.abs(z[None, :] - mean[:, None]) ** 2 / spread[:, None]
     sample = np.zeros((h, n), bool)
     sample[np.arange(h)[:, None], img_ids] = True
@@ -140,16 +140,17 @@ def refine(
         u = lam * math.pi * dist**2
         nfa, k_best = log10_nfa_curve(u, 4, log10_tests)
         u_sorted = np.sort(u, axis=1)
-        u_cut = u_sorted[rows, np.clip(k_best - 1, 0, n - 1)]
-        inlier = (u <= u_cut[:, None]) & np.isfinite(dist)
+        u_cut = u_sorted[rows, np.minimum(np.maximum(k_best - 1, 0), n - 1)]
+        finite = np.isfinite(dist)
+        inlier = (u <= u_cut[:, None]) & finite
         # A generous second net: everything within GATE_SIGMAS sigmas of the current fit (sigma from its inliers),
         # so that the final fit uses every true correspondence, as the bound does.
         sigma = residual_sigmas(dist, inlier)
-        inlier |= (dist <= GATE_SIGMAS * sigma[:, None]) & np.isfinite(dist)
+        inlier |= (dist <= GATE_SIGMAS * sigma[:, None]) & finite
         inlier &= first_per_map_object(mid, dist, inlier)
         if it == iterations:
             break
-        if previous is not None and np.array_equal(previous[0], inlier) and np.array_equal(previous[1], mid):
+        if previous is not None and (previous[0] == inlier).all() and (previous[1] == mid).all():
             # The same association as the fit that gave (a, b): refitting gives (a, b) again, and every
             # further round the same association, so this is where the iterations would end.
             break

@@ -160,7 +160,7 @@ class ObjectIndex:
         present = np.flatnonzero(self.counts)
         if self.tree is not None and present.size:
             w = np.repeat(centres, present.size)
-            codes = np.tile(present, h)
+            codes = present[None, :].repeat(h, axis=0).ravel()  # np.tile's numbers in one call
             r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
             found = self.tree.query_ball_point(self._points(w, codes), r, return_length=True)
             count[:, present] = np.maximum(np.asarray(found).reshape(h, present.size), 1)
@@ -228,11 +228,11 @@ class ObjectIndex:
         else:
             d, i = self.tree.query(self._points(w.ravel(), labels), k=k,
                                    distance_upper_bound=self._bound(reach.max()))
-        if k == 1:  # nothing to exclude: the nearest is the answer when within reach
+        if exclude is None:  # nothing to exclude: the nearest is the answer when within reach
             ok = d <= reach
             return np.where(ok, d, np.inf).reshape(shape), np.where(ok, i, -1).reshape(shape)
-        rows = np.repeat(np.arange(shape[0]), shape[1])
-        dist, index = self._first_allowed(d.reshape(labels.size, k), i.reshape(labels.size, k), reach, exclude, rows)
+        dist, index = self._first_allowed(d.reshape(labels.size, k), i.reshape(labels.size, k), reach,
+                                          np.repeat(exclude, shape[1], axis=0))
         return dist.reshape(shape), index.reshape(shape)
 
     def _reach(self, density: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -251,12 +251,13 @@ class ObjectIndex:
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
 
     def _first_allowed(self, d: np.ndarray, i: np.ndarray, reach: np.ndarray, exclude: np.ndarray | None,
-                       rows: np.ndarray, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Of ``k`` neighbours a query point (``d``, ``i``: ``(m, k)``), the nearest within reach, not at one of
-        its row's ``exclude`` points and ``allowed`` (``(m, k)``): distances and indices (inf and -1 if none)."""
+        its ``exclude`` points (``(m, e)``: its hypothesis's) and ``allowed`` (``(m, k)``): distances and indices
+        (inf and -1 if none)."""
         found = d <= reach[:, None]
         if exclude is not None:
-            near = np.abs(self.z[np.minimum(i, len(self) - 1)][:, :, None] - exclude[rows][:, None, :])
+            near = np.abs(self.z[np.minimum(i, len(self) - 1)][:, :, None] - exclude[:, None, :])
             found &= ~(near < 1e-6).any(axis=2)
         if allowed is not None:
             found &= allowed
@@ -294,7 +295,7 @@ class ObjectIndex:
                              hi.ravel()[redo][:, None])
         rows = redo // shape[1]
         dist, index = dist.ravel().copy(), index.ravel().copy()
-        dist[redo], index[redo] = self._first_allowed(d, i, reach, exclude, rows, allowed)
+        dist[redo], index[redo] = self._first_allowed(d, i, reach, None if exclude is None else exclude[rows], allowed)
         return dist.reshape(shape), index.reshape(shape)
 
     def at(self, points: np.ndarray, labels: np.ndarray) -> np.ndarray:
