@@ -248,14 +248,16 @@ class QuadIndex:
             quads, zq = quads[frame], zq[frame]
         if len(quads):
             order, inv, _ = canonical_quads(zq)
-            quads = np.take_along_axis(quads, order, axis=1)
-            zq = np.take_along_axis(zq, order, axis=1)
-            keys = label_keys(label[quads], len(self.labels))
-            columns = [inv, keys * LABEL_GAP]
+            flat = order + 4 * np.arange(len(quads))[:, None]  # each row in its canonical order, gathered flat
+            quads, zq = quads.ravel()[flat], zq.ravel()[flat]
+            points = np.empty((len(quads), 7 if positions else 5))
+            points[:, :4] = inv
+            np.multiply(label_keys(label[quads], len(self.labels)), LABEL_GAP, out=points[:, 4])
             if positions:
                 centroid = zq.mean(axis=1)
-                columns += [POSITION_WEIGHT * centroid.real, POSITION_WEIGHT * centroid.imag]
-            self.tree: cKDTree | None = quick_tree(np.column_stack(columns))
+                np.multiply(POSITION_WEIGHT, centroid.real, out=points[:, 5])
+                np.multiply(POSITION_WEIGHT, centroid.imag, out=points[:, 6])
+            self.tree: cKDTree | None = quick_tree(points)
         else:
             self.tree = None
         self.quad_z = zq
