@@ -12,7 +12,11 @@
 3. A gauge of the machine's speed: the median time of a fixed numpy workload (:func:`gauge_ms`), taken before
    each map's timings and printed beside them, and the load average, so that figures from different machines
    (or one machine under different loads) can be compared.
-4. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
+4. A map tile's quad index: what an answer with a prior builds where its disc first reaches a tile
+   (``localizer.TILE_SIZE_M`` square, ``TILE_PAD_M`` of neighbours around it; the tiles of 40 objects picked at
+   random): median and p95 ms, this tree's and the baseline's taking turns tile by tile, and whether their trees
+   and quads are identical.
+5. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
    answer's line on the pipe (the first answer) and to exit, median of ``--repeats`` fresh processes (5 by
    default), the baseline's beside this tree's (its ``mapdb`` and CLI first on ``PYTHONPATH``).  As installed: Python's
    bytecode cache in use (kept in a temporary ``PYTHONPYCACHEPREFIX``, filled by one untimed run of each
@@ -287,6 +291,49 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
     print(f"  load average after: {os.getloadavg()[0]:.1f}; gauge {gauge_ms():.1f} ms")
 
 
+def tile_table(args: argparse.Namespace, maps: dict[str, Path], work: Path, tiles: int = 40) -> None:
+    """Print part 4: per map, median and p95 ms to build a map tile's quad index (with positions, as an answer
+    with a prior does), this tree's and the baseline's taking turns; identical when every tree and quad is."""
+    import numpy as np
+
+    from mapdb.localize.localizer import TILE_PAD_M, TILE_SIZE_M
+    from mapdb.mapfile.reader import open_map
+    from mapdb.match import quads as tree_quads
+
+    versions = {"this tree": tree_quads.QuadIndex}
+    if args.baseline:
+        versions[f"baseline {args.baseline}"] = import_baseline(args.baseline, work, "match.quads").QuadIndex
+    print(f"quad index of a map tile ({TILE_SIZE_M:.0f} m, {TILE_PAD_M:.0f} m of neighbours; {tiles} tiles a map "
+          f"under random objects; load average {os.getloadavg()[0]:.1f}):")
+    for name, path in maps.items():
+        rng = np.random.default_rng(args.seed)
+        with open_map(path) as m:
+            everything = m.all()
+            picked = rng.integers(0, len(everything), tiles)
+            boxes = [(np.floor(everything.x[i] / TILE_SIZE_M) * TILE_SIZE_M,
+                      np.floor(everything.y[i] / TILE_SIZE_M) * TILE_SIZE_M) for i in picked]
+            parts = [(m.query_bbox(x0 - TILE_PAD_M, y0 - TILE_PAD_M, x0 + TILE_SIZE_M + TILE_PAD_M,
+                                   y0 + TILE_SIZE_M + TILE_PAD_M), x0, y0) for x0, y0 in boxes]
+        times: dict[str, list[float]] = {label: [] for label in versions}
+        built: dict[str, list] = {label: [] for label in versions}
+        order = list(versions.items())
+        for j, (objects, x0, y0) in enumerate(parts):
+            anchors = ((objects.x >= x0) & (objects.x < x0 + TILE_SIZE_M) & (objects.y >= y0)
+                       & (objects.y < y0 + TILE_SIZE_M))
+            for label, cls in order if j % 2 == 0 else order[::-1]:
+                start = time.perf_counter()
+                index = cls(objects, 8, anchors=anchors, positions=True)
+                times[label].append((time.perf_counter() - start) * 1000.0)
+                built[label].append((index.quad_z, None if index.tree is None else index.tree.data))
+        first = built["this tree"]
+        for label in versions:
+            same = all(np.array_equal(a[0], b[0]) and (a[1] is None) == (b[1] is None)
+                       and (a[1] is None or np.array_equal(a[1], b[1]))
+                       for a, b in zip(built[label], first, strict=True))
+            print(f"  {name:<14} {label:<17} median {statistics.median(times[label]):7.2f} ms  p95 "
+                  f"{p95(times[label]):7.2f} ms  identical to this tree's: {same}")
+
+
 def _said(pose: tuple) -> str:
     """A :func:`pose_of` tuple, short."""
     return "rejected" if not pose[0] else "ok at ({:.3f}, {:.3f}) heading {:.3f} scale {:.6f}".format(*pose[1:])
@@ -313,6 +360,7 @@ def main() -> None:
         work = Path(tmp)
         if not args.startup_only:
             per_image_table(args, maps, work)
+            tile_table(args, maps, work)
         if not args.no_startup:
             one_image = work / "one.jsonl"
             one_image.write_text(json.dumps(simulated(maps[names[0]], 1, args.seed)[0]) + "\n")

@@ -140,10 +140,11 @@ def lookup_hypotheses(
     if keys is None:
         return empty
     row, order, inv, radius = keys
-    img_ids = np.take_along_axis(quads[row], order, axis=1)
+    img_ids = quads[row[:, None], order]
+    labels = img_label[img_ids]  # one array for every index: a prior's tiles share their query points
     found_img, found_map = [], []
     for index in indexes:
-        q_row, map_z = index.lookup(inv, img_label[img_ids], radius, opts.max_hits_per_quad)
+        q_row, map_z = index.lookup(inv, labels, radius, opts.max_hits_per_quad)
         found_img.append(img_ids[q_row])
         found_map.append(map_z)
     return np.concatenate(found_img), np.concatenate(found_map)
@@ -162,7 +163,7 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     sigma = np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape)
     d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
     by_length = np.argsort(-d, axis=1)
-    length = np.take_along_axis(d, by_length[:, :2], axis=1)  # (m, 2): longest, second longest
+    length = d[np.arange(m)[:, None], by_length[:, :2]]  # (m, 2): longest, second longest
     # The longest pair decides the frame; when the second longest is within noise of it, a noisy image can
     # pick either, so both frames are looked up.
     tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * sigma.max(axis=1)
@@ -173,7 +174,7 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     order0, t0 = quad_frames(zq[sel], by_length[sel, rank])
     # Predicted standard error of the four invariants (see the module docs of decision): per point P of C, D
     # sigma_P^2 + sigma_A^2 |1 - t|^2 + sigma_B^2 |t|^2, over |AB|^2, per axis.
-    s2 = np.take_along_axis(sigma[sel], order0, axis=1) ** 2
+    s2 = sigma[sel[:, None], order0] ** 2
     spread = (s2[:, 2:] + s2[:, :1] * np.abs(1.0 - t0) ** 2 + s2[:, 1:2] * np.abs(t0) ** 2).sum(axis=1)
     radius = opts.tolerance_factor * np.sqrt(spread) / length[sel, rank]
     order, t, ok = _orderings(order0, t0, radius, opts.max_invariant_radius)  # (4, k, ...)
@@ -185,8 +186,7 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     row = np.concatenate([row, row2 + block])
     if not row.size:
         return None
-    t = t[which, row]
-    inv = np.column_stack([t[:, 0].real, t[:, 0].imag, t[:, 1].real, t[:, 1].imag])
+    inv = t[which, row].view(np.float64).reshape(-1, 4)  # Re t_C, Im t_C, Re t_D, Im t_D
     return sel[row], order[which, row], inv, radius[row]
 
 

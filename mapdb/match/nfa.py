@@ -116,17 +116,30 @@ def log10_nfa_curve(
     trials = n - n_sample
     if h == 0 or trials <= 0:
         return np.full(h, np.inf), np.zeros(h, dtype=np.int64)
-    successes = np.arange(1, trials + 1, dtype=np.float64)
+    successes, failures, log10_trials = _counts(trials)
     if sample is not None:
         u = np.where(sample, -1.0, u)  # sorts the hypothesis's own objects first, where they are skipped
     p = _trial_chances(u, n_sample, shape)
     # Every k here lies in 1..trials, so the tail is the incomplete beta function itself (no edge cases):
     # called directly, it costs a third of the general log10_binomial_tail on these small arrays.
     with np.errstate(divide="ignore"):
-        tail = np.log10(betainc(successes, trials - successes + 1.0, np.clip(p, 0.0, 1.0)))
-    curve = log10_tests + np.log10(trials) + np.maximum(tail, _LOG10_FLOOR)
-    best = np.argmin(curve, axis=1)
+        tail = np.log10(betainc(successes, failures, np.minimum(np.maximum(p, 0.0), 1.0)))
+    curve = log10_tests + log10_trials + np.maximum(tail, _LOG10_FLOOR)
+    best = curve.argmin(axis=1)
     return curve[np.arange(h), best], best + 1 + n_sample
+
+
+_COUNTS: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
+
+
+def _counts(trials: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """The binomial tail's arguments for ``trials`` trials, ``k`` = 1..trials successes (``k`` and
+    ``trials - k + 1``), and ``log10(trials)``: the same few dozen values for every image, made once."""
+    found = _COUNTS.get(trials)
+    if found is None:
+        successes = np.arange(1, trials + 1, dtype=np.float64)
+        found = _COUNTS[trials] = successes, trials - successes + 1.0, np.log10(trials)
+    return found
 
 
 def _trial_chances(u: np.ndarray, n_sample: int, shape: np.ndarray | None) -> np.ndarray:
@@ -137,14 +150,19 @@ def _trial_chances(u: np.ndarray, n_sample: int, shape: np.ndarray | None) -> np
         with np.errstate(over="ignore", invalid="ignore"):
             p = -np.expm1(-u_sorted)  # 1 - exp(-u), accurate for small u; inf -> 1
         return np.where(np.isfinite(u_sorted), p, 1.0)
-    shape = np.broadcast_to(np.asarray(shape, dtype=np.float64), u.shape)
+    shape = np.asarray(shape, dtype=np.float64)
+    if shape.shape != u.shape:
+        shape = np.broadcast_to(shape, u.shape)
     v = u / shape
-    order = np.argsort(v, axis=1)
-    v_sorted = np.take_along_axis(v, order, axis=1)[:, n_sample:]
-    rest = np.take_along_axis(shape, order, axis=1)[:, n_sample:]  # (H, trials): the trial objects
-    # p[h, j] = mean over trial objects i of 1 - exp(-tau_j * shape_i), tau_j the j-th threshold.
+    order = v.argsort(axis=1)
+    rows = np.arange(len(v))[:, None]
+    v_sorted = v[rows, order[:, n_sample:]]
+    rest = shape[rows, order[:, n_sample:]]  # (H, trials): the trial objects
+    # p[h, j] = mean over trial objects i of 1 - exp(-tau_j * shape_i), tau_j the j-th threshold.  (The mean as
+    # numpy's: the sum, then divided by the count.)
     with np.errstate(over="ignore", invalid="ignore"):
-        p = -np.expm1(-v_sorted[:, :, None] * rest[:, None, :]).mean(axis=2)  # inf thresholds give 1 already
+        p = -(np.add.reduce(np.expm1(-v_sorted[:, :, None] * rest[:, None, :]), axis=2)
+              / rest.shape[1])  # inf thresholds give 1 already
     if np.isnan(p).any():  # only for degenerate shapes (0 or inf): count such objects as certain chances
         chance = -np.expm1(-v_sorted[:, :, None] * rest[:, None, :])
         chance = np.where(np.isfinite(v_sorted)[:, :, None], chance, 1.0)

@@ -27,6 +27,8 @@ LABEL_GAP = 100.0
 PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 
 OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
+# Per pair, the vertex order (A, B, C, D) it gives: the pair, then the two others.
+_ORDERS = np.concatenate([PAIRS, OTHERS], axis=1)
 
 # Quads of fewer points than this are packed into one int64 key (n**4 < 2**63).
 _PACKABLE = 55_000
@@ -149,18 +151,24 @@ def canonical_quads(zq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     ab : (m,) float
         Length of ``AB``.
     """
-    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
-    pair = np.argmax(d, axis=1)
-    order, t = quad_frames(zq, pair)
+    m = len(zq)
+    # Column by column and into one array, the same numbers as a fancy-indexed (m, 6) difference: an index of
+    # a map tile's ten thousand quads spends a third of its time here.
+    d = np.empty((m, 6))
+    for j, (p, q) in enumerate(PAIRS.tolist()):
+        np.abs(zq[:, p] - zq[:, q], out=d[:, j])
+    pair = d.argmax(axis=1)
+    order = _ORDERS[pair]
+    ordered = zq.ravel()[order + 4 * np.arange(m)[:, None]]  # A, B, C, D of each quad
+    a = ordered[:, 0]
+    t = (ordered[:, 2:] - a[:, None]) / (ordered[:, 1] - a)[:, None]
     swap_ab = t.real.sum(axis=1) > 1.0
     order[swap_ab, :2] = order[swap_ab, 1::-1]
     t[swap_ab] = 1.0 - t[swap_ab]
     swap_cd = t[:, 0].real > t[:, 1].real
     order[swap_cd, 2:] = order[swap_cd, :1:-1]
     t[swap_cd] = t[swap_cd, ::-1]
-    return order, np.column_stack([t[:, 0].real, t[:, 0].imag, t[:, 1].real, t[:, 1].imag]), d[
-        np.arange(len(zq)), pair
-    ]
+    return order, t.view(np.float64).reshape(m, 4), d[np.arange(m), pair]
 
 
 def label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
@@ -170,6 +178,29 @@ def label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
     for j in range(4):
         key = key * base + labels[:, j]
     return key
+
+
+# The last lookup's query points, with the arrays they were made from (held, so that identity means equality): a
+# prior's tiles are looked up one after another with the same image quads.
+_last_query: tuple = ()
+
+
+def _query_points(invariants: np.ndarray, labels: np.ndarray, n_labels: int, place: complex | None) -> np.ndarray:
+    """The tree points of image quads: invariants, label key and, for an index with positions, the prior's
+    centre ``place`` (tree units); the last ones again when asked again for the same arrays."""
+    global _last_query
+    last = _last_query
+    if last and last[0] is invariants and last[1] is labels and last[2] == n_labels and last[3] == place:
+        return last[4]
+    m = len(invariants)
+    query = np.empty((m, 5 if place is None else 7))
+    query[:, :4] = invariants
+    np.multiply(label_keys(labels, n_labels), LABEL_GAP, out=query[:, 4])
+    if place is not None:
+        query[:, 5] = place.real
+        query[:, 6] = place.imag
+    _last_query = (invariants, labels, n_labels, place, query)
+    return query
 
 
 class QuadIndex:
@@ -210,21 +241,26 @@ class QuadIndex:
             quads = neighbour_quads(np.column_stack([objects.x, objects.y]), neighbours, anchors=anchors)
         else:
             quads = np.zeros((0, 4), np.int64)
+        zq = z[quads]
         if len(quads):
             # Four objects on one spot (duplicates in the sources) have no frame.
-            quads = quads[np.abs(z[quads] - z[quads[:, :1]]).max(axis=1) > 0.0]
+            frame = (zq[:, 1:] != zq[:, :1]).any(axis=1)
+            quads, zq = quads[frame], zq[frame]
         if len(quads):
-            order, inv, _ = canonical_quads(z[quads])
-            quads = np.take_along_axis(quads, order, axis=1)
-            keys = label_keys(label[quads], len(self.labels))
-            columns = [inv, keys * LABEL_GAP]
+            order, inv, _ = canonical_quads(zq)
+            flat = order + 4 * np.arange(len(quads))[:, None]  # each row in its canonical order, gathered flat
+            quads, zq = quads.ravel()[flat], zq.ravel()[flat]
+            points = np.empty((len(quads), 7 if positions else 5))
+            points[:, :4] = inv
+            np.multiply(label_keys(label[quads], len(self.labels)), LABEL_GAP, out=points[:, 4])
             if positions:
-                centroid = z[quads].mean(axis=1)
-                columns += [POSITION_WEIGHT * centroid.real, POSITION_WEIGHT * centroid.imag]
-            self.tree: cKDTree | None = quick_tree(np.column_stack(columns))
+                centroid = zq.mean(axis=1)
+                np.multiply(POSITION_WEIGHT, centroid.real, out=points[:, 5])
+                np.multiply(POSITION_WEIGHT, centroid.imag, out=points[:, 6])
+            self.tree: cKDTree | None = quick_tree(points)
         else:
             self.tree = None
-        self.quad_z = z[quads]
+        self.quad_z = zq
 
     @property
     def n_quads(self) -> int:
@@ -259,17 +295,16 @@ class QuadIndex:
         """
         if self.tree is None or not len(invariants):
             return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
-        columns = [invariants, label_keys(labels, len(self.labels)) * LABEL_GAP]
         bound = float(radius.max())
         place, reach = 0j, 0.0  # the prior's disc in tree units
         if self.positions:
             if near is None:
                 raise ValueError("an index with positions is looked up near a place")
             place, reach = complex(near[0]) * POSITION_WEIGHT, POSITION_WEIGHT * float(near[1])
-            columns += [np.full(len(invariants), place.real), np.full(len(invariants), place.imag)]
             bound += reach
         k = min(k, self.n_quads)
-        dist, hit = self.tree.query(np.column_stack(columns), k=k, distance_upper_bound=bound)
+        query = _query_points(invariants, labels, len(self.labels), place if self.positions else None)
+        dist, hit = self.tree.query(query, k=k, distance_upper_bound=bound)
         dist, hit = dist.reshape(len(invariants), k), hit.reshape(len(invariants), k)
         if not self.positions:
             rows, cols = np.nonzero(dist <= radius[:, None])

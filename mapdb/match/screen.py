@@ -40,9 +40,8 @@ def screen_neighbours(z: np.ndarray, opts: FastOptions) -> np.ndarray:
     """``(n, k)``: each image object's ``opts.screen_objects`` nearest image objects (itself first), the objects
     the screen projects for a hypothesis whose quad starts there."""
     n = z.size
-    return cKDTree(np.column_stack([z.real, z.imag])).query(
-        np.column_stack([z.real, z.imag]), k=min(opts.screen_objects, n)
-    )[1].reshape(n, -1)
+    xy = np.column_stack([z.real, z.imag])
+    return cKDTree(xy).query(xy, k=min(opts.screen_objects, n))[1].reshape(n, -1)
 
 
 def screen_round(hyps: Hypotheses, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, screen_of: np.ndarray,
@@ -80,10 +79,17 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
     # Screen: the shortlist ...
     hyps = hyps.take(screen(hyps.a, hyps.b, hyps.img_ids, screen_of, z, img_label, index, log10_tests,
                             opts.shortlist))
-    # ... gets the full test (all objects, tolerances shaped by each quad's geometry) ...
-    nfa = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, index.density, log10_tests)
-    hyps = hyps.take(distinct(hyps.b, np.argsort(nfa, kind="stable"), np.abs(hyps.a) * diag_px * PLACE_FRACTION,
-                              opts.refine_candidates))
+    # ... gets the full test (all objects, tolerances shaped by each quad's geometry) ...  One query of the
+    # shortlist's projections serves this test, the decision's (its nearest objects and densities) and the first
+    # association of the refinement: they all ask about the same points.
+    near = index.neighbours(hyps.a[:, None] * z[None, :] + hyps.b[:, None], img_label,
+                            max(1 + hyps.map_z.shape[1], opts.density_neighbours))
+    nfa = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, index.density, log10_tests,
+                       near=near)
+    chosen = distinct(hyps.b, np.argsort(nfa, kind="stable"), np.abs(hyps.a) * diag_px * PLACE_FRACTION,
+                      opts.refine_candidates)
+    hyps = hyps.take(chosen)
+    near = None if near is None else near.take(chosen)
     # ... and the decision is that test with the label densities around each place.  It is taken on the
     # hypotheses as they came from their quads (AC-RANSAC's rule: a model refitted to its own inliers looks
     # better than chance says); refinement then only improves the position.
@@ -92,13 +98,14 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
     a, b = hyps.a, hyps.b
     if evidence is not None and evidence.terrain is not None:  # over terrain: each quad's rays on its heights
         a, b = evidence.terrain.requad(a, b, z[hyps.img_ids], hyps.map_z)
+        near = None  # other projections
     nfa = decision_nfa(a, b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
-                       opts.density_neighbours, evidence, radius)
+                       opts.density_neighbours, evidence, radius, near)
     points = None
     if evidence is not None and evidence.areas is not None:
         # The areas may add evidence, never take away a place the positions alone make certain.
         points = decision_nfa(a, b, hyps.img_ids, hyps.map_z, z, img_label, index, density, log10_tests,
-                              opts.density_neighbours, replace(evidence, areas=None), radius)
+                              opts.density_neighbours, replace(evidence, areas=None), radius, near)
         nfa = points_floor(nfa, points)
-    a, b, _, inlier, mid, dist = refine(a, b, z, img_label, index, density, log10_tests, 2, evidence)
+    a, b, _, inlier, mid, dist = refine(a, b, z, img_label, index, density, log10_tests, 2, evidence, near=near)
     return candidates(a, b, nfa, inlier, mid, dist, z, points)

@@ -16,7 +16,7 @@ import numpy as np
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, first_per_map_object, residual_sigmas
 from .geometry import fit_similarity_complex
-from .mapobjects.object_index import ObjectIndex
+from .mapobjects.object_index import Neighbours, ObjectIndex
 from .nfa import log10_nfa_curve
 
 __all__ = ["ObjectIndex", "decision_nfa", "refine", "screen"]
@@ -68,6 +68,7 @@ def decision_nfa(
     local_neighbours: int = 0,
     evidence: ImageEvidence | None = None,
     area_radius: np.ndarray | None = None,
+    near: Neighbours | None = None,
 ) -> np.ndarray:
     """log10 NFA of quad hypotheses over all image objects, tolerances shaped by each quad's geometry.
 
@@ -82,23 +83,26 @@ def decision_nfa(
     its blob says it lies and its residual measured in its error ellipse (:mod:`mapdb.match.evidence.blobs`: blobs
     cut by the image border); with both, a cut blob of a solid label is measured from where each candidate map
     object's own area puts it (:func:`~mapdb.match.evidence.blobs.cut_area_residuals`).
+
+    ``near`` (:meth:`~mapdb.match.mapobjects.object_index.ObjectIndex.neighbours` of ``a z + b``, at least
+    ``max(5, local_neighbours)`` of them) answers the nearest-object and density queries instead of the index.
     """
     h, n = len(a), z.size
     w = a[:, None] * z[None, :] + b[:, None] if evidence is None else evidence.project(a, b, z)
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
     r2, share, from_sample = (evidence or _POINTS).residuals(w, a, b, img_ids, map_z, z, img_label, index, density,
-                                                             area_radius)
+                                                             area_radius, near)
     lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
     if local_neighbours:
         # The larger of the two densities: neither a dense old town beside empty slopes (the footprint's
         # mean density is too low there) nor an isolated object on a slope (its neighbours' distances
         # say the map is emptier than it is around the footprint) makes a chance alignment look rarer.
-        lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours))
+        lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours, near=near))
     u = lam * share * math.pi * r2
     zq = z[img_ids]
-    mean = zq.mean(axis=1)
-    spread = (np.abs(zq - mean[:, None]) ** 2).sum(axis=1)
+    mean = np.add.reduce(zq, axis=1) / zq.shape[1]  # zq.mean(axis=1), without the method's Python wrapper
+    spread = np.add.reduce(np.abs(zq - mean[:, None]) ** 2, axis=1)
     shape = 1.25 + np.abs(z[None, :] - mean[:, None]) ** 2 / spread[:, None]
     sample = np.zeros((h, n), bool)
     sample[np.arange(h)[:, None], img_ids] = True
@@ -117,32 +121,36 @@ def refine(
     iterations: int,
     evidence: ImageEvidence | None = None,
     map_z: np.ndarray | None = None,
+    near: Neighbours | None = None,
 ) -> tuple[np.ndarray, ...]:
     """Re-associate and refit ``H`` hypotheses; returns a, b, log10 NFA, inlier mask, map ids, distances.
 
     Over terrain (``evidence.terrain``) each ray is cast onto the ground (``map_z``: the map points each
-    hypothesis was fitted to) and the refit takes the image points rescaled for their map objects' heights."""
+    hypothesis was fitted to) and the refit takes the image points rescaled for their map objects' heights.
+    ``near``: :meth:`~mapdb.match.mapobjects.object_index.ObjectIndex.neighbours` of ``a z + b``, the first
+    association's (on flat ground) instead of a query."""
     h, n = len(a), z.size
     rows = np.arange(h)
     previous: tuple[np.ndarray, np.ndarray] | None = None
     terrain = None if evidence is None else evidence.terrain
     for it in range(iterations + 1):
         w = a[:, None] * z[None, :] + b[:, None] if terrain is None else terrain.project(a, b, z, map_z)
-        dist, mid = index.nearest(w, img_label, density)
+        dist, mid = index.nearest(w, img_label, density, near=near if it == 0 and terrain is None else None)
         lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
         u = lam * math.pi * dist**2
         nfa, k_best = log10_nfa_curve(u, 4, log10_tests)
         u_sorted = np.sort(u, axis=1)
-        u_cut = u_sorted[rows, np.clip(k_best - 1, 0, n - 1)]
-        inlier = (u <= u_cut[:, None]) & np.isfinite(dist)
+        u_cut = u_sorted[rows, np.minimum(np.maximum(k_best - 1, 0), n - 1)]
+        finite = np.isfinite(dist)
+        inlier = (u <= u_cut[:, None]) & finite
         # A generous second net: everything within GATE_SIGMAS sigmas of the current fit (sigma from its inliers),
         # so that the final fit uses every true correspondence, as the bound does.
         sigma = residual_sigmas(dist, inlier)
-        inlier |= (dist <= GATE_SIGMAS * sigma[:, None]) & np.isfinite(dist)
+        inlier |= (dist <= GATE_SIGMAS * sigma[:, None]) & finite
         inlier &= first_per_map_object(mid, dist, inlier)
         if it == iterations:
             break
-        if previous is not None and np.array_equal(previous[0], inlier) and np.array_equal(previous[1], mid):
+        if previous is not None and (previous[0] == inlier).all() and (previous[1] == mid).all():
             # The same association as the fit that gave (a, b): refitting gives (a, b) again, and every
             # further round the same association, so this is where the iterations would end.
             break

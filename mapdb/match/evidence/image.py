@@ -35,7 +35,7 @@ from .relief import ReliefFit, fit_with_relief, leave_one_out_sigma
 from .terrain import TerrainModel
 
 if TYPE_CHECKING:
-    from ..mapobjects.object_index import ObjectIndex
+    from ..mapobjects.object_index import Neighbours, ObjectIndex
 
 __all__ = ["ImageEvidence"]
 
@@ -97,7 +97,8 @@ class ImageEvidence:
 
     def residuals(self, w: np.ndarray, a: np.ndarray, b: np.ndarray, img_ids: np.ndarray, map_z: np.ndarray,
                   z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, density: np.ndarray,
-                  area_radius: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | float, np.ndarray]:
+                  area_radius: np.ndarray | None = None, near: Neighbours | None = None
+                  ) -> tuple[np.ndarray, np.ndarray | float, np.ndarray]:
         """The decision's evidence under hypotheses ``z -> a z + b`` (``w``: the objects so projected, ``(H, n)``)
         built from the quads ``img_ids``, ``map_z`` (``(H, 4)``).
 
@@ -105,7 +106,8 @@ class ImageEvidence:
         points excluded (point residuals; with ``errors``, measured in each blob's error ellipse), the share of
         its label's map objects it could be (with ``areas`` and ``area_radius``, the density disc's radius per
         hypothesis: those of a compatible area; else 1), and a log10 factor ``(H,)`` from the areas of each
-        quad's own objects (else 0).
+        quad's own objects (else 0).  ``near``: the neighbours of ``w`` (:meth:`~mapdb.match.mapobjects.object_index.
+        ObjectIndex.neighbours`), read instead of a query where the residuals are measured from ``w`` itself.
         """
         errors, areas = self.errors, self.areas
         expected = w if errors is None else errors.expected(a, b, z)
@@ -121,7 +123,9 @@ class ImageEvidence:
                               hi[rows, img_ids])
             from_sample = sample_evidence(fits, share[rows, img_ids])
         else:
-            dist, mid = index.nearest(expected, img_label, density, exclude=map_z)
+            # ``near`` holds the neighbours of ``w``: of use only where the residuals are measured from it.
+            dist, mid = index.nearest(expected, img_label, density, exclude=map_z,
+                                      near=near if errors is None else None)
         if errors is None:
             return dist**2, share, from_sample
         r2 = np.where(mid >= 0, errors.r2(a, b, z, index.z[np.maximum(mid, 0)]), np.inf)

@@ -23,9 +23,9 @@ def residual_sigmas(dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
     ``dist`` and ``inlier`` are ``(H, n)``; 4 parameters are fitted, so ``2k - 4`` degrees of freedom
     (at least 1).
     """
-    k = inlier.sum(axis=1)
+    k = np.add.reduce(inlier, axis=1)  # an integer count (as inlier.sum), without the method's Python wrapper
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(np.where(inlier, dist**2, 0.0).sum(axis=1) / np.maximum(2 * k - 4, 1))
+        return np.sqrt(np.add.reduce(np.where(inlier, dist**2, 0.0), axis=1) / np.maximum(2 * k - 4, 1))
 
 
 def first_per_map_object(mid: np.ndarray, dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from ...objects import Objects
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 
-__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "ObjectIndex"]
+__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "Neighbours", "ObjectIndex"]
 
 # Normalised residual beyond which an object counts as unmatched (a random point would be that close
 # with probability 1 - e^-3 = 95%): also the search bound of the nearest-neighbour queries.
@@ -31,6 +31,47 @@ AREA_NEIGHBOURS = 8
 # Fixed sample of the unit disc (sunflower pattern) for the share of a density disc inside the map.
 _DISC = np.sqrt((np.arange(256) + 0.5) / 256) * np.exp(1j * np.arange(256) * math.pi * (3 - math.sqrt(5)))
 
+
+def _flat_labels(img_label: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``np.broadcast_to(img_label, shape).ravel()`` for the usual ``(n,)`` labels of ``(H, n)`` points, in one call."""
+    if img_label.ndim == 1 and len(shape) == 2 and img_label.size == shape[1]:
+        return img_label[None, :].repeat(shape[0], axis=0).ravel()
+    return np.broadcast_to(img_label, shape).ravel()
+
+
+class Neighbours:
+    """The ``k`` nearest map objects of their own label of projected image objects ``(H, n)``, found once and
+    read by every query of the same points (:meth:`ObjectIndex.neighbours`).
+
+    A round's decision, its label densities around each projected object and its refinement's first
+    association all ask about the same projections; one KD-tree query answers all three (a query costs tens
+    of microseconds whatever its size), and a query of the ``k`` nearest with no bound holds the answer of any
+    query of fewer neighbours within any bound: the first ones within the bound.
+
+    Attributes
+    ----------
+    dist, index : arrays (H * n, k)
+        Distances and indices of each point's ``k`` nearest, nearest first (``inf`` and ``len(index)`` where
+        its label has fewer objects).
+    shape : (H, n)
+        The projections' shape.
+    """
+
+    def __init__(self, dist: np.ndarray, index: np.ndarray, shape: tuple[int, int]) -> None:
+        self.dist, self.index, self.shape = dist, index, shape
+
+    @property
+    def k(self) -> int:
+        """Neighbours held per point."""
+        return int(self.dist.shape[1])
+
+    def take(self, rows: np.ndarray | list[int]) -> Neighbours:
+        """The table of the hypotheses ``rows`` (indices into the first axis of ``shape``), in that order."""
+        h, n = self.shape
+        k = self.k
+        rows = np.asarray(rows, np.int64)
+        return Neighbours(self.dist.reshape(h, n, k)[rows].reshape(-1, k),
+                          self.index.reshape(h, n, k)[rows].reshape(-1, k), (rows.size, n))
 
 
 class ObjectIndex:
@@ -82,6 +123,7 @@ class ObjectIndex:
         self.tree = quick_tree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
         self._area = objects.area
         self._log_area: np.ndarray | None = None  # made on first use: only images with areas need it
+        self._global_reach: tuple[np.ndarray, np.ndarray] | None = None  # (density, reaches): see ``_reach``
         # Each object's ground elevation (metres; NaN unknown), None for a flat map: the terrain evidence's
         # (:mod:`mapdb.match.evidence.terrain`), which keeps its tree in ``terrain``.
         self.elevation = objects.elevation
@@ -91,7 +133,12 @@ class ObjectIndex:
         return int(self.z.size)
 
     def _points(self, w: np.ndarray, labels: np.ndarray) -> np.ndarray:
-        return np.column_stack([w.real, w.imag, labels * self.gap])
+        """The tree points of map positions ``w`` (complex, 1-D) of ``labels``: ``(x, y, label * gap)``."""
+        points = np.empty((w.size, 3))  # filled column by column: a column_stack costs several calls more
+        points[:, 0] = w.real
+        points[:, 1] = w.imag
+        np.multiply(labels, self.gap, out=points[:, 2])
+        return points
 
     def _bound(self, reach: float) -> float:
         return float(min(reach, 0.5 * self.gap))
@@ -108,62 +155,85 @@ class ObjectIndex:
         minx, miny, maxx, maxy = self.bounds
         disc = centres[:, None] + radius[:, None] * _DISC[None, :]
         inside = (disc.real >= minx) & (disc.real <= maxx) & (disc.imag >= miny) & (disc.imag <= maxy)
-        area = math.pi * radius**2 * np.maximum(inside.mean(axis=1), 1.0 / _DISC.size)
+        share = np.add.reduce(inside, axis=1, dtype=np.float64) / _DISC.size  # inside.mean(axis=1), one call
+        area = math.pi * radius**2 * np.maximum(share, 1.0 / _DISC.size)
         count = np.ones((h, n_labels))
         present = np.flatnonzero(self.counts)
         if self.tree is not None and present.size:
             w = np.repeat(centres, present.size)
-            codes = np.tile(present, h)
+            codes = present[None, :].repeat(h, axis=0).ravel()  # np.tile's numbers in one call
             r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
             found = self.tree.query_ball_point(self._points(w, codes), r, return_length=True)
             count[:, present] = np.maximum(np.asarray(found).reshape(h, present.size), 1)
         return count / area[:, None]
 
-    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int) -> np.ndarray:
+    def neighbours(self, w: np.ndarray, img_label: np.ndarray, k: int) -> Neighbours | None:
+        """The ``k`` nearest map objects of each projected image object's label (``w``: ``(H, n)`` complex,
+        ``img_label``: ``(n,)``), for :meth:`nearest` and :meth:`knn_density` of the same ``w`` (their ``near``);
+        None where one query cannot serve them (no objects; an index reading pages as queries need them)."""
+        if self.tree is None or type(self).nearest is not ObjectIndex.nearest:
+            return None
+        labels = _flat_labels(img_label, w.shape)
+        d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(0.5 * self.gap))
+        return Neighbours(d.reshape(labels.size, k), i.reshape(labels.size, k), w.shape)
+
+    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int,
+                    near: Neighbours | None = None) -> np.ndarray:
         """Objects per square metre of each projected image object's label around where it lands.
 
         ``(k - 1) / (pi d_k^2)``, ``d_k`` the distance to the ``k``-th nearest map object of that label: a
         density that follows the map's clustering (a dense old town beside empty slopes), where one
         density over the footprint would make chance alignments in the town look significant.  A label
         with a single map object gets ``1 / (pi d_1^2)``; a label absent from the map, the region's floor.
-        ``w`` is ``(H, n)`` complex; ``img_label`` ``(n,)``.  Returns ``(H, n)``.
+        ``w`` is ``(H, n)`` complex; ``img_label`` ``(n,)``.  Returns ``(H, n)``.  ``near``: :meth:`neighbours` of
+        the same ``w`` with at least ``k`` (used instead of a query of its own).
         """
         shape = w.shape
-        labels = np.broadcast_to(img_label, shape).ravel()
+        labels = _flat_labels(img_label, shape)
         out = np.full(labels.size, 1.0 / self.area)
         kk = np.minimum(k, self.counts[labels])
         sel = np.flatnonzero(kk > 0)
         if self.tree is None or not sel.size:
             return out.reshape(shape)
-        k_max = int(kk[sel].max())
-        d, _ = self.tree.query(self._points(w.ravel()[sel], labels[sel]), k=k_max,
-                               distance_upper_bound=self._bound(0.5 * self.gap))
-        d = d.reshape(sel.size, k_max)[np.arange(sel.size), kk[sel] - 1]
+        if near is not None and near.k >= k:
+            d = near.dist[sel, kk[sel] - 1]
+        else:
+            k_max = int(kk[sel].max())
+            d, _ = self.tree.query(self._points(w.ravel()[sel], labels[sel]), k=k_max,
+                                   distance_upper_bound=self._bound(0.5 * self.gap))
+            d = d.reshape(sel.size, k_max)[np.arange(sel.size), kk[sel] - 1]
         out[sel] = np.maximum(kk[sel] - 1, 1) / (math.pi * np.maximum(d, 1e-3) ** 2)
         return out.reshape(shape)
 
     def nearest(
-        self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray, exclude: np.ndarray | None = None
+        self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray, exclude: np.ndarray | None = None,
+        near: Neighbours | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Distance to, and index of, the nearest map object of each projected image object's label.
 
         ``w`` has shape ``(H, n)`` (map metres, complex); ``img_label`` is ``(n,)`` or ``(H, n)``;
         ``density`` is ``(L,)`` or ``(H, L)``.  Objects with nothing of their label within the
         normalised residual ``U_MAX`` get ``inf`` and -1.  ``exclude`` (complex, ``(H, m)``) lists map
-        positions that row ``h`` may not use: the map points a hypothesis was built from.
+        positions that row ``h`` may not use: the map points a hypothesis was built from.  ``near``:
+        :meth:`neighbours` of the same ``w`` (read instead of a query of its own when it holds enough).
         """
         shape = w.shape
-        labels = np.broadcast_to(img_label, shape).ravel()
+        labels = _flat_labels(img_label, shape)
         if self.tree is None:
             return np.full(shape, np.inf), np.full(shape, -1, dtype=np.int64)
         reach = self._reach(density, labels)
         k = 1 if exclude is None else 1 + exclude.shape[1]
-        d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(reach.max()))
-        if k == 1:  # nothing to exclude: the nearest is the answer when within reach
+        if near is not None and near.k >= k:
+            # Its first k within the reach are what a query of k bounded by the reach finds.
+            d, i = (near.dist[:, 0], near.index[:, 0]) if k == 1 else (near.dist[:, :k], near.index[:, :k])
+        else:
+            d, i = self.tree.query(self._points(w.ravel(), labels), k=k,
+                                   distance_upper_bound=self._bound(reach.max()))
+        if exclude is None:  # nothing to exclude: the nearest is the answer when within reach
             ok = d <= reach
             return np.where(ok, d, np.inf).reshape(shape), np.where(ok, i, -1).reshape(shape)
-        rows = np.repeat(np.arange(shape[0]), shape[1])
-        dist, index = self._first_allowed(d.reshape(labels.size, k), i.reshape(labels.size, k), reach, exclude, rows)
+        dist, index = self._first_allowed(d.reshape(labels.size, k), i.reshape(labels.size, k), reach,
+                                          np.repeat(exclude, shape[1], axis=0))
         return dist.reshape(shape), index.reshape(shape)
 
     def _reach(self, density: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -175,15 +245,20 @@ class ObjectIndex:
         the answers are bit-identical with and without the cap."""
         if np.ndim(density) > 1:
             return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))[labels]
+        if density is self.density:  # the region's: the same reaches for every image, computed once
+            if self._global_reach is None or self._global_reach[0] is not density:
+                self._global_reach = density, np.minimum(np.sqrt(U_MAX / (math.pi * density)), GLOBAL_REACH_M)
+            return self._global_reach[1][labels]
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
 
     def _first_allowed(self, d: np.ndarray, i: np.ndarray, reach: np.ndarray, exclude: np.ndarray | None,
-                       rows: np.ndarray, allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Of ``k`` neighbours a query point (``d``, ``i``: ``(m, k)``), the nearest within reach, not at one of
-        its row's ``exclude`` points and ``allowed`` (``(m, k)``): distances and indices (inf and -1 if none)."""
+        its ``exclude`` points (``(m, e)``: its hypothesis's) and ``allowed`` (``(m, k)``): distances and indices
+        (inf and -1 if none)."""
         found = d <= reach[:, None]
         if exclude is not None:
-            near = np.abs(self.z[np.minimum(i, len(self) - 1)][:, :, None] - exclude[rows][:, None, :])
+            near = np.abs(self.z[np.minimum(i, len(self) - 1)][:, :, None] - exclude[:, None, :])
             found &= ~(near < 1e-6).any(axis=2)
         if allowed is not None:
             found &= allowed
@@ -221,7 +296,7 @@ class ObjectIndex:
                              hi.ravel()[redo][:, None])
         rows = redo // shape[1]
         dist, index = dist.ravel().copy(), index.ravel().copy()
-        dist[redo], index[redo] = self._first_allowed(d, i, reach, exclude, rows, allowed)
+        dist[redo], index[redo] = self._first_allowed(d, i, reach, None if exclude is None else exclude[rows], allowed)
         return dist.reshape(shape), index.reshape(shape)
 
     def at(self, points: np.ndarray, labels: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ import shapely
 from ...objects import Objects, concat
 from ..arrays import sorted_unique
 from .kd_forest import Forest
-from .object_index import ObjectIndex
+from .object_index import Neighbours, ObjectIndex
 
 __all__ = ["PAGED_FROM_OBJECTS", "PagedObjectIndex", "WholeMapObjects"]
 
@@ -143,7 +143,9 @@ class PagedObjectIndex(ObjectIndex):
         return super().local_density(centres, radius)
 
     def nearest(self, w: np.ndarray, img_label: np.ndarray, density: np.ndarray,
-                exclude: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                exclude: np.ndarray | None = None, near: Neighbours | None = None) -> tuple[np.ndarray, np.ndarray]:
+        # ``near`` is never made for this index (:meth:`ObjectIndex.neighbours` gives None): its pages are
+        # read as each query reaches them.
         # The reach :meth:`ObjectIndex.nearest` gives each object: beyond it nothing counts.  Most objects
         # find theirs close by, so the pages within ``FIRST_REACH_M`` are read first: an answer no farther
         # than what is loaded all round is the whole map's (anything nearer would be loaded too).  Only the
@@ -176,7 +178,8 @@ class PagedObjectIndex(ObjectIndex):
         self._cover(w, gate)
         return super().within(w, img_label, gate, k)
 
-    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int) -> np.ndarray:
+    def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int,
+                    near: Neighbours | None = None) -> np.ndarray:
         labels = np.broadcast_to(img_label, np.shape(w))
         kk = np.minimum(k, self.counts[labels])
         grow = FIRST_REACH_M
