@@ -13,10 +13,11 @@ Per frame (:meth:`Navigator.step`), in this order:
 2. **Predict** the particles to the frame's time, turning their velocities by the autopilot's heading change.
    Over terrain, a frame with the barometer's ``baro_altitude_m`` (above the datum) gets its height above
    the ground from the map's elevation at the predicted position (:mod:`mapdb.navigation.terrain`).
-3. **Frame orientation**: the image-to-ground similarity ``A = s exp(-i heading)``.  The heading is the last
-   applied fix's plus the autopilot's yaw change since (the frame-to-frame rotation where the yaw is
-   missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
-   over the focal length before any fix).  Both ratios telescope, so neither drifts frame by frame.
+3. **Frame orientation** (:mod:`mapdb.navigation.orientation`): the image-to-ground similarity
+   ``A = s exp(-i heading)``.  The heading is the last applied fix's plus the autopilot's yaw change since
+   (the frame-to-frame rotation where the yaw is missing); the scale (metres per pixel) the last fix's times
+   the barometric altitude ratio (the altitude over the focal length before any fix).  Both ratios
+   telescope, so neither drifts frame by frame.
 4. **Velocity** from the previous frame (:mod:`mapdb.navigation.velocity`), guessed from the filter's
    velocity; its persistent error, measured against the applied fixes (rooftops moving faster than the ground,
    cut blobs slower, a scale or heading a little off: :mod:`mapdb.navigation.bias`), sizes the filter's drift
@@ -53,12 +54,12 @@ from typing import Any
 import numpy as np
 
 from ..answers import Answer
-from ..camera import Camera
 from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
 from .bias import VelocityBias
 from .filter import FixComponent, ParticleFilter, shared_sigma
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
+from .orientation import Orientation
 from .stitch import DEFAULT_FRAMES, History, Seen, min_stitched_score
 from .terrain import GroundModel, height_above_ground
 from .track import TrackRecord
@@ -100,23 +101,6 @@ class NavigatorOptions:
 
 
 @dataclass
-class _Orientation:
-    """The image-to-ground similarity's heading and scale, with their references (module docs, step 3)."""
-
-    heading: float | None = None
-    scale: float | None = None
-    heading_sigma: float = 180.0
-    scale_rel_sigma: float = 1.0
-    yaw: float | None = None  # the autopilot's yaw at the previous frame
-    baro: float | None = None  # the barometric altitude at the previous frame
-
-    def to_map(self) -> complex | None:
-        if self.heading is None or self.scale is None:
-            return None
-        return self.scale * complex(np.exp(-1j * math.radians(self.heading)))
-
-
-@dataclass
 class _Previous:
     time_s: float | None = None
     points: FramePoints | None = None
@@ -125,10 +109,6 @@ class _Previous:
     misses: int = 0  # frames with objects and no applied fix
     jump: float | None = None  # the time of a frame skipped for a step over MAX_STEP_S
     extra_labels: dict[str, int] = field(default_factory=dict)  # the previous frame's labels not in the map
-
-
-def _wrap(deg: float) -> float:
-    return (deg + 180.0) % 360.0 - 180.0
 
 
 class Navigator:
@@ -154,7 +134,7 @@ class Navigator:
                                      self.options.outlier_probability, self.options.seed)
         self.initial = initial
         self.labels: dict[str, int] = {name: code for code, name in enumerate(map.labels)}
-        self.orientation = _Orientation()
+        self.orientation = Orientation()
         self.previous = _Previous()
         self.last_velocity: complex | None = None
         self._extra_labels: dict[str, int] = {}  # this frame's labels the map lacks (``_codes``)
@@ -201,10 +181,10 @@ class Navigator:
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
         self._imu = frame.imu is not None
-        self.filter.predict(dt, self._turn(frame))
+        self.filter.predict(dt, self.orientation.turn(frame))
         record.altitude = height_above_ground(frame, self.ground, self.filter, self.options.baro_std_m,
                                               self.options.terrain)
-        self._orient(frame)
+        self.orientation.carry(frame, self.options.heading_std)
         timing["filter"] = time.perf_counter() - t0
         points = self._points(frame)
         self._motion = None
@@ -303,28 +283,7 @@ class Navigator:
                           **{k: 1e3 * v for k, v in timing.items()}}
         return record
 
-    # --------------------------------------------------------------------------- orientation, points
-
-    def _turn(self, frame: Frame) -> float | None:
-        """The heading change since the previous frame (radians, clockwise), from the autopilot's yaw."""
-        if frame.yaw is None or self.orientation.yaw is None:
-            return None
-        return math.radians(_wrap(frame.yaw - self.orientation.yaw))
-
-    def _orient(self, frame: Frame) -> None:
-        """Carry the heading and scale to this frame (module docs, step 3)."""
-        o, opts = self.orientation, self.options
-        if o.heading is None and frame.yaw is not None:
-            o.heading, o.heading_sigma = frame.yaw, opts.heading_std
-        elif o.heading is not None and frame.yaw is not None and o.yaw is not None:
-            o.heading = o.heading + _wrap(frame.yaw - o.yaw)
-        if frame.altitude is not None and frame.fov is not None and o.scale is None:
-            o.scale = frame.altitude / Camera(frame.width, frame.height, frame.fov).focal_px
-            o.scale_rel_sigma = 0.05  # a barometer's bias against the height above ground
-        elif frame.altitude is not None and o.baro is not None and o.scale is not None:
-            o.scale *= frame.altitude / o.baro
-        o.yaw = frame.yaw if frame.yaw is not None else o.yaw
-        o.baro = frame.altitude if frame.altitude is not None else o.baro
+    # -------------------------------------------------------------------------------------- points
 
     def _remember(self, frame: Frame, points: FramePoints | None) -> None:
         """Keep the frame for stitching, linked by its similarity to the previous one when step 4 found one
@@ -536,7 +495,7 @@ class Navigator:
             info["reason"] = answer.reason or "no usable place"
             return info
         if not self.filter.initialised:
-            info = self._initialise(answer, components, info)
+            info = self._initialise(answer, components, info, frame.time_s)
             if info["status"] == "initialised" and frame.time_s is not None:
                 self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
@@ -548,7 +507,7 @@ class Navigator:
         if outcome.applied:
             info["status"] = "used"
             info["components"] = len(components)
-            self._fixed(answer, frame)
+            self._fixed(answer, frame.time_s)
             if answer.ok and frame.time_s is not None:
                 self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
@@ -560,7 +519,8 @@ class Navigator:
             info["reason"] += f"; {self.options.recover_after} consistent rejected fixes: particles drawn there"
         return info
 
-    def _initialise(self, answer: Answer, components: list[FixComponent], info: dict[str, Any]) -> dict[str, Any]:
+    def _initialise(self, answer: Answer, components: list[FixComponent], info: dict[str, Any],
+                    time_s: float | None) -> dict[str, Any]:
         if not answer.ok or (answer.score or 0.0) < self.options.init_min_score:
             info["reason"] = (f"not initialised: needs a fix with score >= {self.options.init_min_score:g}"
                               + (f" ({answer.reason})" if answer.reason else ""))
@@ -568,17 +528,14 @@ class Navigator:
         best = components[0]
         self.filter.initialise(best.centre, 3.0 * best.sigma_m, self.last_velocity,
                                30.0 if self.last_velocity is None else 3.0)
-        self._fixed(answer, None)
+        self._fixed(answer, time_s)
         info["status"] = "initialised"
         return info
 
-    def _fixed(self, answer: Answer, frame: Frame | None) -> None:
+    def _fixed(self, answer: Answer, time_s: float | None) -> None:
         """An applied fix resets the heading and scale references and the miss count."""
         if answer.ok and answer.heading_deg is not None and answer.scale_m_per_px is not None:
-            o = self.orientation
-            o.heading, o.scale = answer.heading_deg, answer.scale_m_per_px
-            o.heading_sigma = math.sqrt(2.0) * self.options.attitude_std
-            o.scale_rel_sigma = 0.002
+            self.orientation.fixed(answer.heading_deg, answer.scale_m_per_px, self.options.attitude_std, time_s)
         self.previous.misses = 0
         self.previous.pending.clear()
 

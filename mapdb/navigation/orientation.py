@@ -1,0 +1,90 @@
+"""The frame's orientation: the image-to-ground similarity's heading and scale, carried from frame to frame.
+
+The navigator (:mod:`mapdb.navigation.navigator`, step 3) keeps one :class:`Orientation`: the image-to-ground
+similarity ``A = s exp(-i heading)`` (levelled image plane, pixels from the nadir, y up, to map metres).  The
+heading is the last applied fix's plus the autopilot's yaw change since (the frame-to-frame rotation where the
+yaw is missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
+over the focal length before any fix).  Both ratios telescope, so neither drifts frame by frame.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..camera import Camera
+from .frames import Frame
+
+__all__ = ["Orientation", "wrap_deg"]
+
+
+def wrap_deg(deg: float) -> float:
+    """An angle in degrees wrapped into ``[-180, 180)``.
+
+    Examples
+    --------
+    >>> wrap_deg(190.0), wrap_deg(-180.0)
+    (-170.0, -180.0)
+    """
+    return (deg + 180.0) % 360.0 - 180.0
+
+
+@dataclass
+class Orientation:
+    """The image-to-ground similarity's heading and scale, with their references (module docs).
+
+    Attributes
+    ----------
+    heading, heading_sigma : float
+        Degrees clockwise from map north, and its 1-sigma error (None / 180 before any).
+    scale, scale_rel_sigma : float
+        Metres per pixel, and its relative 1-sigma error (None / 1 before any).
+    yaw, baro : float or None
+        The autopilot's yaw and the barometric altitude at the previous frame.
+    fixed_s : float or None
+        The time of the last fix that set the heading and scale (None: none yet).
+    """
+
+    heading: float | None = None
+    scale: float | None = None
+    heading_sigma: float = 180.0
+    scale_rel_sigma: float = 1.0
+    yaw: float | None = None
+    baro: float | None = None
+    fixed_s: float | None = None
+
+    def to_map(self) -> complex | None:
+        """The similarity ``A = s exp(-i heading)``, or None while heading or scale is unknown."""
+        if self.heading is None or self.scale is None:
+            return None
+        return self.scale * complex(np.exp(-1j * math.radians(self.heading)))
+
+    def turn(self, frame: Frame) -> float | None:
+        """The heading change since the previous frame (radians, clockwise), from the autopilot's yaw."""
+        if frame.yaw is None or self.yaw is None:
+            return None
+        return math.radians(wrap_deg(frame.yaw - self.yaw))
+
+    def carry(self, frame: Frame, heading_std: float) -> None:
+        """Carry the heading and scale to this frame (module docs); ``heading_std`` is the heading's error before
+        any fix (a magnetometer's bias)."""
+        if self.heading is None and frame.yaw is not None:
+            self.heading, self.heading_sigma = frame.yaw, heading_std
+        elif self.heading is not None and frame.yaw is not None and self.yaw is not None:
+            self.heading = self.heading + wrap_deg(frame.yaw - self.yaw)
+        if frame.altitude is not None and frame.fov is not None and self.scale is None:
+            self.scale = frame.altitude / Camera(frame.width, frame.height, frame.fov).focal_px
+            self.scale_rel_sigma = 0.05  # a barometer's bias against the height above ground
+        elif frame.altitude is not None and self.baro is not None and self.scale is not None:
+            self.scale *= frame.altitude / self.baro
+        self.yaw = frame.yaw if frame.yaw is not None else self.yaw
+        self.baro = frame.altitude if frame.altitude is not None else self.baro
+
+    def fixed(self, heading: float, scale: float, attitude_std: float, time_s: float | None) -> None:
+        """A fix's heading and scale become the references (its heading known to the yaw's two readings)."""
+        self.heading, self.scale = heading, scale
+        self.heading_sigma = math.sqrt(2.0) * attitude_std
+        self.scale_rel_sigma = 0.002
+        self.fixed_s = time_s
