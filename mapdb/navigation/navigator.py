@@ -24,7 +24,9 @@ Per frame (:meth:`Navigator.step`), in this order:
    allowance and is taken out as ``velocity_bias`` says; and the inertial velocity when the frame has one.
 5. **Fix**: unless the flight withholds the map, the frame is localized with the filter's prediction as the
    prior, radius from the particle cloud (99 % of the weight or its stated 3 sigma, whichever is wider,
-   plus the attitude errors' floor; the cloud spreads with the time since the last applied fix).  After
+   plus the attitude errors' floor; the cloud spreads with the time since the last applied fix), and after a
+   first fix with the frame's heading and scale as a pose prior (:meth:`Orientation.pose_prior`: one
+   correspondence a hypothesis, :mod:`mapdb.match.pose_prior`; the fix's ``path`` says which search decided).  After
    ``widen_after`` queries in a row without an applied fix the radius doubles every frame, and past
    ``max_radius_m`` the query is lost-in-space.  The answer and its runner-up candidates update the
    filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`); a fix from blobs keeps the cloud at
@@ -56,6 +58,7 @@ import numpy as np
 from ..answers import Answer
 from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
+from ..match.pose_prior import PosePrior
 from .bias import VelocityBias
 from .filter import FixComponent, ParticleFilter, shared_sigma
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
@@ -98,6 +101,7 @@ class NavigatorOptions:
     seed: int = 0
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
     velocity_bias: str = "off"  # what of the measured bias is taken out (bias.BIAS_MODES; off: measured only)
+    pose_prior: bool = True  # queries carry the heading and scale after a fix (mapdb.match.pose_prior)
 
 
 @dataclass
@@ -417,8 +421,10 @@ class Navigator:
             return {"status": "none", "reason": f"{n} objects: no query"}
         prior = self._prior()
         record.prior_radius_m = None if prior is None else prior[2]
+        pose = None if prior is None or not self.options.pose_prior else self.orientation.pose_prior(prior,
+                                                                                                      frame.time_s)
         t0 = time.perf_counter()
-        answer = self.localizer.localize(frame.image, prior=prior)
+        answer = self.localizer.localize(frame.image, prior=prior, pose=pose)
         timing["query"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
@@ -426,11 +432,13 @@ class Navigator:
         finally:
             timing["filter"] = timing.get("filter", 0.0) + time.perf_counter() - t0
         if info["status"] in ("used", "initialised"):
+            if answer.path is not None:
+                info["path"] = answer.path
             return info
-        return self._stitched_fix(frame, prior, info, timing)
+        return self._stitched_fix(frame, prior, info, timing, pose)
 
     def _stitched_fix(self, frame: Frame, prior: tuple[float, float, float] | None, single: dict[str, Any],
-                      timing: dict[str, float]) -> dict[str, Any]:
+                      timing: dict[str, float], pose: PosePrior | None = None) -> dict[str, Any]:
         """The frame with the earlier frames' objects carried into it (:mod:`mapdb.navigation.stitch`): the
         stitched answer's fix when it is certain enough (the Bonferroni floor) and the filter applies it, else
         the frame's own outcome, saying why the stitched query gave none."""
@@ -439,7 +447,7 @@ class Navigator:
         if stitched is None:
             return single
         t0 = time.perf_counter()
-        answer = self.localizer.localize(stitched.image, prior=prior)
+        answer = self.localizer.localize(stitched.image, prior=prior, pose=pose)  # the stitched plane is this frame's
         timing["stitched"] = time.perf_counter() - t0
         floor = min_stitched_score(self.localizer.fast_options.log10_epsilon)
         summary = {"frames": len(stitched.frames), "objects": len(stitched.image), "carried": stitched.carried}
@@ -452,7 +460,7 @@ class Navigator:
         info = self._apply_fix(frame, answer, prior, recover=False)
         timing["filter"] = timing.get("filter", 0.0) + time.perf_counter() - t0
         if info["status"] in ("used", "initialised"):
-            info.update(stitched=summary, frames=stitched.frames,
+            info.update(stitched=summary, frames=stitched.frames, path=answer.path,
                         single={"status": single["status"], "reason": single.get("reason")})
             return info
         self.previous.misses, self.previous.pending = saved  # the frame's miss is counted once

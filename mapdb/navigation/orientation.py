@@ -15,9 +15,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera
+from ..match.pose_prior import PosePrior
 from .frames import Frame
 
-__all__ = ["Orientation", "wrap_deg"]
+__all__ = ["HEADING_DRIFT_DEG_S", "HEADING_FLOOR_DEG", "Orientation", "SCALE_DRIFT_S", "SCALE_FLOOR", "wrap_deg"]
+
+# The pose prior's heading and scale errors (:meth:`Orientation.pose_prior`): at least a fit's of a few blobs
+# (5 blobs 300 px apart with 1 m errors at 0.2 m a pixel turn a fit by about 1 degree and scale it by 1 %),
+# growing with the time since the fix that set them (the yaw's and the barometer's drifts, and the ground's
+# height changing under the aircraft while the barometer's ratio assumes it flat).
+HEADING_FLOOR_DEG = 1.0
+SCALE_FLOOR = 0.01
+HEADING_DRIFT_DEG_S = 0.2
+SCALE_DRIFT_S = 0.002
 
 
 def wrap_deg(deg: float) -> float:
@@ -88,3 +98,14 @@ class Orientation:
         self.heading_sigma = math.sqrt(2.0) * attitude_std
         self.scale_rel_sigma = 0.002
         self.fixed_s = time_s
+
+    def pose_prior(self, disc: tuple[float, float, float], time_s: float | None) -> PosePrior | None:
+        """The query's pose prior (:mod:`mapdb.match.pose_prior`): the disc, this frame's heading and scale, their
+        errors widened to at least ``HEADING_FLOOR_DEG`` and ``SCALE_FLOOR`` and grown by ``HEADING_DRIFT_DEG_S``
+        and ``SCALE_DRIFT_S`` a second since the last fix; None before a fix set them."""
+        if self.heading is None or self.scale is None or self.fixed_s is None:
+            return None
+        age = max(time_s - self.fixed_s, 0.0) if time_s is not None else 0.0
+        heading_sigma = math.hypot(max(self.heading_sigma, HEADING_FLOOR_DEG), HEADING_DRIFT_DEG_S * age)
+        scale_sigma = math.hypot(max(self.scale_rel_sigma, SCALE_FLOOR), SCALE_DRIFT_S * age)
+        return PosePrior(disc[0], disc[1], disc[2], self.heading % 360.0, heading_sigma, self.scale, scale_sigma)
