@@ -543,7 +543,8 @@ class Navigator:
     def _fixed(self, answer: Answer, time_s: float | None) -> None:
         """An applied fix resets the heading and scale references and the miss count."""
         if answer.ok and answer.heading_deg is not None and answer.scale_m_per_px is not None:
-            self.orientation.fixed(answer.heading_deg, answer.scale_m_per_px, self.options.attitude_std, time_s)
+            self.orientation.fixed(answer.heading_deg, answer.scale_m_per_px, self.options.attitude_std, time_s,
+                                   answer.sigma_m)
         self.previous.misses = 0
         self.previous.pending.clear()
 
