@@ -161,3 +161,23 @@ def test_a_short_flight_takes_fixes_from_the_pose_prior(helsinki) -> None:
     for r, f in zip(records, frames, strict=True):
         if r.fix.get("status") in ("used", "initialised"):
             assert math.hypot(r.fix["x"] - f["truth"]["x"], r.fix["y"] - f["truth"]["y"]) < 5.0
+
+
+def test_a_sloppy_fix_moves_the_orientation_less_than_a_sharp_one_and_the_prior_widens_with_time() -> None:
+    from mapdb.navigation.orientation import HEADING_FLOOR_DEG, Orientation
+
+    moved = []
+    for sigma_m in (0.02, 1.0):
+        o = Orientation()
+        o.fixed(100.0, 0.2, 0.1, 0.0, 0.05)
+        o.fixed(102.0, 0.21, 0.1, 1.0, sigma_m)  # the next fix says 2 degrees and 5 % more
+        moved.append((o.heading - 100.0, o.scale / 0.2 - 1.0))
+        assert 100.0 < o.heading < 102.0 and 0.2 < o.scale < 0.21
+    assert moved[1][0] < moved[0][0] and moved[1][1] < moved[0][1]
+    o = Orientation()
+    assert o.pose_prior((0.0, 0.0, 10.0), 0.0) is None  # no fix yet: heading and scale not known well enough
+    o.fixed(30.0, 0.2, 0.1, 5.0, 0.05)
+    soon, later = o.pose_prior((0.0, 0.0, 10.0), 5.2), o.pose_prior((0.0, 0.0, 10.0), 25.0)
+    assert soon is not None and later is not None and soon.usable
+    assert HEADING_FLOOR_DEG <= soon.heading_sigma_deg < later.heading_sigma_deg
+    assert soon.scale_rel_sigma < later.scale_rel_sigma
