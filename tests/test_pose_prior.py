@@ -181,3 +181,27 @@ def test_a_sloppy_fix_moves_the_orientation_less_than_a_sharp_one_and_the_prior_
     assert soon is not None and later is not None and soon.usable
     assert HEADING_FLOOR_DEG <= soon.heading_sigma_deg < later.heading_sigma_deg
     assert soon.scale_rel_sigma < later.scale_rel_sigma
+
+
+def test_row_houses_one_house_apart_inside_the_disc_are_ambiguous() -> None:
+    from mapdb.mapfile.queries import MemoryMap
+    from mapdb.objects import Objects
+    from mapdb.simulation.simulate import PAPER_CRS, PAPER_ORIGIN
+
+    x0, y0 = PAPER_ORIGIN
+    gx, gy = np.meshgrid(np.arange(0.0, 400.0, 12.0), np.arange(0.0, 200.0, 30.0))  # rows of like houses
+    rng = np.random.default_rng(5)
+    street = Objects.from_names(x0 + gx.ravel(), y0 + gy.ravel(), ["building"] * gx.size, crs=PAPER_CRS)
+    scale, centre = 0.2, complex(x0 + 200.0, y0 + 95.0)
+    z = (street.x + 1j * street.y - centre) / scale
+    seen = np.flatnonzero((np.abs(z.real) < 300) & (np.abs(z.imag) < 220))
+    z = z[seen] + rng.normal(0.0, 0.5, (seen.size, 2)) @ np.array([1.0, 1j])
+    image = {"width": 640, "height": 480, "objects": [
+        {"label": "building", "x": float(320 + p.real), "y": float(240 - p.imag)} for p in z]}
+    loc = Localizer(MemoryMap(street))
+    wide = loc.localize(image, pose=PosePrior(centre.real + 3, centre.imag - 2, 20.0, 0.0, 1.0, scale, 0.01))
+    assert not wide.ok and wide.path == "quads" and wide.reason.startswith("ambiguous")
+    # A disc narrower than half a house's spacing holds one place: the same image is placed.
+    narrow = loc.localize(image, pose=PosePrior(centre.real + 1, centre.imag - 1, 3.0, 0.0, 1.0, scale, 0.01))
+    assert narrow.ok and narrow.path == "pose-prior"
+    assert abs(complex(narrow.x, narrow.y) - centre) < 0.5
