@@ -6,6 +6,8 @@ the previous one's result by :func:`match_fast`, which reads as the stages in or
 ======================================  =================================================================
 stage (module)                          hands on
 ======================================  =================================================================
+:mod:`~mapdb.match.pose_prior`          with a pose prior's heading and scale, first: one correspondence a
+                                        hypothesis; its certain answer, else its number of tests
 :mod:`~mapdb.match.hypotheses`          a round's :class:`~mapdb.match.hypotheses.Hypotheses` (image quads
 (:mod:`~mapdb.match.cut_quads`)         looked up in the :mod:`~mapdb.match.quads` index)
 :mod:`~mapdb.match.screen`              the round's places, screened, verified (:mod:`~mapdb.match.verify`),
@@ -175,31 +177,14 @@ def match_fast(
     terrain = TerrainModel.of(objects, focal_px, altitude_m)
     if terrain is not None:
         evidence = dataclasses.replace(evidence, terrain=terrain)
-    if pose_prior is not None:
-        return _with_pose(z, img_label, objects, quads, diag_px, opts, prior, scale_range, evidence, pose_prior)
-    return _lost_in_space(z, img_label, objects, quads, diag_px, opts, prior, scale_range, evidence)
-
-
-def _with_pose(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, quads: Sequence[QuadIndex],
-               diag_px: float, opts: FastOptions, prior: tuple[float, float, float] | None,
-               scale_range: tuple[float, float] | None, evidence: ImageEvidence, pose: PosePrior) -> MatchResult:
-    """The pose-prior stage first (:func:`~mapdb.match.pose_prior.match_pose`; not over terrain, module docs
-    there), its answer when it has one; else the lookup rounds, counting the stage's tests."""
-    tests = 0
-    if pose.usable and evidence.terrain is None:
-        found = match_pose(z, img_label, objects, diag_px, opts, evidence, pose)
+    # 0. With a pose prior's heading and scale, one correspondence a hypothesis first (:mod:`.pose_prior`; not
+    # over terrain): its certain answer is the answer, else its tests count in the rounds'.
+    tests, path = 0, None if pose_prior is None else "quads"
+    if pose_prior is not None and pose_prior.usable and terrain is None:
+        found = match_pose(z, img_label, objects, diag_px, opts, evidence, pose_prior)
         if found.best is not None:
             return dataclasses.replace(found, path="pose-prior")
         tests = found.n_hypotheses
-    found = _lost_in_space(z, img_label, objects, quads, diag_px, opts, prior, scale_range, evidence, tests)
-    return dataclasses.replace(found, path="quads")
-
-
-def _lost_in_space(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, quads: Sequence[QuadIndex],
-                   diag_px: float, opts: FastOptions, prior: tuple[float, float, float] | None,
-                   scale_range: tuple[float, float] | None, evidence: ImageEvidence, tests: int = 0) -> MatchResult:
-    """The lookup rounds, the decision, the rivals and the final fit (module docs, steps 2-5); ``tests``
-    hypotheses were tried before (the pose-prior stage's) and count in every decision."""
     # 1-2. Hypotheses, screened and verified round by round (each round's places decided and refined) until
     # a round brings a certain one: candidates best first.
     pool, n_tests, rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range, evidence,
@@ -207,7 +192,7 @@ def _lost_in_space(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, q
     # 3. Decide: the best place certain enough?
     rejected = uncertain(pool, opts, n_tests, rounds)
     if rejected is not None:
-        return rejected
+        return _said(rejected, path)
     best, rest = pool[0], pool[1 : 1 + opts.max_candidates]
     # 4. Rivals: other places holding the winner's pattern, scored beside it.  They stand for the runner-ups'
     # places too; a place keeps its better score.  (Before the final fit: rivals are compared with the winner
@@ -217,12 +202,17 @@ def _lost_in_space(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, q
     rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates]
     rejected = ambiguous(best, rest, opts, n_tests, rounds)
     if rejected is not None:
-        return rejected
+        return _said(rejected, path)
     # 5. Refine: the final association and fit, then the answer unless its error is too large.
     best = polish(best, z, img_label, objects, evidence=evidence)
-    if evidence.terrain is not None and (opts.max_sigma_m is None or opts.max_sigma_m > TERRAIN_MAX_SIGMA_M):
+    if terrain is not None and (opts.max_sigma_m is None or opts.max_sigma_m > TERRAIN_MAX_SIGMA_M):
         opts = dataclasses.replace(opts, max_sigma_m=TERRAIN_MAX_SIGMA_M)
-    return answer(best, rest, opts, n_tests, rounds)
+    return _said(answer(best, rest, opts, n_tests, rounds), path)
+
+
+def _said(result: MatchResult, path: str | None) -> MatchResult:
+    """The result saying which search decided (``path``: None without a pose prior, the result unchanged)."""
+    return result if path is None else dataclasses.replace(result, path=path)
 
 
 def _central_objects(z, img_label, max_objects: int, anchorable=None, area_px=None,
