@@ -13,6 +13,10 @@ buildings with heights, 60 degrees, 640x480; read from its ``--cache``, rendered
 * **turned**: the right disc, the heading 180 degrees off: an answer more than 5 m off is a false alarm;
 * **out of map**: the frame against the other town's map, the disc on a random map object of it.
 
+``--thin``: every frame against the map missing 15 % of its buildings (``navigation_masks.py``'s ``thin15``
+map: the camera sees buildings the map lacks).  ``--anchors K``: the stage's anchors
+(:data:`mapdb.match.pose_prior.ANCHORS`).
+
 Per case: frames, accepted, accepted through the pose-prior stage, within 2 m, wrong (accepted more than 5 m
 from the truth), and the median and p95 time per frame.
 
@@ -79,7 +83,7 @@ def _queries(image: Any, truth: dict, objects: Any, other: Any, rng: np.random.G
             "turned": (0, None, turned), "out of map": (1, None, out)}
 
 
-def _run(names: list[str], cache: Path, every: int, seed: int) -> dict[str, list[tuple]]:
+def _run(names: list[str], cache: Path, every: int, seed: int, thin: bool = False) -> dict[str, list[tuple]]:
     """Every frame of every flight in every case: (accepted, path, error m, ms)."""
     from mapdb.localize.localizer import Localizer
     from mapdb.mapfile.reader import open_map
@@ -88,7 +92,8 @@ def _run(names: list[str], cache: Path, every: int, seed: int) -> dict[str, list
     rows: dict[str, list[tuple]] = {case: [] for case in CASES}
     for k, name in enumerate(names):
         other_name = names[(k + 1) % len(names)]
-        with open_map(_maps(name, cache)[0]) as m, open_map(_maps(other_name, cache)[0]) as o:
+        which_map = 1 if thin else 0
+        with open_map(_maps(name, cache)[which_map]) as m, open_map(_maps(other_name, cache)[which_map]) as o:
             objects, other = m.all(), o.all()
             locs = [Localizer(m), Localizer(o)]
             for i, (image, truth) in enumerate(_frames(name, cache, every)):
@@ -110,12 +115,19 @@ def main() -> None:
     parser.add_argument("--every", type=int, default=1, help="every N-th frame of each flight (%(default)s)")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--cache", type=Path, default=Path("/tmp/mapdb-bench-nav-masks"))
+    parser.add_argument("--thin", action="store_true", help="against the maps missing 15 %% of their buildings")
+    parser.add_argument("--anchors", type=int, default=None, help="the pose stage's anchors (default ANCHORS)")
     args = parser.parse_args()
+    import mapdb.match.pose_prior as pose_prior
+
+    if args.anchors is not None:
+        pose_prior.ANCHORS = args.anchors
     names = args.maps.split(",")
     load = os.getloadavg()[0]
-    rows = _run(names, args.cache, args.every, args.seed)
-    print(f"rendered-mask frames of {', '.join(names)} (120 m, heights), every {args.every}; load average "
-          f"{load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
+    rows = _run(names, args.cache, args.every, args.seed, args.thin)
+    print(f"rendered-mask frames of {', '.join(names)} (120 m, heights), every {args.every}, "
+          f"{'thinned' if args.thin else 'full'} maps, {pose_prior.ANCHORS} anchors; load average {load:.1f} at "
+          f"the start, {os.getloadavg()[0]:.1f} at the end")
     print("| case | frames | accepted | through the pose prior | within 2 m | wrong (> 5 m) | ms median | ms p95 |")
     print("|---|---|---|---|---|---|---|---|")
     for case, r in rows.items():
