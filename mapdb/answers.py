@@ -68,7 +68,7 @@ class Candidate:
 
 
 # Fields written only when they have a value, in this order, after the pose and before the time.
-_OPTIONAL = ("rejected_by", "score_without_areas", "hypotheses", "skipped_labels", "notes", "error_std")
+_OPTIONAL = ("rejected_by", "score_without_areas", "hypotheses", "path", "skipped_labels", "notes", "error_std")
 # Where the image lies on the ground (:mod:`mapdb.localize.georef`), written after the pose when known.
 _GEOREF = ("width", "height", "transform", "transform_error_m", "footprint", "footprint_lonlat")
 # Fields that are not GeoJSON properties: lists (the geometry's own, and the candidates).
@@ -103,6 +103,7 @@ class Answer:
     rejected_by: str | None = None
     score_without_areas: float | None = None
     hypotheses: int | None = None
+    path: str | None = None
     skipped_labels: dict[str, int] | None = None
     notes: list[str] | None = None
     error_std: float | None = None

@@ -269,10 +269,10 @@ class _Failing:
     def __init__(self, inner: Any, count: int, error: BaseException) -> None:
         self.inner, self.count, self.error = inner, count, error
 
-    def localize(self, image: Any, prior: Any = None) -> Any:
+    def localize(self, image: Any, prior: Any = None, **options: Any) -> Any:
         if len(image) == self.count:
             raise self.error
-        return self.inner.localize(image, prior=prior)
+        return self.inner.localize(image, prior=prior, **options)
 
 
 def test_a_frame_whose_navigation_fails_is_skipped_and_leaves_no_trace(flight) -> None:

@@ -31,6 +31,7 @@ from ..match.index.layout import index_path
 from ..match.mapobjects.blocks_view import BlocksView, block_quads, has_blocks, wants_blocks
 from ..match.mapobjects.paged_objects import PAGED_FROM_OBJECTS, WholeMapObjects
 from ..match.paper.options import PaperOptions
+from ..match.pose_prior import PosePrior
 from ..match.quads import near_only
 from ..objects import Objects
 from .image_points import image_points, known_objects, scale_hints
@@ -209,17 +210,23 @@ class Localizer:
         return view
 
     def localize(self, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None = None, *,
-                 source: str = "image") -> Answer:
+                 source: str = "image", pose: PosePrior | None = None) -> Answer:
         """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own.
+
+        ``pose`` (fast method): where the camera is, which way it points and at what scale
+        (:mod:`mapdb.match.pose_prior`); its disc is the prior when ``prior`` is None.  The answer's ``path`` then
+        says which search decided (``"pose-prior"`` or ``"quads"``).
 
         A stored index found damaged during the answer is dropped (saying so once) and the image answered
         again with the quad index built in memory: the answer is the in-memory search's.
         """
+        if prior is None and pose is not None:
+            prior = pose.disc
         try:
-            return _answer(self, image, self.prior if prior is None else prior, source)
+            return _answer(self, image, self.prior if prior is None else prior, source, pose)
         except _StoredIndexError as exc:
             self._drop_stored(str(exc))
-            return _answer(self, image, self.prior if prior is None else prior, source)
+            return _answer(self, image, self.prior if prior is None else prior, source, pose)
 
     def _no_stored_index_for_masks(self) -> None:
         """Say once that a map's stored index does not serve the images matched against its blocks: it holds the
@@ -464,7 +471,7 @@ def localize(
 
 
 def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
-            prior: tuple[float, float, float] | None, source: str) -> Answer:
+            prior: tuple[float, float, float] | None, source: str, pose: PosePrior | None = None) -> Answer:
     start = time.perf_counter()
     image_id = _image_id(image)
     try:
@@ -488,11 +495,11 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         # A levelled image's pixel areas and boxes are not the level camera's: they are left out.
         outward = None if im.bbox is None or levelled else outward_normals(im.bbox, im.width, im.height)
         matcher = localizer.matcher_for(codes, im.area_px)  # a map's blocks, for mask blobs only
-        pose = _match(matcher, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
-                      None if levelled else im.area_px, outward, (focal_px, im.altitude_m))
+        found = _match(matcher, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
+                       None if levelled else im.area_px, outward, (focal_px, im.altitude_m), pose)
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
-    return ok_record(image_id, localizer.map.crs, pose, focal_px, levelled, start, im)
+    return ok_record(image_id, localizer.map.crs, found, focal_px, levelled, start, im)
 
 
 def _checked(image: dict[str, Any] | ImageObjects, crs: str, prior: tuple[float, float, float] | None,
@@ -506,20 +513,22 @@ def _match(localizer: Localizer, z: np.ndarray, codes: np.ndarray, diag_px: floa
            prior: tuple[float, float, float] | None, margin: float, scale_range: tuple[float, float] | None,
            notes: list[str], skipped: dict[str, Any], anchorable: np.ndarray | None = None,
            area_px: np.ndarray | None = None, outward: np.ndarray | None = None,
-           camera: tuple[float | None, float | None] = (None, None)) -> FoundPose:
+           camera: tuple[float | None, float | None] = (None, None), pose: PosePrior | None = None) -> FoundPose:
     """Run the localizer's method on the image plane; the pose, or a :class:`~mapdb.localize.records.RejectionError`.
     ``camera`` is the focal length (pixels) and the altitude above ground, when the image gives them (terrain)."""
     if localizer.method == "fast":
         objects, quads = localizer.fast_indexes(prior, margin)
         found = match_fast(z, codes, objects, quads, diag_px, options=localizer.fast_options, prior=prior,
                            scale_range=scale_range, anchorable=anchorable, area_px=area_px, outward=outward,
-                           focal_px=camera[0], altitude_m=camera[1])
+                           focal_px=camera[0], altitude_m=camera[1], pose_prior=pose)
         candidates = [
             Candidate(x=rounded(c.b.real, 3), y=rounded(c.b.imag, 3), inliers=c.inliers,
                       score=finite(c.score, 2), sigma_m=finite(c.sigma_m, 3))
             for c in found.candidates
         ]
         extra: dict[str, Any] = {"hypotheses": found.n_hypotheses, **skipped}
+        if found.path is not None:
+            extra["path"] = found.path
         if notes:
             extra["notes"] = notes
         if found.best is None:

@@ -40,6 +40,10 @@ writes::
   ``score_without_areas``, above the threshold (:func:`mapdb.match.evidence.areas.points_floor`: the area test
   is floored by the positions-only test, which must then beat the threshold by 2).  ``mapdb query --no-areas``
   (``FastOptions(areas=False)``) answers as if the objects carried no areas.
+* ``path`` (fast method, only when a pose prior was given: ``Localizer.localize(..., pose=PosePrior(...))``,
+  the navigator's queries): which search decided, ``"pose-prior"`` (one correspondence a hypothesis, heading
+  and scale from the prior: :mod:`mapdb.match.pose_prior`) or ``"quads"`` (the lost-in-space rounds, their
+  ``hypotheses`` counting the pose-prior stage's).
 """
 
 from __future__ import annotations

@@ -37,6 +37,9 @@ class MatchResult:
     rounds: int
     rejected_by: str | None = None
     log10_nfa_points: float | None = None
+    # Which search decided, when a pose prior was given: "pose-prior" (:mod:`~mapdb.match.pose_prior`) or
+    # "quads" (the lost-in-space rounds); None without a pose prior.
+    path: str | None = None
 
 
 def uncertain(pool: list[Candidate], opts: FastOptions, n_tests: int, rounds: int) -> MatchResult | None:

@@ -6,6 +6,8 @@ the previous one's result by :func:`match_fast`, which reads as the stages in or
 ======================================  =================================================================
 stage (module)                          hands on
 ======================================  =================================================================
+:mod:`~mapdb.match.pose_prior`          with a pose prior's heading and scale, first: one correspondence a
+                                        hypothesis; its certain answer, else its number of tests
 :mod:`~mapdb.match.hypotheses`          a round's :class:`~mapdb.match.hypotheses.Hypotheses` (image quads
 (:mod:`~mapdb.match.cut_quads`)         looked up in the :mod:`~mapdb.match.quads` index)
 :mod:`~mapdb.match.screen`              the round's places, screened, verified (:mod:`~mapdb.match.verify`),
@@ -87,13 +89,14 @@ from .evidence.image import ImageEvidence
 from .evidence.terrain import TerrainModel
 from .hypotheses import anchor_batches, round_hypotheses
 from .options import FastOptions
+from .pose_prior import PosePrior, match_pose
 from .quads import QuadIndex
 from .refine import Candidate, merge_candidates, polish
 from .rivals import find_rivals
 from .screen import screen_neighbours, screen_round
 from .verify import ObjectIndex
 
-__all__ = ["Candidate", "FastOptions", "MatchResult", "ObjectIndex", "QuadIndex", "match_fast"]
+__all__ = ["Candidate", "FastOptions", "MatchResult", "ObjectIndex", "PosePrior", "QuadIndex", "match_fast"]
 
 
 def match_fast(
@@ -111,6 +114,7 @@ def match_fast(
     outward: np.ndarray | None = None,
     focal_px: float | None = None,
     altitude_m: float | None = None,
+    pose_prior: PosePrior | None = None,
 ) -> MatchResult:
     """Match image objects against a map's indexes.
 
@@ -151,6 +155,11 @@ def match_fast(
         The camera's focal length (pixels) and height above the ground under it (metres), when the image gives
         them: over a map with elevation the decision and the final fit then cast each ray onto the objects'
         heights (:mod:`mapdb.match.evidence.terrain`).
+    pose_prior : PosePrior, optional
+        Where the camera is, which way it points and at what scale (:mod:`mapdb.match.pose_prior`).  With its
+        heading and scale (:attr:`~mapdb.match.pose_prior.PosePrior.usable`) the pose-prior stage runs first
+        and its certain answer is returned; else the lookup rounds run, their number of tests counting the
+        stage's.  The result's ``path`` says which decided.  Its disc is not ``prior``: give both.
 
     Returns
     -------
@@ -168,13 +177,22 @@ def match_fast(
     terrain = TerrainModel.of(objects, focal_px, altitude_m)
     if terrain is not None:
         evidence = dataclasses.replace(evidence, terrain=terrain)
+    # 0. With a pose prior's heading and scale, one correspondence a hypothesis first (:mod:`.pose_prior`; not
+    # over terrain): its certain answer is the answer, else its tests count in the rounds'.
+    tests, path = 0, None if pose_prior is None else "quads"
+    if pose_prior is not None and pose_prior.usable and terrain is None:
+        found = match_pose(z, img_label, objects, diag_px, opts, evidence, pose_prior)
+        if found.best is not None:
+            return dataclasses.replace(found, path="pose-prior")
+        tests = found.n_hypotheses
     # 1-2. Hypotheses, screened and verified round by round (each round's places decided and refined) until
     # a round brings a certain one: candidates best first.
-    pool, n_tests, rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range, evidence)
+    pool, n_tests, rounds = _search(z, img_label, objects, quads, diag_px, opts, prior, scale_range, evidence,
+                                    tests)
     # 3. Decide: the best place certain enough?
     rejected = uncertain(pool, opts, n_tests, rounds)
     if rejected is not None:
-        return rejected
+        return _said(rejected, path)
     best, rest = pool[0], pool[1 : 1 + opts.max_candidates]
     # 4. Rivals: other places holding the winner's pattern, scored beside it.  They stand for the runner-ups'
     # places too; a place keeps its better score.  (Before the final fit: rivals are compared with the winner
@@ -184,12 +202,17 @@ def match_fast(
     rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates]
     rejected = ambiguous(best, rest, opts, n_tests, rounds)
     if rejected is not None:
-        return rejected
+        return _said(rejected, path)
     # 5. Refine: the final association and fit, then the answer unless its error is too large.
     best = polish(best, z, img_label, objects, evidence=evidence)
     if terrain is not None and (opts.max_sigma_m is None or opts.max_sigma_m > TERRAIN_MAX_SIGMA_M):
         opts = dataclasses.replace(opts, max_sigma_m=TERRAIN_MAX_SIGMA_M)
-    return answer(best, rest, opts, n_tests, rounds)
+    return _said(answer(best, rest, opts, n_tests, rounds), path)
+
+
+def _said(result: MatchResult, path: str | None) -> MatchResult:
+    """The result saying which search decided (``path``: None without a pose prior, the result unchanged)."""
+    return result if path is None else dataclasses.replace(result, path=path)
 
 
 def _central_objects(z, img_label, max_objects: int, anchorable=None, area_px=None,
@@ -223,10 +246,10 @@ def _unmatchable(n: int, objects: ObjectIndex, quads: Sequence[QuadIndex]) -> st
 
 def _search(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, quads: Sequence[QuadIndex], diag_px: float,
             opts: FastOptions, prior: tuple[float, float, float] | None, scale_range: tuple[float, float] | None,
-            evidence: ImageEvidence) -> tuple[list[Candidate], int, int]:
+            evidence: ImageEvidence, tests: int = 0) -> tuple[list[Candidate], int, int]:
     """The lookup rounds (pixel sigma x anchor batch, then the cut blobs' rounds) until one accepts: each round's
     hypotheses (:mod:`~mapdb.match.hypotheses`, :mod:`~mapdb.match.cut_quads`) handed to the screen
-    (:func:`~mapdb.match.screen.screen_round`).  Candidates best first, tests, rounds."""
+    (:func:`~mapdb.match.screen.screen_round`).  Candidates best first, tests (from ``tests`` tried before), rounds."""
     screen_of = screen_neighbours(z, opts)
     batches = anchor_batches(z, opts, evidence.anchors)
     # Each round: its pixel error, its image quads and, for the cut blobs' rounds, their errors and which are whole.
@@ -235,7 +258,7 @@ def _search(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, quads: S
     if evidence.errors is not None and evidence.whole is not None:
         blobs = evidence.errors, evidence.whole
         plan += [(opts.pixel_sigmas[-1], batch, blobs) for batch in cut_batches(z, evidence.whole, opts)]
-    n_tests = 0
+    n_tests = tests
     pool: list[Candidate] = []
     done_rounds = 0
     for sigma_px, batch, cut in plan:

@@ -13,17 +13,20 @@ Per frame (:meth:`Navigator.step`), in this order:
 2. **Predict** the particles to the frame's time, turning their velocities by the autopilot's heading change.
    Over terrain, a frame with the barometer's ``baro_altitude_m`` (above the datum) gets its height above
    the ground from the map's elevation at the predicted position (:mod:`mapdb.navigation.terrain`).
-3. **Frame orientation**: the image-to-ground similarity ``A = s exp(-i heading)``.  The heading is the last
-   applied fix's plus the autopilot's yaw change since (the frame-to-frame rotation where the yaw is
-   missing); the scale (metres per pixel) the last fix's times the barometric altitude ratio (the altitude
-   over the focal length before any fix).  Both ratios telescope, so neither drifts frame by frame.
+3. **Frame orientation** (:mod:`mapdb.navigation.orientation`): the image-to-ground similarity
+   ``A = s exp(-i heading)``.  The heading is the last applied fix's plus the autopilot's yaw change since
+   (the frame-to-frame rotation where the yaw is missing); the scale (metres per pixel) the last fix's times
+   the barometric altitude ratio (the altitude over the focal length before any fix).  Both ratios
+   telescope, so neither drifts frame by frame.
 4. **Velocity** from the previous frame (:mod:`mapdb.navigation.velocity`), guessed from the filter's
    velocity; its persistent error, measured against the applied fixes (rooftops moving faster than the ground,
    cut blobs slower, a scale or heading a little off: :mod:`mapdb.navigation.bias`), sizes the filter's drift
    allowance and is taken out as ``velocity_bias`` says; and the inertial velocity when the frame has one.
 5. **Fix**: unless the flight withholds the map, the frame is localized with the filter's prediction as the
    prior, radius from the particle cloud (99 % of the weight or its stated 3 sigma, whichever is wider,
-   plus the attitude errors' floor; the cloud spreads with the time since the last applied fix).  After
+   plus the attitude errors' floor; the cloud spreads with the time since the last applied fix), and after a
+   first fix with the frame's heading and scale as a pose prior (:meth:`Orientation.pose_prior`: one
+   correspondence a hypothesis, :mod:`mapdb.match.pose_prior`; the fix's ``path`` says which search decided).  After
    ``widen_after`` queries in a row without an applied fix the radius doubles every frame, and past
    ``max_radius_m`` the query is lost-in-space.  The answer and its runner-up candidates update the
    filter (a multi-modal measurement, :mod:`mapdb.navigation.filter`); a fix from blobs keeps the cloud at
@@ -53,12 +56,13 @@ from typing import Any
 import numpy as np
 
 from ..answers import Answer
-from ..camera import Camera
 from ..localize.localizer import Localizer
 from ..localize.lonlat import to_lonlat
+from ..match.pose_prior import PosePrior
 from .bias import VelocityBias
 from .filter import FixComponent, ParticleFilter, shared_sigma
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
+from .orientation import Orientation
 from .stitch import DEFAULT_FRAMES, History, Seen, min_stitched_score
 from .terrain import GroundModel, height_above_ground
 from .track import TrackRecord
@@ -97,23 +101,7 @@ class NavigatorOptions:
     seed: int = 0
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
     velocity_bias: str = "off"  # what of the measured bias is taken out (bias.BIAS_MODES; off: measured only)
-
-
-@dataclass
-class _Orientation:
-    """The image-to-ground similarity's heading and scale, with their references (module docs, step 3)."""
-
-    heading: float | None = None
-    scale: float | None = None
-    heading_sigma: float = 180.0
-    scale_rel_sigma: float = 1.0
-    yaw: float | None = None  # the autopilot's yaw at the previous frame
-    baro: float | None = None  # the barometric altitude at the previous frame
-
-    def to_map(self) -> complex | None:
-        if self.heading is None or self.scale is None:
-            return None
-        return self.scale * complex(np.exp(-1j * math.radians(self.heading)))
+    pose_prior: bool = True  # queries carry the heading and scale after a fix (mapdb.match.pose_prior)
 
 
 @dataclass
@@ -125,10 +113,6 @@ class _Previous:
     misses: int = 0  # frames with objects and no applied fix
     jump: float | None = None  # the time of a frame skipped for a step over MAX_STEP_S
     extra_labels: dict[str, int] = field(default_factory=dict)  # the previous frame's labels not in the map
-
-
-def _wrap(deg: float) -> float:
-    return (deg + 180.0) % 360.0 - 180.0
 
 
 class Navigator:
@@ -154,7 +138,7 @@ class Navigator:
                                      self.options.outlier_probability, self.options.seed)
         self.initial = initial
         self.labels: dict[str, int] = {name: code for code, name in enumerate(map.labels)}
-        self.orientation = _Orientation()
+        self.orientation = Orientation()
         self.previous = _Previous()
         self.last_velocity: complex | None = None
         self._extra_labels: dict[str, int] = {}  # this frame's labels the map lacks (``_codes``)
@@ -201,10 +185,10 @@ class Navigator:
         timing: dict[str, float] = {}
         t0 = time.perf_counter()
         self._imu = frame.imu is not None
-        self.filter.predict(dt, self._turn(frame))
+        self.filter.predict(dt, self.orientation.turn(frame))
         record.altitude = height_above_ground(frame, self.ground, self.filter, self.options.baro_std_m,
                                               self.options.terrain)
-        self._orient(frame)
+        self.orientation.carry(frame, self.options.heading_std)
         timing["filter"] = time.perf_counter() - t0
         points = self._points(frame)
         self._motion = None
@@ -303,28 +287,7 @@ class Navigator:
                           **{k: 1e3 * v for k, v in timing.items()}}
         return record
 
-    # --------------------------------------------------------------------------- orientation, points
-
-    def _turn(self, frame: Frame) -> float | None:
-        """The heading change since the previous frame (radians, clockwise), from the autopilot's yaw."""
-        if frame.yaw is None or self.orientation.yaw is None:
-            return None
-        return math.radians(_wrap(frame.yaw - self.orientation.yaw))
-
-    def _orient(self, frame: Frame) -> None:
-        """Carry the heading and scale to this frame (module docs, step 3)."""
-        o, opts = self.orientation, self.options
-        if o.heading is None and frame.yaw is not None:
-            o.heading, o.heading_sigma = frame.yaw, opts.heading_std
-        elif o.heading is not None and frame.yaw is not None and o.yaw is not None:
-            o.heading = o.heading + _wrap(frame.yaw - o.yaw)
-        if frame.altitude is not None and frame.fov is not None and o.scale is None:
-            o.scale = frame.altitude / Camera(frame.width, frame.height, frame.fov).focal_px
-            o.scale_rel_sigma = 0.05  # a barometer's bias against the height above ground
-        elif frame.altitude is not None and o.baro is not None and o.scale is not None:
-            o.scale *= frame.altitude / o.baro
-        o.yaw = frame.yaw if frame.yaw is not None else o.yaw
-        o.baro = frame.altitude if frame.altitude is not None else o.baro
+    # -------------------------------------------------------------------------------------- points
 
     def _remember(self, frame: Frame, points: FramePoints | None) -> None:
         """Keep the frame for stitching, linked by its similarity to the previous one when step 4 found one
@@ -458,8 +421,10 @@ class Navigator:
             return {"status": "none", "reason": f"{n} objects: no query"}
         prior = self._prior()
         record.prior_radius_m = None if prior is None else prior[2]
+        pose = None if prior is None or not self.options.pose_prior else self.orientation.pose_prior(prior,
+                                                                                                      frame.time_s)
         t0 = time.perf_counter()
-        answer = self.localizer.localize(frame.image, prior=prior)
+        answer = self.localizer.localize(frame.image, prior=prior, pose=pose)
         timing["query"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
@@ -467,11 +432,13 @@ class Navigator:
         finally:
             timing["filter"] = timing.get("filter", 0.0) + time.perf_counter() - t0
         if info["status"] in ("used", "initialised"):
+            if answer.path is not None:
+                info["path"] = answer.path
             return info
-        return self._stitched_fix(frame, prior, info, timing)
+        return self._stitched_fix(frame, prior, info, timing, pose)
 
     def _stitched_fix(self, frame: Frame, prior: tuple[float, float, float] | None, single: dict[str, Any],
-                      timing: dict[str, float]) -> dict[str, Any]:
+                      timing: dict[str, float], pose: PosePrior | None = None) -> dict[str, Any]:
         """The frame with the earlier frames' objects carried into it (:mod:`mapdb.navigation.stitch`): the
         stitched answer's fix when it is certain enough (the Bonferroni floor) and the filter applies it, else
         the frame's own outcome, saying why the stitched query gave none."""
@@ -480,7 +447,7 @@ class Navigator:
         if stitched is None:
             return single
         t0 = time.perf_counter()
-        answer = self.localizer.localize(stitched.image, prior=prior)
+        answer = self.localizer.localize(stitched.image, prior=prior, pose=pose)  # the stitched plane is this frame's
         timing["stitched"] = time.perf_counter() - t0
         floor = min_stitched_score(self.localizer.fast_options.log10_epsilon)
         summary = {"frames": len(stitched.frames), "objects": len(stitched.image), "carried": stitched.carried}
@@ -493,7 +460,7 @@ class Navigator:
         info = self._apply_fix(frame, answer, prior, recover=False)
         timing["filter"] = timing.get("filter", 0.0) + time.perf_counter() - t0
         if info["status"] in ("used", "initialised"):
-            info.update(stitched=summary, frames=stitched.frames,
+            info.update(stitched=summary, frames=stitched.frames, path=answer.path,
                         single={"status": single["status"], "reason": single.get("reason")})
             return info
         self.previous.misses, self.previous.pending = saved  # the frame's miss is counted once
@@ -536,7 +503,7 @@ class Navigator:
             info["reason"] = answer.reason or "no usable place"
             return info
         if not self.filter.initialised:
-            info = self._initialise(answer, components, info)
+            info = self._initialise(answer, components, info, frame.time_s)
             if info["status"] == "initialised" and frame.time_s is not None:
                 self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
@@ -548,7 +515,7 @@ class Navigator:
         if outcome.applied:
             info["status"] = "used"
             info["components"] = len(components)
-            self._fixed(answer, frame)
+            self._fixed(answer, frame.time_s)
             if answer.ok and frame.time_s is not None:
                 self.bias.add_fix(frame.time_s, components[0].centre, components[0].sigma_m**2)
             return info
@@ -560,7 +527,8 @@ class Navigator:
             info["reason"] += f"; {self.options.recover_after} consistent rejected fixes: particles drawn there"
         return info
 
-    def _initialise(self, answer: Answer, components: list[FixComponent], info: dict[str, Any]) -> dict[str, Any]:
+    def _initialise(self, answer: Answer, components: list[FixComponent], info: dict[str, Any],
+                    time_s: float | None) -> dict[str, Any]:
         if not answer.ok or (answer.score or 0.0) < self.options.init_min_score:
             info["reason"] = (f"not initialised: needs a fix with score >= {self.options.init_min_score:g}"
                               + (f" ({answer.reason})" if answer.reason else ""))
@@ -568,17 +536,15 @@ class Navigator:
         best = components[0]
         self.filter.initialise(best.centre, 3.0 * best.sigma_m, self.last_velocity,
                                30.0 if self.last_velocity is None else 3.0)
-        self._fixed(answer, None)
+        self._fixed(answer, time_s)
         info["status"] = "initialised"
         return info
 
-    def _fixed(self, answer: Answer, frame: Frame | None) -> None:
+    def _fixed(self, answer: Answer, time_s: float | None) -> None:
         """An applied fix resets the heading and scale references and the miss count."""
         if answer.ok and answer.heading_deg is not None and answer.scale_m_per_px is not None:
-            o = self.orientation
-            o.heading, o.scale = answer.heading_deg, answer.scale_m_per_px
-            o.heading_sigma = math.sqrt(2.0) * self.options.attitude_std
-            o.scale_rel_sigma = 0.002
+            self.orientation.fixed(answer.heading_deg, answer.scale_m_per_px, self.options.attitude_std, time_s,
+                                   answer.sigma_m)
         self.previous.misses = 0
         self.previous.pending.clear()
 

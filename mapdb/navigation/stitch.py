@@ -42,7 +42,10 @@ number of false alarms is below ``epsilon / STITCH_TESTS`` (its score at least `
 log10 STITCH_TESTS``, Bonferroni over the frame's two tests): the frame's expected number of false alarms
 stays within the single query's ``epsilon`` plus half of it.  Only one stitched image is tried a frame (not
 one per ``K``), so the factor does not grow with ``K``.  Consecutive stitched images share objects, but an
-expectation adds whatever the dependence.
+expectation adds whatever the dependence.  After a first fix the stitched query carries the frame's pose prior
+like the frame's own (the stitched plane is the current frame's levelled plane at its focal length, so the
+heading and scale are the frame's: :mod:`mapdb.match.pose_prior`); its pose-prior stage's hypotheses are among
+the stitched query's tests.
 
 **K, measured** (rendered-mask flights of ``benchmarks/navigation_masks.py``, 120 m with heights, 3 km, 751
 frames, from lost-in-space; K = 0 is the navigator without stitching, the same as ``main``'s; ``python
