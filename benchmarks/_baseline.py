@@ -68,6 +68,36 @@ def code_digest() -> str:
     return digest.hexdigest()[:10]
 
 
+def cli_tree(rev: str, root: Path) -> Path:
+    """``root`` holding revision ``rev``'s ``mapdb`` and its CLI as ``mapdb_cli`` (extracted once): first on
+    ``PYTHONPATH``, the installed ``mapdb`` script runs that revision (the editable install's finder comes after
+    the path)."""
+    if not (root / "mapdb_cli").is_dir():
+        root.mkdir(parents=True, exist_ok=True)
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb", "cli"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(root)], input=archive, check=True)
+        (root / "cli").rename(root / "mapdb_cli")
+    return root
+
+
+# The shared OSM extracts by name (``../shared/data/osm``).
+OSM_EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "liechtenstein": "liechtenstein-2013-08-03.osm.pbf",
+                "monaco": "monaco-2021-12-03.osm.pbf"}
+
+
+def map_argument(value: str, cache: Path) -> Path | None:
+    """A script's MAP argument: a shared extract's name (its map built once into ``cache``) or a map file's
+    path; None, said on stderr, when the extract named is not in the shared data."""
+    if value not in OSM_EXTRACTS:
+        return Path(value).resolve()
+    data = shared_data("osm")
+    if not (data / OSM_EXTRACTS[value]).exists():
+        print(f"needs the shared data: {data / OSM_EXTRACTS[value]}", file=sys.stderr)
+        return None
+    return cached_maps({value: OSM_EXTRACTS[value]}, data, cache)[value]
+
+
 def as_json(answer: Any) -> dict:
     """An answer as JSON, from this revision (an :class:`mapdb.answers.Answer`) or an older one (a dict)."""
     return answer.to_json() if hasattr(answer, "to_json") else answer

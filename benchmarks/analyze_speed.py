@@ -52,7 +52,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import shared_data  # noqa: E402
+from _baseline import cli_tree, shared_data  # noqa: E402
 
 DATA = shared_data("osm")
 EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-03.osm.pbf",
@@ -71,14 +71,7 @@ def mapdb(*args: object, env: dict[str, str] | None = None) -> None:
 def baseline_env(rev: str, work: Path) -> dict[str, str]:
     """The environment in which the installed ``mapdb`` script runs revision ``rev``: a copy of its ``mapdb``
     and its CLI (as ``mapdb_cli``) first on ``PYTHONPATH`` (the editable install's finder comes after it)."""
-    root = work / f"baseline-{rev}"
-    if not (root / "mapdb_cli").is_dir():
-        root.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb", "cli"], check=True,
-                                 capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(root)], input=archive, check=True)
-        (root / "cli").rename(root / "mapdb_cli")
-    return {**os.environ, "PYTHONPATH": str(root)}
+    return {**os.environ, "PYTHONPATH": str(cli_tree(rev, work / f"baseline-{rev}"))}
 
 
 def build(workdir: Path, name: str) -> Path:

@@ -47,7 +47,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import ROOT, as_json, cached_maps, import_baseline, shared_data  # noqa: E402
+from _baseline import as_json, cached_maps, cli_tree, import_baseline, shared_data  # noqa: E402
 
 DATA = shared_data("osm")
 EXTRACTS = {
@@ -207,16 +207,8 @@ def startup(map_path: Path, one_image: Path, cwd: Path, repeats: int, envs: dict
 
 
 def baseline_tree(rev: str, work: Path) -> Path:
-    """A directory holding revision ``rev``'s ``mapdb`` and its CLI as ``mapdb_cli``: first on ``PYTHONPATH``,
-    the installed ``mapdb`` script runs that revision (the editable install's finder comes after the path)."""
-    root = work / f"startup-{rev}"
-    if not (root / "mapdb_cli").is_dir():
-        root.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb", "cli"], check=True,
-                                 capture_output=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(root)], input=archive, check=True)
-        (root / "cli").rename(root / "mapdb_cli")
-    return root
+    """A directory holding revision ``rev``'s ``mapdb`` and its CLI as ``mapdb_cli`` (:func:`_baseline.cli_tree`)."""
+    return cli_tree(rev, work / f"startup-{rev}")
 
 
 def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int, baseline: str | None) -> None:

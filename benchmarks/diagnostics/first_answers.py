@@ -34,12 +34,10 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _baseline import ROOT, cached_maps, shared_data  # noqa: E402
+from _baseline import ROOT, map_argument  # noqa: E402
 from _lis_children import BUILD, _child  # noqa: E402
 from lost_in_space_index import _images  # noqa: E402
 
-EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "liechtenstein": "liechtenstein-2013-08-03.osm.pbf",
-            "monaco": "monaco-2021-12-03.osm.pbf"}
 WORKDIR = Path(tempfile.gettempdir()) / "mapdb-diagnostics" / "first-answers"
 
 # One fresh process: import a version, drop the map and its index from the page cache, answer one image.
@@ -110,14 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--baselines", nargs="*", default=[], metavar="REV", help="earlier revisions to compare")
     parser.add_argument("--workdir", type=Path, default=WORKDIR, help="where the versions' indexes are built")
     args = parser.parse_args(argv)
-    if args.map in EXTRACTS:
-        data = shared_data("osm")
-        if not (data / EXTRACTS[args.map]).exists():
-            print(f"needs the shared data: {data / EXTRACTS[args.map]}", file=sys.stderr)
-            return 1
-        path = cached_maps({args.map: EXTRACTS[args.map]}, data, WORKDIR.parent)[args.map]
-    else:
-        path = Path(args.map).resolve()
+    path = map_argument(args.map, WORKDIR.parent)
+    if path is None:
+        return 1
     versions = [(rev or "this tree", version_map(path, rev, args.workdir), rev) for rev in ["", *args.baselines]]
     results = first_answers(_images(path, args.images, 1), versions, args.workdir)
     print(f"{path.name}, {args.images} images, first answer from open_map (map and index dropped from the cache):")

@@ -29,15 +29,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _baseline import cached_maps, shared_data  # noqa: E402
+from _baseline import map_argument  # noqa: E402
 from lost_in_space_index import _image_arrays, _images  # noqa: E402
 
 from mapdb._scipy import cKDTree  # noqa: E402
 from mapdb.mapfile.reader import open_map  # noqa: E402
 from mapdb.match.quads import nearest_others, neighbour_quads  # noqa: E402
 
-EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "liechtenstein": "liechtenstein-2013-08-03.osm.pbf",
-            "monaco": "monaco-2021-12-03.osm.pbf"}
 CACHE = Path(tempfile.gettempdir()) / "mapdb-diagnostics"
 FOUR = list(itertools.combinations(range(4), 3))
 SCHEMES = {
@@ -85,14 +83,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("map", help="a .mapdb file, or a shared extract's name (andorra, liechtenstein, monaco)")
     parser.add_argument("images", type=int, help="simulated images")
     args = parser.parse_args(argv)
-    if args.map in EXTRACTS:
-        data = shared_data("osm")
-        if not (data / EXTRACTS[args.map]).exists():
-            print(f"needs the shared data: {data / EXTRACTS[args.map]}", file=sys.stderr)
-            return 1
-        path = cached_maps({args.map: EXTRACTS[args.map]}, data, CACHE)[args.map]
-    else:
-        path = Path(args.map)
+    path = map_argument(args.map, CACHE)
+    if path is None:
+        return 1
     with open_map(path) as m:
         objects, labels = m.all(), tuple(m.labels)
     xy = np.column_stack([objects.x, objects.y])
