@@ -35,32 +35,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _baseline import ROOT, map_argument  # noqa: E402
-from _lis_children import BUILD, _child  # noqa: E402
+from _lis_children import BUILD, FIRST_ANSWER, _child  # noqa: E402
 from lost_in_space_index import _images  # noqa: E402
 
 WORKDIR = Path(tempfile.gettempdir()) / "mapdb-diagnostics" / "first-answers"
 
-# One fresh process: import a version, drop the map and its index from the page cache, answer one image.
-FIRST = r'''
-import importlib, json, os, sys, time
-from pathlib import Path
-sys.path.insert(0, "benchmarks")
-package = "mapdb"
-if sys.argv[3]:
-    from _baseline import import_baseline
-    import_baseline(sys.argv[3], Path(sys.argv[4]))
-    package = "mapdb_baseline"
-Localizer = importlib.import_module(package + ".localize").Localizer
-index_path = importlib.import_module(package + ".match.index.layout").index_path
-open_map = importlib.import_module(package + ".store").open_map
-image = json.loads(sys.argv[2])
-for path in (sys.argv[1], index_path(sys.argv[1])):
-    fd = os.open(path, os.O_RDONLY); os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED); os.close(fd)
-t1 = time.perf_counter(); c1 = time.process_time()
-answer = Localizer(open_map(sys.argv[1])).localize(image)
-status = answer.status if hasattr(answer, "status") else answer["status"]
-print(json.dumps({"wall": time.perf_counter() - t1, "cpu": time.process_time() - c1, "status": status}))
-'''
 
 
 def index_digest() -> str:
@@ -94,7 +73,7 @@ def first_answers(images: list[dict], versions: list[tuple[str, Path, str]], wor
     results: dict[str, list[dict]] = {name: [] for name, _, _ in versions}
     for i, image in enumerate(images):
         for name, path, rev in versions if i % 2 == 0 else versions[::-1]:
-            out = subprocess.run([sys.executable, "-c", FIRST, str(path), json.dumps(image), rev, str(workdir)],
+            out = subprocess.run([sys.executable, "-c", FIRST_ANSWER, str(path), json.dumps(image), rev, str(workdir)],
                                  capture_output=True, text=True, check=True, cwd=ROOT).stdout
             results[name].append(json.loads(out.strip().splitlines()[-1]))
     return results
@@ -116,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{path.name}, {args.images} images, first answer from open_map (map and index dropped from the cache):")
     print(f"{'version':<12} {'wall median (max) s':>20} {'CPU median (max) s':>19} {'ok':>6}")
     for name, r in results.items():
-        wall, cpu = [x["wall"] for x in r], [x["cpu"] for x in r]
+        wall, cpu = [x["open_to_answer_s"] for x in r], [x["open_to_answer_cpu_s"] for x in r]
         print(f"{name:<12} {statistics.median(wall):>11.2f} ({max(wall):5.2f}) {statistics.median(cpu):>10.2f}"
               f" ({max(cpu):5.2f}) {sum(x['status'] == 'ok' for x in r):>3}/{len(r)}")
     return 0
