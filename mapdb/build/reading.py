@@ -123,7 +123,7 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     read_options, osm_options = dict(options[0]), options[1]
     gap = read_options.pop("block_gap", None)
     kind = source_kind(path)
-    outlines = source_outlines(table, gap, scratch if kind == "layer" else None)
+    outlines = source_outlines(table, gap, scratch if kind in ("osm", "layer") else None)
     if kind in ("osm", "layer") and (spool_dir or scratch):
         check_room(path, str(spool_dir or scratch), spool_bytes(path, spool_dir is not None, outlines is not None))
     if kind == "osm":
