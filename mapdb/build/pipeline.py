@@ -222,7 +222,8 @@ def build_map(
         raise SourceError(f"spool {spool!r}: not one of {', '.join(SPOOL_CHOICES)}")
     jobs = _paying_jobs(sources, jobs, JOBS_MIN_BYTES if jobs_min_bytes is None else jobs_min_bytes, say)
     with open_client(jobs, scheduler) as client, _scratch(index_dir) as directory:
-        read = _gather(sources, table, (read_options, osm_options), target, say, client, _Spooling(directory, spool))
+        spooling = _Spooling(directory, spool, scheduler is None)
+        read = _gather(sources, table, (read_options, osm_options), target, say, client, spooling)
         return _built(output, read, table, quantum, say, elevation, {
             "crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
             "labels_file": Path(labels).name if labels else None,

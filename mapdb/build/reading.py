@@ -29,7 +29,7 @@ from .blocks import blocks_spool
 from .inputs import duplicate_input, file_fingerprint, file_sha256
 from .layersource import layer_spool, source_outlines
 
-__all__ = ["JOBS_MIN_BYTES", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "read_one_source"]
+__all__ = ["JOBS_MIN_BYTES", "SPLIT_OSM_BYTES", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "read_one_source"]
 
 # The options of read_source, and those only OSM sources take (node_index, index_dir).
 _ReadOptions = tuple[dict[str, Any], dict[str, Any]]
@@ -99,8 +99,9 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
             say.advance()
             continue
         unique.append((path, fingerprint))
-    read = _read_here if client is None else _read_on_cluster
-    results = read([path for path, _ in unique], table, options, say, client if client is not None else spooling)
+    paths = [path for path, _ in unique]
+    results = (_read_here(paths, table, options, say, spooling) if client is None
+               else _read_on_cluster(paths, table, options, say, client, spooling))
     described = [{"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
                   "sha256": fingerprint[1] if fingerprint else file_sha256(path),
                   "objects": _count(spools)}
@@ -109,7 +110,7 @@ def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progres
 
 
 def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None = None,
-                    spool_dir: str | None = None, scratch: str | None = None
+                    spool_dir: str | None = None, scratch: str | None = None, part: str = "all"
                     ) -> tuple[list[ObjectSpool], Counter[str]]:
     """One source's objects in lon/lat (those not on Earth dropped and counted) and what its reader skipped.
 
@@ -117,19 +118,21 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
     as spools of blocks (:class:`mapdb.sources.spool.ObjectSpool`), in ``EPSG:4326``: an OSM source read with a
     ``spool_dir`` is written there block by block as it is read (the caller removes the files), anything else
     is held in memory; a layer is read a batch at a time, and its building footprints past
-    :data:`~mapdb.build.layersource.OUTLINES_IN_MEMORY` wait for their blocks in tile files in ``scratch``.
+    :data:`~mapdb.build.layersource.OUTLINES_IN_MEMORY` wait for their blocks in tile files in ``scratch``, as
+    an OSM source's do.  ``part`` reads one half of an OSM source (:data:`~mapdb.sources.osm.scan.PARTS`; the
+    blocks are the areas' half's).
     """
     counts: Counter[str] = Counter()
     read_options, osm_options = dict(options[0]), options[1]
     gap = read_options.pop("block_gap", None)
     kind = source_kind(path)
-    outlines = source_outlines(table, gap, scratch if kind in ("osm", "layer") else None)
+    outlines = source_outlines(table, gap if part != "rest" else None, scratch if kind in ("osm", "layer") else None)
     if kind in ("osm", "layer") and (spool_dir or scratch):
         check_room(path, str(spool_dir or scratch), spool_bytes(path, spool_dir is not None, outlines is not None))
     if kind == "osm":
         wkb = outlines.add_wkb if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
-                                  spool_dir=spool_dir, outlines=wkb, **osm_options)
+                                  spool_dir=spool_dir, outlines=wkb, part=part, **osm_options)
         small = path.stat().st_size < TRIM_INPUT_BYTES
     elif kind == "layer":
         spools = [layer_spool(path, table, read_options, counts, outlines, say, spool_dir)]
@@ -165,6 +168,7 @@ class _Spooling(NamedTuple):
 
     directory: str
     spool: str
+    shared: bool = False  # whether Dask workers write there too (a local cluster, on this machine's disk)
 
     def spool_dirs(self, paths: list[Path]) -> list[str | None]:
         """The ``spool_dir`` of each source read in this process: the directory, or None (in memory)."""
@@ -191,31 +195,76 @@ def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say:
     return results
 
 
-def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: Any
-                     ) -> list[tuple[list[ObjectSpool], Counter[str]]]:
-    """The sources read as Dask tasks, one a source; the results in source order, whatever order they end in."""
-    say(f"reading {len(paths)} sources on {worker_count(client)} Dask workers ...")
-    results: list[tuple[list[ObjectSpool], Counter[str]] | None] = [None] * len(paths)
-    tasks = [(path, table, options) for path in paths]
+def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: Any,
+                     spooling: _Spooling) -> list[tuple[list[ObjectSpool], Counter[str]]]:
+    """The sources read as Dask tasks, one a source or one a half of a large OSM extract (:func:`_pieces`); the
+    results in source order, a source's halves joined, whatever order they end in."""
+    workers = worker_count(client)
+    pieces = _pieces(paths, spooling, workers)
+    say(f"reading {len(paths)} sources on {workers} Dask workers ({len(pieces)} tasks) ...")
+    results: list[tuple[list[ObjectSpool], Counter[str]] | None] = [None] * len(pieces)
+    tasks = [(paths[i], table, options, part, spool_dir, scratch) for i, part, spool_dir, scratch in pieces]
     try:
-        for i, result in run_tasks(client, _read_task, tasks):
-            results[i] = result
-            say(f"  {_count(result[0])} objects from {paths[i].name}")
-            say.advance()
+        for k, result in run_tasks(client, _read_task, tasks):
+            results[k] = result
+            _say_read(pieces[k][0], pieces, results, paths, say)
     except MapdbError:
         raise
     except Exception as exc:  # a worker lost (killed, out of memory): the sources not read are named
-        pending = ", ".join(str(path) for path, result in zip(paths, results, strict=True) if result is None)
+        pending = ", ".join(dict.fromkeys(str(paths[p[0]]) for p, r in zip(pieces, results, strict=True) if r is None))
         detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
         raise SourceError(f"{pending}: not read, a Dask worker failed ({exc.__class__.__name__}: {detail})") from None
-    return [result for result in results if result is not None]
+    joined: list[tuple[list[ObjectSpool], Counter[str]]] = [([], Counter()) for _ in paths]
+    for (i, *_), result in zip(pieces, results, strict=True):
+        if result is not None:
+            joined[i][0].extend(result[0])
+            joined[i][1].update(result[1])
+    return joined
 
 
-def _read_task(path: Path, table: LabelTable, options: _ReadOptions) -> tuple[list[ObjectSpool], Counter[str]]:
-    """:func:`read_one_source` on a worker (its objects in memory): an unexpected error still names its source
-    in one line."""
+def _say_read(i: int, pieces: list[tuple[int, str, str | None, str | None]],
+              results: list[tuple[list[ObjectSpool], Counter[str]] | None], paths: list[Path], say: Progress) -> None:
+    """Say that source ``i`` is read, once all its pieces are."""
+    mine = [r for r, piece in zip(results, pieces, strict=True) if piece[0] == i]
+    if all(r is not None for r in mine):
+        say(f"  {sum(_count(r[0]) for r in mine if r is not None)} objects from {paths[i].name}")
+        say.advance()
+
+
+# An OSM extract from this size is read by two tasks at once on a cluster of two workers or more: its areas and
+# the rest, each a pass of its own over the file (mapdb.sources.osm.scan.PARTS).  libosmium's pass, done twice,
+# is about a quarter of a build of Andorra copied 64 times (17 s of 70 s, 92 MB): the rest is Python's work on
+# the objects and the blocks, which the halves share out.  Below it a source is one task.
+SPLIT_OSM_BYTES = FILE_INDEX_BYTES
+
+
+def _pieces(paths: list[Path], spooling: _Spooling, workers: int) -> list[tuple[int, str, str | None, str | None]]:
+    """The tasks of a parallel read: (source index, part, spool directory, scratch directory) each.
+
+    Workers on this machine (``spooling.shared``) spool large sources' objects and footprints to the build's
+    temporary directory as this process would; others keep them in memory and send them back.
+    """
+    dirs = spooling.spool_dirs(paths) if spooling.shared else [None] * len(paths)
+    scratch = spooling.directory if spooling.shared else None
+    pieces = []
+    for i, (path, spool_dir) in enumerate(zip(paths, dirs, strict=True)):
+        halves = workers >= 2 and source_kind(path) == "osm" and _size(path) >= SPLIT_OSM_BYTES
+        pieces += [(i, part, spool_dir, scratch) for part in (("areas", "rest") if halves else ("all",))]
+    return pieces
+
+
+def _size(path: Path) -> int:
     try:
-        return read_one_source(path, table, options)
+        return path.stat().st_size
+    except OSError:  # the reader says what is wrong with it
+        return 0
+
+
+def _read_task(path: Path, table: LabelTable, options: _ReadOptions, part: str = "all", spool_dir: str | None = None,
+               scratch: str | None = None) -> tuple[list[ObjectSpool], Counter[str]]:
+    """:func:`read_one_source` on a worker: an unexpected error still names its source in one line."""
+    try:
+        return read_one_source(path, table, options, None, spool_dir, scratch, part)
     except MapdbError:
         raise
     except Exception as exc:
@@ -224,13 +273,16 @@ def _read_task(path: Path, table: LabelTable, options: _ReadOptions) -> tuple[li
 
 
 def _paying_jobs(sources: Sequence[str | Path], jobs: int | None, least: int, say: Progress) -> int | None:
-    """``jobs``, or None (read here) when the sources besides the largest add up to less than ``least`` bytes."""
+    """``jobs``, or None (read here) when the sources besides the largest add up to less than ``least`` bytes and
+    no OSM extract is large enough to be read in halves (:data:`SPLIT_OSM_BYTES`)."""
     if jobs is None:
         return None
     sizes = sorted(Path(p).stat().st_size if Path(p).is_file() else 0 for p in sources)
     beside = sum(sizes[:-1])
     if beside >= least:
         return jobs
+    if jobs >= 2 and any(source_kind(p) == "osm" and _size(Path(p)) >= SPLIT_OSM_BYTES for p in sources):
+        return jobs  # a large extract's halves are read at once
     say(f"--jobs {jobs}: reading here, in one process: the sources besides the largest add up to "
         f"{beside / 1e6:,.1f} MB, less than the {least / 1e6:,.0f} MB from which workers pay")
     return None
