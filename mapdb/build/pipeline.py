@@ -172,11 +172,13 @@ def build_map(
         (in ``index_dir``) or ``"auto"``, in memory while the OSM sources so read add up to less than
         :data:`SPOOL_INPUT_BYTES` (64 MiB) and in files from there.  The map is the same.
     jobs, scheduler : int, str, optional
-        Read the sources in parallel, one Dask task a source, on a local cluster of ``jobs`` worker
-        processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
+        Read the sources in parallel, one Dask task a source (two for an OSM extract from
+        :data:`~mapdb.build.reading.SPLIT_OSM_BYTES`: its areas and the rest), on a local cluster of ``jobs``
+        worker processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
         the one read in this process.  A source that fails fails the build, naming the source.  A local
         cluster is started only when the sources besides the largest add up to ``jobs_min_bytes`` (default
-        :data:`JOBS_MIN_BYTES`): below that they are read in this process (and it is said).
+        :data:`JOBS_MIN_BYTES`) or an OSM extract is read in halves: otherwise they are read in this process
+        (and it is said).
     dem : sequence of paths
         Elevation rasters (GeoTIFF or SRTM ``.hgt``, any CRS, a mosaic in the order given): the map stores
         each object's ground elevation (:mod:`mapdb.build.elevation`; a version 2 map).  Objects off the DEMs
