@@ -232,9 +232,9 @@ def _say_read(i: int, pieces: list[tuple[int, str, str | None, str | None]],
 
 
 # An OSM extract from this size is read by two tasks at once on a cluster of two workers or more: its areas and
-# the rest, each a pass of its own over the file (mapdb.sources.osm.scan.PARTS).  libosmium's pass, done twice,
-# is about a quarter of a build of Andorra copied 64 times (17 s of 70 s, 92 MB): the rest is Python's work on
-# the objects and the blocks, which the halves share out.  Below it a source is one task.
+# the rest, each a pass of its own over the file (mapdb.sources.osm.scan.PARTS).  libosmium's pass alone, made
+# twice, took 17 s against 70 s for the build of Andorra copied 64 times (92 MB); read alone, the areas half took
+# 30.5 s and the rest 13.3 s (benchmarks/osm_scale.py --jobs).  Below this size a source is one task.
 SPLIT_OSM_BYTES = FILE_INDEX_BYTES
 
 
