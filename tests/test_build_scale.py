@@ -263,7 +263,7 @@ def test_a_spooled_read_equals_read_osm_and_a_build_leaves_no_files(tmp_path: Pa
 
 
 def test_dropped_objects_are_rewritten_and_the_old_file_removed(tmp_path: Path) -> None:
-    from mapdb.build.pipeline import _kept
+    from mapdb.build.reading import _kept
     from mapdb.sources.spool import ObjectSpool
 
     spool = ObjectSpool(("a",), "EPSG:4326", tmp_path)

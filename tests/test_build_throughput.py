@@ -10,7 +10,8 @@ from osmxml import OsmXml, square
 from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
-from mapdb.build.pipeline import SPOOL_INPUT_BYTES, _Spooling, build_map, utm_crs_for
+from mapdb.build.pipeline import build_map, utm_crs_for
+from mapdb.build.reading import SPOOL_INPUT_BYTES, _Spooling
 from mapdb.errors import SourceError
 
 

@@ -148,9 +148,9 @@ class BuildingOutlines:
         """Footprints as WKB (bytes or hex) in lon/lat, with their label codes (other labels are ignored)."""
         keep = np.flatnonzero(np.asarray(codes) == self.code)
         if keep.size:
-            # Kept as binary WKB (half osmium's hex text): about 200 bytes a building, with Python's own, until the
-            # blocks are made.
-            self.wkb.extend(shapely.to_wkb(shapely.from_wkb(np.asarray(wkbs, dtype=object)[keep])).tolist())
+            # Through keep(): kept as binary WKB (half osmium's hex text) in memory, or in tile files past a bound
+            # (mapdb.build.tiles.SpillingOutlines), until the blocks are made.
+            self.keep(shapely.from_wkb(np.asarray(wkbs, dtype=object)[keep]))
 
     def add_geometries(self, geoms: np.ndarray, names: np.ndarray, crs: Any) -> None:
         """A layer's geometries in ``crs`` with their label names: the building polygons, taken to lon/lat."""

@@ -44,7 +44,8 @@ from ..mapfile.writer import MapWriter
 from ..objects import Objects
 from ..progress import ProgressLike, as_progress
 from .inputs import duplicate_input, file_fingerprint, file_sha256
-from .pipeline import _auto_crs, _projected_crs, _to_lonlat
+from .pipeline import _auto_crs, _projected_crs
+from .reading import _to_lonlat
 
 __all__ = ["content_digest", "merge_maps"]
 

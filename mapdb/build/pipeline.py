@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import tempfile
 from collections import Counter
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -16,22 +16,32 @@ from pyproj.aoi import AreaOfInterest
 from pyproj.database import query_utm_crs_info
 
 from ..classmap import ClassTable, check_label, load_class_table
-from ..cluster import open_client, run_tasks, worker_count
-from ..errors import EmptyMapError, MapdbError, MapdbIOError, SourceError
+from ..cluster import open_client
+from ..errors import EmptyMapError, MapdbIOError, SourceError
 from ..geo import bbox_text, check_bbox, in_bbox
 from ..labels import LabelTable, load_label_table
 from ..mapfile.writer import MapWriter
 from ..objects import Objects
 from ..progress import Progress, ProgressLike, as_progress
-from ..sources import SKIPPED_KINDS, read_source, source_kind
-from ..sources.osm.index import FILE_INDEX_BYTES, NODE_INDEXES
-from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
-from ..sources.spool import ObjectSpool, check_room, release_freed_memory, spool_bytes
-from .blocks import DEFAULT_GAP_M, MAX_GAP_M, blocks_spool
+from ..sources import SKIPPED_KINDS, source_kind
+from ..sources.osm.index import NODE_INDEXES
+from ..sources.spool import ObjectSpool
+from .blocks import DEFAULT_GAP_M, MAX_GAP_M
 from .blockstats import Blocks, central_longitude_of, lon_arc_of, median_of
 from .elevation import ElevationTally
-from .inputs import duplicate_input, file_fingerprint, file_sha256
-from .layersource import layer_spool, source_outlines
+from .inputs import file_sha256
+from .reading import (
+    JOBS_MIN_BYTES,
+    SPOOL_CHOICES,
+    SPOOL_INPUT_BYTES,
+    _count,
+    _kept,
+    _paying_jobs,
+    _read_sources,
+    _ReadOptions,
+    _Spooling,
+    read_one_source,
+)
 
 __all__ = ["JOBS_MIN_BYTES", "MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "build_map",
            "read_one_source", "utm_crs_for"]
@@ -42,19 +52,6 @@ __all__ = ["JOBS_MIN_BYTES", "MAX_AUTO_CRS_SPAN_DEG", "SPOOL_CHOICES", "SPOOL_IN
 # its grid north turns from true north by up to 6 degrees (towards the poles): the build warns and suggests
 # an explicit CRS or one map per area.
 MAX_AUTO_CRS_SPAN_DEG = 12.0
-
-# Where the objects read from OSM sources wait for the map writer (``build_map(spool=...)``): in memory, or in
-# temporary files (28 bytes an object, read back in blocks).  "auto" keeps them in memory while the OSM inputs
-# so read add up to less than SPOOL_INPUT_BYTES, the size from which libosmium's node index is a file too (about
-# 6,000 objects a MB of PBF: some 11 MB of objects at most); files cost little, but a town's build would spend
-# a few percent of its time writing and reading them back.
-SPOOL_CHOICES = ("auto", "memory", "file")
-SPOOL_INPUT_BYTES = FILE_INDEX_BYTES
-
-# A local Dask cluster (--jobs) costs seconds to start and reads one source a task: only the sources besides the
-# largest can gain, when they take longer than the cluster costs (issue 31: the shared extracts, 2.8 MB, built
-# 2.3 times slower with two workers).  32 MB, some 30 s of OSM reading, is a chosen bound, not a measured one.
-JOBS_MIN_BYTES = 32 << 20
 
 
 def utm_crs_for(lon: float, lat: float) -> str:
@@ -107,14 +104,6 @@ def _spread_warning(names: list[str], lonlat: list[Blocks], target: str) -> str 
     return (f"sources span {width:.1f} degrees of longitude ({where}), more than the "
             f"{MAX_AUTO_CRS_SPAN_DEG:g} (two UTM zones) that the automatic {target} holds without distortion; "
             "give a CRS that fits them all (--crs) or build one map per area")
-
-
-def _to_lonlat(objects: Objects) -> tuple[np.ndarray, np.ndarray]:
-    crs = CRS.from_user_input(objects.crs)
-    if crs.equals(CRS.from_epsg(4326), ignore_axis_order=True):
-        return objects.x, objects.y
-    lon, lat = Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(objects.x, objects.y)
-    return np.asarray(lon), np.asarray(lat)
 
 
 def _check_number(name: str, value: float, low: float, high: float, low_open: bool) -> float:
@@ -183,11 +172,13 @@ def build_map(
         (in ``index_dir``) or ``"auto"``, in memory while the OSM sources so read add up to less than
         :data:`SPOOL_INPUT_BYTES` (64 MiB) and in files from there.  The map is the same.
     jobs, scheduler : int, str, optional
-        Read the sources in parallel, one Dask task a source, on a local cluster of ``jobs`` worker
-        processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
+        Read the sources in parallel, one Dask task a source (two for an OSM extract from
+        :data:`~mapdb.build.reading.SPLIT_OSM_BYTES`: its areas and the rest), on a local cluster of ``jobs``
+        worker processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
         the one read in this process.  A source that fails fails the build, naming the source.  A local
         cluster is started only when the sources besides the largest add up to ``jobs_min_bytes`` (default
-        :data:`JOBS_MIN_BYTES`): below that they are read in this process (and it is said).
+        :data:`JOBS_MIN_BYTES`) or an OSM extract is read in halves: otherwise they are read in this process
+        (and it is said).
     dem : sequence of paths
         Elevation rasters (GeoTIFF or SRTM ``.hgt``, any CRS, a mosaic in the order given): the map stores
         each object's ground elevation (:mod:`mapdb.build.elevation`; a version 2 map).  Objects off the DEMs
@@ -233,7 +224,8 @@ def build_map(
         raise SourceError(f"spool {spool!r}: not one of {', '.join(SPOOL_CHOICES)}")
     jobs = _paying_jobs(sources, jobs, JOBS_MIN_BYTES if jobs_min_bytes is None else jobs_min_bytes, say)
     with open_client(jobs, scheduler) as client, _scratch(index_dir) as directory:
-        read = _gather(sources, table, (read_options, osm_options), target, say, client, _Spooling(directory, spool))
+        spooling = _Spooling(directory, spool, scheduler is None)
+        read = _gather(sources, table, (read_options, osm_options), target, say, client, spooling)
         return _built(output, read, table, quantum, say, elevation, {
             "crs": crs, "bbox": list(bbox) if bbox else None, "quantum": quantum,
             "labels_file": Path(labels).name if labels else None,
@@ -285,40 +277,10 @@ def _gather(sources: Sequence[str | Path], table: LabelTable, options: _ReadOpti
     return _Read(parts, target, described, skipped, warnings, names)
 
 
-def _count(spools: list[ObjectSpool]) -> int:
-    """How many objects a source's spools hold."""
-    return sum(len(spool) for spool in spools)
-
-
 def _coordinate(spools: list[ObjectSpool], axis: str) -> Blocks:
     """One coordinate (``"x"``: longitude, ``"y"``: latitude) of a source's objects, block by block, afresh
     at each call."""
     return lambda: (getattr(block, axis) for spool in spools for block in spool.blocks())
-
-
-def _kept(spools: list[ObjectSpool], keep: Callable[[Objects], np.ndarray],
-          box: Sequence[float] | None = None) -> tuple[list[ObjectSpool], int]:
-    """A source's objects that ``keep`` keeps (a mask a block), and how many it dropped.
-
-    ``keep`` keeps at least every finite object within ``box`` when one is given: spools whose objects all
-    are (:meth:`ObjectSpool.inside`, from what was added) are not read back.  Otherwise a pass over the blocks
-    first: when nothing is dropped (a source already clipped or all valid) the spools are kept as they are,
-    not copied; else each is rewritten beside itself and the old one discarded.
-    """
-    if box is not None and all(spool.inside(box) for spool in spools):
-        return spools, 0
-    dropped = sum(int((~keep(block)).sum()) for spool in spools for block in spool.blocks())
-    if not dropped:
-        return spools, 0
-    kept = []
-    for spool in spools:
-        copy = ObjectSpool(spool.labels, spool.crs, spool.directory, "kept-")
-        for block in spool.blocks():
-            mask = keep(block)
-            copy.add(block if mask.all() else block.take(mask))
-        spool.discard()
-        kept.append(copy)
-    return kept, dropped
 
 
 def _write(output: str | Path, read: _Read, table: LabelTable, quantum: float, build: dict[str, Any],
@@ -426,85 +388,6 @@ def _label_map(path: str | Path | None, label: str | None, table: LabelTable) ->
     return None if path is None else load_class_table(path, table.labels, column=True)
 
 
-def _read_sources(sources: Sequence[str | Path], table: LabelTable, say: Progress, options: _ReadOptions,
-                  client: Any, spooling: _Spooling
-                  ) -> tuple[list[list[ObjectSpool]], list[dict[str, Any]], list[Counter[str]], list[str]]:
-    """Read each source once: its objects, its metadata entry, what its reader skipped; and the warnings."""
-    unique, warnings = [], []
-    seen: dict[Any, Path] = {}
-    for path in map(Path, sources):
-        fingerprint = file_fingerprint(path)
-        duplicate = duplicate_input(path, fingerprint, seen)
-        if duplicate:
-            warnings.append(duplicate)
-            say.advance()
-            continue
-        unique.append((path, fingerprint))
-    read = _read_here if client is None else _read_on_cluster
-    results = read([path for path, _ in unique], table, options, say, client if client is not None else spooling)
-    described = [{"name": path.name, "kind": source_kind(path), "size": path.stat().st_size,
-                  "sha256": fingerprint[1] if fingerprint else file_sha256(path),
-                  "objects": _count(spools)}
-                 for (path, fingerprint), (spools, _) in zip(unique, results, strict=True)]
-    return [spools for spools, _ in results], described, [counts for _, counts in results], warnings
-
-
-# The options of read_source, and those only OSM sources take (node_index, index_dir).
-_ReadOptions = tuple[dict[str, Any], dict[str, Any]]
-
-
-def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None = None,
-                    spool_dir: str | None = None, scratch: str | None = None
-                    ) -> tuple[list[ObjectSpool], Counter[str]]:
-    """One source's objects in lon/lat (those not on Earth dropped and counted) and what its reader skipped.
-
-    A whole build's worth of one source: the unit of work of a parallel build (a Dask task).  The objects come
-    as spools of blocks (:class:`mapdb.sources.spool.ObjectSpool`), in ``EPSG:4326``: an OSM source read with a
-    ``spool_dir`` is written there block by block as it is read (the caller removes the files), anything else
-    is held in memory; a layer is read a batch at a time, and its building footprints past
-    :data:`~mapdb.build.layersource.OUTLINES_IN_MEMORY` wait for their blocks in tile files in ``scratch``.
-    """
-    counts: Counter[str] = Counter()
-    read_options, osm_options = dict(options[0]), options[1]
-    gap = read_options.pop("block_gap", None)
-    kind = source_kind(path)
-    outlines = source_outlines(table, gap, scratch if kind == "layer" else None)
-    if kind in ("osm", "layer") and (spool_dir or scratch):
-        check_room(path, str(spool_dir or scratch), spool_bytes(path, spool_dir is not None, outlines is not None))
-    if kind == "osm":
-        wkb = outlines.add_wkb if outlines is not None else None
-        spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
-                                  spool_dir=spool_dir, outlines=wkb, **osm_options)
-        small = path.stat().st_size < TRIM_INPUT_BYTES
-    elif kind == "layer":
-        spools = [layer_spool(path, table, read_options, counts, outlines, say, spool_dir)]
-        small = False
-    else:
-        objects = read_source(path, table, progress=say, counts=counts, **read_options)
-        lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
-        spools = [ObjectSpool(objects.labels, "EPSG:4326")]
-        spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
-        del objects
-        small = False  # a raster's windows may have taken much more than the file
-    if outlines is not None and gap is not None:
-        spools.append(blocks_spool(outlines, table.labels, gap, read_options["bbox"], say))
-    if not small:
-        release_freed_memory()
-    # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
-    # range (a projected layer outside its projection) is dropped and counted.
-    spools, dropped = _kept(spools, _on_earth, _EARTH)
-    counts["invalid_coordinates"] += dropped
-    return spools, counts
-
-
-_EARTH = (-180.0, -90.0, 180.0, 90.0)
-
-
-def _on_earth(block: Objects) -> np.ndarray:
-    lon, lat = block.x, block.y
-    return np.isfinite(lon) & np.isfinite(lat) & (np.abs(lon) <= 180) & (np.abs(lat) <= 90)
-
-
 @contextmanager
 def _scratch(index_dir: str | Path | None) -> Iterator[str]:
     """A temporary directory for the objects read (under ``index_dir``, else the system's), removed at the end."""
@@ -515,82 +398,6 @@ def _scratch(index_dir: str | Path | None) -> Iterator[str]:
                            f"({exc.strerror or exc})") from None
     with tmp as name:
         yield name
-
-
-class _Spooling(NamedTuple):
-    """The build's temporary directory, and where OSM sources' objects go (one of :data:`SPOOL_CHOICES`)."""
-
-    directory: str
-    spool: str
-
-    def spool_dirs(self, paths: list[Path]) -> list[str | None]:
-        """The ``spool_dir`` of each source read in this process: the directory, or None (in memory)."""
-        held, dirs = 0, []
-        for path in paths:
-            try:
-                size = path.stat().st_size if source_kind(path) in ("osm", "layer") else 0
-            except OSError:  # the reader says what is wrong with it
-                size = 0
-            memory = self.spool == "memory" or (self.spool == "auto" and held + size < SPOOL_INPUT_BYTES)
-            held += size if memory else 0
-            dirs.append(None if memory else self.directory)
-        return dirs
-
-
-def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, spooling: _Spooling
-               ) -> list[tuple[list[ObjectSpool], Counter[str]]]:
-    results = []
-    for path, spool_dir in zip(paths, spooling.spool_dirs(paths), strict=True):
-        say(f"reading {path} ...")
-        results.append(read_one_source(path, table, options, say, spool_dir, spooling.directory))
-        say(f"  {_count(results[-1][0])} objects from {path.name}")
-        say.advance()
-    return results
-
-
-def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: Any
-                     ) -> list[tuple[list[ObjectSpool], Counter[str]]]:
-    """The sources read as Dask tasks, one a source; the results in source order, whatever order they end in."""
-    say(f"reading {len(paths)} sources on {worker_count(client)} Dask workers ...")
-    results: list[tuple[list[ObjectSpool], Counter[str]] | None] = [None] * len(paths)
-    tasks = [(path, table, options) for path in paths]
-    try:
-        for i, result in run_tasks(client, _read_task, tasks):
-            results[i] = result
-            say(f"  {_count(result[0])} objects from {paths[i].name}")
-            say.advance()
-    except MapdbError:
-        raise
-    except Exception as exc:  # a worker lost (killed, out of memory): the sources not read are named
-        pending = ", ".join(str(path) for path, result in zip(paths, results, strict=True) if result is None)
-        detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
-        raise SourceError(f"{pending}: not read, a Dask worker failed ({exc.__class__.__name__}: {detail})") from None
-    return [result for result in results if result is not None]
-
-
-def _read_task(path: Path, table: LabelTable, options: _ReadOptions) -> tuple[list[ObjectSpool], Counter[str]]:
-    """:func:`read_one_source` on a worker (its objects in memory): an unexpected error still names its source
-    in one line."""
-    try:
-        return read_one_source(path, table, options)
-    except MapdbError:
-        raise
-    except Exception as exc:
-        detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
-        raise SourceError(f"{path}: reading failed on a Dask worker ({exc.__class__.__name__}: {detail})") from None
-
-
-def _paying_jobs(sources: Sequence[str | Path], jobs: int | None, least: int, say: Progress) -> int | None:
-    """``jobs``, or None (read here) when the sources besides the largest add up to less than ``least`` bytes."""
-    if jobs is None:
-        return None
-    sizes = sorted(Path(p).stat().st_size if Path(p).is_file() else 0 for p in sources)
-    beside = sum(sizes[:-1])
-    if beside >= least:
-        return jobs
-    say(f"--jobs {jobs}: reading here, in one process: the sources besides the largest add up to "
-        f"{beside / 1e6:,.1f} MB, less than the {least / 1e6:,.0f} MB from which workers pay")
-    return None
 
 
 def _checked_node_index(node_index: str) -> str:

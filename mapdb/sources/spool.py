@@ -174,8 +174,8 @@ def release_freed_memory() -> None:
 def spool_bytes(path: str | os.PathLike[str], objects: bool = True, footprints: bool = False) -> int:
     """The disk a source's spool may need, foreseen from its size: its ``objects`` (:data:`RECORD_BYTES`
     each, twice: a copy less the objects outside the box or off the Earth is written beside the first) and,
-    for a layer whose buildings form blocks, its ``footprints`` (twice the file: WKB, a footprint near a
-    tile's edge written to each tile it reaches).  An upper estimate, not a promise.
+    for a source whose buildings form blocks, its ``footprints`` (WKB, a footprint near a tile's edge written to
+    each tile it reaches: twice a layer's file, once an OSM extract's).  An upper estimate, not a promise.
 
     Examples
     --------
@@ -192,7 +192,8 @@ def spool_bytes(path: str | os.PathLike[str], objects: bool = True, footprints: 
     name = os.fspath(path).lower()
     kind = "osm" if ".osm" in name else "csv" if name.endswith(".csv") else "layer"
     need = 2 * RECORD_BYTES * math.ceil(size * _OBJECTS_A_BYTE[kind]) if objects else 0
-    return need + (2 * size if footprints and kind == "layer" else 0)
+    # An OSM extract's footprints take less than its file (WKB of about 100 bytes a building): its size, once.
+    return need + ((2 if kind == "layer" else 1) * size if footprints else 0)
 
 
 def check_room(path: str | os.PathLike[str], directory: str | os.PathLike[str], need: int) -> None:

@@ -20,7 +20,7 @@ from .files import _XML_SUFFIXES, _check_readable, _xml_input
 from .index import FILE_INDEX_BYTES, NODE_INDEXES, _Workspace
 from .intersections import _intersection_objects
 from .progress import Progress
-from .scan import OutlineSink, _Collected, _repair_ways, _scan, _Sink
+from .scan import PARTS, OutlineSink, _Collected, _repair_ways, _scan, _Sink
 
 __all__ = ["TRIM_INPUT_BYTES", "read_osm", "read_osm_spooled"]
 
@@ -100,7 +100,8 @@ def read_osm(path: str | Path, table: LabelTable, bbox: tuple[float, float, floa
 def read_osm_spooled(path: str | Path, table: LabelTable, bbox: tuple[float, float, float, float] | None = None,
                      progress: Progress | None = None, counts: Counter[str] | None = None, *,
                      node_index: str = "auto", index_dir: str | Path | None = None,
-                     spool_dir: str | Path | None = None, outlines: OutlineSink | None = None) -> list[ObjectSpool]:
+                     spool_dir: str | Path | None = None, outlines: OutlineSink | None = None,
+                     part: str = "all") -> list[ObjectSpool]:
     """:func:`read_osm`'s objects, in order, as spools of blocks that are written to ``spool_dir`` as the pass
     goes (kept in memory when it is None), so that a country's objects are never all in memory.
 
@@ -108,11 +109,15 @@ def read_osm_spooled(path: str | Path, table: LabelTable, bbox: tuple[float, flo
     ``spool_dir``) are the caller's to remove (:meth:`mapdb.sources.spool.ObjectSpool.discard`, or with the directory).
     Parameters, errors and the objects read are those of :func:`read_osm`; ``outlines``, when given, is handed
     the outline (WKB in lon/lat) and label code of every area read, block by block, before it is dropped
-    (the builder's blocks of touching buildings, :class:`mapdb.build.blocks.BuildingOutlines`).
+    (the builder's blocks of touching buildings, :class:`mapdb.build.blocks.BuildingOutlines`).  ``part``
+    (one of :data:`~mapdb.sources.osm.scan.PARTS`) reads all the objects, or only the areas or only the rest:
+    two processes reading the two halves give, together, the objects and counts of one read.
     """
     path = Path(path)
     if node_index not in NODE_INDEXES:
         raise SourceError(f"node index {node_index!r}: not one of {', '.join(NODE_INDEXES)}")
+    if part not in PARTS:
+        raise SourceError(f"part {part!r}: not one of {', '.join(PARTS)}")
     _check_readable(path)
     bbox = None if bbox is None else check_bbox(bbox)
     counts = counts if counts is not None else Counter()
@@ -121,7 +126,7 @@ def read_osm_spooled(path: str | Path, table: LabelTable, bbox: tuple[float, flo
     try:
         with _Workspace(index_dir) as workspace:
             _read(path, table, bbox, progress or (lambda message: None), counts, workspace, node_index, spools,
-                  outlines)
+                  outlines, part)
     except BaseException:
         for spool in spools:
             spool.discard()
@@ -131,12 +136,12 @@ def read_osm_spooled(path: str | Path, table: LabelTable, bbox: tuple[float, flo
 
 def _read(path: Path, table: LabelTable, bbox: tuple[float, float, float, float] | None, report: Progress,
           counts: Counter[str], workspace: _Workspace, node_index: str, spools: list[ObjectSpool],
-          outlines: OutlineSink | None = None) -> None:
+          outlines: OutlineSink | None = None, part: str = "all") -> None:
     """:func:`read_osm` on checked arguments: collect and assemble into ``spools``, and say what came of it."""
     started = time.monotonic()
     report(f"{path}: reading OpenStreetMap data")
     collected = _collect(path, table, report, counts, workspace, node_index, _Sink(spools, bbox, len(table.labels)),
-                         outlines)
+                         outlines, part)
     report(f"{path}: file read in {time.monotonic() - started:.1f} s; joining roundabouts, finding intersections")
     _assemble(collected, table, counts)
     found = collected.sink.found
@@ -148,7 +153,7 @@ def _read(path: Path, table: LabelTable, bbox: tuple[float, float, float, float]
 
 
 def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[str], workspace: _Workspace,
-             node_index: str, sink: _Sink, outlines: OutlineSink | None = None) -> _Collected:
+             node_index: str, sink: _Sink, outlines: OutlineSink | None = None, part: str = "all") -> _Collected:
     """The single pass over the file (and the repair of areas osmium could not assemble)."""
     try:
         with _xml_input(path) if path.name.lower().endswith(_XML_SUFFIXES) else nullcontext(str(path)) as source:
@@ -156,7 +161,7 @@ def _collect(path: Path, table: LabelTable, report: Progress, counts: Counter[st
             collected = _Collected(table.labels, workspace, counts, size, sink)
             collected.outlines = outlines
             collected.locations, collected.index_file = workspace.node_index(node_index, size, path)
-            _scan(path, source, table, report, collected)
+            _scan(path, source, table, report, collected, part)
             if collected.failed_area_ways:
                 _repair_ways(source, collected, counts)
             collected.finish_areas()

@@ -24,7 +24,7 @@ from .index import _defined, _Workspace
 from .intersections import _RoadNetwork
 from .progress import _PROGRESS_STRIDE, Progress, _ByteProgress
 
-__all__ = ["AREA_BLOCK", "POINT_BLOCK", "OutlineSink"]
+__all__ = ["AREA_BLOCK", "PARTS", "POINT_BLOCK", "OutlineSink"]
 
 # What is handed each block of areas' outlines, when asked: their WKB (hex, lon/lat) and label codes.
 OutlineSink = Callable[[list[str], list[int]], None]
@@ -37,6 +37,12 @@ _AREA_RELATION_TYPES = frozenset({"multipolygon", "boundary"})
 AREA_BLOCK = 4096
 # Labelled nodes handed on at once (1.2 MB of typed arrays).
 POINT_BLOCK = 1 << 16
+
+# The halves of an extract two processes can read at once, each in a pass of its own over the whole file
+# (``read_osm_spooled(part=...)``): the areas (libosmium's assembly, their centroids and areas, and the
+# footprints of their blocks), and the rest (labelled nodes, the ways of "way" rules, the checks of ways tagged
+# as areas, the road network).  Together they are the objects and counts of one pass ("all").
+PARTS = ("all", "areas", "rest")
 
 
 class _Sink:
@@ -140,14 +146,17 @@ def _tag_prefilter(rules: Sequence[TagRule], extra: Sequence[tuple[str, str]] = 
     return osmium.filter.TagFilter(*pairs) if pairs else None
 
 
-def _scan(path: Path, source: str, table: LabelTable, report: Progress, out: _Collected) -> None:
-    """One pass over ``source``: the labelled nodes, areas and ways, and the road ways' nodes."""
-    area_rules = _rules_for(table, "area")
-    node_rules = _rules_for(table, "node")
-    way_rules = _rules_for(table, "way")
+def _scan(path: Path, source: str, table: LabelTable, report: Progress, out: _Collected, part: str = "all") -> None:
+    """One pass over ``source``: the labelled nodes, areas and ways, and the road ways' nodes (``part``: all of
+    them, or one of the two halves of :data:`PARTS`)."""
+    area_rules = _rules_for(table, "area") if part != "rest" else []
+    node_rules = _rules_for(table, "node") if part != "areas" else []
+    way_rules = _rules_for(table, "way") if part != "areas" else []
     roads = frozenset(table.intersections.highways) if table.intersections is not None else frozenset()
+    roads = roads if part != "areas" else frozenset()
+    checks = _rules_for(table, "area") if part != "areas" else []  # ways tagged as areas, checked and counted
     relations = _LabelledRelations(area_rules)
-    processor = _processor(source, out.locations, area_rules, node_rules, way_rules, roads, relations)
+    processor = _processor(source, out.locations, area_rules, node_rules, way_rules, roads, relations, checks)
     wkb = osmium.geom.WKBFactory()
     counts = out.counts
     seen = 0
@@ -162,7 +171,7 @@ def _scan(path: Path, source: str, table: LabelTable, report: Progress, out: _Co
         elif kind == "n":
             _take_node(obj, node_rules, out, counts)
         elif kind == "w":
-            _take_way(obj, way_rules, area_rules, roads, wkb, out, counts)
+            _take_way(obj, way_rules, checks, roads, wkb, out, counts)
     meter.release()
     # Relations osmium was given but never assembled: a member way or node missing from the extract (or
     # out of range), as libosmium waits for all members and builds no rings through an invalid location.
@@ -171,14 +180,17 @@ def _scan(path: Path, source: str, table: LabelTable, report: Progress, out: _Co
 
 def _processor(source: str, locations: Any, area_rules: list[tuple[int, TagRule]],
                node_rules: list[tuple[int, TagRule]], way_rules: list[tuple[int, TagRule]],
-               roads: frozenset[str], relations: _LabelledRelations | None = None) -> Any:
+               roads: frozenset[str], relations: _LabelledRelations | None = None,
+               checks: list[tuple[int, TagRule]] | None = None) -> Any:
     """osmium's reader of ``source``, letting through (a superset of) the objects the rules may use;
-    ``relations`` (made here when None) is the first pass's filter of the relations to assemble."""
+    ``relations`` (made here when None) is the first pass's filter of the relations to assemble, ``checks``
+    the area rules whose ways are checked (``area_rules`` when None)."""
+    checks = area_rules if checks is None else checks
     area_filter = _tag_prefilter([r for _, r in area_rules])
     node_filter = _tag_prefilter([r for _, r in node_rules])
     # Ways tagged as areas come through too: osmium silently drops those that do not close or have a
     # node out of range, and they must be counted.
-    way_filter = _tag_prefilter([r for _, r in way_rules + area_rules], [("highway", h) for h in sorted(roads)])
+    way_filter = _tag_prefilter([r for _, r in way_rules + checks], [("highway", h) for h in sorted(roads)])
 
     processor = osmium.FileProcessor(source).with_locations(locations)
     kinds = osmium.osm.NOTHING
