@@ -79,8 +79,11 @@ def checked_prior(values: tuple[float, float, float], lonlat: bool, heading: tup
     try:
         return check_prior(x, y, r, f"'{x:g},{y:g},{r:g}'", lonlat=lonlat, heading=heading)
     except ImageInputError as exc:
-        hint = "'--heading'" if "prior.heading" in str(exc) else "'--prior'"
-        raise click.BadParameter(str(exc), param_hint=hint) from None
+        message = str(exc)
+        if "prior.heading" in message:  # named by the --heading values, not the --prior ones
+            given = ",".join(f"{v:g}" for v in heading)
+            raise click.BadParameter(f"'{given}': {message.split(': ', 1)[1]}", param_hint="'--heading'") from None
+        raise click.BadParameter(message, param_hint="'--prior'") from None
 
 
 def _prior_argument(prior: Prior, prior_crs, map_crs: str):
