@@ -260,14 +260,14 @@ def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int, bas
                   f"{t['query exit']:6.3f}s")
 
 
-def simulated(map_path: Path, n: int, seed: int) -> list[dict]:
-    """``n`` images over the map as issue 8 measures them, each with a 300 m prior."""
+def simulated(map_path: Path, n: int, seed: int, radius: float = 300.0) -> list[dict]:
+    """``n`` images over the map as issue 8 measures them, each with a prior of ``radius`` metres (300 m)."""
     from mapdb.mapfile.reader import open_map
     from mapdb.simulation.simulate import simulate_images
 
     with open_map(map_path) as m:
         return simulate_images(m, n, altitude=300.0, fov_deg=60.0, yaw="random", pixel_std=1.0,
-                               attitude_std=0.05, min_objects=6, with_prior=300.0, seed=seed)
+                               attitude_std=0.05, min_objects=6, with_prior=radius, seed=seed)
 
 
 def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path) -> None:
@@ -280,7 +280,8 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
     if args.baseline:
         old = import_baseline(args.baseline, work)
         versions[f"baseline {args.baseline}"] = (old.localize, import_baseline(args.baseline, work, "store"))
-    print(f"{args.n} images a map: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects, prior 300 m; "
+    print(f"{args.n} images a map: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects, prior "
+          f"{args.prior_radius:g} m; "
           f"pose prior: the disc, the true heading (sigma {HEADING_SIGMA_DEG:g} deg) and altitude; numpy calls over "
           f"the first {min(args.count, args.n)}; load average {os.getloadavg()[0]:.1f}")
     if args.baseline:
@@ -289,7 +290,7 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
     print(f"  {'map':<14} {'code':<17} {'case':<10} {'median ms':>9} {'p95 ms':>8} {'localized':>10} "
           f"{'same':>8} {'numpy calls':>11} {'gauge ms':>8}")
     for name, path in maps.items():
-        images = simulated(path, args.n, args.seed)
+        images = simulated(path, args.n, args.seed, args.prior_radius)
         gauge = gauge_ms()
         results = time_images(versions, path, images, args.count)
         for label, res in results.items():
@@ -377,6 +378,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--baseline", metavar="REV", help="also run the matcher of this git revision")
     parser.add_argument("--maps", default=",".join(EXTRACTS), help="extracts measured (comma separated)")
+    parser.add_argument("--prior-radius", type=float, default=300.0,
+                        help="the priors' radius, metres (their centres drawn within it of the truth)")
     parser.add_argument("--count", type=int, default=20, help="images whose numpy calls are counted")
     parser.add_argument("--repeats", type=int, default=5, help="runs of each start-up measurement")
     parser.add_argument("--startup-only", action="store_true", help="measure start-up only (not per image)")
