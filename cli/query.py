@@ -143,7 +143,7 @@ def _stdin_file() -> str | None:
               help="With --prior, for the same images: which way their up points, degrees clockwise from the map's "
                    "grid north (a compass's, corrected), with its 1-sigma error SIGMA (0 < SIGMA <= 10, default 5). "
                    "An image with altitude_m and camera.fov_deg is then first matched with its heading and scale "
-                   "known (the answer's path \"pose-prior\").")
+                   "known; the answer's \"path\" says which search decided (\"pose-prior\" or \"quads\").")
 @click.option("--min-score", type=finite_float(0.0, 300.0), default=-FastOptions().log10_epsilon, show_default=True,
               help="Accept an answer only above this score (-log10 of its expected false alarms; the default "
                    "was calibrated on real places not in the map, see the README).")
