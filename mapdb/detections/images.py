@@ -287,8 +287,8 @@ def check_prior(x: float, y: float, radius: float, source: str = "prior", *, lon
 
     Examples
     --------
-    >>> check_prior(385120.0, 6671230.0, 250.0)
-    Prior(x=385120.0, y=6671230.0, radius=250.0, lonlat=False)
+    >>> check_prior(385120.0, 6671230.0, 250.0, heading=(74.0,))
+    Prior(x=385120.0, y=6671230.0, radius=250.0, lonlat=False, heading_deg=74.0, heading_sigma_deg=5.0)
     >>> check_prior(1.0, 1.0, 1e308, "--prior")
     Traceback (most recent call last):
     mapdb.errors.ImageInputError: --prior: prior.radius: 1e+308 is greater than the maximum of 20000000
