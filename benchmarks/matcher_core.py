@@ -1,12 +1,17 @@
 """The matcher core side by side with an earlier commit: time per image, numpy calls per image, start-up.
 
-1. Per image, on each real extract of ``shared/data/osm`` (Andorra, Monaco, Liechtenstein; all labels; maps
-   built once into a cache outside the repository) with images as issue 8 measures them: 300 m, 60 degree
-   field of view, random heading, 1 px and 0.05 degree errors, at least 6 objects.  Median and p95 time per
-   ``localize`` call with a 300 m prior in each image and without a prior (the whole map's index built once
-   first, outside the timing), how many were localized within 2 m, and how many answers (status and
-   position) are the same as the first version's: the same status and, when accepted, position, heading and
-   scale within 1e-6 (``SAME_POSE``); each differing image is listed and the differences counted.
+1. Per image, on each real extract of ``shared/data/osm`` (Andorra, Monaco, Liechtenstein; all labels; maps built
+   once into a cache outside the repository) with images as issue 8 measures them: 300 m, 60 degree field of
+   view, random heading, 1 px and 0.05 degree errors, at least 6 objects. Median and p95 time per ``localize``
+   call with a 300 m prior in each image ("prior"), without a prior ("no prior"; the whole map's index built once
+   first, outside the timing), and with a pose prior ("pose prior": the 300 m disc, the true heading as the
+   prior's ``heading_deg`` with ``heading_sigma_deg`` 5, and the true ``altitude_m``, which with the field of
+   view gives the scale; :func:`case_images`), how many were localized within 2 m, and how many answers (status
+   and position) are the same as the first version's: the same status and, when accepted, position, heading and
+   scale within 1e-6 (``SAME_POSE``); each differing image is listed and the differences counted. A baseline
+   without the pose-prior stage (5144dec) reads the "pose prior" documents as a disc and an altitude only (its
+   image schema ignores the heading): its row of that case is its disc-only prior, with the altitude's scale
+   range.
 2. Numpy calls per image (median): calls from code outside numpy into numpy (a ufunc, an array method, a
    function of numpy's package), counted with ``sys.setprofile`` on a separate untimed pass.
 3. A gauge of the machine's speed: the median time of a fixed numpy workload (:func:`gauge_ms`), taken before
@@ -130,14 +135,31 @@ def same_answer(one: tuple, other: tuple) -> bool:
     return all(abs(a - b) <= SAME_POSE for a, b in zip(one[1:], other[1:], strict=True))
 
 
+CASES = ("prior", "no prior", "pose prior")
+# The pose prior's heading error (degrees): a compass's, the image prior's default.
+HEADING_SIGMA_DEG = 5.0
+
+
+def case_images(case: str, images: list[dict]) -> list[dict]:
+    """The images of one case (:data:`CASES`): as simulated (a 300 m disc), without their prior, or with the disc
+    plus the true heading (sigma ``HEADING_SIGMA_DEG``) and the true altitude (the scale, with the field of view)."""
+    if case == "prior":
+        return images
+    if case == "no prior":
+        return [{k: v for k, v in im.items() if k != "prior"} for im in images]
+    return [{**im, "altitude_m": im["truth"]["altitude_m"],
+             "prior": {**im["prior"], "heading_deg": im["truth"]["heading_deg"] % 360.0,
+                       "heading_sigma_deg": HEADING_SIGMA_DEG}} for im in images]
+
+
 def time_images(versions: dict, map_path: Path, images: list[dict], counted: int) -> dict:
-    """Per version and case (prior, no prior): median and p95 ms per image of ``localize``, alternating
+    """Per version and case (:data:`CASES`): median and p95 ms per image of ``localize``, alternating
     versions image by image; localized images, answers the same as the first version's (:func:`same_answer`;
     ``differ`` lists the others: image id, this version's and the first's), and the median numpy calls an image
     over the first ``counted`` images."""
     result = {}
-    for case in ("prior", "no prior"):
-        subset = images if case == "prior" else [{k: v for k, v in im.items() if k != "prior"} for im in images]
+    for case in CASES:
+        subset = case_images(case, images)
         maps = {label: store.open_map(map_path) for label, (localize, store) in versions.items()}
         times: dict[str, list[float]] = {label: [] for label in versions}
         good = dict.fromkeys(versions, 0)
@@ -230,14 +252,14 @@ def startup_table(map_path: Path, one_image: Path, work: Path, repeats: int, bas
                   f"{t['query exit']:6.3f}s")
 
 
-def simulated(map_path: Path, n: int, seed: int) -> list[dict]:
-    """``n`` images over the map as issue 8 measures them, each with a 300 m prior."""
+def simulated(map_path: Path, n: int, seed: int, radius: float = 300.0) -> list[dict]:
+    """``n`` images over the map as issue 8 measures them, each with a prior of ``radius`` metres (300 m)."""
     from mapdb.mapfile.reader import open_map
     from mapdb.simulation.simulate import simulate_images
 
     with open_map(map_path) as m:
         return simulate_images(m, n, altitude=300.0, fov_deg=60.0, yaw="random", pixel_std=1.0,
-                               attitude_std=0.05, min_objects=6, with_prior=300.0, seed=seed)
+                               attitude_std=0.05, min_objects=6, with_prior=radius, seed=seed)
 
 
 def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path) -> None:
@@ -250,37 +272,48 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
     if args.baseline:
         old = import_baseline(args.baseline, work)
         versions[f"baseline {args.baseline}"] = (old.localize, import_baseline(args.baseline, work, "store"))
-    print(f"{args.n} images a map: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects, prior 300 m; "
-          f"numpy calls over the first {min(args.count, args.n)}; load average {os.getloadavg()[0]:.1f}")
-    print(f"  {'map':<14} {'code':<17} {'case':<9} {'median ms':>9} {'p95 ms':>8} {'localized':>10} "
+    print(f"{args.n} images a map: 300 m, 60 deg, random heading, 1 px, 0.05 deg, >= 6 objects, prior "
+          f"{args.prior_radius:g} m; "
+          f"pose prior: the disc, the true heading (sigma {HEADING_SIGMA_DEG:g} deg) and altitude; numpy calls over "
+          f"the first {min(args.count, args.n)}; load average {os.getloadavg()[0]:.1f}")
+    if args.baseline:
+        print(f"  (baseline {args.baseline} has no pose-prior stage: its \"pose prior\" row is its disc-only prior, "
+              "the same documents with the heading ignored and the altitude's scale range applied)")
+    print(f"  {'map':<14} {'code':<17} {'case':<10} {'median ms':>9} {'p95 ms':>8} {'localized':>10} "
           f"{'same':>8} {'numpy calls':>11} {'gauge ms':>8}")
     for name, path in maps.items():
-        images = simulated(path, args.n, args.seed)
+        images = simulated(path, args.n, args.seed, args.prior_radius)
         gauge = gauge_ms()
         results = time_images(versions, path, images, args.count)
         for label, res in results.items():
             for case, r in res.items():
-                print(f"  {name:<14} {label:<17} {case:<9} {r['median_ms']:9.2f} {r['p95_ms']:8.2f} "
+                print(f"  {name:<14} {label:<17} {case:<10} {r['median_ms']:9.2f} {r['p95_ms']:8.2f} "
                       f"{r['localized']:5d}/{r['images']:<4d} {r['same']:4d}/{r['images']:<4d}"
                       f"{r['numpy_calls']:11.0f} {gauge:8.1f}")
         for label, res in results.items():
             for case, r in res.items():
                 for image_id, mine, theirs in r["differ"]:
                     print(f"  {name:<14} {label}, {case}: {image_id} differs: {_said(mine)} against {_said(theirs)}")
-        tree = results["this tree"]
-        with_prior, without = tree["prior"], tree["no prior"]
-        print(f"  {name:<14} this tree, prior / no prior: median "
-              f"{with_prior['median_ms'] / without['median_ms']:.2f}, "
-              f"p95 {with_prior['p95_ms'] / without['p95_ms']:.2f}")
-        if args.baseline:
-            base = results[f"baseline {args.baseline}"]
-            for case in ("prior", "no prior"):
-                print(f"  {name:<14} {case}: answers differing from the baseline's: "
-                      f"{len(base[case]['differ'])} of {base[case]['images']}")
-                print(f"  {name:<14} {case}: this tree / baseline: median "
-                      f"{tree[case]['median_ms'] / base[case]['median_ms']:.2f}, "
-                      f"p95 {tree[case]['p95_ms'] / base[case]['p95_ms']:.2f}")
+        _ratios(name, results, args.baseline)
     print(f"  load average after: {os.getloadavg()[0]:.1f}; gauge {gauge_ms():.1f} ms")
+
+
+def _ratios(name: str, results: dict, baseline: str | None) -> None:
+    """Print the cases' ratios in this tree, and this tree's to the baseline's per case."""
+    tree = results["this tree"]
+    for one, other in (("prior", "no prior"), ("pose prior", "prior"), ("pose prior", "no prior")):
+        print(f"  {name:<14} this tree, {one} / {other}: median {tree[one]['median_ms'] / tree[other]['median_ms']:.2f}"
+              f", p95 {tree[one]['p95_ms'] / tree[other]['p95_ms']:.2f}")
+    if not baseline:
+        return
+    base = results[f"baseline {baseline}"]
+    for case in CASES:
+        said = " (the baseline's: disc only)" if case == "pose prior" else ""
+        print(f"  {name:<14} {case}: answers differing from the baseline's{said}: "
+              f"{len(base[case]['differ'])} of {base[case]['images']}")
+        print(f"  {name:<14} {case}: this tree / baseline{said}: median "
+              f"{tree[case]['median_ms'] / base[case]['median_ms']:.2f}, "
+              f"p95 {tree[case]['p95_ms'] / base[case]['p95_ms']:.2f}")
 
 
 def tile_table(args: argparse.Namespace, maps: dict[str, Path], work: Path, tiles: int = 40) -> None:
@@ -337,6 +370,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--baseline", metavar="REV", help="also run the matcher of this git revision")
     parser.add_argument("--maps", default=",".join(EXTRACTS), help="extracts measured (comma separated)")
+    parser.add_argument("--prior-radius", type=float, default=300.0,
+                        help="the priors' radius, metres (their centres drawn within it of the truth)")
     parser.add_argument("--count", type=int, default=20, help="images whose numpy calls are counted")
     parser.add_argument("--repeats", type=int, default=5, help="runs of each start-up measurement")
     parser.add_argument("--startup-only", action="store_true", help="measure start-up only (not per image)")

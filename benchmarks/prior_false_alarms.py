@@ -6,7 +6,10 @@ least 6 objects), each then localized with a 300 m prior that is wrong:
 
 * **wrong place**: against its own map, the prior's centre moved 2-4 km in a random direction (within the
   map's bounds; the true place lies outside the disc, so any answer is a false alarm);
-* **out of map**: against the next extract's map, the prior at a random map object of it.
+* **out of map**: against the next extract's map, the prior at a random map object of it;
+* **... + heading**: each of the two with the image's true heading in the prior (``heading_deg``, sigma 5 degrees)
+  and its true ``altitude_m``: a pose prior (:mod:`mapdb.match.pose_prior`), whose stage runs first and counts
+  its own tests.  A baseline without that stage (5144dec) answers these with the disc and the altitude alone.
 
 Every answer accepted is a false alarm.  The disc's search (:mod:`mapdb.match.disc`) counts its pairings as
 tests; this says whether that count keeps the wrong-place figures where the quad lookups had them.
@@ -28,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _baseline import as_json, cached_maps, import_baseline  # noqa: E402
-from matcher_core import CACHE, DATA, EXTRACTS, simulated  # noqa: E402
+from matcher_core import CACHE, DATA, EXTRACTS, HEADING_SIGMA_DEG, simulated  # noqa: E402
 
 
 def wrong_priors(images: list[dict], map_path: Path, other: Path, seed: int) -> dict[str, list[tuple[dict, Path]]]:
@@ -51,7 +54,16 @@ def wrong_priors(images: list[dict], map_path: Path, other: Path, seed: int) -> 
         k = int(rng.integers(len(objects.x)))
         prior = {"x": float(objects.x[k]), "y": float(objects.y[k]), "radius": 300.0}
         cases["out of map"].append(({**im, "prior": prior}, other))
+    # The heading and the scale right, the place wrong: the pose prior's own false alarms.
+    for case in ("wrong place", "out of map"):
+        cases[f"{case} + heading"] = [(posed(im), path) for im, path in cases[case]]
     return cases
+
+
+def posed(im: dict) -> dict:
+    """The image with its true heading in its prior (sigma ``HEADING_SIGMA_DEG``) and its true altitude."""
+    heading = {"heading_deg": im["truth"]["heading_deg"] % 360.0, "heading_sigma_deg": HEADING_SIGMA_DEG}
+    return {**im, "altitude_m": im["truth"]["altitude_m"], "prior": {**im["prior"], **heading}}
 
 
 def main() -> None:
@@ -72,8 +84,10 @@ def main() -> None:
             old = import_baseline(args.baseline, Path(tmp))
             versions[f"baseline {args.baseline}"] = (old.localize, import_baseline(args.baseline, Path(tmp), "store"))
         names = list(maps)
-        print(f"{args.n} images a map, 300 m priors at the wrong place; accepted = false alarms")
-        print(f"  {'map':<14} {'code':<17} {'case':<12} {'accepted':>9} {'best score':>10}")
+        print(f"{args.n} images a map, 300 m priors at the wrong place; accepted = false alarms; \"+ heading\": the "
+              f"true heading (sigma {HEADING_SIGMA_DEG:g} deg) and altitude too (a baseline without the pose-prior "
+              "stage: disc and altitude only); pose-prior = answers decided by that stage")
+        print(f"  {'map':<14} {'code':<17} {'case':<22} {'accepted':>9} {'best score':>10} {'pose-prior':>10}")
         for i, name in enumerate(names):
             other = maps[names[(i + 1) % len(names)]]
             cases = wrong_priors(simulated(maps[name], args.n, args.seed), maps[name], other, args.seed + i)
@@ -86,7 +100,9 @@ def main() -> None:
                     accepted = sum(a["status"] == "ok" for a in answers)
                     scores = [c["score"] for a in answers for c in a.get("candidates", []) if c.get("score")]
                     best = max(scores, default=float("nan"))
-                    print(f"  {name:<14} {label:<17} {case:<12} {accepted:4d}/{len(answers):<4d} {best:10.1f}")
+                    staged = sum(a.get("path") == "pose-prior" for a in answers)  # accepted by the pose stage
+                    print(f"  {name:<14} {label:<17} {case:<22} {accepted:4d}/{len(answers):<4d} {best:10.1f} "
+                          f"{staged:10d}")
 
 
 if __name__ == "__main__":

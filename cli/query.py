@@ -47,6 +47,19 @@ def parse_prior(ctx: click.Context | None, param: click.Parameter | None, value:
     return (x, y, r)
 
 
+def parse_heading(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
+    """``DEG[,SIGMA]`` -> (deg,) or (deg, sigma), or None; checked with the image prior's ranges with --prior."""
+    if value is None:
+        return None
+    try:
+        values = tuple(float(v) for v in value.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in (1, 2):
+        raise click.BadParameter(f"{value!r} is not DEG or DEG,SIGMA (degrees)")
+    return values
+
+
 def parse_prior_crs(ctx: click.Context | None, param: click.Parameter | None, value: str | None):
     """:data:`LONLAT` for a geographic WGS 84 CRS, else the pyproj CRS (which must be the map's), or None."""
     if value is None:
@@ -60,24 +73,29 @@ def parse_prior_crs(ctx: click.Context | None, param: click.Parameter | None, va
     return LONLAT if crs.equals(CRS.from_epsg(4326), ignore_axis_order=True) else crs
 
 
-def checked_prior(values: tuple[float, float, float], lonlat: bool) -> Prior:
-    """The --prior values checked exactly as an image's ``prior`` is (the image schema's ranges)."""
+def checked_prior(values: tuple[float, float, float], lonlat: bool, heading: tuple[float, ...] = ()) -> Prior:
+    """The --prior (and --heading) values checked exactly as an image's ``prior`` is (the image schema's ranges)."""
     x, y, r = values
     try:
-        return check_prior(x, y, r, f"'{x:g},{y:g},{r:g}'", lonlat=lonlat)
+        return check_prior(x, y, r, f"'{x:g},{y:g},{r:g}'", lonlat=lonlat, heading=heading)
     except ImageInputError as exc:
-        raise click.BadParameter(str(exc), param_hint="'--prior'") from None
+        message = str(exc)
+        if "prior.heading" in message:  # named by the --heading values, not the --prior ones
+            given = ",".join(f"{v:g}" for v in heading)
+            raise click.BadParameter(f"'{given}': {message.split(': ', 1)[1]}", param_hint="'--heading'") from None
+        raise click.BadParameter(message, param_hint="'--prior'") from None
 
 
 def _prior_argument(prior: Prior, prior_crs, map_crs: str):
-    """What the localizer takes: (x, y, r) in the map's CRS, or a lon/lat :class:`Prior` it converts."""
+    """What the localizer takes: (x, y, r) in the map's CRS, or a :class:`Prior` (lon/lat, which it converts, or with
+    a heading)."""
     if prior.lonlat:
         return prior
     if prior_crs is not None and not (map_crs and prior_crs.equals(map_crs)):
         raise click.BadParameter(f"{_crs_name(prior_crs)}: give the prior in lon/lat (EPSG:4326) or in the "
                                  f"map's CRS ({_crs_name(map_crs) if map_crs else 'none'})",
                                  param_hint="'--prior-crs'")
-    return (prior.x, prior.y, prior.radius)
+    return prior if prior.heading_deg is not None else (prior.x, prior.y, prior.radius)
 
 
 def _crs_name(crs) -> str:
@@ -121,6 +139,11 @@ def _stdin_file() -> str | None:
                    "CRS, or see --prior-crs.")
 @click.option("--prior-crs", callback=parse_prior_crs, metavar="CRS",
               help="CRS of --prior's X,Y: EPSG:4326 for lon,lat (degrees), or the map's own [default: the map's].")
+@click.option("--heading", callback=parse_heading, metavar="DEG[,SIGMA]",
+              help="With --prior, for the same images: which way their up points, degrees clockwise from the map's "
+                   "grid north (a compass's, corrected), with its 1-sigma error SIGMA (0 < SIGMA <= 10, default 5). "
+                   "An image with altitude_m and camera.fov_deg is then first matched with its heading and scale "
+                   "known; the answer's \"path\" says which search decided (\"pose-prior\" or \"quads\").")
 @click.option("--min-score", type=finite_float(0.0, 300.0), default=-FastOptions().log10_epsilon, show_default=True,
               help="Accept an answer only above this score (-log10 of its expected false alarms; the default "
                    "was calibrated on real places not in the map, see the README).")
@@ -137,8 +160,8 @@ def _stdin_file() -> str | None:
 @quiet_option
 @debug_option
 @handle_errors
-def query(map_file, images_file, output, method, prior, prior_crs, min_score, geojson_file, footprints_file,
-          no_areas, overwrite, parents, quiet, debug):
+def query(map_file, images_file, output, method, prior, prior_crs, heading, min_score, geojson_file,
+          footprints_file, no_areas, overwrite, parents, quiet, debug):
     """Localize every image of IMAGES (JSON Lines; '-' for stdin) in MAP.
 
     Writes one JSON answer per image, in input order: status "ok" with the position (map CRS and
@@ -166,7 +189,9 @@ def query(map_file, images_file, output, method, prior, prior_crs, min_score, ge
     Progress (--method paper only, on stderr): a bar on a terminal; plain lines when IMAGES is a
     file and stderr is not a terminal; nothing with -q.
     """
-    checked = None if prior is None else checked_prior(prior, prior_crs == LONLAT)
+    if heading is not None and prior is None:
+        raise click.BadParameter("a heading needs a position: give --prior X,Y,R too", param_hint="'--heading'")
+    checked = None if prior is None else checked_prior(prior, prior_crs == LONLAT, heading or ())
     for name, path in (("--geojson", geojson_file), ("--footprints", footprints_file)):
         if path == "-":  # stdout is the answers'; a second document there would make neither readable
             raise click.BadParameter("a layer is written to a file, not to stdout ('-')", param_hint=f"'{name}'")

@@ -4,7 +4,7 @@ One image is a JSON object (schema: ``mapdb/data/image.schema.json``)::
 
     {"id": "frame-000123", "width": 640, "height": 480,
      "objects": [{"label": "building", "x": 321.5, "y": 118.0}, ...],
-     "prior": {"x": 385120.0, "y": 6671230.0, "radius": 250.0},     # optional ("lon"/"lat" also)
+     "prior": {"x": 385120.0, "y": 6671230.0, "radius": 250.0},     # optional (lon/lat, heading_deg also)
      "attitude": {"roll_deg": 0.4, "pitch_deg": -1.2},               # optional
      "camera": {"fov_deg": 35.0},                                     # optional
      "altitude_m": 100.0}                                             # optional
@@ -36,6 +36,7 @@ objects[].elongation        optional, 1 <= v <= ``MAX_ELONGATION`` (1e6)
 prior.radius                0 < r <= ``MAX_PRIOR_RADIUS_M`` (20,000 km)
 prior.x, prior.y            abs(v) <= ``MAX_MAP_COORDINATE_M`` (1e8 m)
 prior.lon, prior.lat        [-180, 180], [-90, 90]
+prior.heading_deg (_sigma)  optional, [-360, 360] (clockwise from grid north); sigma (0, 10], default 5
 altitude_m                  0 < v <= ``MAX_ALTITUDE_M`` (100 km)
 camera.fov_deg              ``MIN_FOV_DEG`` (0.001) <= v < 180
 attitude.roll_deg, pitch    [-89, 89]
@@ -69,6 +70,7 @@ __all__ = [
     "MAX_ATTITUDE_DEG",
     "MAX_DOCUMENT_BYTES",
     "MAX_ELONGATION",
+    "MAX_HEADING_SIGMA_DEG",
     "MAX_IMAGE_SIDE_PX",
     "MAX_MAP_COORDINATE_M",
     "MAX_OBJECTS",
@@ -98,6 +100,8 @@ MIN_FOV_DEG = 0.001
 # Half the Earth's circumference: a wider prior excludes nothing, and a finite bound keeps the prior's
 # tile arithmetic finite (1e308 + a margin overflowed).
 MAX_PRIOR_RADIUS_M = 20_000_000.0
+MAX_HEADING_DEG = 360.0  # a compass's heading, any turn either way
+MAX_HEADING_SIGMA_DEG = 10.0  # its 1-sigma error: the pose-prior stage's bound (kept equal by the tests)
 # Projected coordinates on Earth stay within about 2e7 m; five times that is surely a mistake.
 MAX_MAP_COORDINATE_M = 1e8
 # The edge of space; with the field of view this bounds the ground footprint, hence the map area read.
@@ -112,12 +116,14 @@ MAX_DOCUMENT_BYTES = 16 << 20
 
 @dataclass(frozen=True)
 class Prior:
-    """Where the map point under the image centre is known to be (``lonlat``: x, y are lon, lat degrees)."""
+    """Where the map point under the image centre is (``lonlat``: x, y in lon, lat degrees); heading: module docs."""
 
     x: float
     y: float
     radius: float
     lonlat: bool = False
+    heading_deg: float | None = None
+    heading_sigma_deg: float = 5.0  # a compass's error, when a heading comes without one
 
 
 @dataclass(frozen=True)
@@ -257,32 +263,38 @@ def _make_prior(p: dict[str, Any], source: str) -> Prior:
     """A :class:`Prior` from a ``prior`` object that passed the schema (whose ranges let NaN through)."""
     lonlat = "lon" in p
     px, py = (p["lon"], p["lat"]) if lonlat else (p["x"], p["y"])
+    if "heading_sigma_deg" in p and "heading_deg" not in p:
+        raise ImageInputError(f"{source}: prior.heading_sigma_deg is given without prior.heading_deg")
     return Prior(
         _finite(px, "prior.lon" if lonlat else "prior.x", source),
         _finite(py, "prior.lat" if lonlat else "prior.y", source),
         _finite(p["radius"], "prior.radius", source),
         lonlat,
+        _finite(p["heading_deg"], "prior.heading_deg", source) if "heading_deg" in p else None,
+        _finite(p.get("heading_sigma_deg", Prior.heading_sigma_deg), "prior.heading_sigma_deg", source),
     )
 
 
-def check_prior(x: float, y: float, radius: float, source: str = "prior", *, lonlat: bool = False) -> Prior:
+def check_prior(x: float, y: float, radius: float, source: str = "prior", *, lonlat: bool = False,
+                heading: tuple[float, ...] = ()) -> Prior:
     """A prior in map-CRS metres (``--prior X,Y,R``), or lon/lat degrees with ``lonlat``, checked as an
-    image's ``prior`` is.
+    image's ``prior`` is; ``heading`` is ``(heading_deg,)`` or ``(heading_deg, heading_sigma_deg)`` (``--heading``).
 
     Raises
     ------
     ImageInputError
-        ``"SOURCE: prior.radius: ..."`` for a value out of range (module docs) or not finite.
+        ``"SOURCE: prior.radius: ..."`` (or another field) for a value out of range (module docs) or not finite.
 
     Examples
     --------
-    >>> check_prior(385120.0, 6671230.0, 250.0)
-    Prior(x=385120.0, y=6671230.0, radius=250.0, lonlat=False)
+    >>> check_prior(385120.0, 6671230.0, 250.0, heading=(74.0,))
+    Prior(x=385120.0, y=6671230.0, radius=250.0, lonlat=False, heading_deg=74.0, heading_sigma_deg=5.0)
     >>> check_prior(1.0, 1.0, 1e308, "--prior")
     Traceback (most recent call last):
     mapdb.errors.ImageInputError: --prior: prior.radius: 1e+308 is greater than the maximum of 20000000
     """
     doc = {"lon": x, "lat": y, "radius": radius} if lonlat else {"x": x, "y": y, "radius": radius}
+    doc.update(zip(("heading_deg", "heading_sigma_deg"), heading, strict=False))
     error = _first_error(doc, "prior")
     if error is not None:
         raise ImageInputError(f"{source}: {_schema_message(error, ('prior',))}")

@@ -35,7 +35,7 @@ from ..match.pose_prior import PosePrior
 from ..match.quads import near_only
 from ..objects import Objects
 from .image_points import image_points, known_objects, scale_hints
-from .priors import outside_bounds, prior_margin, resolve_prior
+from .priors import outside_bounds, pose_prior, prior_margin, resolve_prior
 from .records import FoundPose, RejectionError, finite, ok_record, rejected, rounded
 
 if TYPE_CHECKING:  # imported where used: an answer with a prior never opens the stored index
@@ -214,8 +214,10 @@ class Localizer:
         """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own.
 
         ``pose`` (fast method): where the camera is, which way it points and at what scale
-        (:mod:`mapdb.match.pose_prior`); its disc is the prior when ``prior`` is None.  The answer's ``path`` then
-        says which search decided (``"pose-prior"`` or ``"quads"``).
+        (:mod:`mapdb.match.pose_prior`); its disc is the prior when ``prior`` is None.  Without it, a prior with a
+        heading (the image's own, else ``prior`` as a :class:`~mapdb.detections.images.Prior`) on an image with
+        ``altitude_m`` and a field of view gives one (:func:`~mapdb.localize.priors.pose_prior`).  The answer's
+        ``path`` then says which search decided (``"pose-prior"`` or ``"quads"``).
 
         A stored index found damaged during the answer is dropped (saying so once) and the image answered
         again with the quad index built in memory: the answer is the in-memory search's.
@@ -475,7 +477,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
     start = time.perf_counter()
     image_id = _image_id(image)
     try:
-        im, prior = _checked(image, localizer.map.crs, prior, source)
+        im, disc = _checked(image, localizer.map.crs, prior, source)
     except ImageInputError as exc:
         message = str(exc)
         return rejected(image_id, message[len(source) + 2 :] if message.startswith(f"{source}: ") else message,
@@ -487,15 +489,17 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
         z, levelled, notes = image_points(im)
         diag_px = math.hypot(im.width, im.height)
         focal_px, scale_range, half_diag_m = scale_hints(im, diag_px)
-        margin = prior_margin(prior[2], half_diag_m) if prior is not None else 0.0
-        outside = None if prior is None else outside_bounds(prior, margin, localizer.map.bounds)
+        if pose is None:
+            pose = pose_prior(im, prior, disc, focal_px, notes, localizer.method)
+        margin = prior_margin(disc[2], half_diag_m) if disc is not None else 0.0
+        outside = None if disc is None else outside_bounds(disc, margin, localizer.map.bounds)
         if outside:
             raise RejectionError(outside)
         anchorable = None if im.border is None else ~im.border
         # A levelled image's pixel areas and boxes are not the level camera's: they are left out.
         outward = None if im.bbox is None or levelled else outward_normals(im.bbox, im.width, im.height)
         matcher = localizer.matcher_for(codes, im.area_px)  # a map's blocks, for mask blobs only
-        found = _match(matcher, z, codes, diag_px, prior, margin, scale_range, notes, skipped, anchorable,
+        found = _match(matcher, z, codes, diag_px, disc, margin, scale_range, notes, skipped, anchorable,
                        None if levelled else im.area_px, outward, (focal_px, im.altitude_m), pose)
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})

@@ -2,7 +2,8 @@
 
 An image's own prior comes first, else the caller's (map-CRS metres, or lon/lat as ``mapdb query
 --prior-crs EPSG:4326`` gives it).  A prior whose disc, widened by the image's footprint, misses the map's
-bounds rejects the image with how far outside it is.
+bounds rejects the image with how far outside it is.  A prior with a heading, on an image whose altitude and
+field of view give its scale, is a pose prior (:func:`pose_prior`, :mod:`mapdb.match.pose_prior`).
 """
 
 from __future__ import annotations
@@ -12,13 +13,19 @@ from functools import lru_cache
 
 from ..detections.images import ImageObjects, Prior, check_prior
 from ..errors import ImageInputError
+from ..match.pose_prior import PosePrior
 from .lonlat import transformer
 
-__all__ = ["DEFAULT_PRIOR_MARGIN_M", "checked_caller_prior", "outside_bounds", "prior_margin", "resolve_prior"]
+__all__ = ["DEFAULT_PRIOR_MARGIN_M", "SCALE_REL_SIGMA", "checked_caller_prior", "outside_bounds", "pose_prior",
+           "prior_margin", "resolve_prior"]
 
 # With a prior but no known scale, objects this far beyond the prior radius (or the radius itself, if
 # larger) are read so that the edges of the image are matched too.
 DEFAULT_PRIOR_MARGIN_M = 300.0
+# The relative 1-sigma error of the scale an image's altitude and field of view give (altimeter error, relief
+# under the camera), for the pose prior: the scale range's factor (image_points.SCALE_TOLERANCE, 1.5) is a bound
+# on hypotheses, not an error the stage could shape its tolerances with.
+SCALE_REL_SIGMA = 0.05
 
 
 def prior_margin(radius: float, half_diagonal_m: float | None) -> float:
@@ -80,3 +87,25 @@ def outside_bounds(prior: tuple[float, float, float], margin: float, bounds: tup
     far = f"{gap / 1000.0:,.1f} km" if gap >= 1000.0 else f"{gap:.0f} m"
     hint = " (lon, lat? give the prior in lon/lat)" if abs(x) <= 180.0 and abs(y) <= 90.0 else ""
     return f"prior ({x:.0f}, {y:.0f}) is {far} outside the map's bounds{hint}: no objects here"
+
+
+def pose_prior(im: ImageObjects, caller: tuple[float, float, float] | Prior | None,
+               disc: tuple[float, float, float] | None, focal_px: float | None, notes: list[str],
+               method: str = "fast") -> PosePrior | None:
+    """The pose prior of an image, or None: the heading of the prior that applies (the image's own, else the
+    caller's :class:`~mapdb.detections.images.Prior`) and the scale its ``altitude_m`` and field of view give.
+
+    ``disc`` is the prior's (x, y, radius) in the map's CRS (:func:`resolve_prior`).  A heading that cannot be used
+    (no scale, or the paper method) is said in ``notes`` and the image answered with its disc alone.
+    """
+    p = im.prior if im.prior is not None else caller if isinstance(caller, Prior) else None
+    if p is None or p.heading_deg is None or disc is None:
+        return None
+    if method != "fast":
+        notes.append("prior.heading_deg ignored: the paper method has no pose-prior stage")
+        return None
+    if focal_px is None or im.altitude_m is None:
+        notes.append("prior.heading_deg ignored: the pose prior's scale needs altitude_m and camera.fov_deg")
+        return None
+    return PosePrior(*disc, heading_deg=p.heading_deg % 360.0, heading_sigma_deg=p.heading_sigma_deg,
+                     scale_m_per_px=im.altitude_m / focal_px, scale_rel_sigma=SCALE_REL_SIGMA)
