@@ -15,7 +15,8 @@ buildings with heights, 60 degrees, 640x480; read from its ``--cache``, rendered
 
 ``--thin``: every frame against the map missing 15 % of its buildings (``navigation_masks.py``'s ``thin15``
 map: the camera sees buildings the map lacks).  ``--anchors K``: the stage's anchors
-(:data:`mapdb.match.pose_prior.ANCHORS`).
+(:data:`mapdb.match.pose_prior.ANCHORS`).  ``--no-turned-check``: without the stage's half-turn check
+(:data:`mapdb.match.pose_prior.TURNED_CHECK`).
 
 Per case: frames, accepted, accepted through the pose-prior stage, within 2 m, wrong (accepted more than 5 m
 from the truth), and the median and p95 time per frame.
@@ -117,16 +118,20 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=Path("/tmp/mapdb-bench-nav-masks"))
     parser.add_argument("--thin", action="store_true", help="against the maps missing 15 %% of their buildings")
     parser.add_argument("--anchors", type=int, default=None, help="the pose stage's anchors (default ANCHORS)")
+    parser.add_argument("--no-turned-check", action="store_true",
+                        help="without the stage's half-turn check (pose_prior.TURNED_CHECK), to measure its cost")
     args = parser.parse_args()
     import mapdb.match.pose_prior as pose_prior
 
     if args.anchors is not None:
         pose_prior.ANCHORS = args.anchors
+    pose_prior.TURNED_CHECK = not args.no_turned_check
     names = args.maps.split(",")
     load = os.getloadavg()[0]
     rows = _run(names, args.cache, args.every, args.seed, args.thin)
     print(f"rendered-mask frames of {', '.join(names)} (120 m, heights), every {args.every}, "
-          f"{'thinned' if args.thin else 'full'} maps, {pose_prior.ANCHORS} anchors; load average {load:.1f} at "
+          f"{'thinned' if args.thin else 'full'} maps, {pose_prior.ANCHORS} anchors, half-turn check "
+          f"{'on' if pose_prior.TURNED_CHECK else 'off'}; load average {load:.1f} at "
           f"the start, {os.getloadavg()[0]:.1f} at the end")
     print("| case | frames | accepted | through the pose prior | within 2 m | wrong (> 5 m) | ms median | ms p95 |")
     print("|---|---|---|---|---|---|---|---|")

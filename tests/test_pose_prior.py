@@ -62,10 +62,15 @@ def lost(helsinki) -> list[tuple[dict, dict]]:
 def test_five_objects_rejected_lost_in_space_are_placed_with_the_right_pose_prior(helsinki, lost) -> None:
     assert len(lost) >= 10, "the five-object frames should mostly be beyond the lost-in-space search"
     loc = Localizer(helsinki[0])
+    placed = 0
     for small, t in lost:
         answer = loc.localize(small, pose=_pose(t))
-        assert answer.ok and answer.path == "pose-prior", answer.reason
-        assert math.hypot(answer.x - t["x"], answer.y - t["y"]) < 0.5
+        if answer.ok:
+            assert answer.path == "pose-prior" and math.hypot(answer.x - t["x"], answer.y - t["y"]) < 0.5
+            placed += 1
+    # The half-turn check's price: a pattern certain turned too, elsewhere in the disc, is left to the lookup
+    # rounds (1 of 45 here).
+    assert placed >= 0.95 * len(lost)
 
 
 def test_a_pose_prior_at_another_place_or_turned_half_round_is_rejected(helsinki, lost) -> None:
@@ -205,3 +210,49 @@ def test_row_houses_one_house_apart_inside_the_disc_are_ambiguous() -> None:
     narrow = loc.localize(image, pose=PosePrior(centre.real + 1, centre.imag - 1, 3.0, 0.0, 1.0, scale, 0.01))
     assert narrow.ok and narrow.path == "pose-prior"
     assert abs(complex(narrow.x, narrow.y) - centre) < 0.5
+
+
+def test_an_image_whose_pattern_repeats_turned_half_round_is_not_placed_by_a_turned_heading(helsinki,
+                                                                                            monkeypatch) -> None:
+    """The sample's symmetric blocks: two images (seed 5, 120 m, 4+ objects) that a heading prior turned half round
+    placed 26-29 m off through the pose stage.  The half-turn check (``TURNED_CHECK``) finds the image certain
+    turned too, at another place in the disc, and rejects; without the check the wrong places come back."""
+    from mapdb.match import pose_prior
+
+    m, _ = helsinki
+    images = simulate_images(m, 100, altitude=120.0, fov_deg=60.0, yaw="random", pixel_std=1.0, attitude_std=0.05,
+                             min_objects=4, seed=5)
+    loc = Localizer(m)
+
+    def worst_error() -> float:
+        worst = 0.0
+        for image in (images[45], images[99]):
+            t = image["truth"]
+            answer = loc.localize(image, pose=PosePrior(t["x"], t["y"], 30.0, t["heading_deg"] + 180.0, 0.3,
+                                                        t["altitude_m"] / FOCAL_PX, 0.005))
+            if answer.ok:
+                worst = max(worst, math.hypot(answer.x - t["x"], answer.y - t["y"]))
+        return worst
+
+    assert worst_error() < 2.0
+    monkeypatch.setattr(pose_prior, "TURNED_CHECK", False)
+    assert worst_error() > 20.0
+
+
+def test_a_wide_disc_tries_no_pose_hypothesis_and_answers_as_the_disc_alone(helsinki) -> None:
+    """Over ``POSE_MAX_HYPOTHESES`` pairs in the disc the stage makes none and counts none: the answer is the
+    disc-only search's, with its number of hypotheses."""
+    from mapdb.match.pose_prior import POSE_MAX_HYPOTHESES
+
+    m, images = helsinki
+    loc = Localizer(m)
+    image = images[0]
+    t = image["truth"]
+    objects = loc._objects(lost_in_space=False)
+    z, codes = _plane(m, image)
+    wide = _pose(t, radius=600.0)
+    assert prior_hypotheses(z, codes, objects, wide, limit=POSE_MAX_HYPOTHESES).over_limit > POSE_MAX_HYPOTHESES
+    with_pose = loc.localize(image, prior=wide.disc, pose=wide)
+    alone = loc.localize(image, prior=wide.disc)
+    assert with_pose.path == "quads" and with_pose.ok == alone.ok
+    assert with_pose.hypotheses == alone.hypotheses and (with_pose.x, with_pose.y) == (alone.x, alone.y)

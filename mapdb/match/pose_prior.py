@@ -48,6 +48,26 @@ benchmarks/navigation_masks.py --maps andorra --cases heights --starts lis --len
 truth), of 139 fixes decided here none of the 121 with a sigma under 0.6 m was more than 2 m off, and 7 of the
 18 between 0.6 and 1 m were (1.6-4.4 m off).
 
+**A turned heading.**  The null hypothesis does not model a pattern that repeats turned half round (a block
+of like houses seen from either side): with the heading prior turned, such an image is certain at a place
+20-30 m off (2 of 300 images on the sample map: ``python benchmarks/diagnostics/pose_turned.py 300`` before this
+check).  So an accepted answer is tried once more with the heading turned by 180 degrees, the same
+hypotheses and the same number of tests; when the turned image is certain at a place more than ``SEPARATION_M``
+from the winner, the answer is rejected as ambiguous (the prior's heading, not the image, chose between them),
+and the lookup rounds run.  Its price, measured: on the rendered-mask frames of ``python benchmarks/pose_prior.py
+--every 2`` none (425 of 752 accepted with and without it, ``--no-turned-check``), 1.1x the stage's median time;
+on the sample's five-object frames (``tests/test_pose_prior.py``) 1 of 45 right answers left to the rounds; after
+it, no turned heading places an image of ``pose_turned.py`` more than 5 m off.
+
+**A wide disc.**  The stage pays when the disc is narrow, as after a navigator's fix: its hypotheses are
+few and a frame it does not decide costs the lookup rounds a few tests.  Over a wide disc (a compass heading
+with a 300 m disc) each anchor meets hundreds of map objects of its label: measured (``python
+benchmarks/matcher_core.py --n 100 --maps andorra,monaco,liechtenstein --baseline 5144dec``, 300 m discs, the
+true heading to 5 degrees) 1.6-5.7 times the disc alone's time, and six-object images that the disc alone
+accepts rejected once 170-380 undecided hypotheses were counted; with 30 m discs 0.87-1.07 times.  So when the
+anchors' map objects in the disc (known before any image evidence is looked at: the count says nothing of the
+answer) number over ``POSE_MAX_HYPOTHESES``, the stage tries none and counts none.
+
 **When the stage gives no answer** the lost-in-space rounds run, their number of tests counting this stage's
 (:func:`mapdb.match.fast.match_fast`): a false alarm of the image costs at most ``epsilon`` in each, as the
 lookup passes of increasing pixel error already do.  Over a map with elevation (terrain) the stage is skipped:
@@ -72,7 +92,8 @@ from .options import FastOptions
 from .refine import Candidate, candidates, distinct, polish, pose_shift
 from .verify import refine
 
-__all__ = ["ANCHORS", "MAX_HEADING_SIGMA_DEG", "MAX_SCALE_REL_SIGMA", "POSE_MAX_SIGMA_M", "POSE_PIXEL_SIGMA",
+__all__ = ["ANCHORS", "MAX_HEADING_SIGMA_DEG", "MAX_SCALE_REL_SIGMA", "POSE_MAX_HYPOTHESES", "POSE_MAX_SIGMA_M",
+           "POSE_PIXEL_SIGMA",
            "SEPARATION_M",
            "PoseHypotheses", "PosePrior", "match_pose", "pose_nfa", "prior_hypotheses"]
 
@@ -89,6 +110,10 @@ MAX_HEADING_SIGMA_DEG = 10.0
 MAX_SCALE_REL_SIGMA = 0.2
 # Two candidate poses whose image points differ by more than this (metres) are two places (module docs).
 SEPARATION_M = 3.0
+# Above this many hypotheses the stage is not run (module docs, a wide disc).
+POSE_MAX_HYPOTHESES = 100
+# Each answer is also tried turned half round (module docs, a turned heading); off only to measure its cost.
+TURNED_CHECK = True
 # The stage's answers must be this precise (estimated 1-sigma error per axis, metres; module docs, precision).
 POSE_MAX_SIGMA_M = 0.6
 
@@ -163,6 +188,7 @@ class PoseHypotheses:
     anchor: np.ndarray
     map_id: np.ndarray
     map_z: np.ndarray
+    over_limit: int = 0  # the pairs the prior allows when they were over the limit and none was made
 
     def __len__(self) -> int:
         return int(self.a.size)
@@ -174,7 +200,7 @@ class PoseHypotheses:
 
 def prior_hypotheses(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, pose: PosePrior,
                      whole: np.ndarray | None = None, anchors: int | None = None,
-                     errors: BlobErrors | None = None) -> PoseHypotheses:
+                     errors: BlobErrors | None = None, limit: int | None = None) -> PoseHypotheses:
     """Every (anchor, map object) pair the pose prior allows (module docs, hypotheses).
 
     Parameters
@@ -196,6 +222,8 @@ def prior_hypotheses(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex,
         The objects' blob errors: a cut anchor's map object is then where its blob puts it
         (:func:`~mapdb.match.evidence.blobs.placed_sources`: a cut building by the map object's own area),
         not at the visible part's centroid.
+    limit : int, optional
+        When the prior allows more pairs than this, none is made (``over_limit`` says how many it allows).
 
     Returns
     -------
@@ -208,8 +236,7 @@ def prior_hypotheses(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex,
     cut = np.zeros(z.size, bool) if whole is None else ~np.asarray(whole, bool)
     order = [int(i) for i in np.lexsort((np.abs(z), cut)) if allowed[i]][:anchors]
     if not order:
-        empty = np.zeros(0, np.int64)
-        return PoseHypotheses(np.zeros(0, complex), np.zeros(0, complex), empty, empty, np.zeros(0, complex))
+        return _no_hypotheses(0)
     ids = np.asarray(order, np.int64)
     centre = complex(pose.x, pose.y)
     # The map object under anchor i when the centre is at the prior's: the disc moves with it, widened by
@@ -219,6 +246,9 @@ def prior_hypotheses(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex,
     reach = PRIOR_SLACK * pose.radius_m + np.abs(a0) * (3.0 * np.abs(z[ids]) * pose.rel_sigma + shift
                                                         + 3.0 * math.sqrt(2.0) * POSE_PIXEL_SIGMA)
     members = objects.disc_members(centre + a0 * z[ids], reach, img_label[ids])
+    allowed_pairs = sum(int(members[k][int(img_label[i])].size) for k, i in enumerate(ids))
+    if limit is not None and allowed_pairs > limit:
+        return _no_hypotheses(allowed_pairs)
     anchor = np.concatenate([np.full(members[k][int(img_label[i])].size, i) for k, i in enumerate(ids)])
     map_id = np.concatenate([np.sort(members[k][int(img_label[i])]) for k, i in enumerate(ids)]).astype(np.int64)
     anchor = anchor.astype(np.int64)
@@ -226,6 +256,11 @@ def prior_hypotheses(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex,
                                                              abs(a0))
     map_z = objects.z[map_id]
     return PoseHypotheses(np.full(anchor.size, a0), map_z - a0 * source, anchor, map_id, map_z)
+
+
+def _no_hypotheses(over_limit: int) -> PoseHypotheses:
+    empty = np.zeros(0, np.int64)
+    return PoseHypotheses(np.zeros(0, complex), np.zeros(0, complex), empty, empty, np.zeros(0, complex), over_limit)
 
 
 def pose_nfa(hyps: PoseHypotheses, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, rel_sigma: float,
@@ -254,12 +289,14 @@ def match_pose(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, diag_
                evidence: ImageEvidence, pose: PosePrior) -> MatchResult:
     """The pose-prior stage (module docs): the polished answer when one place is certain, unambiguous and
     precise, else the rejection saying why; ``n_hypotheses`` is every hypothesis tried."""
-    hyps = prior_hypotheses(z, img_label, objects, pose, evidence.whole, errors=evidence.errors)
+    hyps = prior_hypotheses(z, img_label, objects, pose, evidence.whole, errors=evidence.errors,
+                            limit=POSE_MAX_HYPOTHESES)
     n_tests = len(hyps)
+    if hyps.over_limit:  # a wide disc: none tried, none counted (module docs, a wide disc)
+        return MatchResult(None, [], f"pose prior: {hyps.over_limit} hypotheses in the disc, over "
+                           f"{POSE_MAX_HYPOTHESES}", 0, 1)
     if not n_tests:
         return MatchResult(None, [], "pose prior: no map object of an anchor's label in the disc", 0, 1)
-    if n_tests > opts.max_verified:  # a wide disc over a dense town: the anchors nearest the centre first
-        hyps = hyps.take(np.arange(opts.max_verified))
     log10_tests = math.log10(n_tests)
     radius = opts.density_radius_factor * np.abs(hyps.a) * diag_px / 2.0
     density = objects.local_density(hyps.b, radius)
@@ -282,9 +319,36 @@ def match_pose(z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, diag_
     rejected = ambiguous(best, rest, opts, n_tests, 1)
     if rejected is not None:
         return rejected
+    if TURNED_CHECK:
+        rejected = _turned(best, z, img_label, objects, diag_px, opts, evidence, pose, n_tests)
+        if rejected is not None:
+            return rejected
     gate = POSE_MAX_SIGMA_M if opts.max_sigma_m is None else min(opts.max_sigma_m, POSE_MAX_SIGMA_M)
     return answer(polish(best, z, img_label, objects, evidence=evidence), rest, replace(opts, max_sigma_m=gate),
                   n_tests, 1)
+
+
+def _turned(best: Candidate, z: np.ndarray, img_label: np.ndarray, objects: ObjectIndex, diag_px: float,
+            opts: FastOptions, evidence: ImageEvidence, pose: PosePrior, n_tests: int) -> MatchResult | None:
+    """The rejection when the image, turned half round, is also certain at another place in the disc (module
+    docs, a turned heading), else None: the winner's place is then the prior's heading's choice, not the
+    image's."""
+    turned = replace(pose, heading_deg=(pose.heading_deg or 0.0) + 180.0)
+    hyps = prior_hypotheses(z, img_label, objects, turned, evidence.whole, errors=evidence.errors)
+    if not len(hyps):
+        return None
+    hyps = hyps.take(np.arange(min(len(hyps), opts.max_verified)))
+    radius = opts.density_radius_factor * np.abs(hyps.a) * diag_px / 2.0
+    density = objects.local_density(hyps.b, radius)
+    nfa = pose_nfa(hyps, z, img_label, objects, turned.rel_sigma, density, radius, math.log10(n_tests), opts,
+                   evidence)
+    far = np.abs(hyps.b - best.b) > SEPARATION_M  # the same place turned (a symmetric pattern) is no rival
+    if not far.any() or float(nfa[far].min()) >= opts.log10_epsilon:
+        return None
+    rival = int(np.flatnonzero(far)[np.argmin(nfa[far])])
+    return MatchResult(None, [best], f"ambiguous: the image turned half round is certain "
+                       f"{abs(hyps.b[rival] - best.b):.0f} m away (log10 NFA {nfa[rival]:.1f}); the prior's "
+                       "heading alone chose", n_tests, 1)
 
 
 def _places(pool: list[Candidate], diag_px: float) -> list[Candidate]:
