@@ -5,17 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from mapdb.match.refine import PLACE_FRACTION, Candidate, distinct, merge_candidates, pose_shift
+from mapdb.match.refine import Candidate, distinct, merge_candidates, merged_one_by_one
 
 
 def _plain_merge(pool: list[Candidate], diag_px: float) -> list[Candidate]:
-    pool = sorted(pool, key=lambda c: (c.log10_nfa, -c.inliers))
-    kept: list[Candidate] = []
-    for c in pool:
-        sep = abs(c.a) * diag_px * PLACE_FRACTION
-        if all(pose_shift(c.a, c.b, k.a, k.b, diag_px) > sep for k in kept):
-            kept.append(c)
-    return kept
+    return merged_one_by_one(sorted(pool, key=lambda c: (c.log10_nfa, -c.inliers)), diag_px)
 
 
 def _pool(rng: np.random.Generator, n: int) -> list[Candidate]:

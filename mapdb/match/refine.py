@@ -20,7 +20,8 @@ from .evidence.relief import ReliefFit
 from .geometry import prediction_variance_factor
 from .mapobjects.object_index import ObjectIndex
 
-__all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "polish", "pose_shift"]
+__all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "merged_one_by_one", "polish",
+           "pose_shift"]
 
 # Two answers closer than this fraction of the footprint's diagonal are one place.
 PLACE_FRACTION = 1.0 / 20.0
@@ -204,16 +205,22 @@ def pose_shift(a: Any, b: Any, a0: complex, b0: complex, diag_px: float) -> Any:
     return abs(b - b0) + abs(a - a0) * (diag_px / 2.0)  # builtin abs: Python numbers stay cheap in a loop
 
 
+def merged_one_by_one(pool: list[Candidate], diag_px: float) -> list[Candidate]:
+    """:func:`merge_candidates` of a pool sorted best first, a candidate at a time (the plain loop over
+    :func:`pose_shift` that the array operations of a big pool reproduce)."""
+    kept: list[Candidate] = []
+    for c in pool:
+        sep = abs(c.a) * diag_px * PLACE_FRACTION
+        if all(pose_shift(c.a, c.b, k.a, k.b, diag_px) > sep for k in kept):
+            kept.append(c)
+    return kept
+
+
 def merge_candidates(pool: list[Candidate], diag_px: float) -> list[Candidate]:
     """Best first, one candidate per place (refinement often brings several hypotheses to one pose)."""
     pool = sorted(pool, key=lambda c: (c.log10_nfa, -c.inliers))
     if len(pool) < _MERGED_AT_ONCE_FROM:
-        kept: list[Candidate] = []
-        for c in pool:
-            sep = abs(c.a) * diag_px * PLACE_FRACTION
-            if all(pose_shift(c.a, c.b, k.a, k.b, diag_px) > sep for k in kept):
-                kept.append(c)
-        return kept
+        return merged_one_by_one(pool, diag_px)
     # The search merges its pool with each round's candidates: an image that matches nowhere runs every round
     # and its pool grows to dozens, whose pairwise pose shifts are then taken in a few array operations (the
     # same numbers as pose_shift's), the greedy choice staying a loop over Python lists.
