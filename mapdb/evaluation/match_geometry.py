@@ -7,7 +7,6 @@ and which of them the matcher's own inlier rule accepts, without drawing: for te
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,6 +15,7 @@ import numpy as np
 from ..answers import Answer, Candidate
 from ..camera import Camera, Pose, image_plane, image_to_ground, level_pixels
 from ..detections.images import ImageObjects, parse_image
+from ..match.geometry import image_to_map
 from ..objects import Objects
 
 __all__ = ["MatchGeometry", "answer_xy", "match_geometry"]
@@ -71,7 +71,7 @@ def _answer_placer(im: ImageObjects, answer: Answer):
     ``(x, y)``.  The pixels are levelled first when the localizer levelled them.
     """
     assert answer.scale_m_per_px is not None and answer.heading_deg is not None
-    a = answer.scale_m_per_px * complex(np.exp(-1j * math.radians(answer.heading_deg)))
+    a = image_to_map(answer.scale_m_per_px, answer.heading_deg)
     b = answer_xy(answer)
     fov = im.fov_deg if answer.levelled else None
 

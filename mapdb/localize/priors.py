@@ -13,7 +13,7 @@ from functools import lru_cache
 
 from ..detections.images import ImageObjects, Prior, check_prior
 from ..errors import ImageInputError
-from ..match.pose_prior import PosePrior
+from ..match.pose_prior import ALTITUDE_SCALE_REL_SIGMA, PosePrior
 from .lonlat import transformer
 
 __all__ = ["DEFAULT_PRIOR_MARGIN_M", "SCALE_REL_SIGMA", "checked_caller_prior", "outside_bounds", "pose_prior",
@@ -22,10 +22,11 @@ __all__ = ["DEFAULT_PRIOR_MARGIN_M", "SCALE_REL_SIGMA", "checked_caller_prior", 
 # With a prior but no known scale, objects this far beyond the prior radius (or the radius itself, if
 # larger) are read so that the edges of the image are matched too.
 DEFAULT_PRIOR_MARGIN_M = 300.0
-# The relative 1-sigma error of the scale an image's altitude and field of view give (altimeter error, relief
-# under the camera), for the pose prior: the scale range's factor (image_points.SCALE_TOLERANCE, 1.5) is a bound
-# on hypotheses, not an error the stage could shape its tolerances with.
-SCALE_REL_SIGMA = 0.05
+# The relative 1-sigma error of the scale an image's altitude and field of view give, for the pose prior
+# (:data:`~mapdb.match.pose_prior.ALTITUDE_SCALE_REL_SIGMA`): the scale range's factor
+# (image_points.SCALE_TOLERANCE, 1.5) is a bound on hypotheses, not an error the stage could shape its
+# tolerances with.
+SCALE_REL_SIGMA = ALTITUDE_SCALE_REL_SIGMA
 
 
 def prior_margin(radius: float, half_diagonal_m: float | None) -> float:

@@ -9,6 +9,8 @@ map with y north, or the fit will find the mirror image's best rotation instead.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # The matcher works in complex numbers: a point (x, y) is x + iy and a similarity is z -> a z + b with
@@ -17,6 +19,7 @@ import numpy as np
 
 __all__ = [
     "apply_similarity",
+    "image_to_map",
     "fit_similarity",
     "fit_similarity_complex",
     "prediction_variance_factor",
@@ -74,6 +77,19 @@ def fit_similarity(
     tx = float(mu_d[0] - scale * (c * mu_s[0] - si * mu_s[1]))
     ty = float(mu_d[1] - scale * (si * mu_s[0] + c * mu_s[1]))
     return scale, rotation, tx, ty
+
+
+def image_to_map(scale_m_per_px: float, heading_deg: float) -> complex:
+    """The image-to-map similarity's ``a = scale exp(-i heading)`` of an answer's (or a prior's) scale and heading
+    (``heading_deg`` clockwise from map north, so that ``heading_deg = -arg(a)``; levelled image, y up).
+
+    Examples
+    --------
+    >>> a = image_to_map(0.5, 90.0)
+    >>> round(a.real, 12), round(a.imag, 12)
+    (0.0, -0.5)
+    """
+    return scale_m_per_px * complex(np.exp(-1j * math.radians(heading_deg)))
 
 
 def apply_similarity(xy: np.ndarray, scale: float, rotation_rad: float, tx: float, ty: float) -> np.ndarray:

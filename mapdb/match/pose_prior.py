@@ -85,6 +85,7 @@ from .decide import MatchResult, ambiguous, answer, uncertain
 from .evidence.areas import points_floor
 from .evidence.blobs import CUT_SHIFT_PX, BlobErrors, placed_sources
 from .evidence.image import ImageEvidence
+from .geometry import image_to_map
 from .hypotheses import PRIOR_SLACK
 from .mapobjects.object_index import ObjectIndex
 from .nfa import log10_nfa_curve
@@ -92,9 +93,8 @@ from .options import FastOptions
 from .refine import Candidate, candidates, distinct, polish, pose_shift
 from .verify import refine
 
-__all__ = ["ANCHORS", "MAX_HEADING_SIGMA_DEG", "MAX_SCALE_REL_SIGMA", "POSE_MAX_HYPOTHESES", "POSE_MAX_SIGMA_M",
-           "POSE_PIXEL_SIGMA",
-           "SEPARATION_M",
+__all__ = ["ALTITUDE_SCALE_REL_SIGMA", "ANCHORS", "MAX_HEADING_SIGMA_DEG", "MAX_SCALE_REL_SIGMA",
+           "POSE_MAX_HYPOTHESES", "POSE_MAX_SIGMA_M", "POSE_PIXEL_SIGMA", "SEPARATION_M", "TURNED_CHECK",
            "PoseHypotheses", "PosePrior", "match_pose", "pose_nfa", "prior_hypotheses"]
 
 # Anchors tried (whole objects nearest the centre first): one missing from the map, or merged with a
@@ -114,6 +114,10 @@ SEPARATION_M = 3.0
 POSE_MAX_HYPOTHESES = 100
 # Each answer is also tried turned half round (module docs, a turned heading); off only to measure its cost.
 TURNED_CHECK = True
+# The relative 1-sigma error of a scale from an altitude and a focal length (a barometer's or altimeter's bias
+# against the height above the ground, the relief under the camera): the navigator's before its first fix, an
+# image's with altitude_m and a field of view.
+ALTITUDE_SCALE_REL_SIGMA = 0.05
 # The stage's answers must be this precise (estimated 1-sigma error per axis, metres; module docs, precision).
 POSE_MAX_SIGMA_M = 0.6
 
@@ -170,7 +174,7 @@ class PosePrior:
     def to_map(self) -> complex:
         """The predicted image-to-map similarity ``a = s exp(-i heading)`` (levelled image, y up)."""
         assert self.heading_deg is not None and self.scale_m_per_px is not None
-        return self.scale_m_per_px * complex(np.exp(-1j * math.radians(self.heading_deg)))
+        return image_to_map(self.scale_m_per_px, self.heading_deg)
 
     @property
     def rel_sigma(self) -> float:

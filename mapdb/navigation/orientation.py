@@ -12,10 +12,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
 from ..camera import Camera
-from ..match.pose_prior import PosePrior
+from ..match.geometry import image_to_map
+from ..match.pose_prior import ALTITUDE_SCALE_REL_SIGMA, PosePrior
 from .frames import Frame
 
 __all__ = ["FIX_LEVER_PX", "FIX_SCALE_FLOOR", "HEADING_DRIFT_DEG_S", "HEADING_FLOOR_DEG", "Orientation",
@@ -75,7 +74,7 @@ class Orientation:
         """The similarity ``A = s exp(-i heading)``, or None while heading or scale is unknown."""
         if self.heading is None or self.scale is None:
             return None
-        return self.scale * complex(np.exp(-1j * math.radians(self.heading)))
+        return image_to_map(self.scale, self.heading)
 
     def turn(self, frame: Frame) -> float | None:
         """The heading change since the previous frame (radians, clockwise), from the autopilot's yaw."""
@@ -92,7 +91,7 @@ class Orientation:
             self.heading = self.heading + wrap_deg(frame.yaw - self.yaw)
         if frame.altitude is not None and frame.fov is not None and self.scale is None:
             self.scale = frame.altitude / Camera(frame.width, frame.height, frame.fov).focal_px
-            self.scale_rel_sigma = 0.05  # a barometer's bias against the height above ground
+            self.scale_rel_sigma = ALTITUDE_SCALE_REL_SIGMA  # a barometer's bias against the height above ground
         elif frame.altitude is not None and self.baro is not None and self.scale is not None:
             self.scale *= frame.altitude / self.baro
         self.yaw = frame.yaw if frame.yaw is not None else self.yaw
@@ -115,7 +114,7 @@ class Orientation:
             self.heading_sigma, self.scale_rel_sigma = fix_heading_sigma, rel
             self.fixed_s = time_s
             return
-        age = max(time_s - self.fixed_s, 0.0) if time_s is not None and self.fixed_s is not None else 0.0
+        age = self.age(time_s)
         old_h = math.hypot(self.heading_sigma, HEADING_DRIFT_DEG_S * age)
         old_s = math.hypot(self.scale_rel_sigma, SCALE_DRIFT_S * age)
         k_h = old_h**2 / (old_h**2 + fix_heading_sigma**2)
@@ -126,13 +125,17 @@ class Orientation:
         self.scale_rel_sigma = math.sqrt(k_s) * rel
         self.fixed_s = time_s
 
+    def age(self, time_s: float | None) -> float:
+        """Seconds since the fix that set the heading and scale (0 without a fix or a time)."""
+        return max(time_s - self.fixed_s, 0.0) if time_s is not None and self.fixed_s is not None else 0.0
+
     def pose_prior(self, disc: tuple[float, float, float], time_s: float | None) -> PosePrior | None:
         """The query's pose prior (:mod:`mapdb.match.pose_prior`): the disc, this frame's heading and scale, their
         errors widened to at least ``HEADING_FLOOR_DEG`` and ``SCALE_FLOOR`` and grown by ``HEADING_DRIFT_DEG_S``
         and ``SCALE_DRIFT_S`` a second since the last fix; None before a fix set them."""
         if self.heading is None or self.scale is None or self.fixed_s is None:
             return None
-        age = max(time_s - self.fixed_s, 0.0) if time_s is not None else 0.0
+        age = self.age(time_s)
         heading_sigma = math.hypot(max(self.heading_sigma, HEADING_FLOOR_DEG), HEADING_DRIFT_DEG_S * age)
         scale_sigma = math.hypot(max(self.scale_rel_sigma, SCALE_FLOOR), SCALE_DRIFT_S * age)
         return PosePrior(disc[0], disc[1], disc[2], self.heading % 360.0, heading_sigma, self.scale, scale_sigma)
