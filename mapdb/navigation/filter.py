@@ -308,6 +308,17 @@ class ParticleFilter:
         self.since_fix = 0.0
         return FixOutcome(True, p_in, distance)
 
+    def update_likelihood(self, loglik: np.ndarray, keep_spread_m: float = 0.0) -> float:
+        """Weigh the particles by a log-likelihood a particle (the map update, :mod:`mapdb.navigation.map_update`),
+        then keep the cloud at least ``keep_spread_m`` wide per axis (:meth:`_keep_spread`).  Returns the
+        effective number of particles after the weighing, before any resampling."""
+        after = self.logw + loglik
+        w = np.exp(after - float(np.max(after)))
+        ess = float(w.sum() ** 2 / np.sum(w**2))
+        self._reweigh(loglik)
+        self._keep_spread(keep_spread_m)
+        return ess
+
     def _keep_spread(self, sigma_m: float) -> None:
         """Widen the cloud (positions only) so that its spread is at least ``sigma_m`` per axis.
 

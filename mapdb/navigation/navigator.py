@@ -62,6 +62,7 @@ from ..match.pose_prior import PosePrior
 from .bias import VelocityBias
 from .filter import FixComponent, ParticleFilter, shared_sigma
 from .frames import MAX_SPEED_MPS, MAX_STEP_S, MIN_STEP_S, Frame, read_frame
+from .map_update import MapUpdate
 from .orientation import Orientation
 from .stitch import DEFAULT_FRAMES, History, Seen, min_stitched_score
 from .terrain import GroundModel, height_above_ground
@@ -102,6 +103,7 @@ class NavigatorOptions:
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
     velocity_bias: str = "off"  # what of the measured bias is taken out (bias.BIAS_MODES; off: measured only)
     pose_prior: bool = True  # queries carry the heading and scale after a fix (mapdb.match.pose_prior)
+    map_update: bool = True  # frames without an applied fix weigh the particles (mapdb.navigation.map_update)
 
 
 @dataclass
@@ -144,6 +146,7 @@ class Navigator:
         self._extra_labels: dict[str, int] = {}  # this frame's labels the map lacks (``_codes``)
         self.ground = GroundModel.of(map)  # the map's elevation, for the barometer (mapdb.navigation.terrain)
         self.history = History(self.options.stitch_frames)
+        self.mapper = MapUpdate(map, BLOB_FIX_FLOOR_PX)
         self._motion: FrameMotion | None = None  # the current frame's similarity to the previous one
         self._raw_velocity: complex | None = None  # this frame's velocity as measured (before the bias)
         self.bias = VelocityBias(mode=self.options.velocity_bias)  # the velocity's persistent error (fixes)
@@ -199,6 +202,10 @@ class Navigator:
         record.fix = self._fix(frame, record, timing)
         if record.fix.get("status") in ("used", "initialised"):
             record.fix_frames = record.fix.pop("frames", [frame.time_s])
+        elif self.options.map_update and self.filter.initialised:
+            t0 = time.perf_counter()
+            record.map_update = self.mapper.update(self.filter, points, self.orientation, frame.time_s, self._floor())
+            timing["map_update"] = time.perf_counter() - t0
         self.previous.time_s = frame.time_s
         self.previous.points = points
         self.previous.extra_labels = self._extra_labels if points is not None else {}

@@ -82,6 +82,7 @@ class TrackRecord:
     time_ms: dict[str, float] = field(default_factory=dict)
     truth: dict[str, Any] | None = None
     altitude: dict[str, Any] | None = None  # from the barometer (mapdb.navigation.terrain), when the frame has one
+    map_update: dict[str, Any] | None = None  # the map-likelihood update (mapdb.navigation.map_update), if tried
 
     @property
     def placed(self) -> bool:
@@ -114,6 +115,8 @@ class TrackRecord:
         record["time_ms"] = {k: _r(t, 3) for k, t in self.time_ms.items()}
         if self.altitude is not None:
             record["altitude"] = self.altitude
+        if self.map_update is not None:
+            record["map_update"] = self.map_update
         if self.truth is not None:
             record["truth"] = self.truth
         return json_safe(record)

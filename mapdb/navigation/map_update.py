@@ -1,0 +1,259 @@
+"""The map-likelihood update: weak evidence from many frames weighed into the particles (Monte Carlo localization).
+
+The matcher answers a frame only when it is decisive alone (an a-contrario number of false alarms below
+``epsilon``).  Over rendered masks at 120 m many frames are not: a quarter of Andorra's frames score a log10
+NFA between -4 and 0 even with the true pose as prior (real evidence, not decisive), and between fixes the
+track drifts on the frame-to-frame velocity.  On a frame that gets no applied fix (none, rejected, withheld
+as imprecise), :class:`MapUpdate` weighs every particle by the likelihood of the frame's objects under the
+map instead, so that weak evidence accumulates across frames in the particles' weights.
+
+**Model.**  Particle ``k`` at ``p_k`` (complex map metres) puts a whole (not border-cut) image object ``z_i``
+(levelled, pixels from the nadir, y up) at ``m_ik = p_k + A z_i``, with ``A`` the frame's carried
+image-to-map similarity (:class:`~mapdb.navigation.orientation.Orientation`).  Its likelihood is a robust
+mixture over ``d_ik``, the distance to the nearest map object of its label::
+
+    l_ik = (1 - CLUTTER_SHARE) N2(d_ik; sigma_i) + CLUTTER_SHARE / (pi CLUTTER_RADIUS_M^2)
+
+``N2`` the 2-D normal density; the clutter term stands for an object the map lacks (OSM is incomplete), a
+spurious or merged blob.  With the numbers below an object more than about 3 sigma from every map object of
+its label counts as clutter, and a frame seen where the map has nothing moves no weight.  Per axis,
+``sigma_i^2 = (blob_px s)^2 + floor^2 + (r_i scale_sigma)^2 + (RELIEF_KAPPA r_i)^2``: the blob's centroid
+(``BLOB_FIX_FLOOR_PX`` pixels at the scale ``s``), the attitude errors' floor, the scale's relative error
+at the object's distance ``r_i = |A z_i|`` from the nadir, and relief (blob centroids lie outward of their
+footprints by 3-4 % of ``r_i`` at 120 m with heights, :mod:`mapdb.match.evidence.relief`; the carried scale
+comes from fixes that absorbed the mean, the buildings' differing heights leave a scatter of that order).
+Border-cut blobs are left out: their centroids are pulled inward by a median 32-39 px.
+
+**The heading's error is common** to all objects of a frame, so it is marginalised rather than added per
+object: the frame's likelihood is evaluated at ``HEADING_NODES`` heading offsets (Gauss-Hermite) and
+combined by their weights (log-sum-exp).  Heading and scale errors are the pose prior's
+(:meth:`Orientation.pose_prior`: floors and growth since the last fix).
+
+**Correlated frames.**  At 5 fps consecutive frames see the same buildings with the same relief error: the
+frames' likelihoods are not independent, and multiplying them as if they were makes the cloud overconfident
+(it then rejects right fixes).  The update is tempered, ``w_k <- w_k l_k^TEMPER``, and the cloud's spread is
+kept at least as wide as one frame's evidence, ``sqrt(mean sigma_i^2 / n)`` per axis (the error the frames
+share, as :func:`~mapdb.navigation.filter.shared_sigma` keeps it for fixes).
+
+**Aliasing.**  The update only reweights the existing cloud: it never creates a mode.  The fix gate and the
+recovery of :mod:`mapdb.navigation.navigator` still decide where the aircraft is.  A frame with fewer than
+``MIN_OBJECTS`` whole objects, or a cloud wider than ``MAX_CLOUD_M``, is skipped.
+
+**Cost.**  Distances come from a grid of the distance to the nearest map object of each label
+(``CELL_M`` cells, exact at the nodes, interpolated bilinearly, capped at ``CAP_M``) over a box around the
+cloud and the footprint, rebuilt only when the cloud leaves it (``MARGIN_M``): 2000 particles x 10 objects x 3
+headings are a few gathers, not a tree query each.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .filter import ParticleFilter
+from .orientation import HEADING_DRIFT_DEG_S, HEADING_FLOOR_DEG, SCALE_DRIFT_S, SCALE_FLOOR, Orientation
+from .velocity import FramePoints
+
+__all__ = ["CAP_M", "CELL_M", "CLUTTER_RADIUS_M", "CLUTTER_SHARE", "DistanceField", "HEADING_NODES", "MARGIN_M",
+           "MAX_CLOUD_M", "MIN_OBJECTS", "MapUpdate", "RELIEF_KAPPA", "TEMPER", "frame_log_likelihood"]
+
+# The share of a frame's objects that match nothing in the map (missing from it, spurious, merged), and the
+# radius of the disc the clutter density is spread over: an object farther than about 3 sigma from every
+# map object of its label (sigma 1-2 m) then counts as clutter.
+CLUTTER_SHARE = 0.2
+CLUTTER_RADIUS_M = 10.0
+# Relief's radial scatter, per metre from the nadir (relief.py: 3-4 % at 120 m with heights).
+RELIEF_KAPPA = 0.03
+# Gauss-Hermite nodes over the frame's heading error.
+HEADING_NODES = 3
+# The update's exponent on a frame's likelihood: consecutive frames share most of their objects' errors.
+TEMPER = 0.2
+# Fewer whole objects than this: the frame is skipped.
+MIN_OBJECTS = 2
+# A cloud spread over more than this (metres, its box's larger side): the frame is skipped (lost or
+# recovering: the matcher's search decides, and the grid would be large).
+MAX_CLOUD_M = 200.0
+# Distance grid: cell size, the distance beyond which every object is clutter alike, the box's margin.
+CELL_M = 0.5
+CAP_M = 12.0
+MARGIN_M = 100.0
+
+
+class DistanceField:
+    """The distance from grid nodes to the nearest map object of each label, over a box (module docs, cost).
+
+    Parameters
+    ----------
+    map : MetaMap or MemoryMap
+        Read once for the box (``query_bbox``).
+    box : (minx, miny, maxx, maxy)
+        Map metres.
+    """
+
+    def __init__(self, map: Any, box: tuple[float, float, float, float]) -> None:
+        self.box = box
+        self.nx = int(math.ceil((box[2] - box[0]) / CELL_M)) + 2
+        self.ny = int(math.ceil((box[3] - box[1]) / CELL_M)) + 2
+        # Objects within CAP_M outside the box still set the distances inside it.
+        objects = map.query_bbox(box[0] - CAP_M, box[1] - CAP_M, box[2] + CAP_M, box[3] + CAP_M)
+        self._z = np.asarray(objects.x + 1j * objects.y, np.complex128)
+        self._label = np.asarray(objects.label, np.int64)
+        self._grids: dict[int, np.ndarray | None] = {}
+
+    def covers(self, box: tuple[float, float, float, float]) -> bool:
+        """Whether ``box`` lies inside this field's box."""
+        return (box[0] >= self.box[0] and box[1] >= self.box[1] and box[2] <= self.box[2]
+                and box[3] <= self.box[3])
+
+    def _grid(self, label: int) -> np.ndarray | None:
+        """The label's distance grid (None: no object of that label near the box), made on first use."""
+        if label not in self._grids:
+            self._grids[label] = self._make(self._z[self._label == label])
+        return self._grids[label]
+
+    def _make(self, z: np.ndarray) -> np.ndarray | None:
+        from scipy.ndimage import distance_transform_edt
+
+        if z.size == 0:
+            return None
+        # Each object marks its cell (clipped into the grid: those just outside reach the edge cells);
+        # the transform names each node's nearest marked cell, whose object gives the exact distance.
+        ix = np.clip(np.rint((z.real - self.box[0]) / CELL_M), 0, self.nx - 1).astype(np.int64)
+        iy = np.clip(np.rint((z.imag - self.box[1]) / CELL_M), 0, self.ny - 1).astype(np.int64)
+        owner = np.full((self.nx, self.ny), -1, np.int64)
+        owner[ix, iy] = np.arange(z.size)
+        _, (jx, jy) = distance_transform_edt(owner < 0, return_indices=True)
+        nodes_x = self.box[0] + CELL_M * np.arange(self.nx)[:, None]
+        nodes_y = self.box[1] + CELL_M * np.arange(self.ny)[None, :]
+        nearest = z[owner[jx, jy]]
+        d = np.hypot(nodes_x - nearest.real, nodes_y - nearest.imag)
+        return np.minimum(d, CAP_M).astype(np.float32)
+
+    def distance(self, label: int, w: np.ndarray) -> np.ndarray | None:
+        """Distance (metres, at most ``CAP_M``) from map points ``w`` (complex) to the label's nearest map
+        object, bilinear between the nodes; None when the label has no map object near the box."""
+        grid = self._grid(label)
+        if grid is None:
+            return None
+        x = np.clip((w.real - self.box[0]) / CELL_M, 0.0, self.nx - 1.001)
+        y = np.clip((w.imag - self.box[1]) / CELL_M, 0.0, self.ny - 1.001)
+        ix, iy = x.astype(np.int64), y.astype(np.int64)
+        fx, fy = x - ix, y - iy
+        return np.asarray((grid[ix, iy] * (1 - fx) + grid[ix + 1, iy] * fx) * (1 - fy)
+                          + (grid[ix, iy + 1] * (1 - fx) + grid[ix + 1, iy + 1] * fx) * fy)
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """A frame's objects as the update uses them: map offsets at the nominal heading, labels, sigmas."""
+
+    offsets: np.ndarray  # A z_i (complex metres)
+    codes: np.ndarray
+    sigmas: np.ndarray  # per-axis metres
+    heading_sigma_rad: float
+
+
+def frame_log_likelihood(field: DistanceField, particles: np.ndarray, offsets: np.ndarray, codes: np.ndarray,
+                         sigmas: np.ndarray, heading_sigma_rad: float = 0.0,
+                         nodes: int = HEADING_NODES) -> np.ndarray:
+    """``log l_k`` of a frame's objects at every particle (module docs: the mixture, the heading marginalised).
+
+    Parameters
+    ----------
+    field : DistanceField
+        Covering the particles plus the offsets.
+    particles : complex array (N,)
+    offsets : complex array (n,)
+        The objects' map offsets from the nadir at the nominal heading, ``A z_i``.
+    codes : int array (n,)
+        Their labels (the map's codes).
+    sigmas : float array (n,)
+        Their per-axis errors, metres.
+    heading_sigma_rad : float
+        The heading's error, marginalised over ``nodes`` Gauss-Hermite points (1: not).
+    """
+    x, w = np.polynomial.hermite_e.hermegauss(nodes if heading_sigma_rad > 0 else 1)
+    log_nodes = np.log(w / w.sum())
+    clutter = math.log(CLUTTER_SHARE / (math.pi * CLUTTER_RADIUS_M**2))
+    hit = np.log1p(-CLUTTER_SHARE) - np.log(2.0 * math.pi * sigmas**2)
+    total = np.tile(log_nodes[:, None], (1, particles.size))
+    for j, t in enumerate(x):
+        turned = offsets * np.exp(-1j * t * heading_sigma_rad)  # clockwise heading: -i
+        for i in range(offsets.size):
+            d = field.distance(int(codes[i]), particles + turned[i])
+            if d is None:
+                continue
+            total[j] += np.logaddexp(hit[i] - 0.5 * (d / sigmas[i]) ** 2, clutter)
+    top = total.max(axis=0)
+    return np.asarray(top + np.log(np.exp(total - top).sum(axis=0)))
+
+
+class MapUpdate:
+    """The map-likelihood update of a navigator (module docs): one a navigator, holding its distance field.
+
+    Parameters
+    ----------
+    map : MetaMap or MemoryMap
+    blob_floor_px : float
+        A blob centroid's error, pixels per axis.
+    temper, nodes : float, int
+        ``TEMPER`` and ``HEADING_NODES`` unless given.
+    """
+
+    def __init__(self, map: Any, blob_floor_px: float = 2.0, temper: float = TEMPER,
+                 nodes: int = HEADING_NODES) -> None:
+        self.map = map
+        self.n_labels = len(map.labels)
+        self.blob_floor_px = blob_floor_px
+        self.temper = temper
+        self.nodes = nodes
+        self.field: DistanceField | None = None
+
+    def update(self, flt: ParticleFilter, points: FramePoints | None, orientation: Orientation,
+               time_s: float | None, floor_m: float) -> dict[str, Any]:
+        """Weigh the filter's particles by the frame's objects under the map; the record's ``map_update``.
+
+        ``floor_m`` is the attitude errors' floor per axis (the navigator's).  Returns ``{"status": "used",
+        "objects": n, "ess": effective particles after the update (before any resampling)}`` or ``{"status":
+        "skipped", "objects": n, "reason": ...}``.
+        """
+        frame = self._frame(points, orientation, time_s, floor_m)
+        n = 0 if frame is None else int(frame.offsets.size)
+        if frame is None or n < MIN_OBJECTS:
+            why = ("no heading or scale yet" if orientation.to_map() is None
+                   else f"{n} whole objects of the map's labels")
+            return {"status": "skipped", "objects": n, "reason": why}
+        reach = float(np.max(np.abs(frame.offsets))) + CAP_M
+        box = (float(flt.p.real.min()) - reach, float(flt.p.imag.min()) - reach,
+               float(flt.p.real.max()) + reach, float(flt.p.imag.max()) + reach)
+        if max(box[2] - box[0], box[3] - box[1]) - 2.0 * reach > MAX_CLOUD_M:
+            return {"status": "skipped", "objects": n, "reason": f"the cloud is wider than {MAX_CLOUD_M:g} m"}
+        if self.field is None or not self.field.covers(box):
+            self.field = DistanceField(self.map, (box[0] - MARGIN_M, box[1] - MARGIN_M, box[2] + MARGIN_M,
+                                                  box[3] + MARGIN_M))
+        loglik = frame_log_likelihood(self.field, flt.p, frame.offsets, frame.codes, frame.sigmas,
+                                      frame.heading_sigma_rad, self.nodes)
+        share = math.sqrt(float(np.mean(frame.sigmas**2)) / n)
+        ess = flt.update_likelihood(self.temper * (loglik - float(loglik.max())), share)
+        return {"status": "used", "objects": n, "ess": round(ess, 1)}
+
+    def _frame(self, points: FramePoints | None, orientation: Orientation, time_s: float | None,
+               floor_m: float) -> _Frame | None:
+        """The frame's whole objects of the map's labels, with their offsets and errors (module docs)."""
+        to_map = orientation.to_map()
+        if points is None or to_map is None or orientation.scale is None:
+            return None
+        keep = points.codes < self.n_labels
+        if points.border is not None:
+            keep &= ~points.border
+        offsets = to_map * points.z[keep]
+        age = orientation.age(time_s)
+        heading_sigma = math.hypot(max(orientation.heading_sigma, HEADING_FLOOR_DEG), HEADING_DRIFT_DEG_S * age)
+        scale_sigma = math.hypot(max(orientation.scale_rel_sigma, SCALE_FLOOR), SCALE_DRIFT_S * age)
+        r = np.abs(offsets)
+        blob = self.blob_floor_px * orientation.scale
+        sigmas = np.sqrt(blob**2 + floor_m**2 + (r * scale_sigma) ** 2 + (RELIEF_KAPPA * r) ** 2)
+        return _Frame(offsets, points.codes[keep], sigmas, math.radians(heading_sigma))
