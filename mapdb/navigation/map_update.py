@@ -72,7 +72,7 @@ HEADING_NODES = 3
 # The update's exponent on a frame's likelihood: consecutive frames share most of their objects' errors.
 TEMPER = 0.2
 # Fewer whole objects than this: the frame is skipped.
-MIN_OBJECTS = 2
+MIN_OBJECTS = 1
 # A cloud spread over more than this (metres, its box's larger side): the frame is skipped (lost or
 # recovering: the matcher's search decides, and the grid would be large).
 MAX_CLOUD_M = 200.0
