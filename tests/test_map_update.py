@@ -123,3 +123,14 @@ def test_two_objects_a_frame_hold_the_track_a_biased_inertial_unit_pulls_off(wor
         used = [r for r in stretch if (r.map_update or {}).get("status") == "used"]
         assert len(used) == (len(stretch) if on else 0)
     assert errors[False] > 5.0 and errors[True] < 2.0, errors
+
+
+def test_a_map_gap_withholds_the_map_from_the_update_too(world) -> None:
+    frames = fly(world, 3.0, map_gaps=((1.0, 1.0),))
+    start = frames[0]["truth"]
+    navigator = Navigator(world, initial=(start["x"], start["y"], 20.0))
+    records = [navigator.step(f, f"line {i + 1}") for i, f in enumerate(frames)]
+    gap = [r for r, f in zip(records, frames, strict=True) if f.get("map_withheld")]
+    assert gap and all(r.map_update == {"status": "skipped", "reason": "the flight withholds the map here"}
+                       for r in gap)
+    assert all(r.map_update is None for r in records if r.fix.get("status") == "used")

@@ -173,5 +173,6 @@ def test_the_track_record_fields_are_the_documented_ones() -> None:
             i = end
         i += 1
     record = track.TrackRecord(id="f", time_s=0.0, status="fix", notes=["n"], truth={"x": 0.0, "y": 0.0},
-                               fix_frames=[0.0], altitude={"baro_m": 212.4})  # altitude: written when set
+                               fix_frames=[0.0], altitude={"baro_m": 212.4},  # altitude, map_update: when set
+                               map_update={"status": "used", "objects": 4, "ess": 1290.5})
     assert keys == set(record.to_json())

@@ -36,7 +36,9 @@ Per frame (:meth:`Navigator.step`), in this order:
    When the frame alone is not decisive (no fix, or one rejected as an outlier), the objects of the last
    ``stitch_frames`` frames, carried into this one by the frame-to-frame similarities of step 4, are
    queried as one image (:mod:`mapdb.navigation.stitch`); the record's ``fix_frames`` names the frames a
-   fix used.
+   fix used.  A frame that ends without an applied fix weighs the particles by its objects' likelihood
+   under the map instead (:mod:`mapdb.navigation.map_update`, ``map_update``): weak evidence, accumulated
+   over frames.
 6. **Record** the estimate (:class:`~mapdb.navigation.track.TrackRecord`).
 
 Without an initial position the filter waits for a first fix with score at least ``init_min_score``
@@ -204,7 +206,9 @@ class Navigator:
             record.fix_frames = record.fix.pop("frames", [frame.time_s])
         elif self.options.map_update and self.filter.initialised:
             t0 = time.perf_counter()
-            record.map_update = self.mapper.update(self.filter, points, self.orientation, frame.time_s, self._floor())
+            record.map_update = ({"status": "skipped", "reason": "the flight withholds the map here"} if frame.withheld
+                                 else self.mapper.update(self.filter, points, self.orientation, frame.time_s,
+                                                         self._floor()))
             timing["map_update"] = time.perf_counter() - t0
         self.previous.time_s = frame.time_s
         self.previous.points = points

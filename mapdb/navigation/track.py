@@ -14,6 +14,7 @@ One :class:`TrackRecord` per frame (``mapdb navigate`` writes its :meth:`TrackRe
      "time_ms": {"total": 9.1, "query": 5.2, "velocity": 2.3, "filter": 1.2},
      "altitude": {"baro_m": 212.4, "ground_m": 92.1, "above_ground_m": 120.3, "sigma_m": 0.6, "used": true},
                                                                      # a frame with baro_altitude_m only
+     "map_update": {"status": "used", "objects": 4, "ess": 1290.5},  # a frame without an applied fix
      "truth": {"x": ..., "y": ..., "error_m": 0.21}}                 # when the frame carries its truth
 
 ``status`` is ``"fix"`` (a fix was applied), ``"dead-reckoning"`` (a velocity only), ``"predicting"``
@@ -31,6 +32,12 @@ stitched with the frames before it (:mod:`mapdb.navigation.stitch`: ``fix.stitch
 stitched image's ``frames``, ``objects`` and ``carried`` objects, and ``fix.single`` what the frame's own
 query gave); null when no fix was applied.  When a stitched query was tried and gave no fix, ``fix.stitched``
 says why (``reason``).
+
+``map_update`` is present on a frame of an initialised filter that got no applied fix, when the
+map-likelihood update is on (``NavigatorOptions.map_update``, :mod:`mapdb.navigation.map_update`): ``status``
+``"used"`` (the particles were weighed by the frame's ``objects``, its whole objects of the map's labels;
+``ess``: the effective number of particles after the weighing) or ``"skipped"`` (``reason``: too few whole
+objects, no heading or scale yet, a cloud too wide, the map withheld).
 
 :func:`track_geojson` gives the track's frames as RFC 7946 GeoJSON points (lon/lat), :func:`track_line_geojson`
 its path as a LineString, each a FeatureCollection of one geometry type (a GIS layer has one: ``ogrinfo``
