@@ -49,12 +49,12 @@ def test_the_true_place_scores_highest_and_a_foreign_frame_moves_nothing(paper_s
         field = DistanceField(m, (x0 - 150, y0 - 150, x1 + 150, y1 + 150))
         ring = truth + np.array([3.0, 3j, -3.0, -3j, 2 + 2j, -5.0, 5j, 8 - 8j])
         particles = np.concatenate([[truth], ring])
-        loglik = frame_log_likelihood(field, particles, offsets, codes, sigmas, math.radians(1.0))
+        loglik = frame_log_likelihood(field, particles, offsets, codes, sigmas, None, math.radians(1.0))
         assert int(np.argmax(loglik)) == 0
         assert np.all(loglik[1:] < loglik[0] - 2.0)  # each 3+ m off is at least e^2 less likely
         # The same frame where the map has nothing (the frame seen beyond the map's edge): clutter alone, flat.
         outside = complex(x1 + 80.0, y1 + 80.0) + np.concatenate([[0], ring - truth])
-        far = frame_log_likelihood(field, outside, offsets * 0.3, codes, sigmas, math.radians(1.0))
+        far = frame_log_likelihood(field, outside, offsets * 0.3, codes, sigmas, None, math.radians(1.0))
         assert np.ptp(far) < 1e-9
         # A frame of another town's objects over this one: far less contrast than the true frame's.
         other = paper_map(seed=11)

@@ -63,7 +63,7 @@ __all__ = ["CAP_M", "CELL_M", "CLUTTER_RADIUS_M", "CLUTTER_SHARE", "DistanceFiel
 # The share of a frame's objects that match nothing in the map (missing from it, spurious, merged), and the
 # radius of the disc the clutter density is spread over: an object farther than about 3 sigma from every
 # map object of its label (sigma 1-2 m) then counts as clutter.
-CLUTTER_SHARE = 0.2
+CLUTTER_SHARE = 0.5
 CLUTTER_RADIUS_M = 10.0
 # Relief's radial scatter, per metre from the nadir (relief.py: 3-4 % at 120 m with heights).
 RELIEF_KAPPA = 0.03
@@ -108,42 +108,37 @@ class DistanceField:
         return (box[0] >= self.box[0] and box[1] >= self.box[1] and box[2] <= self.box[2]
                 and box[3] <= self.box[3])
 
-    def _grid(self, label: int) -> np.ndarray | None:
-        """The label's distance grid (None: no object of that label near the box), made on first use."""
+    def _grid(self, label: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The label's objects and the grid of the nearest one's index (None: none near the box), made on
+        first use."""
         if label not in self._grids:
-            self._grids[label] = self._make(self._z[self._label == label])
+            z = self._z[self._label == label]
+            self._grids[label] = None if z.size == 0 else (z, self._nearest(z))
         return self._grids[label]
 
-    def _make(self, z: np.ndarray) -> np.ndarray | None:
+    def _nearest(self, z: np.ndarray) -> np.ndarray:
         from scipy.ndimage import distance_transform_edt
 
-        if z.size == 0:
-            return None
-        # Each object marks its cell (clipped into the grid: those just outside reach the edge cells);
-        # the transform names each node's nearest marked cell, whose object gives the exact distance.
+        # Each object marks its cell (clipped into the grid: those just outside reach the edge cells); the
+        # transform names each node's nearest marked cell, whose object is the node's nearest object.
         ix = np.clip(np.rint((z.real - self.box[0]) / CELL_M), 0, self.nx - 1).astype(np.int64)
         iy = np.clip(np.rint((z.imag - self.box[1]) / CELL_M), 0, self.ny - 1).astype(np.int64)
-        owner = np.full((self.nx, self.ny), -1, np.int64)
+        owner = np.full((self.nx, self.ny), -1, np.int32)
         owner[ix, iy] = np.arange(z.size)
         _, (jx, jy) = distance_transform_edt(owner < 0, return_indices=True)
-        nodes_x = self.box[0] + CELL_M * np.arange(self.nx)[:, None]
-        nodes_y = self.box[1] + CELL_M * np.arange(self.ny)[None, :]
-        nearest = z[owner[jx, jy]]
-        d = np.hypot(nodes_x - nearest.real, nodes_y - nearest.imag)
-        return np.minimum(d, CAP_M).astype(np.float32)
+        return owner[jx, jy]
 
-    def distance(self, label: int, w: np.ndarray) -> np.ndarray | None:
-        """Distance (metres, at most ``CAP_M``) from map points ``w`` (complex) to the label's nearest map
-        object, bilinear between the nodes; None when the label has no map object near the box."""
+    def residual(self, label: int, w: np.ndarray) -> np.ndarray | None:
+        """``w`` minus the label's map object nearest to it (complex metres; the nearest grid node's nearest:
+        they differ only about half a cell from where two objects are equally near), or None when the label
+        has no map object near the box.  Points outside the box are answered from its edge."""
         grid = self._grid(label)
         if grid is None:
             return None
-        x = np.clip((w.real - self.box[0]) / CELL_M, 0.0, self.nx - 1.001)
-        y = np.clip((w.imag - self.box[1]) / CELL_M, 0.0, self.ny - 1.001)
-        ix, iy = x.astype(np.int64), y.astype(np.int64)
-        fx, fy = x - ix, y - iy
-        return np.asarray((grid[ix, iy] * (1 - fx) + grid[ix + 1, iy] * fx) * (1 - fy)
-                          + (grid[ix, iy + 1] * (1 - fx) + grid[ix + 1, iy + 1] * fx) * fy)
+        z, nearest = grid
+        ix = np.clip(np.rint((w.real - self.box[0]) / CELL_M), 0, self.nx - 1).astype(np.int64)
+        iy = np.clip(np.rint((w.imag - self.box[1]) / CELL_M), 0, self.ny - 1).astype(np.int64)
+        return np.asarray(w - z[nearest[ix, iy]])
 
 
 @dataclass(frozen=True)
@@ -152,12 +147,13 @@ class _Frame:
 
     offsets: np.ndarray  # A z_i (complex metres)
     codes: np.ndarray
-    sigmas: np.ndarray  # per-axis metres
+    sigma_t: np.ndarray  # per-axis metres, across the direction from the nadir
+    sigma_r: np.ndarray  # along it
     heading_sigma_rad: float
 
 
 def frame_log_likelihood(field: DistanceField, particles: np.ndarray, offsets: np.ndarray, codes: np.ndarray,
-                         sigmas: np.ndarray, heading_sigma_rad: float = 0.0,
+                         sigma_t: np.ndarray, sigma_r: np.ndarray | None = None, heading_sigma_rad: float = 0.0,
                          nodes: int = HEADING_NODES) -> np.ndarray:
     """``log l_k`` of a frame's objects at every particle (module docs: the mixture, the heading marginalised).
 
@@ -170,23 +166,26 @@ def frame_log_likelihood(field: DistanceField, particles: np.ndarray, offsets: n
         The objects' map offsets from the nadir at the nominal heading, ``A z_i``.
     codes : int array (n,)
         Their labels (the map's codes).
-    sigmas : float array (n,)
-        Their per-axis errors, metres.
+    sigma_t, sigma_r : float arrays (n,)
+        Their errors, metres, across and along the direction from the nadir (``sigma_r`` None: isotropic).
     heading_sigma_rad : float
         The heading's error, marginalised over ``nodes`` Gauss-Hermite points (1: not).
     """
+    sigma_r = sigma_t if sigma_r is None else sigma_r
     x, w = np.polynomial.hermite_e.hermegauss(nodes if heading_sigma_rad > 0 else 1)
-    log_nodes = np.log(w / w.sum())
     clutter = math.log(CLUTTER_SHARE / (math.pi * CLUTTER_RADIUS_M**2))
-    hit = np.log1p(-CLUTTER_SHARE) - np.log(2.0 * math.pi * sigmas**2)
-    total = np.tile(log_nodes[:, None], (1, particles.size))
+    hit = np.log1p(-CLUTTER_SHARE) - np.log(2.0 * math.pi * sigma_t * sigma_r)
+    radial = np.where(np.abs(offsets) > 0, offsets / np.maximum(np.abs(offsets), 1e-12), 1.0).conj()
+    total = np.tile(np.log(w / w.sum())[:, None], (1, particles.size))
     for j, t in enumerate(x):
-        turned = offsets * np.exp(-1j * t * heading_sigma_rad)  # clockwise heading: -i
+        turn = np.exp(-1j * t * heading_sigma_rad)  # clockwise heading: -i
         for i in range(offsets.size):
-            d = field.distance(int(codes[i]), particles + turned[i])
-            if d is None:
+            e = field.residual(int(codes[i]), particles + offsets[i] * turn)
+            if e is None:
                 continue
-            total[j] += np.logaddexp(hit[i] - 0.5 * (d / sigmas[i]) ** 2, clutter)
+            e = e * radial[i] * np.conj(turn)  # along (real) and across (imaginary) the direction from the nadir
+            m2 = (e.real / sigma_r[i]) ** 2 + (e.imag / sigma_t[i]) ** 2
+            total[j] += np.logaddexp(hit[i] - 0.5 * m2, clutter)
     top = total.max(axis=0)
     return np.asarray(top + np.log(np.exp(total - top).sum(axis=0)))
 
@@ -234,9 +233,9 @@ class MapUpdate:
         if self.field is None or not self.field.covers(box):
             self.field = DistanceField(self.map, (box[0] - MARGIN_M, box[1] - MARGIN_M, box[2] + MARGIN_M,
                                                   box[3] + MARGIN_M))
-        loglik = frame_log_likelihood(self.field, flt.p, frame.offsets, frame.codes, frame.sigmas,
+        loglik = frame_log_likelihood(self.field, flt.p, frame.offsets, frame.codes, frame.sigma_t, frame.sigma_r,
                                       frame.heading_sigma_rad, self.nodes)
-        share = math.sqrt(float(np.mean(frame.sigmas**2)) / n)
+        share = math.sqrt(float(np.mean(frame.sigma_t * frame.sigma_r)) / n)
         ess = flt.update_likelihood(self.temper * (loglik - float(loglik.max())), share)
         return {"status": "used", "objects": n, "ess": round(ess, 1)}
 
@@ -255,5 +254,6 @@ class MapUpdate:
         scale_sigma = math.hypot(max(orientation.scale_rel_sigma, SCALE_FLOOR), SCALE_DRIFT_S * age)
         r = np.abs(offsets)
         blob = self.blob_floor_px * orientation.scale
-        sigmas = np.sqrt(blob**2 + floor_m**2 + (r * scale_sigma) ** 2 + (RELIEF_KAPPA * r) ** 2)
-        return _Frame(offsets, points.codes[keep], sigmas, math.radians(heading_sigma))
+        sigma_t = np.full(r.size, math.hypot(blob, floor_m))
+        sigma_r = np.sqrt(sigma_t**2 + (r * scale_sigma) ** 2 + (RELIEF_KAPPA * r) ** 2)
+        return _Frame(offsets, points.codes[keep], sigma_t, sigma_r, math.radians(heading_sigma))
