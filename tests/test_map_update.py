@@ -17,7 +17,7 @@ from navworld import fly, synthetic_world
 
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.filter import ParticleFilter
-from mapdb.navigation.map_update import CAP_M, DistanceField, MapUpdate, frame_log_likelihood
+from mapdb.navigation.map_update import CAP_M, MapUpdate, NearestObjects, frame_log_likelihood
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
 from mapdb.navigation.orientation import Orientation
 from mapdb.navigation.velocity import FramePoints
@@ -46,7 +46,7 @@ def test_the_true_place_scores_highest_and_a_foreign_frame_moves_nothing(paper_s
         offsets, codes = _frame(objects, truth, 50.0, rng)
         assert offsets.size >= 10
         sigmas = np.full(offsets.size, 1.0)
-        field = DistanceField(m, (x0 - 150, y0 - 150, x1 + 150, y1 + 150))
+        field = NearestObjects(m, (x0 - 150, y0 - 150, x1 + 150, y1 + 150))
         ring = truth + np.array([3.0, 3j, -3.0, -3j, 2 + 2j, -5.0, 5j, 8 - 8j])
         particles = np.concatenate([[truth], ring])
         loglik = frame_log_likelihood(field, particles, offsets, codes, sigmas, None, math.radians(1.0))

@@ -75,7 +75,7 @@ from .filter import ParticleFilter
 from .orientation import HEADING_DRIFT_DEG_S, HEADING_FLOOR_DEG, SCALE_DRIFT_S, SCALE_FLOOR, Orientation
 from .velocity import FramePoints
 
-__all__ = ["CAP_M", "CELL_M", "CLUTTER_RADIUS_M", "CLUTTER_SHARE", "DistanceField", "HEADING_NODES", "MARGIN_M",
+__all__ = ["CAP_M", "CELL_M", "CLUTTER_RADIUS_M", "CLUTTER_SHARE", "HEADING_NODES", "MARGIN_M", "NearestObjects",
            "MAX_CLOUD_M", "MIN_OBJECTS", "MapUpdate", "RELIEF_KAPPA", "TEMPER", "frame_log_likelihood"]
 
 # The share of a frame's objects that match nothing in the map (missing from it, spurious, merged), and the
@@ -101,7 +101,7 @@ CAP_M = 12.0
 MARGIN_M = 100.0
 
 
-class DistanceField:
+class NearestObjects:
     """The nearest map object of each label at the nodes of a grid over a box (module docs, cost).
 
     Parameters
@@ -171,14 +171,14 @@ class _Frame:
     heading_sigma_rad: float
 
 
-def frame_log_likelihood(field: DistanceField, particles: np.ndarray, offsets: np.ndarray, codes: np.ndarray,
+def frame_log_likelihood(field: NearestObjects, particles: np.ndarray, offsets: np.ndarray, codes: np.ndarray,
                          sigma_t: np.ndarray, sigma_r: np.ndarray | None = None, heading_sigma_rad: float = 0.0,
                          nodes: int = HEADING_NODES) -> np.ndarray:
     """``log l_k`` of a frame's objects at every particle (module docs: the mixture, the heading marginalised).
 
     Parameters
     ----------
-    field : DistanceField
+    field : NearestObjects
         Covering the particles plus the offsets.
     particles : complex array (N,)
     offsets : complex array (n,)
@@ -210,7 +210,7 @@ def frame_log_likelihood(field: DistanceField, particles: np.ndarray, offsets: n
 
 
 class MapUpdate:
-    """The map-likelihood update of a navigator (module docs): one a navigator, holding its distance field.
+    """The map-likelihood update of a navigator (module docs): one a navigator, holding its nearest-object grid.
 
     Parameters
     ----------
@@ -228,7 +228,7 @@ class MapUpdate:
         self.blob_floor_px = blob_floor_px
         self.temper = temper
         self.nodes = nodes
-        self.field: DistanceField | None = None
+        self.field: NearestObjects | None = None
 
     def update(self, flt: ParticleFilter, points: FramePoints | None, orientation: Orientation,
                time_s: float | None, floor_m: float) -> dict[str, Any]:
@@ -250,7 +250,7 @@ class MapUpdate:
         if max(box[2] - box[0], box[3] - box[1]) - 2.0 * reach > MAX_CLOUD_M:
             return {"status": "skipped", "objects": n, "reason": f"the cloud is wider than {MAX_CLOUD_M:g} m"}
         if self.field is None or not self.field.covers(box):
-            self.field = DistanceField(self.map, (box[0] - MARGIN_M, box[1] - MARGIN_M, box[2] + MARGIN_M,
+            self.field = NearestObjects(self.map, (box[0] - MARGIN_M, box[1] - MARGIN_M, box[2] + MARGIN_M,
                                                   box[3] + MARGIN_M))
         loglik = frame_log_likelihood(self.field, flt.p, frame.offsets, frame.codes, frame.sigma_t, frame.sigma_r,
                                       frame.heading_sigma_rad, self.nodes)
