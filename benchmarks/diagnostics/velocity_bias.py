@@ -4,6 +4,8 @@ Navigates a cached flight of ``benchmarks/navigation_masks.py`` (the frames carr
 frame whose velocity the navigator measured after its first fix, splits the measured velocity's error
 against the truth into:
 
+* **corrected** / **measured**: the velocity's error with the bias ``--mode`` takes out (the navigator's
+  velocity) and before it;
 * **scale / heading**: ``(A_nav - A_true) b / dt``, the carried similarity's error (``A_nav`` the last fix's
   scale and heading carried by the barometer and the yaw; ``A_true`` the true height over the focal length
   and the true heading);
@@ -72,8 +74,9 @@ def _stats(values: list[complex]) -> str:
             f"{e.imag.std(ddof=1) / root:.3f}")
 
 
-def diagnose(frames: list[dict[str, Any]], map_path: Path) -> dict[str, Any]:
-    """Navigate the frames, returning the error parts (complex, along + i across the true track) per frame."""
+def diagnose(frames: list[dict[str, Any]], map_path: Path, mode: str) -> dict[str, Any]:
+    """Navigate the frames (``velocity_bias=mode``), returning the error parts (complex, along + i across the
+    true track) per frame."""
     from mapdb.mapfile.reader import open_map
 
     captured: dict[str, Any] = {}
@@ -85,14 +88,16 @@ def diagnose(frames: list[dict[str, Any]], map_path: Path) -> dict[str, Any]:
 
     def velocity_spy(motion: Any, prev_to_map: complex, dt: float, **kw: Any) -> Any:
         captured["motion"] = (motion, prev_to_map, dt)
+        captured["applied"] = navigator.bias.applied
         return to_velocity(motion, prev_to_map, dt, **kw)
 
-    parts: dict[str, list[complex]] = {k: [] for k in ("total", "scale_heading", "motion", "buildings", "ground")}
+    names = ("corrected", "total", "scale_heading", "motion", "buildings", "ground")
+    parts: dict[str, list[complex]] = {k: [] for k in names}
     scale_err: list[float] = []
     nav_module.match_frames, nav_module.velocity_from_motion = match_spy, velocity_spy
     try:
         with open_map(map_path) as m:
-            navigator = nav_module.Navigator(m)
+            navigator = nav_module.Navigator(m, options=nav_module.NavigatorOptions(velocity_bias=mode))
             building = [c for name, c in navigator.labels.items() if name == "building"]
             fixed, prev_truth = False, None
             for i, frame in enumerate(frames):
@@ -118,6 +123,7 @@ def _add(parts: dict[str, list[complex]], scale_err: list[float], captured: dict
     a_true = image_to_map(prev_truth["altitude_m"] / focal, prev_truth["heading_deg"])
     rot = (v_true / abs(v_true)).conjugate()
     parts["total"].append((a_nav * motion.b / dt - v_true) * rot)
+    parts["corrected"].append((a_nav * motion.b / dt * (1.0 + captured["applied"]) - v_true) * rot)
     parts["scale_heading"].append((a_nav - a_true) * motion.b / dt * rot)
     parts["motion"].append((a_true * motion.b / dt - v_true) * rot)
     scale_err.append(abs(a_nav) / abs(a_true) - 1.0)
@@ -136,17 +142,19 @@ def main() -> None:
     parser.add_argument("--altitude", type=float, default=120.0)
     parser.add_argument("--length", type=float, default=3000.0)
     parser.add_argument("--cache", type=Path, default=Path("/tmp/pose-cache"))
+    parser.add_argument("--mode", default="scale", help="the navigator's velocity_bias (%(default)s)")
     args = parser.parse_args()
-    print("| flight | frames | total | scale/heading | motion (true A) | buildings only | ground only "
+    print("| flight | frames | corrected | measured | scale/heading | motion (true A) | buildings only | ground only "
           "| scale rel. error |")
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for name in args.maps.split(","):
         for case in args.cases.split(","):
             frames = nm._flight(name, case, args.altitude, args.length, args.cache)
             full, thin = nm._maps(name, args.cache)
-            out = diagnose(frames, thin if case == "thin15" else full)
+            out = diagnose(frames, thin if case == "thin15" else full, args.mode)
             p = out["parts"]
-            print(f"| {name} {case} | {len(p['total'])} | {_stats(p['total'])} | {_stats(p['scale_heading'])} "
+            print(f"| {name} {case} | {len(p['total'])} | {_stats(p['corrected'])} | {_stats(p['total'])} "
+                  f"| {_stats(p['scale_heading'])} "
                   f"| {_stats(p['motion'])} | {_stats(p['buildings'])} ({len(p['buildings'])}) "
                   f"| {_stats(p['ground'])} ({len(p['ground'])}) | {np.mean(out['scale_err']):+.4f} |", flush=True)
 
