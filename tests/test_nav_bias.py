@@ -109,3 +109,14 @@ def test_off_mode_corrects_nothing_and_allows_for_the_bias_it_leaves() -> None:
 def test_the_navigator_takes_its_mode_from_the_options(world) -> None:
     for mode in BIAS_MODES:
         assert Navigator(world, options=NavigatorOptions(velocity_bias=mode)).bias.mode == mode
+
+
+def test_scale_mode_takes_out_the_scale_and_allows_for_the_rotation_it_leaves() -> None:
+    # A 4 % scale error and a quarter-degree turn: the scale is taken out, the rotation (which the fixes'
+    # own heading measures better) is left in the velocity and in the allowance.
+    scale, full = VelocityBias(mode="scale"), VelocityBias(mode="full")
+    for b in (scale, full):
+        _fly(b, -0.04 + 0.0045j, 120.0, 0.3)
+    assert scale.c == full.c and scale.applied == complex(full.c.real, 0.0)
+    assert abs(scale.correct(20.0 / (1.0 - 0.04)).real - 20.0) < 0.06
+    assert scale.drift(20.0) > full.drift(20.0)

@@ -103,7 +103,7 @@ class NavigatorOptions:
     stitch_frames: int = DEFAULT_FRAMES
     seed: int = 0
     terrain: bool = True  # False: a frame's baro_altitude_m is its height above the ground (the flat assumption)
-    velocity_bias: str = "off"  # what of the measured bias is taken out (bias.BIAS_MODES; off: measured only)
+    velocity_bias: str = "scale"  # what of the measured bias is taken out (bias.BIAS_MODES; scale: its scale)
     pose_prior: bool = True  # queries carry the heading and scale after a fix (mapdb.match.pose_prior)
     map_update: bool = True  # frames without an applied fix weigh the particles (mapdb.navigation.map_update)
 
