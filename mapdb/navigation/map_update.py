@@ -56,11 +56,12 @@ Monaco 98.1 %.  ``RELIEF_KAPPA`` 0.06 instead of 0.03 changed Andorra by +0.1 an
 ``TEMPER`` 0.5 and 0.1 instead of 0.2 (isotropic) moved Andorra by +0.4 and -0.5 points.  The heading
 (``python benchmarks/map_update_variants.py --maps andorra,monaco --cases heights --starts lis``): 3 nodes
 99.7 % / 98.1 % (Andorra / Monaco), 5 nodes 99.5 % / 98.1 % at 2.5-2.7 ms a frame instead of 1.6-1.9, the
-heading's error added per object as if independent 99.2 % / 97.4 % at 1.0 ms.  Side by side against main on
-the eight flights (heights and 15 % missing, lost-in-space and ``--initial``), within 2 m: Andorra
-99.6-99.7 % (main 80.2-81.0 %), largest error 2.1-2.2 m (6.9-12.8 m); Monaco 96.9-98.1 % (93.1-98.1 %),
-largest 2.9-4.2 m (2.9-5.6 m); no wrong fix, beyond 3 sigma at most 0.9 %, median time a frame 1.00-1.13x
-main's.
+heading's error added per object as if independent 99.2 % / 97.4 % at 1.0 ms.  Side by side against main
+(8a173ad) on the eight flights (heights and 15 % missing, lost-in-space and ``--initial``; ``python
+benchmarks/navigation_masks.py --maps andorra,monaco --cases heights,thin15 --altitudes 120 --starts
+lis,initial --length 3000 --baseline main``), within 2 m: Andorra 99.7 % (main 79.9-83.6 %), largest error
+2.1-2.2 m (7.0-7.4 m); Monaco 96.9-98.3 % (92.6-98.4 %), largest 2.9-3.9 m (2.9-5.5 m); no wrong fix,
+beyond 3 sigma at most 0.9 %, median time a frame 1.00-1.08x main's.
 """
 
 from __future__ import annotations
