@@ -145,9 +145,9 @@ def _read_objects(path: Path, table: LabelTable, options: _ReadOptions, say: Pro
     if kind in ("osm", "layer") and (spool_dir or scratch):
         check_room(path, str(spool_dir or scratch), spool_bytes(path, spool_dir is not None, outlines is not None))
     if kind == "osm":
-        wkb = outlines.add_wkb if outlines is not None else None
+        sink = outlines.add_areas if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
-                                  spool_dir=spool_dir, outlines=wkb, part=part, **osm_options)
+                                  spool_dir=spool_dir, outlines=sink, part=part, **osm_options)
         return spools, counts, outlines, path.stat().st_size < TRIM_INPUT_BYTES
     if kind == "layer":
         return [layer_spool(path, table, read_options, counts, outlines, say, spool_dir)], counts, outlines, False
