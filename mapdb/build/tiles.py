@@ -129,7 +129,7 @@ class FootprintTiles:
         to_zone = Transformer.from_crs("EPSG:4326", zone, always_xy=True)
         back = Transformer.from_crs(zone, "EPSG:4326", always_xy=True)
         for tile in sorted(self.homes) if tiles is None else tiles:
-            xy, area = self._tile_blocks(tuple(tile), to_zone, gap)  # type: ignore[arg-type]
+            xy, area = self._tile_blocks((int(tile[0]), int(tile[1])), to_zone, gap)
             if not len(area):
                 continue
             yield block_objects(xy, area, back, labels, bbox)
