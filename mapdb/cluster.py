@@ -110,10 +110,11 @@ def _remote_client(address: str, timeout_s: float) -> Iterator[Any]:
 def _local_client(jobs: int, timeout_s: float) -> Iterator[Any]:
     distributed = _distributed("--jobs")
     # Workers are whole processes with one thread each (the matcher holds the GIL), listening on the loopback
-    # interface only; the dashboard on a free port (None would still claim 8787), and only errors in the log
-    # (stderr carries the progress bar).
+    # interface only; the dashboard on a free port (None would still claim 8787), and only critical messages in
+    # the log: stderr carries the progress bar and a command's one-line error, and a worker still running a task
+    # when the cluster closes on an error logs its lost heartbeat as an error, with a traceback.
     cluster = distributed.LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                       dashboard_address=":0", silence_logs=logging.ERROR)
+                                       dashboard_address=":0", silence_logs=logging.CRITICAL)
     try:
         client = distributed.Client(cluster, timeout=timeout_s, set_as_default=False)
         try:

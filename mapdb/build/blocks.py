@@ -152,6 +152,13 @@ class BuildingOutlines:
             # (mapdb.build.tiles.SpillingOutlines), until the blocks are made.
             self.keep(shapely.from_wkb(np.asarray(wkbs, dtype=object)[keep]))
 
+    def add_areas(self, geoms: np.ndarray, codes: Sequence[int] | np.ndarray) -> None:
+        """Footprints as shapely geometries in lon/lat, with their label codes (other labels are ignored): an OSM
+        reader's areas (:data:`mapdb.sources.osm.scan.OutlineSink`), kept as WKB before the call returns."""
+        keep = np.flatnonzero(np.asarray(codes) == self.code)
+        if keep.size:
+            self.keep(np.asarray(geoms, dtype=object)[keep])
+
     def add_geometries(self, geoms: np.ndarray, names: np.ndarray, crs: Any) -> None:
         """A layer's geometries in ``crs`` with their label names: the building polygons, taken to lon/lat."""
         geoms = np.asarray(geoms, dtype=object)

@@ -27,14 +27,15 @@ from .tiles import OUTLINES_IN_MEMORY, SpillingOutlines
 __all__ = ["OUTLINES_IN_MEMORY", "layer_spool", "source_outlines"]
 
 
-def source_outlines(table: LabelTable, gap: float | None, scratch: str | None) -> BuildingOutlines | None:
+def source_outlines(table: LabelTable, gap: float | None, scratch: str | None, memory: int | None = None
+                    ) -> BuildingOutlines | None:
     """What keeps a source's building footprints for its blocks (None: no blocks): in memory, or, given a
-    ``scratch`` directory, in tile files there past :data:`OUTLINES_IN_MEMORY` footprints
+    ``scratch`` directory, in tile files there past ``memory`` (default :data:`OUTLINES_IN_MEMORY`) footprints
     (:mod:`mapdb.build.tiles`)."""
     if not forms_blocks(table.labels, gap):
         return None
     code = table.code(BUILDING_LABEL)
-    return BuildingOutlines(code) if scratch is None else SpillingOutlines(code, scratch)
+    return BuildingOutlines(code) if scratch is None else SpillingOutlines(code, scratch, memory)
 
 
 def layer_spool(path: Path, table: LabelTable, options: dict[str, Any], counts: Counter[str],

@@ -136,6 +136,7 @@ def build_map(
     index_dir: str | Path | None = None, spool: str = "auto", jobs: int | None = None,
     scheduler: str | None = None, progress: ProgressLike = None, blocks: bool = True,
     block_gap: float = DEFAULT_GAP_M, dem: Sequence[str | Path] = (), jobs_min_bytes: int | None = None,
+    outlines_in_memory: int | None = None,
 ) -> dict[str, Any]:
     """Read every source, reproject to one metric CRS, clip and write one map file.
 
@@ -174,11 +175,12 @@ def build_map(
     jobs, scheduler : int, str, optional
         Read the sources in parallel, one Dask task a source (two for an OSM extract from
         :data:`~mapdb.build.reading.SPLIT_OSM_BYTES`: its areas and the rest), on a local cluster of ``jobs``
-        worker processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the map is the same as
-        the one read in this process.  A source that fails fails the build, naming the source.  A local
-        cluster is started only when the sources besides the largest add up to ``jobs_min_bytes`` (default
-        :data:`JOBS_MIN_BYTES`) or an OSM extract is read in halves: otherwise they are read in this process
-        (and it is said).
+        worker processes or on the scheduler at ``scheduler`` (see :mod:`mapdb.cluster`); the blocks of a
+        source whose footprints wait in tile files are formed by tasks of their own, over runs of tiles, once
+        it is read.  The map is the same as the one read in this process.  A source that fails fails the
+        build, naming the source.  A local cluster is started only when the sources besides the largest add up
+        to ``jobs_min_bytes`` (default :data:`JOBS_MIN_BYTES`) or an OSM extract is read in halves: otherwise
+        they are read in this process (and it is said).
     dem : sequence of paths
         Elevation rasters (GeoTIFF or SRTM ``.hgt``, any CRS, a mosaic in the order given): the map stores
         each object's ground elevation (:mod:`mapdb.build.elevation`; a version 2 map).  Objects off the DEMs
@@ -189,6 +191,10 @@ def build_map(
     blocks, block_gap : bool, float
         Also store each group of two or more buildings of a source whose footprints lie within ``block_gap``
         metres (in [0, 5]) as a ``building_block`` object (:mod:`mapdb.build.blocks`: a mask's merged blob).
+    outlines_in_memory : int, optional
+        The building footprints of an OSM or layer source kept in memory for its blocks, past which they go to
+        tile files (default :data:`~mapdb.build.tiles.OUTLINES_IN_MEMORY`; :mod:`mapdb.build.tiles`, where a
+        block longer than the tiles' margin is stored in parts).
 
     Returns
     -------
@@ -216,7 +222,8 @@ def build_map(
     say.start(len(sources) + 2, "build")  # one count: each source read, then the projection, then the writing
     read_options = {"bbox": bbox, "raster_classes": raster_classes, "min_area_m2": min_area_m2,
                     "label_column": label_column, "layer_crs": layer_crs, "label": label,
-                    "label_map": _label_map(label_map, label, table), "block_gap": gap}
+                    "label_map": _label_map(label_map, label, table), "block_gap": gap,
+                    "outlines_in_memory": outlines_in_memory}
     osm_options = {"node_index": _checked_node_index(node_index), "index_dir": index_dir}
     if jobs is not None and scheduler is not None:
         raise SourceError("give jobs (a local Dask cluster) or scheduler (an existing one), not both")

@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from pyproj import CRS, Transformer
 
-from ..cluster import run_tasks, worker_count
+from ..cluster import worker_count
 from ..errors import MapdbError, SourceError
 from ..labels import LabelTable
 from ..objects import Objects
@@ -25,9 +25,10 @@ from ..sources import read_source, source_kind
 from ..sources.osm.index import FILE_INDEX_BYTES
 from ..sources.osm.reader import TRIM_INPUT_BYTES, read_osm_spooled
 from ..sources.spool import ObjectSpool, check_room, release_freed_memory, spool_bytes
-from .blocks import blocks_spool
+from .blocks import BuildingOutlines, blocks_spool
 from .inputs import duplicate_input, file_fingerprint, file_sha256
 from .layersource import layer_spool, source_outlines
+from .tiles import FootprintTiles, SpillingOutlines, tile_blocks_spool
 
 __all__ = ["JOBS_MIN_BYTES", "SPLIT_OSM_BYTES", "SPOOL_CHOICES", "SPOOL_INPUT_BYTES", "read_one_source"]
 
@@ -114,38 +115,54 @@ def read_one_source(path: Path, table: LabelTable, options: _ReadOptions, say: P
                     ) -> tuple[list[ObjectSpool], Counter[str]]:
     """One source's objects in lon/lat (those not on Earth dropped and counted) and what its reader skipped.
 
-    A whole build's worth of one source: the unit of work of a parallel build (a Dask task).  The objects come
-    as spools of blocks (:class:`mapdb.sources.spool.ObjectSpool`), in ``EPSG:4326``: an OSM source read with a
-    ``spool_dir`` is written there block by block as it is read (the caller removes the files), anything else
-    is held in memory; a layer is read a batch at a time, and its building footprints past
-    :data:`~mapdb.build.layersource.OUTLINES_IN_MEMORY` wait for their blocks in tile files in ``scratch``, as
-    an OSM source's do.  ``part`` reads one half of an OSM source (:data:`~mapdb.sources.osm.scan.PARTS`; the
-    blocks are the areas' half's).
+    A whole build's worth of one source.  The objects come as spools of blocks
+    (:class:`mapdb.sources.spool.ObjectSpool`), in ``EPSG:4326``: an OSM source read with a ``spool_dir`` is
+    written there block by block as it is read (the caller removes the files), anything else is held in memory;
+    a layer is read a batch at a time, and its building footprints past
+    :data:`~mapdb.build.layersource.OUTLINES_IN_MEMORY` (or the ``outlines_in_memory`` read option) wait for
+    their blocks in tile files in ``scratch``, as an OSM source's do.  ``part`` reads one half of an OSM source
+    (:data:`~mapdb.sources.osm.scan.PARTS`; the blocks are the areas' half's).
     """
+    spools, counts, outlines, small = _read_objects(path, table, options, say, spool_dir, scratch, part)
+    gap = options[0].get("block_gap")
+    if outlines is not None and gap is not None:
+        spools.append(blocks_spool(outlines, table.labels, gap, options[0]["bbox"], say))
+    return _on_earth_only(spools, counts, small)
+
+
+def _read_objects(path: Path, table: LabelTable, options: _ReadOptions, say: Progress | None, spool_dir: str | None,
+                  scratch: str | None, part: str
+                  ) -> tuple[list[ObjectSpool], Counter[str], BuildingOutlines | None, bool]:
+    """A source's objects in lon/lat, what its reader skipped, its building footprints (None: no blocks; the
+    blocks not yet formed) and whether the source is small (no memory worth giving back)."""
     counts: Counter[str] = Counter()
     read_options, osm_options = dict(options[0]), options[1]
     gap = read_options.pop("block_gap", None)
+    memory = read_options.pop("outlines_in_memory", None)
     kind = source_kind(path)
-    outlines = source_outlines(table, gap if part != "rest" else None, scratch if kind in ("osm", "layer") else None)
+    outlines = source_outlines(table, gap if part != "rest" else None, scratch if kind in ("osm", "layer") else None,
+                               memory)
     if kind in ("osm", "layer") and (spool_dir or scratch):
         check_room(path, str(spool_dir or scratch), spool_bytes(path, spool_dir is not None, outlines is not None))
     if kind == "osm":
-        wkb = outlines.add_wkb if outlines is not None else None
+        sink = outlines.add_areas if outlines is not None else None
         spools = read_osm_spooled(path, table, bbox=read_options["bbox"], progress=say, counts=counts,
-                                  spool_dir=spool_dir, outlines=wkb, part=part, **osm_options)
-        small = path.stat().st_size < TRIM_INPUT_BYTES
-    elif kind == "layer":
-        spools = [layer_spool(path, table, read_options, counts, outlines, say, spool_dir)]
-        small = False
-    else:
-        objects = read_source(path, table, progress=say, counts=counts, **read_options)
-        lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
-        spools = [ObjectSpool(objects.labels, "EPSG:4326")]
-        spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
-        del objects
-        small = False  # a raster's windows may have taken much more than the file
-    if outlines is not None and gap is not None:
-        spools.append(blocks_spool(outlines, table.labels, gap, read_options["bbox"], say))
+                                  spool_dir=spool_dir, outlines=sink, part=part, **osm_options)
+        return spools, counts, outlines, path.stat().st_size < TRIM_INPUT_BYTES
+    if kind == "layer":
+        return [layer_spool(path, table, read_options, counts, outlines, say, spool_dir)], counts, outlines, False
+    objects = read_source(path, table, progress=say, counts=counts, **read_options)
+    lon, lat = _to_lonlat(objects) if len(objects) else (objects.x, objects.y)
+    spools = [ObjectSpool(objects.labels, "EPSG:4326")]
+    spools[0].add(Objects(lon, lat, objects.label, objects.area, objects.labels, "EPSG:4326"))
+    del objects
+    return spools, counts, outlines, False  # a raster's windows may have taken much more than the file
+
+
+def _on_earth_only(spools: list[ObjectSpool], counts: Counter[str], small: bool = True
+                   ) -> tuple[list[ObjectSpool], Counter[str]]:
+    """The spools less the objects not on Earth, those counted (after the memory a large source's reading
+    freed is given back)."""
     if not small:
         release_freed_memory()
     # Every source, whatever its CRS, must give places on Earth: a point whose lon/lat is not finite or out of
@@ -195,40 +212,142 @@ def _read_here(paths: list[Path], table: LabelTable, options: _ReadOptions, say:
     return results
 
 
+# A read task's result: the source's objects, what its reader skipped, and its footprints in tile files whose
+# blocks are still to be formed (None: formed, or none).
+_Result = tuple[list[ObjectSpool], Counter[str], FootprintTiles | None]
+
+# The blocks of a source whose footprints wait in tile files are formed by this many tasks a worker (runs of
+# tiles of about equal weight, mapdb.build.tiles.balanced_runs): more than one a worker, so that a worker
+# that frees up late (another still reading) finds some left to take.
+BLOCK_TASKS_PER_WORKER = 4
+
+
+class _Task(NamedTuple):
+    """A task of a parallel read: the function and its arguments, the piece (of :func:`_pieces`) it is part
+    of, and which group of the piece's tiles' blocks it forms (-1: the piece's reading)."""
+
+    fn: Callable[..., Any]
+    args: tuple[Any, ...]
+    piece: int
+    group: int = -1
+
+
 def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions, say: Progress, client: Any,
                      spooling: _Spooling) -> list[tuple[list[ObjectSpool], Counter[str]]]:
-    """The sources read as Dask tasks, one a source or one a half of a large OSM extract (:func:`_pieces`); the
-    results in source order, a source's halves joined, whatever order they end in."""
+    """The sources read as Dask tasks: one a source or one a half of a large OSM extract (:func:`_pieces`), and
+    the blocks of a source whose footprints wait in tile files in tasks of their own, over runs of tiles of
+    about equal weight, submitted as soon as its reading is done.  The results in source order, a source's
+    pieces and groups of blocks joined in the order one process gives them, whatever order they end in."""
     workers = worker_count(client)
     pieces = _pieces(paths, spooling, workers)
     say(f"reading {len(paths)} sources on {workers} Dask workers ({len(pieces)} tasks) ...")
-    results: list[tuple[list[ObjectSpool], Counter[str]] | None] = [None] * len(pieces)
-    tasks = [(paths[i], table, options, part, spool_dir, scratch) for i, part, spool_dir, scratch in pieces]
+    read = _ClusterRead(paths, table, options, pieces, say, workers)
+    # The longest first (the largest sources, an extract's areas before the rest), so that no long task starts
+    # last while the other workers idle.
+    order = sorted(range(len(pieces)), key=lambda k: (-_size(paths[pieces[k][0]]), k))
+    tasks = [_Task(_read_task, (paths[i], table, options, part, spool_dir, scratch), k)
+             for k in order for i, part, spool_dir, scratch in [pieces[k]]]
     try:
-        for k, result in run_tasks(client, _read_task, tasks):
-            results[k] = result
-            _say_read(pieces[k][0], pieces, results, paths, say)
+        _run_pool(client, workers, tasks, read.done)
     except MapdbError:
         raise
     except Exception as exc:  # a worker lost (killed, out of memory): the sources not read are named
-        pending = ", ".join(dict.fromkeys(str(paths[p[0]]) for p, r in zip(pieces, results, strict=True) if r is None))
+        pending = ", ".join(str(paths[i]) for i in sorted(read.left) if read.left[i])
         detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
         raise SourceError(f"{pending}: not read, a Dask worker failed ({exc.__class__.__name__}: {detail})") from None
-    joined: list[tuple[list[ObjectSpool], Counter[str]]] = [([], Counter()) for _ in paths]
-    for (i, *_), result in zip(pieces, results, strict=True):
-        if result is not None:
-            joined[i][0].extend(result[0])
-            joined[i][1].update(result[1])
-    return joined
+    return read.joined()
 
 
-def _say_read(i: int, pieces: list[tuple[int, str, str | None, str | None]],
-              results: list[tuple[list[ObjectSpool], Counter[str]] | None], paths: list[Path], say: Progress) -> None:
-    """Say that source ``i`` is read, once all its pieces are."""
-    mine = [r for r, piece in zip(results, pieces, strict=True) if piece[0] == i]
-    if all(r is not None for r in mine):
-        say(f"  {sum(_count(r[0]) for r in mine if r is not None)} objects from {paths[i].name}")
-        say.advance()
+def _run_pool(client: Any, workers: int, tasks: list[_Task], done: Callable[[_Task, Any], list[_Task]]) -> None:
+    """Run ``tasks`` on the cluster, at most one a worker at a time, the next handed out as one ends: so that a
+    task goes to the worker that is free, not to one still busy.  ``done(task, result)`` is called here for each
+    as it ends, and gives tasks to run after those waiting.  A task's error is raised here (the others are
+    then cancelled)."""
+    import distributed
+
+    waiting = list(tasks)
+    running: dict[str, tuple[_Task, Any]] = {}
+    ended = distributed.as_completed(loop=client.loop, with_results=True)
+
+    def hand_out() -> None:
+        while waiting and len(running) < workers:
+            task = waiting.pop(0)
+            future = client.submit(task.fn, *task.args, pure=False)
+            running[future.key] = (task, future)
+            ended.add(future)
+
+    try:
+        hand_out()
+        for future, result in ended:
+            task, _ = running.pop(future.key)
+            waiting.extend(done(task, result))
+            hand_out()
+    finally:
+        client.cancel([future for _, future in running.values()])
+
+
+class _ClusterRead:
+    """What a parallel read has gathered: each task's result, the tasks each source still waits for, and the
+    tile files whose blocks are being formed."""
+
+    def __init__(self, paths: list[Path], table: LabelTable, options: _ReadOptions,
+                 pieces: list[tuple[int, str, str | None, str | None]], say: Progress, workers: int) -> None:
+        self.paths, self.table, self.options, self.pieces, self.say = paths, table, options, pieces, say
+        self.groups = BLOCK_TASKS_PER_WORKER * workers
+        self.results: dict[tuple[int, int], tuple[list[ObjectSpool], Counter[str]]] = {}
+        self.left = Counter(i for i, *_ in pieces)
+        self.tiles: dict[int, tuple[FootprintTiles, list[int]]] = {}  # piece: tiles, [tasks left, blocks, tasks]
+
+    def done(self, task: _Task, result: Any) -> list[_Task]:
+        """Keep a task's result; the tasks forming the blocks of a piece just read, if its footprints wait in
+        tile files."""
+        if isinstance(result, MapdbError):
+            raise result
+        source = self.pieces[task.piece][0]
+        more = []
+        if task.group < 0:
+            spools, counts, tiles = result
+            self.results[task.piece, -1] = (spools, counts)
+            if tiles is not None:
+                more = self._block_tasks(task.piece, tiles)
+        else:
+            spools, counts, cut = result
+            self.results[task.piece, task.group] = (spools, counts)
+            self._formed(task.piece, _count(spools), cut)
+        self.left[source] += len(more) - 1
+        if not self.left[source]:
+            mine = [r for (k, _), r in self.results.items() if self.pieces[k][0] == source]
+            self.say(f"  {sum(_count(spools) for spools, _ in mine)} objects from {self.paths[source].name}")
+            self.say.advance()
+        return more
+
+    def _block_tasks(self, piece: int, tiles: FootprintTiles) -> list[_Task]:
+        groups = tiles.groups(self.groups)
+        if not groups:
+            tiles.discard()
+            return []
+        self.tiles[piece] = (tiles, [len(groups), 0, len(groups)])
+        path, read_options = self.paths[self.pieces[piece][0]], self.options[0]
+        return [_Task(_blocks_task, (path, tiles, group, self.table.labels, read_options["block_gap"],
+                                     read_options["bbox"]), piece, j) for j, group in enumerate(groups)]
+
+    def _formed(self, piece: int, blocks: int, cut: int) -> None:
+        """One group of a piece's blocks formed: once all are, say so and remove the tile files."""
+        tiles, state = self.tiles[piece]
+        tiles.cut += cut
+        state[0] -= 1
+        state[1] += blocks
+        if not state[0]:
+            self.say(tiles.said(state[1], self.options[0]["block_gap"], f" ({state[2]} tasks)"))
+            tiles.discard()
+
+    def joined(self) -> list[tuple[list[ObjectSpool], Counter[str]]]:
+        """Each source's objects and counts: its pieces in order, each piece's objects before its blocks."""
+        out: list[tuple[list[ObjectSpool], Counter[str]]] = [([], Counter()) for _ in self.paths]
+        for (piece, _), (spools, counts) in sorted(self.results.items()):
+            out[self.pieces[piece][0]][0].extend(spools)
+            out[self.pieces[piece][0]][1].update(counts)
+        return out
 
 
 # An OSM extract from this size is read by two tasks at once on a cluster of two workers or more: its areas and
@@ -261,15 +380,44 @@ def _size(path: Path) -> int:
 
 
 def _read_task(path: Path, table: LabelTable, options: _ReadOptions, part: str = "all", spool_dir: str | None = None,
-               scratch: str | None = None) -> tuple[list[ObjectSpool], Counter[str]]:
-    """:func:`read_one_source` on a worker: an unexpected error still names its source in one line."""
+               scratch: str | None = None) -> _Result | MapdbError:
+    """:func:`read_one_source` on a worker, but the blocks of footprints that wait in tile files left to be formed
+    (their projection chosen first).  An error is returned, not raised (:func:`_task_error`)."""
     try:
-        return read_one_source(path, table, options, None, spool_dir, scratch, part)
-    except MapdbError:
-        raise
+        spools, counts, outlines, small = _read_objects(path, table, options, None, spool_dir, scratch, part)
+        tiles = outlines.tiles if isinstance(outlines, SpillingOutlines) else None
+        gap = options[0].get("block_gap")
+        if tiles is not None:
+            tiles.zone()
+        elif outlines is not None and gap is not None:
+            spools.append(blocks_spool(outlines, table.labels, gap, options[0]["bbox"], None))
+        return (*_on_earth_only(spools, counts, small), tiles)
     except Exception as exc:
-        detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
-        raise SourceError(f"{path}: reading failed on a Dask worker ({exc.__class__.__name__}: {detail})") from None
+        return _task_error(path, "reading", exc)
+
+
+def _blocks_task(path: Path, tiles: FootprintTiles, group: list[tuple[int, int]], labels: tuple[str, ...],
+                 gap: float, bbox: tuple[float, float, float, float] | None
+                 ) -> tuple[list[ObjectSpool], Counter[str], int] | MapdbError:
+    """The blocks of a group of a source's tiles on a worker (:func:`~mapdb.build.tiles.tile_blocks_spool`), and
+    how many were cut.  An error is returned, not raised (:func:`_task_error`)."""
+    try:
+        spool, cut = tile_blocks_spool(tiles, labels, gap, bbox, group)
+        return (*_on_earth_only([spool], Counter()), cut)
+    except Exception as exc:
+        return _task_error(path, "forming blocks", exc)
+
+
+def _task_error(path: Path, doing: str, exc: Exception) -> MapdbError:
+    """A task's error as the one-line error the build raises, naming the source.
+
+    Returned by the task rather than raised: a task that raises is logged by its Dask worker, with a traceback,
+    on the command's stderr, where a bad source must give one line.
+    """
+    if isinstance(exc, MapdbError):
+        return exc
+    detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
+    return SourceError(f"{path}: {doing} failed on a Dask worker ({exc.__class__.__name__}: {detail})")
 
 
 def _paying_jobs(sources: Sequence[str | Path], jobs: int | None, least: int, say: Progress) -> int | None:

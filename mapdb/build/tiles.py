@@ -45,7 +45,8 @@ from ..sources.spool import ObjectSpool
 from .blocks import DEFAULT_GAP_M, BuildingOutlines, block_members, block_objects
 from .blockstats import median_of
 
-__all__ = ["DEFAULT_MARGIN_M", "OUTLINES_IN_MEMORY", "TILE_DEG", "FootprintTiles", "SpillingOutlines"]
+__all__ = ["DEFAULT_MARGIN_M", "OUTLINES_IN_MEMORY", "TILE_DEG", "FootprintTiles", "SpillingOutlines", "balanced_runs",
+           "tile_blocks_spool"]
 
 # Footprints a source's outlines keep in memory (about 13 MB of WKB); past them, they go to tile files.  An OSM
 # extract's footprints held whole were the peak of its build: 767 MB of 456,355 objects (Andorra copied 64 times).
@@ -86,6 +87,7 @@ class FootprintTiles:
         self.count = 0
         self.cut = 0  # blocks longer than the margin, stored in parts
         self.homes: set[tuple[int, int]] = set()
+        self._zone: str | None = None
 
     def __len__(self) -> int:
         return self.count
@@ -112,25 +114,49 @@ class FootprintTiles:
                 if meets.any():
                     self._write(tile[meets], seq[meets], (di == 0) & (dj == 0), wkb[meets])
         self.homes.update(map(tuple, np.unique(home, axis=0).tolist()))
+        self._zone = None
 
     def blocks(self, labels: Sequence[str], gap: float = DEFAULT_GAP_M,
-               bbox: tuple[float, float, float, float] | None = None) -> Iterator[Objects]:
+               bbox: tuple[float, float, float, float] | None = None,
+               tiles: Sequence[tuple[int, int]] | None = None) -> Iterator[Objects]:
         """Each tile's blocks, as objects labelled :data:`BLOCK_LABEL` in lon/lat (``bbox`` keeps those whose
-        centroid lies inside), tile by tile."""
+        centroid lies inside), tile by tile: of every home tile in order, or of ``tiles`` (a group of
+        :meth:`groups`) only."""
         labels = tuple(labels)
         if self.count < 2:
             return
-        lon = median_of(lambda: (c[:, 0] for c in self._centres()))
-        lat = median_of(lambda: (c[:, 1] for c in self._centres()))
-        zone = (f"+proj=laea +lat_0={float(lat):.6f} +lon_0={float(lon):.6f} "
-                "+datum=WGS84 +units=m +no_defs")
+        zone = self.zone()
         to_zone = Transformer.from_crs("EPSG:4326", zone, always_xy=True)
         back = Transformer.from_crs(zone, "EPSG:4326", always_xy=True)
-        for tile in sorted(self.homes):
-            xy, area = self._tile_blocks(tile, to_zone, gap)
+        for tile in sorted(self.homes) if tiles is None else tiles:
+            xy, area = self._tile_blocks((int(tile[0]), int(tile[1])), to_zone, gap)
             if not len(area):
                 continue
             yield block_objects(xy, area, back, labels, bbox)
+
+    def said(self, blocks: int, gap: float, tasks: str = "") -> str:
+        """What a build says of the ``blocks`` formed from these footprints (``tasks``: on how many)."""
+        cut = f"; {self.cut:,} longer than the {self.margin_m:g} m margin, stored in parts" if self.cut else ""
+        return (f"  {blocks:,} blocks of touching buildings (gap {gap:g} m) from {self.count:,} footprints, "
+                f"in {len(self.homes):,} tiles{tasks}{cut}")
+
+    def zone(self) -> str:
+        """The projection blocks are measured in: about the median of all the footprints' centroids, as
+        :meth:`BuildingOutlines.blocks` takes it (read from disk once, then kept, so that the groups of tiles
+        made into blocks elsewhere need not read every centroid again)."""
+        if self._zone is None:
+            lon = median_of(lambda: (c[:, 0] for c in self._centres()))
+            lat = median_of(lambda: (c[:, 1] for c in self._centres()))
+            self._zone = f"+proj=laea +lat_0={float(lat):.6f} +lon_0={float(lon):.6f} +datum=WGS84 +units=m +no_defs"
+        return self._zone
+
+    def groups(self, n: int) -> list[list[tuple[int, int]]]:
+        """The home tiles in order, cut into at most ``n`` runs of about equal weight (:func:`balanced_runs` of
+        the tile files' sizes): their blocks, formed apart (one task each) and joined in this order, are those
+        of :meth:`blocks`."""
+        tiles = sorted(self.homes)
+        sizes = [self._path(tile).stat().st_size for tile in tiles]
+        return [tiles[run.start:run.stop] for run in balanced_runs(sizes, n)]
 
     def discard(self) -> None:
         """Remove the tile files."""
@@ -227,6 +253,33 @@ class FootprintTiles:
                 yield block.reshape(-1, 2)
 
 
+def balanced_runs(weights: Sequence[float], n: int) -> list[range]:
+    """``weights`` cut into at most ``n`` consecutive runs of about equal total weight (none empty).
+
+    Each cut is put where the running total comes nearest to a multiple of the total over ``n``: a run weighs
+    the total over ``n`` give or take the heaviest item, whatever the order of the weights.
+
+    Examples
+    --------
+    >>> balanced_runs([5, 1, 1, 1, 1, 1, 5, 1], 2)
+    [range(0, 4), range(4, 8)]
+    >>> balanced_runs([1, 1], 4)
+    [range(0, 1), range(1, 2)]
+    """
+    total = np.cumsum(np.asarray(weights, np.float64))
+    if not total.size or n <= 1:
+        return [range(0, total.size)] if total.size else []
+    ends = [0]
+    for k in range(1, n):
+        target = total[-1] * k / n
+        at = int(np.searchsorted(total, target))  # the first item whose running total reaches the target
+        # Cut after it or before it, whichever running total is nearer the target.
+        end = at + 1 if at < total.size and (at == 0 or total[at] - target <= target - total[at - 1]) else at
+        ends.append(min(max(end, ends[-1]), total.size))
+    ends.append(total.size)
+    return [range(a, b) for a, b in zip(ends[:-1], ends[1:], strict=True) if b > a]
+
+
 def _reach(tile: np.ndarray, margin_m: float) -> tuple[np.ndarray, ...]:
     """The reach of tiles ``(n, 2)``: west, south, east, north (degrees), the margin in degrees of longitude
     taken at the tile's latitude farthest from the equator."""
@@ -289,15 +342,26 @@ class SpillingOutlines(BuildingOutlines):
               say: Progress | None) -> ObjectSpool:
         if self.tiles is None:
             return super().spool(labels, gap, bbox, say)
-        spool = ObjectSpool(labels, "EPSG:4326", self.directory, "blocks-")
         try:
-            for blocks in self.tiles.blocks(labels, gap, bbox):
-                spool.add(blocks)
+            spool, _ = tile_blocks_spool(self.tiles, labels, gap, bbox)
             if say is not None:
-                cut = f"; {self.tiles.cut:,} longer than the {self.margin_m:g} m margin, stored in parts" \
-                    if self.tiles.cut else ""
-                say(f"  {len(spool):,} blocks of touching buildings (gap {gap:g} m) from {len(self):,} footprints, "
-                    f"in {len(self.tiles.homes):,} tiles{cut}")
+                say(self.tiles.said(len(spool), gap))
         finally:
             self.tiles.discard()
         return spool
+
+
+def tile_blocks_spool(tiles: FootprintTiles, labels: Sequence[str], gap: float,
+                      bbox: tuple[float, float, float, float] | None,
+                      group: Sequence[tuple[int, int]] | None = None) -> tuple[ObjectSpool, int]:
+    """The blocks of every home tile, or of a ``group`` of them (:meth:`FootprintTiles.groups`), spooled to a
+    file beside the tiles' directory; and how many of them were longer than the margin (stored in parts).
+
+    The unit of work of a parallel build's blocks (:mod:`mapdb.build.reading`): the groups' spools, joined
+    in the groups' order, hold the objects of the spool of all the tiles, in the same order.
+    """
+    spool = ObjectSpool(labels, "EPSG:4326", tiles.directory.parent, "blocks-")
+    cut = tiles.cut
+    for blocks in tiles.blocks(labels, gap, bbox, group):
+        spool.add(blocks)
+    return spool, tiles.cut - cut

@@ -64,17 +64,17 @@ def _point_objects(lon: array, lat: array, code: array, labels: tuple[str, ...])
                    np.zeros(len(code)), labels, "EPSG:4326")
 
 
-def _area_objects(wkbs: list[str], codes: list[int], labels: tuple[str, ...], counts: Counter[str]) -> Objects:
-    """Centroid and m^2 area of osmium's multipolygons, all in a few vectorised shapely calls.
+def _area_objects(geoms: np.ndarray, codes: list[int], labels: tuple[str, ...], counts: Counter[str]) -> Objects:
+    """Centroid and m^2 area of osmium's multipolygons (shapely geometries in lon/lat, whose coordinates this
+    moves in place), all in a few vectorised shapely calls.
 
     A multipolygon that is not valid in the local equal-area coordinates (osmium checks the rings
     it assembles, so this is rare) is repaired with ``make_valid`` and counted, or dropped and counted
     when nothing of it has an area.
     """
-    if not wkbs:
+    if not len(geoms):
         return Objects.empty(labels, "EPSG:4326")
     codes_ = np.asarray(codes, np.int32)
-    geoms = shapely.from_wkb(np.asarray(wkbs, dtype=object))
     bounds = shapely.bounds(geoms)
     lon0 = (bounds[:, 0] + bounds[:, 2]) / 2
     lat0 = (bounds[:, 1] + bounds[:, 3]) / 2

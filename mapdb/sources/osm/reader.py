@@ -108,7 +108,8 @@ def read_osm_spooled(path: str | Path, table: LabelTable, bbox: tuple[float, flo
     The spools are the points, the areas, then the ways and intersections; their files (``osm-*`` in
     ``spool_dir``) are the caller's to remove (:meth:`mapdb.sources.spool.ObjectSpool.discard`, or with the directory).
     Parameters, errors and the objects read are those of :func:`read_osm`; ``outlines``, when given, is handed
-    the outline (WKB in lon/lat) and label code of every area read, block by block, before it is dropped
+    the outline (a shapely geometry in lon/lat, to copy) and label code of every area read, block by block,
+    before it is dropped
     (the builder's blocks of touching buildings, :class:`mapdb.build.blocks.BuildingOutlines`).  ``part``
     (one of :data:`~mapdb.sources.osm.scan.PARTS`) reads all the objects, or only the areas or only the rest:
     two processes reading the two halves give, together, the objects and counts of one read.
