@@ -36,14 +36,19 @@ def _frame(objects, pose: complex, radius: float, rng) -> tuple[np.ndarray, np.n
     return z[near] - pose + noise, objects.label[near].astype(np.int64)
 
 
+def _centre_frame(m, radius: float, rng) -> tuple[tuple[float, ...], complex, np.ndarray, np.ndarray]:
+    """The map's bounds, its centre (the frame's true place) and the frame seen there (:func:`_frame`)."""
+    x0, y0, x1, y1 = m.bounds
+    truth = complex((x0 + x1) / 2, (y0 + y1) / 2)
+    offsets, codes = _frame(m.all(), truth, radius, rng)
+    return (x0, y0, x1, y1), truth, offsets, codes
+
+
 def test_the_true_place_scores_highest_and_a_foreign_frame_moves_nothing(paper_setup) -> None:
     map_path, _ = paper_setup
     rng = np.random.default_rng(5)
     with open_map(map_path) as m:
-        objects = m.all()
-        x0, y0, x1, y1 = m.bounds
-        truth = complex((x0 + x1) / 2, (y0 + y1) / 2)
-        offsets, codes = _frame(objects, truth, 50.0, rng)
+        (x0, y0, x1, y1), truth, offsets, codes = _centre_frame(m, 50.0, rng)
         assert offsets.size >= 10
         sigmas = np.full(offsets.size, 1.0)
         field = NearestObjects(m, (x0 - 150, y0 - 150, x1 + 150, y1 + 150))
@@ -67,10 +72,7 @@ def test_the_update_moves_the_cloud_to_the_objects_and_skips_empty_frames(paper_
     map_path, _ = paper_setup
     rng = np.random.default_rng(6)
     with open_map(map_path) as m:
-        objects = m.all()
-        x0, y0, x1, y1 = m.bounds
-        truth = complex((x0 + x1) / 2, (y0 + y1) / 2)
-        offsets, codes = _frame(objects, truth, 45.0, rng)
+        _, truth, offsets, codes = _centre_frame(m, 45.0, rng)
         orientation = Orientation(heading=HEADING, scale=SCALE, heading_sigma=0.5, scale_rel_sigma=0.005, fixed_s=0.0)
         to_map = orientation.to_map()
         assert to_map is not None
