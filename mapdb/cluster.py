@@ -4,7 +4,8 @@ The one place that sets Dask up (``mapdb analyze --jobs/--scheduler``, and later
 :func:`open_client` gives ``None`` (run in this process, no Dask needed), a client of a
 :class:`distributed.LocalCluster` of ``jobs`` single-threaded worker processes listening on the loopback
 interface only, or a client of the scheduler at ``scheduler``; :func:`run_tasks` runs a function over a
-list of argument tuples through either and yields each result as it completes.
+list of argument tuples through either and yields each result as it completes; :func:`run_pool` runs tasks
+on a cluster at most one a worker at a time, each ending task free to add more.
 
 Dask is an optional extra: without it, asking for ``jobs`` or a ``scheduler`` raises a one-line
 :class:`DaskMissingError` saying how to install it.  A scheduler that does not answer within
@@ -31,6 +32,7 @@ __all__ = [
     "DaskMissingError",
     "SchedulerError",
     "open_client",
+    "run_pool",
     "run_tasks",
     "worker_count",
 ]
@@ -160,3 +162,32 @@ def run_tasks(client: Any, fn: Callable[..., Any], tasks: Sequence[tuple[Any, ..
             yield index[future.key], result
     finally:
         client.cancel([f for f in futures if not f.done()])
+
+
+def run_pool(client: Any, limit: int, tasks: list[Any], done: Callable[[Any, Any], list[Any]]) -> None:
+    """Run ``tasks`` on the cluster, at most ``limit`` at a time, the next handed out as one ends: so that a task
+    goes to the worker that is free, not to one still busy (``limit``: the workers).  Each task has ``fn`` and
+    ``args`` (it runs ``fn(*args)``); ``done(task, result)`` is called here for each as it ends, and gives tasks
+    to run after those waiting.  An exception ``done`` raises is raised here (the tasks running are then
+    cancelled)."""
+    import distributed
+
+    waiting = list(tasks)
+    running: dict[str, tuple[Any, Any]] = {}
+    ended = distributed.as_completed(loop=client.loop, with_results=True)
+
+    def hand_out() -> None:
+        while waiting and len(running) < limit:
+            task = waiting.pop(0)
+            future = client.submit(task.fn, *task.args, pure=False)
+            running[future.key] = (task, future)
+            ended.add(future)
+
+    try:
+        hand_out()
+        for future, result in ended:
+            task, _ = running.pop(future.key)
+            waiting.extend(done(task, result))
+            hand_out()
+    finally:
+        client.cancel([future for _, future in running.values()])

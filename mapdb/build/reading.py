@@ -16,7 +16,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from pyproj import CRS, Transformer
 
-from ..cluster import worker_count
+from ..cluster import run_pool, worker_count
 from ..errors import MapdbError, SourceError
 from ..labels import LabelTable
 from ..objects import Objects
@@ -248,7 +248,7 @@ def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions
     tasks = [_Task(_read_task, (paths[i], table, options, part, spool_dir, scratch), k)
              for k in order for i, part, spool_dir, scratch in [pieces[k]]]
     try:
-        _run_pool(client, workers, tasks, read.done)
+        run_pool(client, workers, tasks, read.done)
     except MapdbError:
         raise
     except Exception as exc:  # a worker lost (killed, out of memory): the sources not read are named
@@ -256,34 +256,6 @@ def _read_on_cluster(paths: list[Path], table: LabelTable, options: _ReadOptions
         detail = " ".join(str(exc).split())[:200] or exc.__class__.__name__
         raise SourceError(f"{pending}: not read, a Dask worker failed ({exc.__class__.__name__}: {detail})") from None
     return read.joined()
-
-
-def _run_pool(client: Any, workers: int, tasks: list[_Task], done: Callable[[_Task, Any], list[_Task]]) -> None:
-    """Run ``tasks`` on the cluster, at most one a worker at a time, the next handed out as one ends: so that a
-    task goes to the worker that is free, not to one still busy.  ``done(task, result)`` is called here for each
-    as it ends, and gives tasks to run after those waiting.  A task's error is raised here (the others are
-    then cancelled)."""
-    import distributed
-
-    waiting = list(tasks)
-    running: dict[str, tuple[_Task, Any]] = {}
-    ended = distributed.as_completed(loop=client.loop, with_results=True)
-
-    def hand_out() -> None:
-        while waiting and len(running) < workers:
-            task = waiting.pop(0)
-            future = client.submit(task.fn, *task.args, pure=False)
-            running[future.key] = (task, future)
-            ended.add(future)
-
-    try:
-        hand_out()
-        for future, result in ended:
-            task, _ = running.pop(future.key)
-            waiting.extend(done(task, result))
-            hand_out()
-    finally:
-        client.cancel([future for _, future in running.values()])
 
 
 class _ClusterRead:

@@ -312,10 +312,7 @@ class ParticleFilter:
         """Weigh the particles by a log-likelihood a particle (the map update, :mod:`mapdb.navigation.map_update`),
         then keep the cloud at least ``keep_spread_m`` wide per axis (:meth:`_keep_spread`).  Returns the
         effective number of particles after the weighing, before any resampling."""
-        after = self.logw + loglik
-        w = np.exp(after - float(np.max(after)))
-        ess = float(w.sum() ** 2 / np.sum(w**2))
-        self._reweigh(loglik)
+        ess = self._reweigh(loglik)
         self._keep_spread(keep_spread_m)
         return ess
 
@@ -395,12 +392,16 @@ class ParticleFilter:
         self.p, self.v = p_new, v_new
         self.logw = np.full(self.n, -math.log(self.n))
 
-    def _reweigh(self, loglik: np.ndarray) -> None:
+    def _reweigh(self, loglik: np.ndarray) -> float:
+        """Add ``loglik`` to the log weights, resampling when too few particles carry them; the effective
+        number of particles after the weighing, before any resampling."""
         self.logw = self.logw + loglik
         self.logw -= self.logw.max()
         self.logw -= math.log(np.exp(self.logw).sum())
-        if 1.0 / np.sum(self.weights**2) < RESAMPLE_FRACTION * self.n:
+        ess = float(1.0 / np.sum(self.weights**2))
+        if ess < RESAMPLE_FRACTION * self.n:
             self.resample()
+        return ess
 
     def resample(self) -> None:
         """Systematic resampling, then a small jitter (module docs)."""

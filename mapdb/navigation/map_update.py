@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 
 from .filter import ParticleFilter
-from .orientation import HEADING_DRIFT_DEG_S, HEADING_FLOOR_DEG, SCALE_DRIFT_S, SCALE_FLOOR, Orientation
+from .orientation import Orientation
 from .velocity import FramePoints
 
 __all__ = ["CAP_M", "CELL_M", "CLUTTER_RADIUS_M", "CLUTTER_SHARE", "HEADING_NODES", "MARGIN_M", "NearestObjects",
@@ -269,9 +269,7 @@ class MapUpdate:
         if points.border is not None:
             keep &= ~points.border
         offsets = to_map * points.z[keep]
-        age = orientation.age(time_s)
-        heading_sigma = math.hypot(max(orientation.heading_sigma, HEADING_FLOOR_DEG), HEADING_DRIFT_DEG_S * age)
-        scale_sigma = math.hypot(max(orientation.scale_rel_sigma, SCALE_FLOOR), SCALE_DRIFT_S * age)
+        heading_sigma, scale_sigma = orientation.errors(time_s)
         r = np.abs(offsets)
         blob = self.blob_floor_px * orientation.scale
         sigma_t = np.full(r.size, math.hypot(blob, floor_m))

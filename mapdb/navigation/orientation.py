@@ -135,7 +135,13 @@ class Orientation:
         and ``SCALE_DRIFT_S`` a second since the last fix; None before a fix set them."""
         if self.heading is None or self.scale is None or self.fixed_s is None:
             return None
-        age = self.age(time_s)
-        heading_sigma = math.hypot(max(self.heading_sigma, HEADING_FLOOR_DEG), HEADING_DRIFT_DEG_S * age)
-        scale_sigma = math.hypot(max(self.scale_rel_sigma, SCALE_FLOOR), SCALE_DRIFT_S * age)
+        heading_sigma, scale_sigma = self.errors(time_s)
         return PosePrior(disc[0], disc[1], disc[2], self.heading % 360.0, heading_sigma, self.scale, scale_sigma)
+
+    def errors(self, time_s: float | None) -> tuple[float, float]:
+        """The heading's error (degrees) and the scale's relative error at ``time_s``: the carried ones widened to
+        at least ``HEADING_FLOOR_DEG`` and ``SCALE_FLOOR`` and grown by ``HEADING_DRIFT_DEG_S`` and
+        ``SCALE_DRIFT_S`` a second since the last fix (the pose prior's and the map update's)."""
+        age = self.age(time_s)
+        return (math.hypot(max(self.heading_sigma, HEADING_FLOOR_DEG), HEADING_DRIFT_DEG_S * age),
+                math.hypot(max(self.scale_rel_sigma, SCALE_FLOOR), SCALE_DRIFT_S * age))
