@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._scipy import betainc
+from . import _kernel
 
 __all__ = ["log10_binomial_tail", "log10_nfa_curve"]
 
@@ -109,7 +110,7 @@ def log10_nfa_curve(
     >>> bool(nfa[0] < -10), bool(nfa[1] > 0), int(k[0])
     (True, True, 10)
     """
-    u = np.asarray(u, dtype=np.float64)
+    u = np.ascontiguousarray(u, dtype=np.float64)
     if u.ndim != 2:
         raise ValueError(f"u must be 2-D (hypotheses x objects), got shape {u.shape}")
     h, n = u.shape
@@ -117,16 +118,20 @@ def log10_nfa_curve(
     if h == 0 or trials <= 0:
         return np.full(h, np.inf), np.zeros(h, dtype=np.int64)
     successes, failures, log10_trials = _counts(trials)
+    if shape is not None:
+        shape = np.ascontiguousarray(np.broadcast_to(np.asarray(shape, dtype=np.float64), u.shape))
     if sample is not None:
-        u = np.where(sample, -1.0, u)  # sorts the hypothesis's own objects first, where they are skipped
-    p = _trial_chances(u, n_sample, shape)
-    # Every k here lies in 1..trials, so the tail is the incomplete beta function itself (no edge cases):
-    # called directly, it costs a third of the general log10_binomial_tail on these small arrays.
-    with np.errstate(divide="ignore"):
-        tail = np.log10(betainc(successes, failures, np.minimum(np.maximum(p, 0.0), 1.0)))
-    curve = log10_tests + log10_trials + np.maximum(tail, _LOG10_FLOOR)
-    best = curve.argmin(axis=1)
-    return curve[np.arange(h), best], best + 1 + n_sample
+        sample = np.ascontiguousarray(np.broadcast_to(np.asarray(sample, dtype=bool), u.shape))
+    # The compiled kernel sorts each row and forms the chances (clipped to [0, 1]); scipy's incomplete beta
+    # function gives the tail in one ufunc call (its exact values), and the kernel again takes log10, the floor,
+    # the curve and its minimum.  Every k here lies in 1..trials, so the tail is betainc itself (no edge cases).
+    p = np.empty((h, trials))
+    _kernel.trial_chances(u, shape, sample, n_sample, p)
+    betainc(successes, failures, p, out=p)
+    nfa = np.empty(h)
+    best = np.empty(h, dtype=np.int64)
+    _kernel.curve_minimum(p, log10_tests + log10_trials, _LOG10_FLOOR, nfa, best)
+    return nfa, best + 1 + n_sample
 
 
 _COUNTS: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
@@ -140,31 +145,3 @@ def _counts(trials: int) -> tuple[np.ndarray, np.ndarray, float]:
         successes = np.arange(1, trials + 1, dtype=np.float64)
         found = _COUNTS[trials] = successes, trials - successes + 1.0, np.log10(trials)
     return found
-
-
-def _trial_chances(u: np.ndarray, n_sample: int, shape: np.ndarray | None) -> np.ndarray:
-    """``p[h, j]``: the chance under the null that an object lands within the ``j``-th threshold of hypothesis
-    ``h`` (thresholds the trial objects' sorted ``u / shape``, the ``n_sample`` smallest skipped)."""
-    if shape is None:
-        u_sorted = np.sort(u, axis=1)[:, n_sample:]  # the k-th smallest for k = s+1 .. n
-        with np.errstate(over="ignore", invalid="ignore"):
-            p = -np.expm1(-u_sorted)  # 1 - exp(-u), accurate for small u; inf -> 1
-        return np.where(np.isfinite(u_sorted), p, 1.0)
-    shape = np.asarray(shape, dtype=np.float64)
-    if shape.shape != u.shape:
-        shape = np.broadcast_to(shape, u.shape)
-    v = u / shape
-    order = v.argsort(axis=1)
-    rows = np.arange(len(v))[:, None]
-    v_sorted = v[rows, order[:, n_sample:]]
-    rest = shape[rows, order[:, n_sample:]]  # (H, trials): the trial objects
-    # p[h, j] = mean over trial objects i of 1 - exp(-tau_j * shape_i), tau_j the j-th threshold.  (The mean as
-    # numpy's: the sum, then divided by the count.)
-    with np.errstate(over="ignore", invalid="ignore"):
-        p = -(np.add.reduce(np.expm1(-v_sorted[:, :, None] * rest[:, None, :]), axis=2)
-              / rest.shape[1])  # inf thresholds give 1 already
-    if np.isnan(p).any():  # only for degenerate shapes (0 or inf): count such objects as certain chances
-        chance = -np.expm1(-v_sorted[:, :, None] * rest[:, None, :])
-        chance = np.where(np.isfinite(v_sorted)[:, :, None], chance, 1.0)
-        p = np.nan_to_num(chance, nan=1.0).mean(axis=2)
-    return p

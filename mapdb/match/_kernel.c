@@ -1,0 +1,793 @@
+/* mapdb's compiled kernel: the matcher's per-image arithmetic, on the CPython C API alone.
+ *
+ * Arrays come in through the buffer protocol (numpy arrays are buffers), C-contiguous, of the exact format each
+ * function names; outputs are written into arrays the Python caller allocated.  Building needs a C compiler and
+ * Python's headers, nothing else (no numpy headers, no Cython).  The Python wrappers in mapdb/match/ check
+ * dtypes and shapes and make arrays contiguous; every function here checks formats, dimensions and sizes again
+ * and raises TypeError or ValueError rather than read past a buffer.
+ *
+ * Where the numpy code this replaces summed, it summed pairwise (numpy's pairwise_sum, reproduced here in
+ * pw_sum and cpw_sum with the same blocks and order), and complex products and quotients follow numpy's
+ * formulas (cmul, cdiv: Smith's division), so that the same inputs give the same bits; the exceptions are
+ * expm1, log10 and hypot, which numpy may take from SIMD libraries (SVML on AVX-512 machines) that differ
+ * from the C library's by an ulp.  Compiled with -ffp-contract=off: no fused multiply-adds.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <math.h>
+#include <float.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ------------------------------------------------------------------ buffers */
+
+typedef struct {
+    Py_buffer view;
+    int held;
+} Arr;
+
+static void release(Arr *a, int count)
+{
+    for (int i = 0; i < count; i++) {
+        if (a[i].held) {
+            PyBuffer_Release(&a[i].view);
+            a[i].held = 0;
+        }
+    }
+}
+
+/* The format letter of a buffer, without a byte-order prefix of the native order. */
+static const char *bare_format(const char *f)
+{
+    if (f == NULL) {
+        return "B";
+    }
+    if (f[0] == '@' || f[0] == '=' || f[0] == '<') {
+        return f + 1;
+    }
+    return f;
+}
+
+static int format_is(const Py_buffer *v, char kind)
+{
+    const char *f = bare_format(v->format);
+    switch (kind) {
+    case 'd': return strcmp(f, "d") == 0 && v->itemsize == 8;
+    case 'Z': return strcmp(f, "Zd") == 0 && v->itemsize == 16;
+    case '?': return strcmp(f, "?") == 0 && v->itemsize == 1;
+    case 'q': return (strcmp(f, "q") == 0 || strcmp(f, "l") == 0) && v->itemsize == 8;
+    default: return 0;
+    }
+}
+
+static const char *kind_name(char kind)
+{
+    switch (kind) {
+    case 'd': return "float64";
+    case 'Z': return "complex128";
+    case '?': return "bool";
+    default: return "int64";
+    }
+}
+
+/* Take a C-contiguous buffer of format ``kind`` and ``ndim`` dimensions from ``obj`` (None allowed when
+ * ``optional``: then nothing is held).  Returns 0, or -1 with TypeError / ValueError set. */
+static int take(PyObject *obj, Arr *a, const char *name, char kind, int ndim, int writable, int optional)
+{
+    a->held = 0;
+    if (obj == Py_None && optional) {
+        return 0;
+    }
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (!PyObject_CheckBuffer(obj)) {
+        PyErr_Format(PyExc_TypeError, "%s must be a %s array, got %.100s", name, kind_name(kind),
+                     Py_TYPE(obj)->tp_name);
+        return -1;
+    }
+    if (PyObject_GetBuffer(obj, &a->view, flags) < 0) {
+        PyErr_Clear();
+        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous%s array", name, writable ? " writable" : "");
+        return -1;
+    }
+    a->held = 1;
+    if (!format_is(&a->view, kind)) {
+        PyErr_Format(PyExc_TypeError, "%s must be %s, got buffer format '%s'", name, kind_name(kind),
+                     a->view.format ? a->view.format : "B");
+        release(a, 1);
+        return -1;
+    }
+    if (a->view.ndim != ndim) {
+        PyErr_Format(PyExc_ValueError, "%s must be %d-D, got %d-D", name, ndim, a->view.ndim);
+        release(a, 1);
+        return -1;
+    }
+    return 0;
+}
+
+static Py_ssize_t dim(const Arr *a, int axis)
+{
+    return a->held ? a->view.shape[axis] : -1;
+}
+
+static int check_shape(const Arr *a, const char *name, Py_ssize_t rows, Py_ssize_t cols)
+{
+    if (!a->held) {
+        return 0;
+    }
+    if (dim(a, 0) != rows || (a->view.ndim > 1 && dim(a, 1) != cols)) {
+        if (a->view.ndim > 1) {
+            PyErr_Format(PyExc_ValueError, "%s must have shape (%zd, %zd), got (%zd, %zd)", name, rows, cols,
+                         dim(a, 0), dim(a, 1));
+        } else {
+            PyErr_Format(PyExc_ValueError, "%s must have shape (%zd,), got (%zd,)", name, rows, dim(a, 0));
+        }
+        return -1;
+    }
+    return 0;
+}
+
+#define D(a) ((double *)(a).view.buf)
+#define B(a) ((unsigned char *)(a).view.buf)
+#define Q(a) ((int64_t *)(a).view.buf)
+
+/* ------------------------------------------------------------------ numpy's arithmetic */
+
+/* numpy's pairwise summation of n doubles (DOUBLE_pairwise_sum), as add.reduce runs it: 0.0 + the sum. */
+static double pw_rec(const double *a, Py_ssize_t n)
+{
+    if (n < 8) {
+        double res = -0.0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            res += a[i];
+        }
+        return res;
+    }
+    if (n <= 128) {
+        double r[8];
+        Py_ssize_t i;
+        for (int j = 0; j < 8; j++) {
+            r[j] = a[j];
+        }
+        for (i = 8; i < n - (n % 8); i += 8) {
+            for (int j = 0; j < 8; j++) {
+                r[j] += a[i + j];
+            }
+        }
+        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) {
+            res += a[i];
+        }
+        return res;
+    }
+    Py_ssize_t n2 = n / 2;
+    n2 -= n2 % 8;
+    return pw_rec(a, n2) + pw_rec(a + n2, n - n2);
+}
+
+static double pw_sum(const double *a, Py_ssize_t n)
+{
+    return 0.0 + pw_rec(a, n);
+}
+
+/* numpy's pairwise summation of complex numbers (CDOUBLE_pairwise_sum): ``a`` holds n interleaved (re, im)
+ * pairs; numpy counts doubles, so its blocks of 8 are 4 complex numbers. */
+static void cpw_rec(const double *a, Py_ssize_t n, double *rr, double *ri)
+{
+    Py_ssize_t m = 2 * n;  /* numpy's n: doubles */
+    if (m < 8) {
+        *rr = -0.0;
+        *ri = -0.0;
+        for (Py_ssize_t i = 0; i < m; i += 2) {
+            *rr += a[i];
+            *ri += a[i + 1];
+        }
+        return;
+    }
+    if (m <= 128) {
+        double r[8];
+        Py_ssize_t i;
+        for (int j = 0; j < 8; j++) {
+            r[j] = a[j];
+        }
+        for (i = 8; i < m - (m % 8); i += 8) {
+            for (int j = 0; j < 8; j++) {
+                r[j] += a[i + j];
+            }
+        }
+        *rr = ((r[0] + r[2]) + (r[4] + r[6]));
+        *ri = ((r[1] + r[3]) + (r[5] + r[7]));
+        for (; i < m; i += 2) {
+            *rr += a[i];
+            *ri += a[i + 1];
+        }
+        return;
+    }
+    Py_ssize_t m2 = m / 2;
+    m2 -= m2 % 8;
+    double rr1, ri1, rr2, ri2;
+    cpw_rec(a, m2 / 2, &rr1, &ri1);
+    cpw_rec(a + m2, n - m2 / 2, &rr2, &ri2);
+    *rr = rr1 + rr2;
+    *ri = ri1 + ri2;
+}
+
+static void cpw_sum(const double *a, Py_ssize_t n, double *rr, double *ri)
+{
+    cpw_rec(a, n, rr, ri);
+    *rr = 0.0 + *rr;
+    *ri = 0.0 + *ri;
+}
+
+/* numpy's complex product and quotient (Smith's algorithm, numpy's special cases). */
+static void cmul(double ar, double ai, double br, double bi, double *cr, double *ci)
+{
+    *cr = ar * br - ai * bi;
+    *ci = ar * bi + ai * br;
+}
+
+static void cdiv(double ar, double ai, double br, double bi, double *cr, double *ci)
+{
+    double babs_r = fabs(br), babs_i = fabs(bi);
+    if (babs_r >= babs_i) {
+        if (babs_r == 0 && babs_i == 0) {
+            *cr = ar / babs_r;
+            *ci = ai / babs_r;
+        } else {
+            double rat = bi / br;
+            double scl = 1.0 / (br + bi * rat);
+            *cr = (ar + ai * rat) * scl;
+            *ci = (ai - ar * rat) * scl;
+        }
+    } else {
+        double rat = br / bi;
+        double scl = 1.0 / (bi + br * rat);
+        *cr = (ar * rat + ai) * scl;
+        *ci = (ai * rat - ar) * scl;
+    }
+}
+
+/* ------------------------------------------------------------------ sorting */
+
+/* numpy's order for floats: ascending, NaN last. */
+static int less(double a, double b)
+{
+    if (isnan(b)) {
+        return !isnan(a);
+    }
+    return a < b;
+}
+
+typedef struct {
+    double v;
+    Py_ssize_t i;
+} Keyed;
+
+static int keyed_cmp(const void *pa, const void *pb)
+{
+    const Keyed *a = pa, *b = pb;
+    if (less(a->v, b->v)) {
+        return -1;
+    }
+    if (less(b->v, a->v)) {
+        return 1;
+    }
+    return (a->i > b->i) - (a->i < b->i);
+}
+
+/* Sort by value (NaN last), ties by index: a stable argsort. */
+static void sort_keyed(Keyed *k, Py_ssize_t n)
+{
+    if (n > 48) {
+        qsort(k, (size_t)n, sizeof(Keyed), keyed_cmp);
+        return;
+    }
+    for (Py_ssize_t i = 1; i < n; i++) {
+        Keyed x = k[i];
+        Py_ssize_t j = i;
+        while (j > 0 && keyed_cmp(&x, &k[j - 1]) < 0) {
+            k[j] = k[j - 1];
+            j--;
+        }
+        k[j] = x;
+    }
+}
+
+static int double_cmp(const void *pa, const void *pb)
+{
+    double a = *(const double *)pa, b = *(const double *)pb;
+    return less(a, b) ? -1 : (less(b, a) ? 1 : 0);
+}
+
+static void sort_values(double *x, Py_ssize_t n)
+{
+    if (n > 48) {
+        qsort(x, (size_t)n, sizeof(double), double_cmp);
+        return;
+    }
+    for (Py_ssize_t i = 1; i < n; i++) {
+        double v = x[i];
+        Py_ssize_t j = i;
+        while (j > 0 && less(v, x[j - 1])) {
+            x[j] = x[j - 1];
+            j--;
+        }
+        x[j] = v;
+    }
+}
+
+/* ------------------------------------------------------------------ trial chances */
+
+/* One row without shapes: the trial objects' sorted u, as chances 1 - exp(-u) (1 where u is not finite). */
+static void chances_plain(const double *u, const unsigned char *sample, Py_ssize_t n, Py_ssize_t ns, double *x,
+                          double *p)
+{
+    for (Py_ssize_t i = 0; i < n; i++) {
+        x[i] = (sample && sample[i]) ? -1.0 : u[i];
+    }
+    sort_values(x, n);
+    for (Py_ssize_t j = ns; j < n; j++) {
+        double v = x[j];
+        p[j - ns] = isfinite(v) ? -expm1(-v) : 1.0;
+    }
+}
+
+/* One row with shapes: thresholds the trial objects' sorted u / shape; the chance of a threshold the mean over
+ * trial objects of 1 - exp(-tau shape_i) (``fallback``: numpy's second form, for degenerate shapes). */
+static void chances_shaped(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t n,
+                           Py_ssize_t ns, Keyed *k, double *rest, double *term, int fallback, double *p)
+{
+    Py_ssize_t t = n - ns;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        k[i].v = ((sample && sample[i]) ? -1.0 : u[i]) / shape[i];
+        k[i].i = i;
+    }
+    sort_keyed(k, n);
+    for (Py_ssize_t i = 0; i < t; i++) {
+        rest[i] = shape[k[ns + i].i];
+    }
+    for (Py_ssize_t j = 0; j < t; j++) {
+        double tau = k[ns + j].v;
+        if (!fallback) {
+            for (Py_ssize_t i = 0; i < t; i++) {
+                term[i] = expm1(-tau * rest[i]);
+            }
+            p[j] = -(pw_sum(term, t) / (double)t);
+            continue;
+        }
+        for (Py_ssize_t i = 0; i < t; i++) {
+            double c = isfinite(tau) ? -expm1(-tau * rest[i]) : 1.0;
+            term[i] = isnan(c) ? 1.0 : (c == INFINITY ? DBL_MAX : (c == -INFINITY ? -DBL_MAX : c));
+        }
+        p[j] = pw_sum(term, t) / (double)t;
+    }
+}
+
+static void chances_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h,
+                         Py_ssize_t n, Py_ssize_t ns, Keyed *k, double *x, double *term, double *p)
+{
+    Py_ssize_t t = n - ns;
+    int any_nan = 0;
+    for (Py_ssize_t r = 0; r < h; r++) {
+        const unsigned char *s = sample ? sample + r * n : NULL;
+        if (shape == NULL) {
+            chances_plain(u + r * n, s, n, ns, x, p + r * t);
+        } else {
+            chances_shaped(u + r * n, shape + r * n, s, n, ns, k, x, term, 0, p + r * t);
+        }
+    }
+    for (Py_ssize_t j = 0; shape != NULL && j < h * t; j++) {
+        any_nan |= isnan(p[j]);
+    }
+    for (Py_ssize_t r = 0; any_nan && r < h; r++) {
+        chances_shaped(u + r * n, shape + r * n, sample ? sample + r * n : NULL, n, ns, k, x, term, 1, p + r * t);
+    }
+    for (Py_ssize_t j = 0; j < h * t; j++) {  /* clipped to [0, 1], NaN kept (numpy's maximum and minimum) */
+        double q = (p[j] >= 0.0 || isnan(p[j])) ? p[j] : 0.0;
+        p[j] = (q <= 1.0 || isnan(q)) ? q : 1.0;
+    }
+}
+
+static PyObject *trial_chances(PyObject *self, PyObject *args)
+{
+    PyObject *ou, *oshape, *osample, *oout;
+    Py_ssize_t ns;
+    Arr a[4] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOnO:trial_chances", &ou, &oshape, &osample, &ns, &oout)) {
+        return NULL;
+    }
+    if (take(ou, &a[0], "u", 'd', 2, 0, 0) || take(oshape, &a[1], "shape", 'd', 2, 0, 1)
+        || take(osample, &a[2], "sample", '?', 2, 0, 1) || take(oout, &a[3], "out", 'd', 2, 1, 0)) {
+        release(a, 4);
+        return NULL;
+    }
+    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
+    if (ns < 0 || ns >= n) {
+        PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", n - 1, ns);
+    } else if (!check_shape(&a[1], "shape", h, n) && !check_shape(&a[2], "sample", h, n)) {
+        check_shape(&a[3], "out", h, n - ns);
+    }
+    if (PyErr_Occurred()) {
+        release(a, 4);
+        return NULL;
+    }
+    Keyed *k = PyMem_Malloc(sizeof(Keyed) * (size_t)(n + 1));
+    double *x = PyMem_Malloc(sizeof(double) * (size_t)(2 * n + 2));
+    if (k == NULL || x == NULL) {
+        PyMem_Free(k);
+        PyMem_Free(x);
+        release(a, 4);
+        return PyErr_NoMemory();
+    }
+    Py_BEGIN_ALLOW_THREADS
+    chances_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, k, x, x + n + 1,
+                 D(a[3]));
+    Py_END_ALLOW_THREADS
+    PyMem_Free(k);
+    PyMem_Free(x);
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ the NFA curve's minimum */
+
+static PyObject *curve_minimum(PyObject *self, PyObject *args)
+{
+    PyObject *otail, *onfa, *obest;
+    double offset, floor_;
+    Arr a[3] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OddOO:curve_minimum", &otail, &offset, &floor_, &onfa, &obest)) {
+        return NULL;
+    }
+    if (take(otail, &a[0], "tail", 'd', 2, 0, 0) || take(onfa, &a[1], "nfa", 'd', 1, 1, 0)
+        || take(obest, &a[2], "best", 'q', 1, 1, 0)) {
+        release(a, 3);
+        return NULL;
+    }
+    Py_ssize_t h = dim(&a[0], 0), t = dim(&a[0], 1);
+    if (t < 1) {
+        PyErr_SetString(PyExc_ValueError, "tail must have at least one column");
+    } else if (!check_shape(&a[1], "nfa", h, 0)) {
+        check_shape(&a[2], "best", h, 0);
+    }
+    if (PyErr_Occurred()) {
+        release(a, 3);
+        return NULL;
+    }
+    const double *tail = D(a[0]);
+    double *nfa = D(a[1]);
+    int64_t *best = Q(a[2]);
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < h; r++) {
+        Py_ssize_t arg = 0;
+        double low = 0.0;
+        for (Py_ssize_t j = 0; j < t; j++) {
+            double l = log10(tail[r * t + j]);
+            double c = offset + ((l >= floor_ || isnan(l)) ? l : floor_);
+            if (j == 0 || (!isnan(low) && (c < low || isnan(c)))) {  /* numpy's argmin: the first NaN wins */
+                low = c;
+                arg = j;
+            }
+        }
+        nfa[r] = low;
+        best[r] = (int64_t)arg;
+    }
+    Py_END_ALLOW_THREADS
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ refinement */
+
+static double row_sigma(const double *dist, const unsigned char *inlier, Py_ssize_t n, double *tmp)
+{
+    Py_ssize_t k = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        k += inlier[i] != 0;
+        tmp[i] = inlier[i] ? dist[i] * dist[i] : 0.0;
+    }
+    Py_ssize_t dof = 2 * k - 4 > 1 ? 2 * k - 4 : 1;
+    return sqrt(pw_sum(tmp, n) / (double)dof);
+}
+
+/* Of the inliers matched to one map object, only the closest stays (ties: the first). */
+static void row_first_per_map_object(const int64_t *mid, const double *dist, const unsigned char *inlier,
+                                     Py_ssize_t n, unsigned char *keep)
+{
+    for (Py_ssize_t i = 0; i < n; i++) {
+        keep[i] = 1;
+        if (!inlier[i]) {
+            continue;
+        }
+        for (Py_ssize_t j = 0; j < n; j++) {
+            if (j != i && inlier[j] && mid[j] == mid[i]
+                && (less(dist[j], dist[i]) || (!less(dist[i], dist[j]) && j < i))) {
+                keep[i] = 0;
+                break;
+            }
+        }
+    }
+}
+
+static void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_t k_best, double gate,
+                        Py_ssize_t n, double *x, unsigned char *keep, unsigned char *inlier)
+{
+    memcpy(x, u, sizeof(double) * (size_t)n);
+    sort_values(x, n);
+    int64_t at = k_best - 1 < 0 ? 0 : (k_best - 1 > n - 1 ? n - 1 : k_best - 1);
+    double cut = x[at];
+    for (Py_ssize_t i = 0; i < n; i++) {
+        inlier[i] = u[i] <= cut && isfinite(dist[i]);
+    }
+    double reach = gate * row_sigma(dist, inlier, n, x);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        inlier[i] |= dist[i] <= reach && isfinite(dist[i]);
+    }
+    row_first_per_map_object(mid, dist, inlier, n, keep);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        inlier[i] &= keep[i];
+    }
+}
+
+static PyObject *refine_inliers(PyObject *self, PyObject *args)
+{
+    PyObject *ou, *odist, *omid, *okb, *oout;
+    double gate;
+    Arr a[5] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOdO:refine_inliers", &ou, &odist, &omid, &okb, &gate, &oout)) {
+        return NULL;
+    }
+    if (take(ou, &a[0], "u", 'd', 2, 0, 0) || take(odist, &a[1], "dist", 'd', 2, 0, 0)
+        || take(omid, &a[2], "mid", 'q', 2, 0, 0) || take(okb, &a[3], "k_best", 'q', 1, 0, 0)
+        || take(oout, &a[4], "inlier", '?', 2, 1, 0)) {
+        release(a, 5);
+        return NULL;
+    }
+    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
+    if (n < 1) {
+        PyErr_SetString(PyExc_ValueError, "u must have at least one column");
+    } else if (!check_shape(&a[1], "dist", h, n) && !check_shape(&a[2], "mid", h, n)
+               && !check_shape(&a[3], "k_best", h, 0)) {
+        check_shape(&a[4], "inlier", h, n);
+    }
+    if (PyErr_Occurred()) {
+        release(a, 5);
+        return NULL;
+    }
+    double *x = PyMem_Malloc(sizeof(double) * (size_t)n);
+    unsigned char *keep = PyMem_Malloc((size_t)n);
+    if (x == NULL || keep == NULL) {
+        PyMem_Free(x);
+        PyMem_Free(keep);
+        release(a, 5);
+        return PyErr_NoMemory();
+    }
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t r = 0; r < h; r++) {
+        row_inliers(D(a[0]) + r * n, D(a[1]) + r * n, Q(a[2]) + r * n, Q(a[3])[r], gate, n, x, keep,
+                    B(a[4]) + r * n);
+    }
+    Py_END_ALLOW_THREADS
+    PyMem_Free(x);
+    PyMem_Free(keep);
+    release(a, 5);
+    Py_RETURN_NONE;
+}
+
+static PyObject *residual_sigmas(PyObject *self, PyObject *args)
+{
+    PyObject *odist, *oinl, *oout;
+    Arr a[3] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOO:residual_sigmas", &odist, &oinl, &oout)) {
+        return NULL;
+    }
+    if (take(odist, &a[0], "dist", 'd', 2, 0, 0) || take(oinl, &a[1], "inlier", '?', 2, 0, 0)
+        || take(oout, &a[2], "out", 'd', 1, 1, 0)) {
+        release(a, 3);
+        return NULL;
+    }
+    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
+    if (check_shape(&a[1], "inlier", h, n) || check_shape(&a[2], "out", h, 0)) {
+        release(a, 3);
+        return NULL;
+    }
+    double *x = PyMem_Malloc(sizeof(double) * (size_t)(n + 1));
+    if (x == NULL) {
+        release(a, 3);
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t r = 0; r < h; r++) {
+        D(a[2])[r] = row_sigma(D(a[0]) + r * n, B(a[1]) + r * n, n, x);
+    }
+    PyMem_Free(x);
+    release(a, 3);
+    Py_RETURN_NONE;
+}
+
+static PyObject *first_per_map_object(PyObject *self, PyObject *args)
+{
+    PyObject *omid, *odist, *oinl, *oout;
+    Arr a[4] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOO:first_per_map_object", &omid, &odist, &oinl, &oout)) {
+        return NULL;
+    }
+    if (take(omid, &a[0], "mid", 'q', 2, 0, 0) || take(odist, &a[1], "dist", 'd', 2, 0, 0)
+        || take(oinl, &a[2], "inlier", '?', 2, 0, 0) || take(oout, &a[3], "keep", '?', 2, 1, 0)) {
+        release(a, 4);
+        return NULL;
+    }
+    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
+    if (check_shape(&a[1], "dist", h, n) || check_shape(&a[2], "inlier", h, n) || check_shape(&a[3], "keep", h, n)) {
+        release(a, 4);
+        return NULL;
+    }
+    for (Py_ssize_t r = 0; r < h; r++) {
+        row_first_per_map_object(Q(a[0]) + r * n, D(a[1]) + r * n, B(a[2]) + r * n, n, B(a[3]) + r * n);
+    }
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ similarity fit */
+
+/* One set: numpy's fit_similarity_complex step by step (w is real, cast to w + 0j where numpy casts it). */
+static void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out)
+{
+    double *c = buf;          /* k complex */
+    double *re = buf + 2 * k; /* k real */
+    double wsum = pw_sum(w, k), sr, si, dr, di, mur, mui, mdr, mdi;
+    for (Py_ssize_t i = 0; i < k; i++) {
+        cmul(w[i], 0.0, src[2 * i], src[2 * i + 1], &c[2 * i], &c[2 * i + 1]);
+    }
+    cpw_sum(c, k, &sr, &si);
+    cdiv(sr, si, wsum, 0.0, &mur, &mui);
+    for (Py_ssize_t i = 0; i < k; i++) {
+        cmul(w[i], 0.0, dst[2 * i], dst[2 * i + 1], &c[2 * i], &c[2 * i + 1]);
+    }
+    cpw_sum(c, k, &dr, &di);
+    cdiv(dr, di, wsum, 0.0, &mdr, &mdi);
+    for (Py_ssize_t i = 0; i < k; i++) {
+        double s_r = src[2 * i] - mur, s_i = src[2 * i + 1] - mui;
+        double d_r = dst[2 * i] - mdr, d_i = dst[2 * i + 1] - mdi, t_r, t_i;
+        re[i] = w[i] * (s_r * s_r + s_i * s_i);
+        cmul(w[i], 0.0, s_r, -s_i, &t_r, &t_i);
+        cmul(t_r, t_i, d_r, d_i, &c[2 * i], &c[2 * i + 1]);
+    }
+    double norm = pw_sum(re, k), nr, ni, ar, ai, pr, pi;
+    cpw_sum(c, k, &nr, &ni);
+    cdiv(nr, ni, norm > 0 ? norm : NAN, 0.0, &ar, &ai);
+    cmul(ar, ai, mur, mui, &pr, &pi);
+    out[0] = ar;
+    out[1] = ai;
+    out[2] = mdr - pr;
+    out[3] = mdi - pi;
+}
+
+static PyObject *fit_similarity(PyObject *self, PyObject *args)
+{
+    PyObject *osrc, *odst, *ow, *oa, *ob;
+    Arr a[5] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOO:fit_similarity", &osrc, &odst, &ow, &oa, &ob)) {
+        return NULL;
+    }
+    if (take(osrc, &a[0], "src", 'Z', 2, 0, 0) || take(odst, &a[1], "dst", 'Z', 2, 0, 0)
+        || take(ow, &a[2], "weights", 'd', 2, 0, 0) || take(oa, &a[3], "a", 'Z', 1, 1, 0)
+        || take(ob, &a[4], "b", 'Z', 1, 1, 0)) {
+        release(a, 5);
+        return NULL;
+    }
+    Py_ssize_t m = dim(&a[0], 0), k = dim(&a[0], 1);
+    if (check_shape(&a[1], "dst", m, k) || check_shape(&a[2], "weights", m, k) || check_shape(&a[3], "a", m, 0)
+        || check_shape(&a[4], "b", m, 0)) {
+        release(a, 5);
+        return NULL;
+    }
+    double *buf = PyMem_Malloc(sizeof(double) * (size_t)(3 * k + 1));
+    if (buf == NULL) {
+        release(a, 5);
+        return PyErr_NoMemory();
+    }
+    double *pa = D(a[3]), *pb = D(a[4]), out[4];
+    for (Py_ssize_t r = 0; r < m; r++) {
+        fit_row(D(a[0]) + 2 * r * k, D(a[1]) + 2 * r * k, D(a[2]) + r * k, k, buf, out);
+        pa[2 * r] = out[0];
+        pa[2 * r + 1] = out[1];
+        pb[2 * r] = out[2];
+        pb[2 * r + 1] = out[3];
+    }
+    PyMem_Free(buf);
+    release(a, 5);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ the first allowed neighbour */
+
+static void first_allowed_rows(const double *d, const int64_t *idx, const double *reach, const double *z,
+                               Py_ssize_t nz, const double *ex, Py_ssize_t ne, Py_ssize_t repeat,
+                               const unsigned char *allowed, Py_ssize_t m, Py_ssize_t k, double *od, int64_t *oi)
+{
+    for (Py_ssize_t q = 0; q < m; q++) {
+        Py_ssize_t first = -1;
+        const double *e = ex ? ex + 2 * (q / repeat) * ne : NULL;
+        for (Py_ssize_t c = 0; c < k && first < 0; c++) {
+            Py_ssize_t at = q * k + c;
+            if (!(d[at] <= reach[q]) || (allowed && !allowed[at])) {
+                continue;
+            }
+            int found = 1;
+            int64_t j = idx[at] < nz - 1 ? idx[at] : nz - 1;
+            for (Py_ssize_t x = 0; e && x < ne && found; x++) {
+                found = !(hypot(z[2 * j] - e[2 * x], z[2 * j + 1] - e[2 * x + 1]) < 1e-6);
+            }
+            if (found) {
+                first = c;
+            }
+        }
+        od[q] = first < 0 ? INFINITY : d[q * k + first];
+        oi[q] = first < 0 ? -1 : idx[q * k + first];
+    }
+}
+
+static PyObject *first_allowed(PyObject *self, PyObject *args)
+{
+    PyObject *od, *oi, *oreach, *oz, *oex, *oallowed, *outd, *outi;
+    Py_ssize_t repeat;
+    Arr a[8] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOOnOOO:first_allowed", &od, &oi, &oreach, &oz, &oex, &repeat, &oallowed,
+                          &outd, &outi)) {
+        return NULL;
+    }
+    if (take(od, &a[0], "d", 'd', 2, 0, 0) || take(oi, &a[1], "i", 'q', 2, 0, 0)
+        || take(oreach, &a[2], "reach", 'd', 1, 0, 0) || take(oz, &a[3], "z", 'Z', 1, 0, 0)
+        || take(oex, &a[4], "exclude", 'Z', 2, 0, 1) || take(oallowed, &a[5], "allowed", '?', 2, 0, 1)
+        || take(outd, &a[6], "out_d", 'd', 1, 1, 0) || take(outi, &a[7], "out_i", 'q', 1, 1, 0)) {
+        release(a, 8);
+        return NULL;
+    }
+    Py_ssize_t m = dim(&a[0], 0), k = dim(&a[0], 1), nz = dim(&a[3], 0);
+    Py_ssize_t ne = a[4].held ? dim(&a[4], 1) : 0;
+    if (repeat < 1 || nz < 1 || (a[4].held && dim(&a[4], 0) * repeat < m)) {
+        PyErr_SetString(PyExc_ValueError, "need repeat >= 1, a map object, and an exclude row per repeat rows");
+    } else if (!check_shape(&a[1], "i", m, k) && !check_shape(&a[2], "reach", m, 0)
+               && !check_shape(&a[5], "allowed", m, k) && !check_shape(&a[6], "out_d", m, 0)) {
+        check_shape(&a[7], "out_i", m, 0);
+    }
+    if (PyErr_Occurred()) {
+        release(a, 8);
+        return NULL;
+    }
+    first_allowed_rows(D(a[0]), Q(a[1]), D(a[2]), D(a[3]), nz, a[4].held ? D(a[4]) : NULL, ne, repeat,
+                       a[5].held ? B(a[5]) : NULL, m, k, D(a[6]), Q(a[7]));
+    release(a, 8);
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ module */
+
+static PyMethodDef methods[] = {
+    {"trial_chances", trial_chances, METH_VARARGS,
+     "trial_chances(u, shape, sample, n_sample, out): each hypothesis's chances under the null, clipped to [0, 1]."},
+    {"curve_minimum", curve_minimum, METH_VARARGS,
+     "curve_minimum(tail, offset, floor, nfa, best): min over k of offset + max(log10 tail, floor), and its index."},
+    {"refine_inliers", refine_inliers, METH_VARARGS,
+     "refine_inliers(u, dist, mid, k_best, gate_sigmas, inlier): the refinement's inlier mask."},
+    {"residual_sigmas", residual_sigmas, METH_VARARGS,
+     "residual_sigmas(dist, inlier, out): sqrt(sum r^2 / max(2k - 4, 1)) a row."},
+    {"first_per_map_object", first_per_map_object, METH_VARARGS,
+     "first_per_map_object(mid, dist, inlier, keep): the closest inlier a map object a row."},
+    {"fit_similarity", fit_similarity, METH_VARARGS,
+     "fit_similarity(src, dst, weights, a, b): weighted least-squares similarity a row."},
+    {"first_allowed", first_allowed, METH_VARARGS,
+     "first_allowed(d, i, reach, z, exclude, repeat, allowed, out_d, out_i): the nearest allowed neighbour."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "_kernel", "mapdb's compiled matcher kernel (see _kernel.c).", -1, methods,
+    NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__kernel(void)
+{
+    return PyModule_Create(&module);
+}

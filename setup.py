@@ -1,0 +1,18 @@
+"""Build of mapdb's compiled kernel (``mapdb/match/_kernel.c``); the metadata is in pyproject.toml.
+
+The kernel is plain C on the CPython API: a C compiler and Python's headers build it (on Debian ``gcc`` and
+``python3-dev``), with no numpy headers, Cython or other build dependency.
+"""
+
+from setuptools import Extension, setup
+
+setup(
+    ext_modules=[
+        Extension(
+            "mapdb.match._kernel",
+            sources=["mapdb/match/_kernel.c"],
+            # No fused multiply-adds: the kernel's sums and products round as numpy's do.
+            extra_compile_args=["-O2", "-ffp-contract=off"],
+        )
+    ]
+)
