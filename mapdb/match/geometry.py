@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from ._kernel import fit_similarity as _fit_similarity
+
 # The matcher works in complex numbers: a point (x, y) is x + iy and a similarity is z -> a z + b with
 # a = scale * exp(i rotation), so that one multiplication replaces a 2x2 rotation and a batch of
 # hypotheses is a pair of complex arrays.
@@ -146,15 +148,16 @@ def fit_similarity_complex(
     src = np.asarray(src, dtype=np.complex128)
     dst = np.asarray(dst, dtype=np.complex128)
     w = np.ones(src.shape) if weights is None else np.asarray(weights, dtype=np.float64)
-    wsum = w.sum(axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mu_s = (w * src).sum(axis=-1) / wsum
-        mu_d = (w * dst).sum(axis=-1) / wsum
-        s = src - mu_s[..., None]
-        d = dst - mu_d[..., None]
-        norm = (w * (s.real**2 + s.imag**2)).sum(axis=-1)
-        a = (w * np.conj(s) * d).sum(axis=-1) / np.where(norm > 0, norm, np.nan)
-    return a, mu_d - a * mu_s
+    shape = np.broadcast_shapes(src.shape, dst.shape, w.shape)
+    if not shape:
+        raise ValueError("the point sets must have at least one axis (the points)")
+    # The compiled kernel fits each set with numpy's arithmetic (pairwise sums, its complex product and quotient).
+    rows = (math.prod(shape[:-1]), shape[-1])
+    src, dst, w = (np.ascontiguousarray(np.broadcast_to(v, shape)).reshape(rows) for v in (src, dst, w))
+    a = np.empty(rows[0], np.complex128)
+    b = np.empty(rows[0], np.complex128)
+    _fit_similarity(src, dst, w, a, b)
+    return a.reshape(shape[:-1])[()], b.reshape(shape[:-1])[()]
 
 
 def prediction_variance_factor(src: np.ndarray, at: complex = 0j, weights: np.ndarray | None = None) -> np.ndarray:

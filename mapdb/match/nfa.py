@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._scipy import betainc
-from . import _kernel
+from ._kernel import curve_minimum, trial_chances
 
 __all__ = ["log10_binomial_tail", "log10_nfa_curve"]
 
@@ -126,11 +126,11 @@ def log10_nfa_curve(
     # function gives the tail in one ufunc call (its exact values), and the kernel again takes log10, the floor,
     # the curve and its minimum.  Every k here lies in 1..trials, so the tail is betainc itself (no edge cases).
     p = np.empty((h, trials))
-    _kernel.trial_chances(u, shape, sample, n_sample, p)
+    trial_chances(u, shape, sample, n_sample, p)
     betainc(successes, failures, p, out=p)
     nfa = np.empty(h)
     best = np.empty(h, dtype=np.int64)
-    _kernel.curve_minimum(p, log10_tests + log10_trials, _LOG10_FLOOR, nfa, best)
+    curve_minimum(p, log10_tests + log10_trials, _LOG10_FLOOR, nfa, best)
     return nfa, best + 1 + n_sample
 
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from .evidence.image import ImageEvidence
-from .evidence.points import GATE_SIGMAS, first_per_map_object, residual_sigmas
+from .evidence.points import refinement_inliers
 from .geometry import fit_similarity_complex
 from .mapobjects.object_index import Neighbours, ObjectIndex
 from .nfa import log10_nfa_curve
@@ -129,8 +129,6 @@ def refine(
     hypothesis was fitted to) and the refit takes the image points rescaled for their map objects' heights.
     ``near``: :meth:`~mapdb.match.mapobjects.object_index.ObjectIndex.neighbours` of ``a z + b``, the first
     association's (on flat ground) instead of a query."""
-    h, n = len(a), z.size
-    rows = np.arange(h)
     previous: tuple[np.ndarray, np.ndarray] | None = None
     terrain = None if evidence is None else evidence.terrain
     for it in range(iterations + 1):
@@ -139,15 +137,7 @@ def refine(
         lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
         u = lam * math.pi * dist**2
         nfa, k_best = log10_nfa_curve(u, 4, log10_tests)
-        u_sorted = np.sort(u, axis=1)
-        u_cut = u_sorted[rows, np.minimum(np.maximum(k_best - 1, 0), n - 1)]
-        finite = np.isfinite(dist)
-        inlier = (u <= u_cut[:, None]) & finite
-        # A generous second net: everything within GATE_SIGMAS sigmas of the current fit (sigma from its inliers),
-        # so that the final fit uses every true correspondence, as the bound does.
-        sigma = residual_sigmas(dist, inlier)
-        inlier |= (dist <= GATE_SIGMAS * sigma[:, None]) & finite
-        inlier &= first_per_map_object(mid, dist, inlier)
+        inlier = refinement_inliers(u, dist, mid, k_best)
         if it == iterations:
             break
         if previous is not None and (previous[0] == inlier).all() and (previous[1] == mid).all():

@@ -11,7 +11,11 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GATE_SIGMAS", "first_per_map_object", "residual_sigmas"]
+from .._kernel import first_per_map_object as _first_per_map_object
+from .._kernel import refine_inliers as _refine_inliers
+from .._kernel import residual_sigmas as _residual_sigmas
+
+__all__ = ["GATE_SIGMAS", "first_per_map_object", "refinement_inliers", "residual_sigmas"]
 
 # Residual sigmas within which an association is kept (refinement's second net, the final assignment's gate).
 GATE_SIGMAS = 3.5
@@ -22,22 +26,66 @@ def residual_sigmas(dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
 
     ``dist`` and ``inlier`` are ``(H, n)``; 4 parameters are fitted, so ``2k - 4`` degrees of freedom
     (at least 1).
+
+    Examples
+    --------
+    >>> residual_sigmas(np.array([[3.0, 4.0, 0.0, 0.0, 9.0]]), np.array([[True, True, True, True, False]])).tolist()
+    [2.5]
     """
-    k = np.add.reduce(inlier, axis=1)  # an integer count (as inlier.sum), without the method's Python wrapper
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(np.add.reduce(np.where(inlier, dist**2, 0.0), axis=1) / np.maximum(2 * k - 4, 1))
+    dist = np.ascontiguousarray(dist, dtype=np.float64)
+    if dist.ndim != 2:
+        raise ValueError(f"dist must be 2-D (hypotheses x objects), got shape {dist.shape}")
+    out = np.empty(dist.shape[0])
+    _residual_sigmas(dist, _mask(inlier, dist.shape), out)
+    return out
 
 
 def first_per_map_object(mid: np.ndarray, dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
-    """Mask keeping, per row and map object, only the closest of the image objects matched to it."""
-    h, n = mid.shape
-    keep = np.ones((h, n), bool)
-    r, c = np.nonzero(inlier)
-    if r.size == 0:
-        return keep
-    order = np.lexsort((dist[r, c], mid[r, c], r))
-    r, c = r[order], c[order]
-    dup = np.zeros(r.size, bool)
-    dup[1:] = (r[1:] == r[:-1]) & (mid[r[1:], c[1:]] == mid[r[:-1], c[:-1]])
-    keep[r[dup], c[dup]] = False
+    """Mask keeping, per row and map object, only the closest of the image objects matched to it (of equally
+    close ones, the first).
+
+    Examples
+    --------
+    >>> first_per_map_object(np.array([[7, 7, 2, 7]]), np.array([[2.0, 1.0, 5.0, 1.0]]), np.ones((1, 4), bool)).tolist()
+    [[False, True, True, False]]
+    """
+    mid = np.ascontiguousarray(mid, dtype=np.int64)
+    if mid.ndim != 2:
+        raise ValueError(f"mid must be 2-D (hypotheses x objects), got shape {mid.shape}")
+    keep = np.empty(mid.shape, bool)
+    _first_per_map_object(mid, np.ascontiguousarray(dist, dtype=np.float64), _mask(inlier, mid.shape), keep)
     return keep
+
+
+def refinement_inliers(u: np.ndarray, dist: np.ndarray, mid: np.ndarray, k_best: np.ndarray) -> np.ndarray:
+    """The inliers a refinement round fits to, ``(H, n)``: the ``k_best`` smallest normalised residuals ``u`` of
+    each row (its NFA's choice), then, a generous second net, every object within ``GATE_SIGMAS`` sigmas of the
+    current fit (sigma from those inliers, :func:`residual_sigmas`), so that the fit uses every true
+    correspondence as the bound does; of the inliers matched to one map object only the closest
+    (:func:`first_per_map_object`).  ``dist`` and ``mid``: each object's distance to its map object and that
+    object's index (``inf`` where none), ``k_best``: ``(H,)``.
+
+    Examples
+    --------
+    >>> u = np.array([[0.01, 0.02, 2.0, 0.03, 0.01, 0.02]])
+    >>> dist = np.array([[1.0, 1.4, 14.0, 1.7, 1.0, np.inf]])
+    >>> refinement_inliers(u, dist, np.array([[0, 1, 2, 3, 3, -1]]), np.array([5])).astype(int).tolist()
+    [[1, 1, 0, 0, 1, 0]]
+    """
+    u = np.ascontiguousarray(u, dtype=np.float64)
+    if u.ndim != 2:
+        raise ValueError(f"u must be 2-D (hypotheses x objects), got shape {u.shape}")
+    inlier = np.zeros(u.shape, bool)
+    if u.shape[1]:
+        _refine_inliers(u, np.ascontiguousarray(dist, dtype=np.float64),
+                               np.ascontiguousarray(mid, dtype=np.int64),
+                               np.ascontiguousarray(k_best, dtype=np.int64), GATE_SIGMAS, inlier)
+    return inlier
+
+
+def _mask(mask: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """A contiguous boolean ``(H, n)`` mask (the kernel's checks refuse any other shape)."""
+    mask = np.ascontiguousarray(mask, dtype=bool)
+    if mask.shape != shape:
+        raise ValueError(f"the mask must have shape {shape}, got {mask.shape}")
+    return mask

@@ -14,6 +14,7 @@ import numpy as np
 
 from ..._scipy import quick_tree
 from ...objects import Objects
+from .._kernel import first_allowed
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 
@@ -30,6 +31,10 @@ AREA_NEIGHBOURS = 8
 
 # Fixed sample of the unit disc (sunflower pattern) for the share of a density disc inside the map.
 _DISC = np.sqrt((np.arange(256) + 0.5) / 256) * np.exp(1j * np.arange(256) * math.pi * (3 - math.sqrt(5)))
+
+
+# The map positions the kernel reads when a map has no object (none is ever looked at: no neighbour is in reach).
+_NO_OBJECT = np.zeros(1, np.complex128)
 
 
 def _flat_labels(img_label: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -232,8 +237,8 @@ class ObjectIndex:
         if exclude is None:  # nothing to exclude: the nearest is the answer when within reach
             ok = d <= reach
             return np.where(ok, d, np.inf).reshape(shape), np.where(ok, i, -1).reshape(shape)
-        dist, index = self._first_allowed(d.reshape(labels.size, k), i.reshape(labels.size, k), reach,
-                                          np.repeat(exclude, shape[1], axis=0))
+        dist, index = self._first_allowed(d.reshape(labels.size, k), i.reshape(labels.size, k), reach, exclude,
+                                          repeat=shape[1])
         return dist.reshape(shape), index.reshape(shape)
 
     def _reach(self, density: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -252,20 +257,20 @@ class ObjectIndex:
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
 
     def _first_allowed(self, d: np.ndarray, i: np.ndarray, reach: np.ndarray, exclude: np.ndarray | None,
-                       allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       allowed: np.ndarray | None = None, repeat: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Of ``k`` neighbours a query point (``d``, ``i``: ``(m, k)``), the nearest within reach, not at one of
-        its ``exclude`` points (``(m, e)``: its hypothesis's) and ``allowed`` (``(m, k)``): distances and indices
-        (inf and -1 if none)."""
-        found = d <= reach[:, None]
-        if exclude is not None:
-            near = np.abs(self.z[np.minimum(i, len(self) - 1)][:, :, None] - exclude[:, None, :])
-            found &= ~(near < 1e-6).any(axis=2)
-        if allowed is not None:
-            found &= allowed
-        first = np.argmax(found, axis=1)  # nearest allowed (column 0 if none: then not found)
-        pick = np.arange(d.shape[0])
-        ok = found[pick, first]
-        return np.where(ok, d[pick, first], np.inf), np.where(ok, i[pick, first], -1)
+        its ``exclude`` points (row ``q // repeat`` of ``exclude``, ``(m / repeat, e)``: its hypothesis's, closer
+        than a micrometre) and ``allowed`` (``(m, k)``): distances and indices (inf and -1 if none).  The compiled
+        kernel's loop: it stops at the first allowed neighbour."""
+        m = d.shape[0]
+        out_d, out_i = np.empty(m), np.empty(m, np.int64)
+        z = np.ascontiguousarray(self.z, np.complex128) if len(self) else _NO_OBJECT
+        first_allowed(
+            np.ascontiguousarray(d, np.float64), np.ascontiguousarray(i, np.int64),
+            np.ascontiguousarray(reach, np.float64), z,
+            None if exclude is None else np.ascontiguousarray(exclude, np.complex128), repeat,
+            None if allowed is None else np.ascontiguousarray(allowed, bool), out_d, out_i)
+        return out_d, out_i
 
     @property
     def log_area(self) -> np.ndarray:
