@@ -8,9 +8,9 @@
  *
  * Where the numpy code this replaces summed, it summed pairwise (numpy's pairwise_sum, reproduced here in
  * pw_sum and cpw_sum with the same blocks and order), and complex products and quotients follow numpy's
- * formulas (cmul, cdiv: Smith's division), so that the same inputs give the same bits; the exceptions are
- * expm1, log10 and hypot, which numpy may take from SIMD libraries (SVML on AVX-512 machines) that differ
- * from the C library's by an ulp.  Compiled with -ffp-contract=off: no fused multiply-adds but the explicit ones.
+ * formulas (cmul, cdiv: Smith's division; cabs_np), so that the same inputs give the same bits; the exceptions
+ * are expm1 and log10, which numpy may take from SIMD libraries (SVML on AVX-512 machines) that differ from
+ * the C library's by an ulp.  Compiled with -ffp-contract=off: no fused multiply-adds but the explicit ones.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -247,6 +247,23 @@ static void cdiv(double ar, double ai, double br, double bi, double *cr, double 
         *cr = (ar * rat + ai) * scl;
         *ci = (ai * rat - ar) * scl;
     }
+}
+
+/* numpy's absolute value of a complex number as its SIMD loops compute it (x86-64 with AVX2 or AVX-512):
+ * larger * sqrt(1 + (smaller / larger)^2) with one fused multiply-add, infinities and NaNs first. */
+static double cabs_np(double re, double im)
+{
+    re = fabs(re);
+    im = fabs(im);
+    if (re == INFINITY || im == INFINITY) {
+        return INFINITY;
+    }
+    if (isnan(re) || isnan(im)) {
+        return NAN;
+    }
+    double larger = re > im ? re : im, smaller = re > im ? im : re;
+    double ratio = larger == 0.0 ? 0.0 : smaller / larger;
+    return sqrt(fma(ratio, ratio, 1.0)) * larger;
 }
 
 /* ------------------------------------------------------------------ sorting */
@@ -719,7 +736,7 @@ static void first_allowed_rows(const double *d, const int64_t *idx, const double
             int found = 1;
             int64_t j = idx[at] < nz - 1 ? idx[at] : nz - 1;
             for (Py_ssize_t x = 0; e && x < ne && found; x++) {
-                found = !(hypot(z[2 * j] - e[2 * x], z[2 * j + 1] - e[2 * x + 1]) < 1e-6);
+                found = !(cabs_np(z[2 * j] - e[2 * x], z[2 * j + 1] - e[2 * x + 1]) < 1e-6);
             }
             if (found) {
                 first = c;
@@ -764,6 +781,69 @@ static PyObject *first_allowed(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ the decision's tolerance shapes */
+
+/* One hypothesis: 1.25 + |z - mean|^2 / spread of its quad's image points, and the quad's objects marked. */
+static void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
+                     unsigned char *sample)
+{
+    double mr, mi, sr, si;
+    for (Py_ssize_t j = 0; j < q; j++) {
+        buf[2 * j] = z[2 * ids[j]];
+        buf[2 * j + 1] = z[2 * ids[j] + 1];
+    }
+    cpw_sum(buf, q, &sr, &si);
+    cdiv(sr, si, (double)q, 0.0, &mr, &mi);
+    for (Py_ssize_t j = 0; j < q; j++) {
+        double r = cabs_np(buf[2 * j] - mr, buf[2 * j + 1] - mi);
+        buf[j] = r * r;  /* buf[j] is read before it is written: j <= 2 j */
+    }
+    double spread = pw_sum(buf, q);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double r = cabs_np(z[2 * i] - mr, z[2 * i + 1] - mi);
+        shape[i] = 1.25 + (r * r) / spread;
+        sample[i] = 0;
+    }
+    for (Py_ssize_t j = 0; j < q; j++) {
+        sample[ids[j]] = 1;
+    }
+}
+
+static PyObject *quad_tolerance(PyObject *self, PyObject *args)
+{
+    PyObject *oz, *oids, *oshape, *osample;
+    Arr a[4] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOO:quad_tolerance", &oz, &oids, &oshape, &osample)) {
+        return NULL;
+    }
+    if (take(oz, &a[0], "z", 'Z', 1, 0, 0) || take(oids, &a[1], "img_ids", 'q', 2, 0, 0)
+        || take(oshape, &a[2], "shape", 'd', 2, 1, 0) || take(osample, &a[3], "sample", '?', 2, 1, 0)) {
+        release(a, 4);
+        return NULL;
+    }
+    Py_ssize_t n = dim(&a[0], 0), h = dim(&a[1], 0), q = dim(&a[1], 1);
+    for (Py_ssize_t j = 0; j < h * q && !PyErr_Occurred(); j++) {
+        if (Q(a[1])[j] < 0 || Q(a[1])[j] >= n) {
+            PyErr_Format(PyExc_ValueError, "img_ids must lie in 0..%zd", n - 1);
+        }
+    }
+    if (PyErr_Occurred() || check_shape(&a[2], "shape", h, n) || check_shape(&a[3], "sample", h, n)) {
+        release(a, 4);
+        return NULL;
+    }
+    double *buf = PyMem_Malloc(sizeof(double) * (size_t)(2 * q + 1));
+    if (buf == NULL) {
+        release(a, 4);
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t r = 0; r < h; r++) {
+        quad_row(D(a[0]), n, Q(a[1]) + r * q, q, buf, D(a[2]) + r * n, B(a[3]) + r * n);
+    }
+    PyMem_Free(buf);
+    release(a, 4);
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ module */
 
 static PyMethodDef methods[] = {
@@ -781,6 +861,8 @@ static PyMethodDef methods[] = {
      "fit_similarity(src, dst, weights, a, b): weighted least-squares similarity a row."},
     {"first_allowed", first_allowed, METH_VARARGS,
      "first_allowed(d, i, reach, z, exclude, repeat, allowed, out_d, out_i): the nearest allowed neighbour."},
+    {"quad_tolerance", quad_tolerance, METH_VARARGS,
+     "quad_tolerance(z, img_ids, shape, sample): the decision's tolerance shapes and sample mask a hypothesis."},
     {NULL, NULL, 0, NULL},
 };
 

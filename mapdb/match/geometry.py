@@ -148,12 +148,13 @@ def fit_similarity_complex(
     src = np.asarray(src, dtype=np.complex128)
     dst = np.asarray(dst, dtype=np.complex128)
     w = np.ones(src.shape) if weights is None else np.asarray(weights, dtype=np.float64)
-    shape = np.broadcast_shapes(src.shape, dst.shape, w.shape)
+    same = src.shape == dst.shape == w.shape  # the usual call: no broadcasting (np.broadcast_* cost 10 us each)
+    shape = src.shape if same else np.broadcast_shapes(src.shape, dst.shape, w.shape)
     if not shape:
         raise ValueError("the point sets must have at least one axis (the points)")
     # The compiled kernel fits each set with numpy's arithmetic (pairwise sums, its complex product and quotient).
     rows = (math.prod(shape[:-1]), shape[-1])
-    src, dst, w = (np.ascontiguousarray(np.broadcast_to(v, shape)).reshape(rows) for v in (src, dst, w))
+    src, dst, w = (np.ascontiguousarray(v if same else np.broadcast_to(v, shape)).reshape(rows) for v in (src, dst, w))
     a = np.empty(rows[0], np.complex128)
     b = np.empty(rows[0], np.complex128)
     _fit_similarity(src, dst, w, a, b)

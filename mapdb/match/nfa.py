@@ -119,9 +119,9 @@ def log10_nfa_curve(
         return np.full(h, np.inf), np.zeros(h, dtype=np.int64)
     successes, failures, log10_trials = _counts(trials)
     if shape is not None:
-        shape = np.ascontiguousarray(np.broadcast_to(np.asarray(shape, dtype=np.float64), u.shape))
+        shape = _full(np.asarray(shape, dtype=np.float64), u.shape)
     if sample is not None:
-        sample = np.ascontiguousarray(np.broadcast_to(np.asarray(sample, dtype=bool), u.shape))
+        sample = _full(np.asarray(sample, dtype=bool), u.shape)
     # The compiled kernel sorts each row and forms the chances (clipped to [0, 1]); scipy's incomplete beta
     # function gives the tail in one ufunc call (its exact values), and the kernel again takes log10, the floor,
     # the curve and its minimum.  Every k here lies in 1..trials, so the tail is betainc itself (no edge cases).
@@ -132,6 +132,11 @@ def log10_nfa_curve(
     best = np.empty(h, dtype=np.int64)
     curve_minimum(p, log10_tests + log10_trials, _LOG10_FLOOR, nfa, best)
     return nfa, best + 1 + n_sample
+
+
+def _full(v: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``v`` broadcast to ``shape``, contiguous (the kernel reads rows of it)."""
+    return np.ascontiguousarray(v if v.shape == shape else np.broadcast_to(v, shape))
 
 
 _COUNTS: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}

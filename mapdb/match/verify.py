@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ._kernel import quad_tolerance
 from .evidence.image import ImageEvidence
 from .evidence.points import refinement_inliers
 from .geometry import fit_similarity_complex
@@ -100,12 +101,10 @@ def decision_nfa(
         # say the map is emptier than it is around the footprint) makes a chance alignment look rarer.
         lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours, near=near))
     u = lam * share * math.pi * r2
-    zq = z[img_ids]
-    mean = np.add.reduce(zq, axis=1) / zq.shape[1]  # zq.mean(axis=1), without the method's Python wrapper
-    spread = np.add.reduce(np.abs(zq - mean[:, None]) ** 2, axis=1)
-    shape = 1.25 + np.abs(z[None, :] - mean[:, None]) ** 2 / spread[:, None]
-    sample = np.zeros((h, n), bool)
-    sample[np.arange(h)[:, None], img_ids] = True
+    # shape = 1.25 + |z - mean|^2 / spread of each quad's points, and its sample mask, in the compiled kernel.
+    shape = np.empty((h, n))
+    sample = np.empty((h, n), bool)
+    quad_tolerance(np.ascontiguousarray(z, np.complex128), np.ascontiguousarray(img_ids, np.int64), shape, sample)
     nfa, _ = log10_nfa_curve(u, 4, log10_tests, shape=shape, sample=sample)
     return nfa + from_sample
 
