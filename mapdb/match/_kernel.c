@@ -362,11 +362,17 @@ static void chances_shaped(const double *u, const double *shape, const unsigned 
         k[i].i = i;
     }
     sort_keyed(k, n);
+    int positive = 1;  /* every trial object's shape > 0: an infinite threshold's chances are then all 1 */
     for (Py_ssize_t i = 0; i < t; i++) {
         rest[i] = shape[k[ns + i].i];
+        positive &= rest[i] > 0.0;
     }
     for (Py_ssize_t j = 0; j < t; j++) {
         double tau = k[ns + j].v;
+        if (positive && tau == INFINITY) {  /* each term expm1(-inf) = -1, their sum -t exactly: p = 1 exactly */
+            p[j] = 1.0;
+            continue;
+        }
         if (!fallback) {
             for (Py_ssize_t i = 0; i < t; i++) {
                 term[i] = expm1(-tau * rest[i]);
@@ -781,6 +787,122 @@ static PyObject *first_allowed(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ the binomial tail */
+
+/* ln of the sum of C(n, j) p^j (1-p)^(n-j) from j = from, stepping by ``step`` (+1 or -1) while the terms fall (the
+ * first is the largest): each term from its neighbour by their ratio, so nothing overflows and sums far below the
+ * double range keep their logarithm.  ``lf[i]`` = ln i!. */
+static double log_terms(Py_ssize_t n, Py_ssize_t from, Py_ssize_t step, double p, const double *lf)
+{
+    double ratio = p / (1.0 - p);
+    double head = lf[n] - lf[from] - lf[n - from] + (double)from * log(p) + (double)(n - from) * log1p(-p);
+    double sum = 1.0, t = 1.0;
+    for (Py_ssize_t j = from + step; j >= 0 && j <= n; j += step) {
+        t *= step > 0 ? ratio * (double)(n - j + 1) / (double)j : (double)(j + 1) / ((double)(n - j) * ratio);
+        sum += t;
+        if (t < sum * 1e-17) {  /* the rest cannot change the sum */
+            break;
+        }
+    }
+    return head + log(sum);
+}
+
+/* log10 P(Binomial(n, p) >= k) for 1 <= k <= n, as log10(betainc(k, n - k + 1, p)) rounds it: below the mode the
+ * upper tail's terms summed from k up; from the mode on, the lower tail's from k - 1 down, and the tail
+ * 1 - lower rounded to a double first (a tail of 1.0 is 1.0 as betainc gives it: the curve's ties stay ties).
+ * Agrees with scipy's betainc to 1.4e-13 in log10 down to tails of 1e-275 (tests/test_kernel.py). */
+static double log10_tail(Py_ssize_t n, Py_ssize_t k, double p, const double *lf)
+{
+    if (isnan(p)) {
+        return NAN;
+    }
+    if (p <= 0.0) {
+        return -INFINITY;
+    }
+    if (p >= 1.0) {
+        return 0.0;
+    }
+    if (k > (Py_ssize_t)floor((double)(n + 1) * p)) {
+        return log_terms(n, k, 1, p, lf) / M_LN10;
+    }
+    return log10(1.0 - exp(log_terms(n, k - 1, -1, p, lf)));
+}
+
+/* Each row's minimum over k of offset + max(log10 tail, floor), and where it is (numpy's argmin: the first
+ * minimum, the first NaN if any). */
+static Py_ssize_t curve_rows(const double *p, Py_ssize_t h, Py_ssize_t t, double offset, double floor_,
+                             double exact_from, const double *lf, double *nfa, int64_t *best, unsigned char *beyond)
+{
+    Py_ssize_t count = 0;
+    for (Py_ssize_t r = 0; r < h; r++) {
+        Py_ssize_t arg = 0;
+        double low = 0.0;
+        beyond[r] = 0;
+        for (Py_ssize_t j = 0; j < t; j++) {
+            double l = log10_tail(t, j + 1, p[r * t + j], lf);
+            beyond[r] |= l < exact_from;
+            double c = offset + ((l >= floor_ || isnan(l)) ? l : floor_);
+            if (j == 0 || (!isnan(low) && (c < low || isnan(c)))) {
+                low = c;
+                arg = j;
+            }
+        }
+        nfa[r] = low;
+        best[r] = (int64_t)arg;
+        count += beyond[r];
+    }
+    return count;
+}
+
+static PyObject *nfa_curve(PyObject *self, PyObject *args)
+{
+    PyObject *ou, *oshape, *osample, *onfa, *obest, *obeyond;
+    Py_ssize_t ns, count;
+    double offset, floor_, exact_from;
+    Arr a[6] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOndddOOO:nfa_curve", &ou, &oshape, &osample, &ns, &offset, &floor_, &exact_from,
+                          &onfa, &obest, &obeyond)) {
+        return NULL;
+    }
+    if (take(ou, &a[0], "u", 'd', 2, 0, 0) || take(oshape, &a[1], "shape", 'd', 2, 0, 1)
+        || take(osample, &a[2], "sample", '?', 2, 0, 1) || take(onfa, &a[3], "nfa", 'd', 1, 1, 0)
+        || take(obest, &a[4], "best", 'q', 1, 1, 0) || take(obeyond, &a[5], "beyond", '?', 1, 1, 0)) {
+        release(a, 6);
+        return NULL;
+    }
+    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1), t = n - ns;
+    if (ns < 0 || ns >= n) {
+        PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", n - 1, ns);
+    } else if (!check_shape(&a[1], "shape", h, n) && !check_shape(&a[2], "sample", h, n)
+               && !check_shape(&a[3], "nfa", h, 0) && !check_shape(&a[4], "best", h, 0)) {
+        check_shape(&a[5], "beyond", h, 0);
+    }
+    if (PyErr_Occurred()) {
+        release(a, 6);
+        return NULL;
+    }
+    Keyed *k = PyMem_Malloc(sizeof(Keyed) * (size_t)(n + 1));
+    double *x = PyMem_Malloc(sizeof(double) * (size_t)(2 * n + 2 + t + 1 + h * t));
+    if (k == NULL || x == NULL) {
+        PyMem_Free(k);
+        PyMem_Free(x);
+        release(a, 6);
+        return PyErr_NoMemory();
+    }
+    double *lf = x + 2 * n + 2, *p = lf + t + 1;
+    for (Py_ssize_t i = 0; i <= t; i++) {
+        lf[i] = lgamma((double)i + 1.0);
+    }
+    Py_BEGIN_ALLOW_THREADS
+    chances_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, k, x, x + n + 1, p);
+    count = curve_rows(p, h, t, offset, floor_, exact_from, lf, D(a[3]), Q(a[4]), B(a[5]));
+    Py_END_ALLOW_THREADS
+    PyMem_Free(k);
+    PyMem_Free(x);
+    release(a, 6);
+    return PyLong_FromSsize_t(count);
+}
+
 /* ------------------------------------------------------------------ the decision's tolerance shapes */
 
 /* One hypothesis: 1.25 + |z - mean|^2 / spread of its quad's image points, and the quad's objects marked. */
@@ -861,6 +983,9 @@ static PyMethodDef methods[] = {
      "fit_similarity(src, dst, weights, a, b): weighted least-squares similarity a row."},
     {"first_allowed", first_allowed, METH_VARARGS,
      "first_allowed(d, i, reach, z, exclude, repeat, allowed, out_d, out_i): the nearest allowed neighbour."},
+    {"nfa_curve", nfa_curve, METH_VARARGS,
+     "nfa_curve(u, shape, sample, n_sample, offset, floor, exact_from, nfa, best, beyond): log10_nfa_curve's "
+     "minimum, the tail included; rows with a log10 tail below exact_from are marked in beyond (returns how many)."},
     {"quad_tolerance", quad_tolerance, METH_VARARGS,
      "quad_tolerance(z, img_ids, shape, sample): the decision's tolerance shapes and sample mask a hypothesis."},
     {NULL, NULL, 0, NULL},
