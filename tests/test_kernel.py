@@ -11,9 +11,12 @@ relative where numpy does not fuse them.
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 import textwrap
+from fractions import Fraction
+from math import comb
 
 import numpy as np
 import pytest
@@ -243,6 +246,38 @@ def test_the_decision_s_tolerance_shapes_are_numpy_s() -> None:
         np.testing.assert_array_equal(sample, want_sample)
 
 
+def exact_log10_tail(n: int, k: int, p: float) -> float:
+    """log10 P(Binomial(n, p) >= k) in exact rational arithmetic (p as the double it is)."""
+    chance = Fraction(p)
+    tail = sum(comb(n, j) * chance**j * (1 - chance) ** (n - j) for j in range(k, n + 1))
+    if tail == 0:
+        return -math.inf
+    digits = len(str(tail.denominator)) - len(str(tail.numerator))  # keep the ratio within float range
+    return math.log10(float(tail * Fraction(10) ** digits)) - digits
+
+
+def test_the_binomial_tail_is_exact_where_betainc_is_and_where_it_is_not() -> None:
+    rng = np.random.default_rng(8)
+    worst_exact = worst_betainc = 0.0
+    for _ in range(150):
+        n = int(rng.integers(1, 60))
+        k = int(rng.integers(1, n + 1))
+        p = float(10 ** rng.uniform(-12, 0)) if rng.random() < 0.7 else float(1 - 10 ** rng.uniform(-15, -0.3))
+        got, exact = _kernel.tail_log10(n, k, p), exact_log10_tail(n, k, p)
+        if exact > -300:
+            worst_exact = max(worst_exact, abs(got - exact))
+        if exact > -250:
+            worst_betainc = max(worst_betainc, abs(got - float(np.log10(betainc(k, n - k + 1, p)))))
+    assert worst_exact < 1e-12
+    assert worst_betainc < 1e-12
+    # Below about 1e-275 betainc underflows early (to 0 here, for a tail of 1e-299.07); the kernel keeps its value.
+    p = 0.0002778737894631962
+    assert abs(_kernel.tail_log10(115, 91, p) - exact_log10_tail(115, 91, p)) < 1e-12
+    assert exact_log10_tail(115, 91, p) > -300 and betainc(91, 25, p) == 0
+    assert _kernel.tail_log10(5, 1, 0.0) == -math.inf and _kernel.tail_log10(5, 5, 1.0) == 0.0
+    assert math.isnan(_kernel.tail_log10(5, 2, math.nan))
+
+
 # ---------------------------------------------------------------- refinement
 
 
@@ -378,6 +413,8 @@ def test_wrong_calls_raise_type_or_value_errors() -> None:
     with pytest.raises(ValueError, match="exclude"):
         _kernel.first_allowed(np.zeros((4, 2)), np.zeros((4, 2), np.int64), np.ones(4), np.zeros(3, complex),
                               np.zeros((1, 2), complex), 2, None, np.empty(4), np.empty(4, np.int64))
+    with pytest.raises(ValueError, match="k <= n"):
+        _kernel.tail_log10(3, 4, 0.5)
     with pytest.raises(ValueError, match="img_ids"):
         _kernel.quad_tolerance(np.zeros(3, complex), np.array([[0, 1, 2, 3]]), np.empty((1, 3)),
                                np.empty((1, 3), bool))

@@ -810,7 +810,8 @@ static double log_terms(Py_ssize_t n, Py_ssize_t from, Py_ssize_t step, double p
 /* log10 P(Binomial(n, p) >= k) for 1 <= k <= n, as log10(betainc(k, n - k + 1, p)) rounds it: below the mode the
  * upper tail's terms summed from k up; from the mode on, the lower tail's from k - 1 down, and the tail
  * 1 - lower rounded to a double first (a tail of 1.0 is 1.0 as betainc gives it: the curve's ties stay ties).
- * Agrees with scipy's betainc to 1.4e-13 in log10 down to tails of 1e-275 (tests/test_kernel.py). */
+ * Agrees with scipy's betainc to 1.4e-13 in log10 down to tails of 1e-275, below which betainc underflows early,
+ * and with exact rational arithmetic to 1e-12 (tests/test_kernel.py). */
 static double log10_tail(Py_ssize_t n, Py_ssize_t k, double p, const double *lf)
 {
     if (isnan(p)) {
@@ -826,6 +827,29 @@ static double log10_tail(Py_ssize_t n, Py_ssize_t k, double p, const double *lf)
         return log_terms(n, k, 1, p, lf) / M_LN10;
     }
     return log10(1.0 - exp(log_terms(n, k - 1, -1, p, lf)));
+}
+
+static PyObject *tail_log10(PyObject *self, PyObject *args)
+{
+    Py_ssize_t n, k;
+    double p;
+    if (!PyArg_ParseTuple(args, "nnd:tail_log10", &n, &k, &p)) {
+        return NULL;
+    }
+    if (k < 1 || k > n || n > 100000) {
+        PyErr_Format(PyExc_ValueError, "need 1 <= k <= n <= 100000, got n = %zd, k = %zd", n, k);
+        return NULL;
+    }
+    double *lf = PyMem_Malloc(sizeof(double) * (size_t)(n + 1));
+    if (lf == NULL) {
+        return PyErr_NoMemory();
+    }
+    for (Py_ssize_t i = 0; i <= n; i++) {
+        lf[i] = lgamma((double)i + 1.0);
+    }
+    double out = log10_tail(n, k, p, lf);
+    PyMem_Free(lf);
+    return PyFloat_FromDouble(out);
 }
 
 /* Each row's minimum over k of offset + max(log10 tail, floor), and where it is (numpy's argmin: the first
@@ -986,6 +1010,8 @@ static PyMethodDef methods[] = {
     {"nfa_curve", nfa_curve, METH_VARARGS,
      "nfa_curve(u, shape, sample, n_sample, offset, floor, exact_from, nfa, best, beyond): log10_nfa_curve's "
      "minimum, the tail included; rows with a log10 tail below exact_from are marked in beyond (returns how many)."},
+    {"tail_log10", tail_log10, METH_VARARGS,
+     "tail_log10(n, k, p): log10 P(Binomial(n, p) >= k), the kernel's binomial tail (for tests)."},
     {"quad_tolerance", quad_tolerance, METH_VARARGS,
      "quad_tolerance(z, img_ids, shape, sample): the decision's tolerance shapes and sample mask a hypothesis."},
     {NULL, NULL, 0, NULL},

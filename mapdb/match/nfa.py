@@ -136,9 +136,10 @@ def log10_nfa_curve(
 
 
 # The kernel's binomial tail (a sum of its terms from the largest) agrees with scipy's incomplete beta function
-# (boost's ibeta) to 1.4e-13 in log10 down to tails of 1e-275, but below that betainc loses digits (up to 0.93 in
-# log10 at 1e-297, where the kernel's sum agrees with exact rational arithmetic; tests/test_kernel.py).  The rows
-# with a tail below 1e-250 take betainc's values, as before the kernel, so that no ranking or answer changes.
+# (boost's ibeta) to 1.4e-13 in log10 down to tails of 1e-275, but below that betainc underflows early (to 0, read
+# as the floor, for a tail of 1e-299.07, which the kernel's sum gives as exact rational arithmetic does;
+# tests/test_kernel.py).  The rows with a tail below 1e-250 take betainc's values, as before the kernel, so that
+# no ranking or answer changes.
 _BETAINC_BELOW = -250.0
 
 
