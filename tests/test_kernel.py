@@ -413,6 +413,9 @@ def test_wrong_calls_raise_type_or_value_errors() -> None:
     with pytest.raises(ValueError, match="exclude"):
         _kernel.first_allowed(np.zeros((4, 2)), np.zeros((4, 2), np.int64), np.ones(4), np.zeros(3, complex),
                               np.zeros((1, 2), complex), 2, None, np.empty(4), np.empty(4, np.int64))
+    with pytest.raises(ValueError, match="negative"):
+        _kernel.first_allowed(np.zeros((4, 2)), np.full((4, 2), -1, np.int64), np.ones(4), np.zeros(3, complex),
+                              None, 1, None, np.empty(4), np.empty(4, np.int64))
     with pytest.raises(ValueError, match="k <= n"):
         _kernel.tail_log10(3, 4, 0.5)
     with pytest.raises(ValueError, match="img_ids"):

@@ -771,6 +771,15 @@ static PyObject *first_allowed(PyObject *self, PyObject *args)
     }
     Py_ssize_t m = dim(&a[0], 0), k = dim(&a[0], 1), nz = dim(&a[3], 0);
     Py_ssize_t ne = a[4].held ? dim(&a[4], 1) : 0;
+    for (Py_ssize_t j = 0; j < dim(&a[1], 0) * dim(&a[1], 1) && !PyErr_Occurred(); j++) {
+        if (Q(a[1])[j] < 0) {  /* a KD-tree's indices: 0 .. len(objects), the last for "none" */
+            PyErr_SetString(PyExc_ValueError, "i must hold no negative index");
+        }
+    }
+    if (PyErr_Occurred()) {
+        release(a, 8);
+        return NULL;
+    }
     if (repeat < 1 || nz < 1 || (a[4].held && dim(&a[4], 0) * repeat < m)) {
         PyErr_SetString(PyExc_ValueError, "need repeat >= 1, a map object, and an exclude row per repeat rows");
     } else if (!check_shape(&a[1], "i", m, k) && !check_shape(&a[2], "reach", m, 0)
