@@ -46,6 +46,7 @@ def import_baseline(rev: str, workdir: Path, module: str = "localize") -> Module
         archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb"], check=True,
                                  capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", str(staging)], input=archive, check=True)
+        _build_kernel(rev, staging)
         (staging / "mapdb").rename(staging / "mapdb_baseline")
         try:
             staging.rename(pkg_dir)
@@ -54,6 +55,18 @@ def import_baseline(rev: str, workdir: Path, module: str = "localize") -> Module
     if str(pkg_dir) not in sys.path:
         sys.path.insert(0, str(pkg_dir))
     return importlib.import_module(f"mapdb_baseline.{module}")
+
+
+def _build_kernel(rev: str, staging: Path) -> None:
+    """Build the revision's compiled kernel in place (``staging/mapdb``), by its own ``setup.py``, when it has one:
+    the baseline package must import as installed."""
+    if not (staging / "mapdb" / "match" / "_kernel.c").exists():
+        return
+    setup = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:setup.py"], check=True,
+                           capture_output=True).stdout
+    (staging / "setup.py").write_bytes(setup)
+    subprocess.run([sys.executable, "setup.py", "-q", "build_ext", "--inplace"], cwd=staging, check=True,
+                   capture_output=True)
 
 
 def code_digest() -> str:
