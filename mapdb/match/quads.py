@@ -9,6 +9,7 @@ reflection (images are not mirrored).  The labels of ``A, B, C, D`` are part of 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
@@ -16,8 +17,8 @@ import numpy as np
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "near_only",
-           "nearest_others", "neighbour_quads", "quad_frames"]
+__all__ = ["FEW_POINTS", "LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys",
+           "near_only", "nearest_few", "nearest_others", "neighbour_quads", "quad_frames"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -61,8 +62,9 @@ def neighbour_quads(
     if k < 3 or not anchor_ids.size:
         empty = np.zeros((0, 4), dtype=np.int64)
         return (empty, np.zeros(0, np.int64)) if with_anchor else empty
-    nn = nearest_others(quick_tree(xy), xy, anchor_ids, k)
-    triples = np.array(list(combinations(range(k), 3)))
+    nearest = nearest_few(xy, k + 1, anchor_ids)
+    nn = nearest[:, 1:] if nearest is not None else nearest_others(quick_tree(xy), xy, anchor_ids, k)
+    triples = _triples(k)
     anchor = np.repeat(anchor_ids, len(triples))
     quads = np.concatenate([anchor[:, None], nn[:, triples].reshape(-1, 3)], axis=1)
     quads.sort(axis=1)
@@ -71,6 +73,42 @@ def neighbour_quads(
     if n < _PACKABLE:
         return quads[np.sort(first_rows(quads, n))]
     return np.unique(quads, axis=0)
+
+
+@lru_cache(maxsize=16)
+def _triples(k: int) -> np.ndarray:
+    """Every triple of ``range(k)``, in :func:`itertools.combinations` order (made once a ``k``)."""
+    return np.array(list(combinations(range(k), 3)))
+
+
+# Up to this many points, :func:`nearest_few` sorts their distances instead of building and querying a KD-tree:
+# an image's dozen objects cost a tree build and a query, some 50-80 us, where the sort costs a few.
+FEW_POINTS = 64
+
+
+def nearest_few(xy: np.ndarray, k: int, ids: np.ndarray | None = None) -> np.ndarray | None:
+    """Each point's (or points ``ids``') ``k`` nearest points, itself first: a KD-tree query's answer for at most
+    :data:`FEW_POINTS` points, or None (more points; two at the same distance, whose order a tree does not fix).
+    Squared distances are summed as the tree sums them (``dx * dx + dy * dy``): its order wherever none tie.
+
+    Examples
+    --------
+    >>> xy = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
+    >>> nearest_few(xy, 2).tolist(), nearest_few(np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0]]), 2) is None
+    ([[0, 1], [1, 0], [2, 1]], True)
+    """
+    n = len(xy)
+    if n > FEW_POINTS or not 0 < k <= n:
+        return None
+    rows = xy if ids is None else xy[ids]
+    dx = rows[:, 0, None] - xy[None, :, 0]
+    dy = rows[:, 1, None] - xy[None, :, 1]
+    d2 = dx * dx + dy * dy
+    order = np.argsort(d2, axis=1, kind="stable")
+    ranked = np.take_along_axis(d2, order[:, : k + 1], axis=1)  # a tie up to the (k+1)-th: the tree's order
+    if (ranked[:, 1:] == ranked[:, :-1]).any():
+        return None
+    return order[:, :k]
 
 
 def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] | None
@@ -261,6 +299,7 @@ class QuadIndex:
         else:
             self.tree = None
         self.quad_z = zq
+        self._where: tuple[float, float, float, float] | None = None
 
     @property
     def n_quads(self) -> int:
@@ -301,6 +340,8 @@ class QuadIndex:
             if near is None:
                 raise ValueError("an index with positions is looked up near a place")
             place, reach = complex(near[0]) * POSITION_WEIGHT, POSITION_WEIGHT * float(near[1])
+            if self._out_of_reach(place, reach):
+                return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
             bound += reach
         k = min(k, self.n_quads)
         query = _query_points(invariants, labels, len(self.labels), place if self.positions else None)
@@ -318,6 +359,19 @@ class QuadIndex:
         keep = (dist[rows, cols] ** 2 - off2 <= radius[rows] ** 2) & (off2 <= reach**2)
         return rows[keep], self.quad_z[hit[keep]]
 
+    def _out_of_reach(self, place: complex, reach: float) -> bool:
+        """No quad's position (tree units) within ``reach`` of ``place``, by the box of the positions (per axis no
+        nearer than any position, in floating point too): the lookup would keep no hit, its tree query is saved."""
+        where = getattr(self, "_where", None)  # an index made without __init__ (blocks_view's parts) has none yet
+        if where is None:
+            assert self.tree is not None
+            lo, hi = self.tree.data[:, 5:7].min(axis=0).tolist(), self.tree.data[:, 5:7].max(axis=0).tolist()
+            where = self._where = (lo[0], lo[1], hi[0], hi[1])
+        x0, y0, x1, y1 = where
+        dx = max(x0 - place.real, 0.0, place.real - x1)
+        dy = max(y0 - place.imag, 0.0, place.imag - y1)
+        return dx * dx + dy * dy > reach * reach
+
     @classmethod
     def merged(cls, parts: Sequence[QuadIndex]) -> QuadIndex:
         """One index over the quads of several (the tiles around a prior): one lookup instead of one per part.
@@ -334,6 +388,7 @@ class QuadIndex:
         merged = cls.__new__(cls)
         merged.labels = parts[0].labels if parts else ()
         merged.positions = bool(parts) and parts[0].positions
+        merged._where = None
         if any(q.positions != merged.positions for q in parts):
             raise ValueError("cannot merge quad indexes with and without positions")
         if not parts:
