@@ -288,7 +288,7 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
           f"{args.prior_radius:g} m; "
           f"pose prior: the disc, the true heading (sigma {HEADING_SIGMA_DEG:g} deg) and altitude; numpy calls over "
           f"the first {min(args.count, args.n)}; load average {os.getloadavg()[0]:.1f}")
-    if args.baseline:
+    if args.baseline and not _has_module(args.baseline, work, "match.pose_prior"):
         print(f"  (baseline {args.baseline} has no pose-prior stage: its \"pose prior\" row is its disc-only prior, "
               "the same documents with the heading ignored and the altitude's scale range applied)")
     print(f"  {'map':<14} {'code':<17} {'case':<10} {'median ms':>9} {'p95 ms':>8} {'localized':>10} "
@@ -312,14 +312,19 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
     print(f"  load average after: {os.getloadavg()[0]:.1f}; gauge {gauge_ms():.1f} ms")
 
 
+def _has_module(rev: str, work: Path, module: str) -> bool:
+    """Whether revision ``rev``'s mapdb has ``mapdb.<module>`` (imported, as the baseline is)."""
+    try:
+        import_baseline(rev, work, module)
+    except ImportError:
+        return False
+    return True
+
+
 def _world_versions(versions: dict, baseline: str | None, work: Path) -> dict:
     """The versions timed on the 1M world: without the baseline when it has no stored quad index (it would build
     the whole world's in memory: about 250 s and 14 GB)."""
-    if baseline is None:
-        return versions
-    try:
-        import_baseline(baseline, work, "match.index.stored")
-    except ImportError:
+    if baseline is not None and not _has_module(baseline, work, "match.index.stored"):
         print(f"  {WORLD}: baseline {baseline} has no stored quad index (it would build the world's in memory, "
               "about 250 s and 14 GB): this tree only")
         return {"this tree": versions["this tree"]}
