@@ -31,6 +31,7 @@ OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
 # Per pair, the vertex order (A, B, C, D) it gives: the pair, then the two others.
 _ORDERS = np.concatenate([PAIRS, OTHERS], axis=1)
 
+_SORT4 = ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2))  # a sorting network of four
 # Quads of fewer points than this are packed into one int64 key (n**4 < 2**63).
 _PACKABLE = 55_000
 
@@ -66,8 +67,10 @@ def neighbour_quads(
     nn = nearest[:, 1:] if nearest is not None else nearest_others(quick_tree(xy), xy, anchor_ids, k)
     triples = _triples(k)
     anchor = np.repeat(anchor_ids, len(triples))
-    quads = np.concatenate([anchor[:, None], nn[:, triples].reshape(-1, 3)], axis=1)
-    quads.sort(axis=1)
+    cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
+    for i, j in _SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
+        cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
+    quads = np.column_stack(cols)
     if with_anchor:
         return quads, anchor
     if n < _PACKABLE:
@@ -77,13 +80,11 @@ def neighbour_quads(
 
 @lru_cache(maxsize=16)
 def _triples(k: int) -> np.ndarray:
-    """Every triple of ``range(k)``, in :func:`itertools.combinations` order (made once a ``k``)."""
+    """Every triple of ``range(k)``, in combinations order (made once a ``k``)."""
     return np.array(list(combinations(range(k), 3)))
 
 
-# Up to this many points, :func:`nearest_few` sorts their distances instead of building and querying a KD-tree:
-# an image's dozen objects cost a tree build and a query, some 50-80 us, where the sort costs a few.
-FEW_POINTS = 64
+FEW_POINTS = 64  # nearest_few sorts this many points' distances: a tree's build and query cost 50-80 us more
 
 
 def nearest_few(xy: np.ndarray, k: int, ids: np.ndarray | None = None) -> np.ndarray | None:
@@ -101,8 +102,7 @@ def nearest_few(xy: np.ndarray, k: int, ids: np.ndarray | None = None) -> np.nda
     if n > FEW_POINTS or not 0 < k <= n:
         return None
     rows = xy if ids is None else xy[ids]
-    dx = rows[:, 0, None] - xy[None, :, 0]
-    dy = rows[:, 1, None] - xy[None, :, 1]
+    dx, dy = (rows[:, i, None] - xy[None, :, i] for i in (0, 1))
     d2 = dx * dx + dy * dy
     order = np.argsort(d2, axis=1, kind="stable")
     ranked = np.take_along_axis(d2, order[:, : k + 1], axis=1)  # a tie up to the (k+1)-th: the tree's order
