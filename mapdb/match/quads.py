@@ -9,7 +9,6 @@ reflection (images are not mirrored).  The labels of ``A, B, C, D`` are part of 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from functools import lru_cache
 from itertools import combinations
 
 import numpy as np
@@ -65,7 +64,7 @@ def neighbour_quads(
         return (empty, np.zeros(0, np.int64)) if with_anchor else empty
     nearest = nearest_few(xy, k + 1, anchor_ids)
     nn = nearest[:, 1:] if nearest is not None else nearest_others(quick_tree(xy), xy, anchor_ids, k)
-    triples = _triples(k)
+    triples = np.array(list(combinations(range(k), 3)))
     anchor = np.repeat(anchor_ids, len(triples))
     cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
     for i, j in _SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
@@ -76,12 +75,6 @@ def neighbour_quads(
     if n < _PACKABLE:
         return quads[np.sort(first_rows(quads, n))]
     return np.unique(quads, axis=0)
-
-
-@lru_cache(maxsize=16)
-def _triples(k: int) -> np.ndarray:
-    """Every triple of ``range(k)``, in combinations order (made once a ``k``)."""
-    return np.array(list(combinations(range(k), 3)))
 
 
 FEW_POINTS = 64  # nearest_few sorts this many points' distances: a tree's build and query cost 50-80 us more
@@ -132,7 +125,8 @@ def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] 
 def first_rows(quads: np.ndarray, n: int) -> np.ndarray:
     """Index of the first occurrence of each distinct row of ``quads`` (ids below ``n``), in row order.
 
-    Below ``_PACKABLE`` points each row becomes one integer key: unique on it is much faster than on rows.
+    Below ``_PACKABLE`` points each row becomes one integer key, sorted unstably (twice as fast as the stable sort
+    of ``np.unique(..., return_index=True)``), each key's least row taken: the same rows, in the same (key) order.
 
     Examples
     --------
@@ -141,9 +135,13 @@ def first_rows(quads: np.ndarray, n: int) -> np.ndarray:
     >>> first_rows(np.zeros((0, 4), np.int64), 5).tolist()
     []
     """
+    if not len(quads):
+        return np.zeros(0, np.int64)
     if n < _PACKABLE:
         key = ((quads[:, 0] * n + quads[:, 1]) * n + quads[:, 2]) * n + quads[:, 3]
-        _, first = np.unique(key, return_index=True)
+        perm = np.argsort(key)
+        ordered = key[perm]
+        first = np.minimum.reduceat(perm, np.flatnonzero(np.concatenate(([True], ordered[1:] != ordered[:-1]))))
     else:
         _, first = np.unique(quads, axis=0, return_index=True)
     return first
