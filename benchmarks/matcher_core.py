@@ -21,14 +21,20 @@
    (``localizer.TILE_SIZE_M`` square, ``TILE_PAD_M`` of neighbours around it; the tiles of 40 objects picked at
    random): median and p95 ms, this tree's and the baseline's taking turns tile by tile, and whether their trees
    and quads are identical.
-5. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
+5. The 1M world (``--maps ...,world1m``): the synthetic world of ``benchmarks/lost_in_space_index.py`` (copies
+   of the three extracts, rotated, each object jittered by 2 m: ``synthetic_world.synthetic_world``), assembled
+   and written once with its stored quad index (``mapdb index``) into the cache directory (the build time is
+   printed when it is made), timed without a prior only (with one, most of a hundred scattered images would
+   build their own tiles: a tile build, not the matcher).  A baseline without the stored index (5144dec) would
+   build the whole world's quad index in memory (about 250 s and 14 GB): its 1M row is left out, saying so.
+6. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
    answer's line on the pipe (the first answer) and to exit, median of ``--repeats`` fresh processes (5 by
    default), the baseline's beside this tree's (its ``mapdb`` and CLI first on ``PYTHONPATH``).  As installed: Python's
    bytecode cache in use (kept in a temporary ``PYTHONPYCACHEPREFIX``, filled by one untimed run of each
    command, so the working tree gets no ``__pycache__``); and with ``PYTHONDONTWRITEBYTECODE=1`` and no
    cache, as in a sandbox where every process compiles mapdb's sources.  The command is the ``mapdb``
    script beside this Python (a version manager's shim on PATH, such as pyenv's, adds 0.06-0.1 s of its
-   own).  ``--startup-only`` skips parts 1-3, ``--no-startup`` skips part 4.
+   own).  ``--startup-only`` skips parts 1-5, ``--no-startup`` skips part 6.
 
 With ``--baseline REV`` the code of that revision runs in the same process, image by image in turn with
 this tree's (which goes first alternates image by image), so both meet the same load.
@@ -52,7 +58,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import as_json, cached_maps, cli_tree, import_baseline, shared_data  # noqa: E402
+from _baseline import as_json, cached_maps, cli_tree, code_digest, import_baseline, shared_data  # noqa: E402
 
 DATA = shared_data("osm")
 EXTRACTS = {
@@ -61,6 +67,11 @@ EXTRACTS = {
     "liechtenstein": "liechtenstein-2013-08-03.osm.pbf",
 }
 CACHE = Path(tempfile.gettempdir()) / "mapdb-bench-matcher-core"
+# The synthetic world (part 5): its objects (at least), each copy's objects jittered by this (m, 1 sigma), as
+# lost_in_space_index.py's default world.
+WORLD = "world1m"
+WORLD_OBJECTS = 1_000_000
+WORLD_JITTER_M = 2.0
 ANDORRA = DATA / EXTRACTS["andorra"]
 
 
@@ -152,13 +163,14 @@ def case_images(case: str, images: list[dict]) -> list[dict]:
                        "heading_sigma_deg": HEADING_SIGMA_DEG}} for im in images]
 
 
-def time_images(versions: dict, map_path: Path, images: list[dict], counted: int) -> dict:
+def time_images(versions: dict, map_path: Path, images: list[dict], counted: int,
+                cases: tuple[str, ...] = CASES) -> dict:
     """Per version and case (:data:`CASES`): median and p95 ms per image of ``localize``, alternating
     versions image by image; localized images, answers the same as the first version's (:func:`same_answer`;
     ``differ`` lists the others: image id, this version's and the first's), and the median numpy calls an image
     over the first ``counted`` images."""
     result = {}
-    for case in CASES:
+    for case in cases:
         subset = case_images(case, images)
         maps = {label: store.open_map(map_path) for label, (localize, store) in versions.items()}
         times: dict[str, list[float]] = {label: [] for label in versions}
@@ -276,7 +288,7 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
           f"{args.prior_radius:g} m; "
           f"pose prior: the disc, the true heading (sigma {HEADING_SIGMA_DEG:g} deg) and altitude; numpy calls over "
           f"the first {min(args.count, args.n)}; load average {os.getloadavg()[0]:.1f}")
-    if args.baseline:
+    if args.baseline and not _has_module(args.baseline, work, "match.pose_prior"):
         print(f"  (baseline {args.baseline} has no pose-prior stage: its \"pose prior\" row is its disc-only prior, "
               "the same documents with the heading ignored and the altitude's scale range applied)")
     print(f"  {'map':<14} {'code':<17} {'case':<10} {'median ms':>9} {'p95 ms':>8} {'localized':>10} "
@@ -284,7 +296,9 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
     for name, path in maps.items():
         images = simulated(path, args.n, args.seed, args.prior_radius)
         gauge = gauge_ms()
-        results = time_images(versions, path, images, args.count)
+        cases, here = (("no prior",), _world_versions(versions, args.baseline, work)) if name == WORLD else (CASES,
+                                                                                                         versions)
+        results = time_images(here, path, images, args.count, cases)
         for label, res in results.items():
             for case, r in res.items():
                 print(f"  {name:<14} {label:<17} {case:<10} {r['median_ms']:9.2f} {r['p95_ms']:8.2f} "
@@ -294,20 +308,65 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
             for case, r in res.items():
                 for image_id, mine, theirs in r["differ"]:
                     print(f"  {name:<14} {label}, {case}: {image_id} differs: {_said(mine)} against {_said(theirs)}")
-        _ratios(name, results, args.baseline)
+        _ratios(name, results, args.baseline if len(here) > 1 else None)
     print(f"  load average after: {os.getloadavg()[0]:.1f}; gauge {gauge_ms():.1f} ms")
+
+
+def _has_module(rev: str, work: Path, module: str) -> bool:
+    """Whether revision ``rev``'s mapdb has ``mapdb.<module>`` (imported, as the baseline is)."""
+    try:
+        import_baseline(rev, work, module)
+    except ImportError:
+        return False
+    return True
+
+
+def _world_versions(versions: dict, baseline: str | None, work: Path) -> dict:
+    """The versions timed on the 1M world: without the baseline when it has no stored quad index (it would build
+    the whole world's in memory: about 250 s and 14 GB)."""
+    if baseline is not None and not _has_module(baseline, work, "match.index.stored"):
+        print(f"  {WORLD}: baseline {baseline} has no stored quad index (it would build the world's in memory, "
+              "about 250 s and 14 GB): this tree only")
+        return {"this tree": versions["this tree"]}
+    return versions
+
+
+def world_map(cache: Path) -> Path:
+    """The 1M world (part 5) and its stored quad index, assembled, written and indexed once into ``cache`` (under
+    the digest of the code that writes maps); the time taken is printed when they are made."""
+    import synthetic_world
+
+    from mapdb.mapfile.writer import write_map
+    from mapdb.match.index.layout import index_path
+    from mapdb.match.index.stored import build_index
+
+    path = cache / f"{WORLD}.{code_digest()}.mapdb"
+    if not path.exists() or not index_path(path).exists():
+        start = time.perf_counter()
+        cache.mkdir(parents=True, exist_ok=True)
+        partial = path.with_suffix(".partial.mapdb")
+        write_map(partial, synthetic_world.synthetic_world(synthetic_world.extract_maps(), WORLD_OBJECTS, seed=0,
+                                                           jitter_m=WORLD_JITTER_M))
+        written = time.perf_counter() - start
+        build_index(partial, index_path(path))
+        partial.rename(path)
+        print(f"{path.name}: assembled and written in {written:.0f} s, its quad index built in "
+              f"{time.perf_counter() - start - written:.0f} s", flush=True)
+    return path
 
 
 def _ratios(name: str, results: dict, baseline: str | None) -> None:
     """Print the cases' ratios in this tree, and this tree's to the baseline's per case."""
     tree = results["this tree"]
     for one, other in (("prior", "no prior"), ("pose prior", "prior"), ("pose prior", "no prior")):
+        if one not in tree or other not in tree:
+            continue
         print(f"  {name:<14} this tree, {one} / {other}: median {tree[one]['median_ms'] / tree[other]['median_ms']:.2f}"
               f", p95 {tree[one]['p95_ms'] / tree[other]['p95_ms']:.2f}")
     if not baseline:
         return
     base = results[f"baseline {baseline}"]
-    for case in CASES:
+    for case in tree:
         said = " (the baseline's: disc only)" if case == "pose prior" else ""
         print(f"  {name:<14} {case}: answers differing from the baseline's{said}: "
               f"{len(base[case]['differ'])} of {base[case]['images']}")
@@ -369,7 +428,8 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=300, help="images a map")
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--baseline", metavar="REV", help="also run the matcher of this git revision")
-    parser.add_argument("--maps", default=",".join(EXTRACTS), help="extracts measured (comma separated)")
+    parser.add_argument("--maps", default=",".join(EXTRACTS),
+                        help=f"maps measured (comma separated): the extracts' names, {WORLD} (the 1M world)")
     parser.add_argument("--prior-radius", type=float, default=300.0,
                         help="the priors' radius, metres (their centres drawn within it of the truth)")
     parser.add_argument("--count", type=int, default=20, help="images whose numpy calls are counted")
@@ -378,9 +438,14 @@ def main() -> None:
     parser.add_argument("--no-startup", action="store_true", help="measure per image only (not start-up)")
     args = parser.parse_args()
     names = [n for n in args.maps.split(",") if n]
-    if not all((DATA / EXTRACTS[n]).exists() for n in names):
+    unknown = [n for n in names if n not in EXTRACTS and n != WORLD]
+    if unknown:
+        parser.error(f"unknown map {unknown[0]!r}; choose from {', '.join([*EXTRACTS, WORLD])}")
+    needed = set(EXTRACTS.values()) if WORLD in names else {EXTRACTS[n] for n in names}
+    if not all((DATA / pbf).exists() for pbf in needed):
         sys.exit(f"skipped: the extracts are not all in {DATA}")
-    maps = cached_maps({n: EXTRACTS[n] for n in names}, DATA, CACHE)
+    built = cached_maps({n: EXTRACTS[n] for n in names if n in EXTRACTS}, DATA, CACHE)
+    maps = {n: world_map(CACHE) if n == WORLD else built[n] for n in names}
     print(f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}; gauge (fixed numpy "
           f"workload) {gauge_ms():.1f} ms")
     with tempfile.TemporaryDirectory() as tmp:

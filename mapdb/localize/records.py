@@ -58,7 +58,7 @@ import numpy as np
 from ..answers import Answer, Candidate
 from ..detections.images import ImageObjects
 from .georef import georeference
-from .lonlat import to_lonlat
+from .lonlat import to_lonlat, to_lonlat_many
 
 __all__ = ["FoundPose", "RejectionError", "elapsed_ms", "finite", "georef_fields", "ok_record", "rejected", "rounded"]
 
@@ -109,28 +109,37 @@ def rejected(image_id: Any, reason: str, start: float, candidates: list[Candidat
 def georef_fields(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bool) -> dict[str, Any]:
     """An accepted answer's ``width``, ``height``, ``transform``, ``transform_error_m``, ``footprint`` and
     ``footprint_lonlat`` (module docs), rounded as the answer's other fields are."""
+    return _located(crs, a, b, image, levelled)[0]
+
+
+def _located(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bool
+             ) -> tuple[dict[str, Any], tuple[float | None, float | None]]:
+    """:func:`georef_fields` and the lon/lat of ``b``: the centre and the footprint's corners in one transform."""
     fields: dict[str, Any] = {"width": image.width, "height": image.height}
     attitude = (image.fov_deg, image.roll_deg or 0.0, image.pitch_deg or 0.0) if levelled and image.fov_deg else None
     where = georeference(a, b, image.width, image.height, attitude)
     if where is None:
-        return fields
+        return fields, to_lonlat(crs, b.real, b.imag)
     ta, tb, tc, td, te, tf = where.transform
     # 1e-9 m a pixel is a micrometre across a 1000-pixel image; offsets to the 0.1 mm.
     fields["transform"] = [rounded(ta, 9), rounded(tb, 9), rounded(tc, 4), rounded(td, 9), rounded(te, 9),
                            rounded(tf, 4)]
     fields["transform_error_m"] = rounded(where.error_m, 3)
-    fields["footprint"] = [[rounded(x, 3), rounded(y, 3)] for x, y in where.footprint]
-    corners = [to_lonlat(crs, float(x), float(y)) for x, y in where.footprint]
+    # numpy's rounding of the whole array: what rounded() does to each of its numpy numbers.
+    fields["footprint"] = np.round(where.footprint, 3).tolist()
+    centre, *corners = to_lonlat_many(crs, [b.real, *where.footprint[:, 0].tolist()],
+                                      [b.imag, *where.footprint[:, 1].tolist()])
     if all(lon is not None and lat is not None for lon, lat in corners):
         fields["footprint_lonlat"] = [[lon, lat] for lon, lat in corners]
-    return fields
+    return fields, centre
 
 
 def ok_record(image_id: Any, crs: str, pose: FoundPose, focal_px: float | None, levelled: bool,
                start: float, image: ImageObjects | None = None) -> Answer:
     """The answer of a localized image (module docs); where it lies on the ground when ``image`` is given."""
     a, b = pose.a, pose.b
-    lon, lat = to_lonlat(crs, b.real, b.imag)
+    fields, (lon, lat) = ({}, to_lonlat(crs, b.real, b.imag)) if image is None else _located(crs, a, b, image,
+                                                                                              levelled)
     return Answer(
         id=image_id,
         status="ok",
@@ -152,6 +161,6 @@ def ok_record(image_id: Any, crs: str, pose: FoundPose, focal_px: float | None, 
         levelled=levelled,
         candidates=pose.candidates,
         **pose.extra,
-        **({} if image is None else georef_fields(crs, a, b, image, levelled)),
+        **fields,
         time_ms=elapsed_ms(start),
     )

@@ -66,11 +66,12 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     rank[np.argsort(np.abs(z), kind="stable")] = np.arange(n)
     batch_of = rank[anchor] // opts.anchors_per_batch
     by_batch = np.argsort(batch_of, kind="stable")
-    first = first_rows(img_quads[by_batch], n)
-    keep = np.zeros(len(img_quads), bool)
-    keep[by_batch[first]] = True
-    n_batches = min(int(batch_of.max()) + 1, opts.max_batches)
-    return [img_quads[keep & (batch_of == i)] for i in range(n_batches)]
+    in_order = img_quads[by_batch]  # batch by batch, each in quad order
+    first = np.sort(first_rows(in_order, n))
+    n_batches = min(int(batch_of[by_batch[-1]]) + 1, opts.max_batches)
+    # Cut where each batch ends: a few calls, not a few per batch.
+    ends = np.searchsorted(batch_of[by_batch[first]], np.arange(1, n_batches + 1))
+    return np.split(in_order[first], ends)[:n_batches]
 
 
 def round_hypotheses(
@@ -160,13 +161,16 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     since an image has a few hundred quads and per-block calls would cost more than the arithmetic.
     """
     m = len(zq)
+    # One pixel error for every point (the usual round): scalars where arrays of one value would do, the same
+    # arithmetic element by element.
+    one = float(sigma_px) if np.ndim(sigma_px) == 0 else None
     sigma = np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape)
     d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
     by_length = np.argsort(-d, axis=1)
     length = d[np.arange(m)[:, None], by_length[:, :2]]  # (m, 2): longest, second longest
     # The longest pair decides the frame; when the second longest is within noise of it, a noisy image can
     # pick either, so both frames are looked up.
-    tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * sigma.max(axis=1)
+    tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * (sigma.max(axis=1) if one is None else one)
     use = np.column_stack([np.ones(m, bool), length[:, 0] - length[:, 1] < tie]) & (length > 0.0)
     rank, sel = np.nonzero(use.T)  # frame-major: every quad's first frame, then the ties' second
     if not sel.size:
@@ -174,7 +178,7 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     order0, t0 = quad_frames(zq[sel], by_length[sel, rank])
     # Predicted standard error of the four invariants (see the module docs of decision): per point P of C, D
     # sigma_P^2 + sigma_A^2 |1 - t|^2 + sigma_B^2 |t|^2, over |AB|^2, per axis.
-    s2 = sigma[sel[:, None], order0] ** 2
+    s2 = sigma[sel[:, None], order0] ** 2 if one is None else np.full((1, 4), one * one)
     spread = (s2[:, 2:] + s2[:, :1] * np.abs(1.0 - t0) ** 2 + s2[:, 1:2] * np.abs(t0) ** 2).sum(axis=1)
     radius = opts.tolerance_factor * np.sqrt(spread) / length[sel, rank]
     order, t, ok = _orderings(order0, t0, radius, opts.max_invariant_radius)  # (4, k, ...)

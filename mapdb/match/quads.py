@@ -16,8 +16,8 @@ import numpy as np
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "near_only",
-           "nearest_others", "neighbour_quads", "quad_frames"]
+__all__ = ["FEW_POINTS", "LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys",
+           "near_only", "nearest_few", "nearest_others", "neighbour_quads", "quad_frames"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -30,6 +30,7 @@ OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
 # Per pair, the vertex order (A, B, C, D) it gives: the pair, then the two others.
 _ORDERS = np.concatenate([PAIRS, OTHERS], axis=1)
 
+_SORT4 = ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2))  # a sorting network of four
 # Quads of fewer points than this are packed into one int64 key (n**4 < 2**63).
 _PACKABLE = 55_000
 
@@ -61,16 +62,46 @@ def neighbour_quads(
     if k < 3 or not anchor_ids.size:
         empty = np.zeros((0, 4), dtype=np.int64)
         return (empty, np.zeros(0, np.int64)) if with_anchor else empty
-    nn = nearest_others(quick_tree(xy), xy, anchor_ids, k)
+    nearest = nearest_few(xy, k + 1, anchor_ids)
+    nn = nearest[:, 1:] if nearest is not None else nearest_others(quick_tree(xy), xy, anchor_ids, k)
     triples = np.array(list(combinations(range(k), 3)))
     anchor = np.repeat(anchor_ids, len(triples))
-    quads = np.concatenate([anchor[:, None], nn[:, triples].reshape(-1, 3)], axis=1)
-    quads.sort(axis=1)
+    cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
+    for i, j in _SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
+        cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
+    quads = np.column_stack(cols)
     if with_anchor:
         return quads, anchor
     if n < _PACKABLE:
         return quads[np.sort(first_rows(quads, n))]
     return np.unique(quads, axis=0)
+
+
+FEW_POINTS = 64  # nearest_few sorts this many points' distances: a tree's build and query cost 50-80 us more
+
+
+def nearest_few(xy: np.ndarray, k: int, ids: np.ndarray | None = None) -> np.ndarray | None:
+    """Each point's (or points ``ids``') ``k`` nearest points, itself first: a KD-tree query's answer for at most
+    :data:`FEW_POINTS` points, or None (more points; two at the same distance, whose order a tree does not fix).
+    Squared distances are summed as the tree sums them (``dx * dx + dy * dy``): its order wherever none tie.
+
+    Examples
+    --------
+    >>> xy = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
+    >>> nearest_few(xy, 2).tolist(), nearest_few(np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0]]), 2) is None
+    ([[0, 1], [1, 0], [2, 1]], True)
+    """
+    n = len(xy)
+    if n > FEW_POINTS or not 0 < k <= n:
+        return None
+    rows = xy if ids is None else xy[ids]
+    dx, dy = (rows[:, i, None] - xy[None, :, i] for i in (0, 1))
+    d2 = dx * dx + dy * dy
+    order = np.argsort(d2, axis=1, kind="stable")
+    ranked = np.take_along_axis(d2, order[:, : k + 1], axis=1)  # a tie up to the (k+1)-th: the tree's order
+    if (ranked[:, 1:] == ranked[:, :-1]).any():
+        return None
+    return order[:, :k]
 
 
 def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] | None
@@ -94,7 +125,8 @@ def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] 
 def first_rows(quads: np.ndarray, n: int) -> np.ndarray:
     """Index of the first occurrence of each distinct row of ``quads`` (ids below ``n``), in row order.
 
-    Below ``_PACKABLE`` points each row becomes one integer key: unique on it is much faster than on rows.
+    Below ``_PACKABLE`` points each row becomes one integer key, sorted unstably (twice as fast as the stable sort
+    of ``np.unique(..., return_index=True)``), each key's least row taken: the same rows, in the same (key) order.
 
     Examples
     --------
@@ -103,9 +135,13 @@ def first_rows(quads: np.ndarray, n: int) -> np.ndarray:
     >>> first_rows(np.zeros((0, 4), np.int64), 5).tolist()
     []
     """
+    if not len(quads):
+        return np.zeros(0, np.int64)
     if n < _PACKABLE:
         key = ((quads[:, 0] * n + quads[:, 1]) * n + quads[:, 2]) * n + quads[:, 3]
-        _, first = np.unique(key, return_index=True)
+        perm = np.argsort(key)
+        ordered = key[perm]
+        first = np.minimum.reduceat(perm, np.flatnonzero(np.concatenate(([True], ordered[1:] != ordered[:-1]))))
     else:
         _, first = np.unique(quads, axis=0, return_index=True)
     return first
@@ -261,6 +297,7 @@ class QuadIndex:
         else:
             self.tree = None
         self.quad_z = zq
+        self._where: tuple[float, float, float, float] | None = None
 
     @property
     def n_quads(self) -> int:
@@ -301,6 +338,8 @@ class QuadIndex:
             if near is None:
                 raise ValueError("an index with positions is looked up near a place")
             place, reach = complex(near[0]) * POSITION_WEIGHT, POSITION_WEIGHT * float(near[1])
+            if self._out_of_reach(place, reach):
+                return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
             bound += reach
         k = min(k, self.n_quads)
         query = _query_points(invariants, labels, len(self.labels), place if self.positions else None)
@@ -318,6 +357,19 @@ class QuadIndex:
         keep = (dist[rows, cols] ** 2 - off2 <= radius[rows] ** 2) & (off2 <= reach**2)
         return rows[keep], self.quad_z[hit[keep]]
 
+    def _out_of_reach(self, place: complex, reach: float) -> bool:
+        """No quad's position (tree units) within ``reach`` of ``place``, by the box of the positions (per axis no
+        nearer than any position, in floating point too): the lookup would keep no hit, its tree query is saved."""
+        where = getattr(self, "_where", None)  # an index made without __init__ (blocks_view's parts) has none yet
+        if where is None:
+            assert self.tree is not None
+            lo, hi = self.tree.data[:, 5:7].min(axis=0).tolist(), self.tree.data[:, 5:7].max(axis=0).tolist()
+            where = self._where = (lo[0], lo[1], hi[0], hi[1])
+        x0, y0, x1, y1 = where
+        dx = max(x0 - place.real, 0.0, place.real - x1)
+        dy = max(y0 - place.imag, 0.0, place.imag - y1)
+        return dx * dx + dy * dy > reach * reach
+
     @classmethod
     def merged(cls, parts: Sequence[QuadIndex]) -> QuadIndex:
         """One index over the quads of several (the tiles around a prior): one lookup instead of one per part.
@@ -334,6 +386,7 @@ class QuadIndex:
         merged = cls.__new__(cls)
         merged.labels = parts[0].labels if parts else ()
         merged.positions = bool(parts) and parts[0].positions
+        merged._where = None
         if any(q.positions != merged.positions for q in parts):
             raise ValueError("cannot merge quad indexes with and without positions")
         if not parts:
