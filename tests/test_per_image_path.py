@@ -1,41 +1,17 @@
-"""The per-image path's shortcuts answer exactly as the steps they replace (issue 30): an image's few objects'
-nearest neighbours sorted instead of a KD-tree, a tile lookup skipped when the prior's disc holds none of its quads,
-an answer's lon/lat in one transform."""
+"""The per-image path's shortcuts answer exactly as the steps they replace (issue 30): a tile lookup
+skipped when the prior's disc holds none of its quads, an answer's lon/lat in one transform."""
 
 from __future__ import annotations
 
 import math
+from itertools import combinations
 
 import numpy as np
-import pytest
 
 from mapdb._scipy import cKDTree
 from mapdb.localize.lonlat import to_lonlat, to_lonlat_many
-from mapdb.match.quads import FEW_POINTS, POSITION_WEIGHT, QuadIndex, nearest_few, neighbour_quads
+from mapdb.match.quads import POSITION_WEIGHT, QuadIndex, neighbour_quads
 from mapdb.objects import Objects
-
-
-@pytest.mark.parametrize("n", [1, 4, 12, 40, FEW_POINTS])
-def test_nearest_few_is_the_tree_query(n: int) -> None:
-    rng = np.random.default_rng(n)
-    xy = rng.uniform(0, 640, (n, 2))
-    for k in {1, min(6, n), min(12, n), n}:
-        expected = cKDTree(xy).query(xy, k=k)[1].reshape(n, -1)
-        assert np.array_equal(nearest_few(xy, k), expected)
-    ids = np.flatnonzero(rng.random(n) < 0.5)
-    k = min(3, n)
-    if ids.size:
-        assert np.array_equal(nearest_few(xy, k, ids), cKDTree(xy).query(xy[ids], k=k)[1].reshape(ids.size, -1))
-
-
-def test_nearest_few_declines_ties_and_many_points() -> None:
-    square = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])  # two neighbours at one distance
-    assert nearest_few(square, 2) is None
-    assert nearest_few(np.zeros((2, 2)), 1) is None  # a point on another: which is "itself" is the tree's
-    assert nearest_few(np.random.default_rng(0).random((FEW_POINTS + 1, 2)), 3) is None
-    # The ties fall back to the tree: the quads are the same either way.
-    grid = np.array([[x, y] for x in range(4) for y in range(4)], float)
-    assert len(neighbour_quads(grid, 5)) > 0
 
 
 def test_neighbour_quads_of_an_image_are_the_tree_s() -> None:
@@ -43,8 +19,6 @@ def test_neighbour_quads_of_an_image_are_the_tree_s() -> None:
     xy = rng.uniform(0, 640, (30, 2))
     quads, anchor = neighbour_quads(xy, 5, with_anchor=True)
     nn = cKDTree(xy).query(xy, k=6)[1][:, 1:]
-    from itertools import combinations
-
     triples = np.array(list(combinations(range(5), 3)))
     expected = np.sort(np.concatenate([np.repeat(np.arange(30), len(triples))[:, None],
                                        nn[:, triples].reshape(-1, 3)], axis=1), axis=1)

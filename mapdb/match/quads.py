@@ -16,8 +16,8 @@ import numpy as np
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
 
-__all__ = ["FEW_POINTS", "LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys",
-           "near_only", "nearest_few", "nearest_others", "neighbour_quads", "quad_frames"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys",
+           "near_only", "nearest_others", "neighbour_quads", "quad_frames"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -62,8 +62,7 @@ def neighbour_quads(
     if k < 3 or not anchor_ids.size:
         empty = np.zeros((0, 4), dtype=np.int64)
         return (empty, np.zeros(0, np.int64)) if with_anchor else empty
-    nearest = nearest_few(xy, k + 1, anchor_ids)
-    nn = nearest[:, 1:] if nearest is not None else nearest_others(quick_tree(xy), xy, anchor_ids, k)
+    nn = nearest_others(quick_tree(xy), xy, anchor_ids, k)
     triples = np.array(list(combinations(range(k), 3)))
     anchor = np.repeat(anchor_ids, len(triples))
     cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
@@ -75,33 +74,6 @@ def neighbour_quads(
     if n < _PACKABLE:
         return quads[np.sort(first_rows(quads, n))]
     return np.unique(quads, axis=0)
-
-
-FEW_POINTS = 64  # nearest_few sorts this many points' distances: a tree's build and query cost 50-80 us more
-
-
-def nearest_few(xy: np.ndarray, k: int, ids: np.ndarray | None = None) -> np.ndarray | None:
-    """Each point's (or points ``ids``') ``k`` nearest points, itself first: a KD-tree query's answer for at most
-    :data:`FEW_POINTS` points, or None (more points; two at the same distance, whose order a tree does not fix).
-    Squared distances are summed as the tree sums them (``dx * dx + dy * dy``): its order wherever none tie.
-
-    Examples
-    --------
-    >>> xy = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
-    >>> nearest_few(xy, 2).tolist(), nearest_few(np.array([[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0]]), 2) is None
-    ([[0, 1], [1, 0], [2, 1]], True)
-    """
-    n = len(xy)
-    if n > FEW_POINTS or not 0 < k <= n:
-        return None
-    rows = xy if ids is None else xy[ids]
-    dx, dy = (rows[:, i, None] - xy[None, :, i] for i in (0, 1))
-    d2 = dx * dx + dy * dy
-    order = np.argsort(d2, axis=1, kind="stable")
-    ranked = np.take_along_axis(d2, order[:, : k + 1], axis=1)  # a tie up to the (k+1)-th: the tree's order
-    if (ranked[:, 1:] == ranked[:, :-1]).any():
-        return None
-    return order[:, :k]
 
 
 def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] | None

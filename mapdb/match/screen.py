@@ -28,7 +28,6 @@ from .evidence.areas import points_floor
 from .evidence.image import ImageEvidence
 from .hypotheses import Hypotheses, pose_votes, prioritise
 from .options import FastOptions
-from .quads import nearest_few
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct
 from .verify import ObjectIndex, decision_nfa, refine, screen
 
@@ -42,9 +41,7 @@ def screen_neighbours(z: np.ndarray, opts: FastOptions) -> np.ndarray:
     the screen projects for a hypothesis whose quad starts there."""
     n = z.size
     xy = np.column_stack([z.real, z.imag])
-    k = min(opts.screen_objects, n)
-    nearest = nearest_few(xy, k)  # an image's few objects: their distances sorted, not a tree (the same answer)
-    return nearest if nearest is not None else cKDTree(xy).query(xy, k=k)[1].reshape(n, -1)
+    return cKDTree(xy).query(xy, k=min(opts.screen_objects, n))[1].reshape(n, -1)
 
 
 def screen_round(hyps: Hypotheses, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, screen_of: np.ndarray,
