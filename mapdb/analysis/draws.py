@@ -214,27 +214,28 @@ def cell_views(objects: Any, tree: Any, poses: Poses, camera: Camera, reach: flo
         for edge, value in ((0.0, u), (camera.width, u), (0.0, v), (camera.height, v)):
             close |= within & (np.abs(value - edge) < MARGIN_PX)
     for s in np.flatnonzero(close.any(axis=1)).tolist():  # rounding could decide: the per-image way
-        own, shown = image_view(objects, tree, poses.pose(s), camera, reach)
+        own, _, _, shown = image_view(objects, tree, poses.pose(s), camera, reach)
         seen[s] = False
         seen[s, np.searchsorted(near, own[shown])] = True
     return Views(near, seen)
 
 
-def image_view(objects: Any, tree: Any, pose: Pose, camera: Camera, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """One image's objects within reach (sorted indices) and which of them it shows, the per-image way."""
+def image_view(objects: Any, tree: Any, pose: Pose, camera: Camera,
+               reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One image's objects within reach (sorted indices), their pixels, and which of them it shows: the
+    per-image way."""
     near = np.sort(np.asarray(tree.query_ball_point((pose.x, pose.y), reach), np.int64))
     u, v = project_to_image(objects.x[near], objects.y[near], pose, camera)
-    return near, np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    return near, u, v, np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
 
 
 def cell_image(objects: Any, tree: Any, pose: Pose, camera: Camera, reach: float, generator: np.random.Generator,
                detector: Detector, prior: float | None, image_id: str) -> dict[str, Any]:
     """The image document a sample is localized from (``generator`` where its pose's draws left it):
     :func:`~mapdb.simulation.simulate.simulate_image_at` of the objects within ``reach``, without its truth."""
-    near, _ = image_view(objects, tree, pose, camera, reach)
+    # The objects within reach projected as simulate_image_at projects them (the same arrays, the same pixels).
+    near, u, v, seen = image_view(objects, tree, pose, camera, reach)
     local = objects.take(near)
-    u, v = project_to_image(local.x, local.y, pose, camera)
-    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
     if BLOCK_LABEL in local.labels:  # a camera sees the buildings of a block, never the block (place_camera)
         seen &= local.label != local.labels.index(BLOCK_LABEL)
     index = np.flatnonzero(seen).astype(np.int64)

@@ -437,7 +437,7 @@ def _localize(ctx: _Context, pose: Pose, generator: np.random.Generator, image_i
     else:  # no label's objects to draw the detector's label mix from: the simulator's own fallback
         from ..simulation.simulate import simulate_image_at
 
-        near, _ = image_view(ctx.objects, ctx.tree, pose, ctx.camera, ctx.reach)
+        near = image_view(ctx.objects, ctx.tree, pose, ctx.camera, ctx.reach)[0]
         image = simulate_image_at(ctx.objects.take(near), pose, ctx.camera, generator, pixel_std=cfg.pixel_std,
                                   miss_rate=cfg.miss_rate, spurious_rate=cfg.spurious_rate,
                                   label_noise=cfg.label_noise, label_counts=ctx.label_counts, with_prior=cfg.prior,
