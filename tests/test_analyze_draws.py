@@ -91,8 +91,9 @@ def test_a_localized_image_is_the_simulators(monkeypatch) -> None:
     cell = draws.cell_poses(5, np.array([[1, 2]]), 16, CELL_M, 150.0, 0.5)[0]
     for s in range(16):
         pose = cell.pose(s)
-        got = draws.cell_image(objects, tree, pose, cfg.camera, cfg.reach_m, draws.positioned(cell, s, 5, 1, 2),
-                               detector, cfg.prior, f"1,2,{s}")
+        shown = _one_view(objects, tree, pose, cfg.camera, cfg.reach_m)
+        got = draws.cell_image(objects, shown, pose, cfg.camera, draws.positioned(cell, s, 5, 1, 2), detector,
+                               cfg.prior, f"1,2,{s}")
         near = np.sort(np.asarray(tree.query_ball_point((pose.x, pose.y), cfg.reach_m), np.int64))
         want = simulate_image_at(objects.take(near), pose, cfg.camera, _one_pose(5, 1, 2, s, 0.5)[1],
                                  pixel_std=cfg.pixel_std, miss_rate=cfg.miss_rate, spurious_rate=cfg.spurious_rate,

@@ -17,9 +17,9 @@ detector's errors and the prior's offset.  This module draws exactly those numbe
   rounding could decide: that image's view is then computed as one image's is
   (:func:`~mapdb.camera.project_to_image` of the objects the tree finds within reach), so that which objects an
   image shows is always what that per-image computation gives.
-* **The image** of a sample that is localized (:func:`cell_image`): the per-image computation (its objects
-  within reach, :func:`~mapdb.camera.project_to_image`, the detector, the prior) with the generator where its
-  pose left it: :func:`~mapdb.simulation.simulate.simulate_image_at`'s document, without its ``truth`` (the
+* **The image** of a sample that is localized (:func:`cell_image`): the objects it shows projected by
+  :func:`~mapdb.camera.project_to_image`, then the detector and the prior, with the generator where its pose
+  left it: :func:`~mapdb.simulation.simulate.simulate_image_at`'s document, without its ``truth`` (the
   localizer does not read it).
 """
 
@@ -229,13 +229,18 @@ def image_view(objects: Any, tree: Any, pose: Pose, camera: Camera,
     return near, u, v, np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
 
 
-def cell_image(objects: Any, tree: Any, pose: Pose, camera: Camera, reach: float, generator: np.random.Generator,
+def cell_image(objects: Any, shown: np.ndarray, pose: Pose, camera: Camera, generator: np.random.Generator,
                detector: Detector, prior: float | None, image_id: str) -> dict[str, Any]:
     """The image document a sample is localized from (``generator`` where its pose's draws left it):
-    :func:`~mapdb.simulation.simulate.simulate_image_at` of the objects within ``reach``, without its truth."""
-    # The objects within reach projected as simulate_image_at projects them (the same arrays, the same pixels).
-    near, u, v, seen = image_view(objects, tree, pose, camera, reach)
-    local = objects.take(near)
+    :func:`~mapdb.simulation.simulate.simulate_image_at` of the objects it shows (``shown``, sorted indices into
+    ``objects``, from :func:`cell_views`), without its truth.
+
+    Only the objects shown are projected (the simulator projects all those within reach): a point's pixels do
+    not depend on the other points projected with it, and the objects not shown draw nothing.
+    """
+    local = objects.take(shown)
+    u, v = project_to_image(local.x, local.y, pose, camera)
+    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
     if BLOCK_LABEL in local.labels:  # a camera sees the buildings of a block, never the block (place_camera)
         seen &= local.label != local.labels.index(BLOCK_LABEL)
     index = np.flatnonzero(seen).astype(np.int64)

@@ -372,7 +372,8 @@ def _measure_cell(ctx: _Context, i: int, j: int, poses: Poses, out: CellMeasures
             break
         run += 1
         pose = poses.pose(s)
-        error, lost = _localize(ctx, pose, positioned(poses, s, cfg.seed, i, j), f"{i},{j},{s}")
+        error, lost = _localize(ctx, views.near[views.seen[s]], pose, positioned(poses, s, cfg.seed, i, j),
+                                f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
@@ -427,13 +428,13 @@ def _inferred(hint: np.ndarray, ready: int, cfg: SampleConfig, out: CellMeasures
     return True
 
 
-def _localize(ctx: _Context, pose: Pose, generator: np.random.Generator, image_id: str) -> tuple[float | None, Answer]:
-    """Simulate the image, localize it: the error of an accepted answer (None if rejected), and the answer
-    of the search without a prior (the one ambiguity is read from)."""
+def _localize(ctx: _Context, shown: np.ndarray, pose: Pose, generator: np.random.Generator,
+              image_id: str) -> tuple[float | None, Answer]:
+    """Simulate the image (``shown``: the objects it shows), localize it: the error of an accepted answer (None
+    if rejected), and the answer of the search without a prior (the one ambiguity is read from)."""
     cfg = ctx.config
     if ctx.detector is not None:
-        image = cell_image(ctx.objects, ctx.tree, pose, ctx.camera, ctx.reach, generator, ctx.detector, cfg.prior,
-                           image_id)
+        image = cell_image(ctx.objects, shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
     else:  # no label's objects to draw the detector's label mix from: the simulator's own fallback
         from ..simulation.simulate import simulate_image_at
 
