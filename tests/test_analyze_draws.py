@@ -48,6 +48,8 @@ def test_poses_are_the_one_image_rule(seed: int) -> None:
             assert cell.pose(s) == want
             # the generator an image's errors draw from starts where the pose's draws left it
             assert draws.positioned(cell, s, seed, i, j).bit_generator.state == rng.bit_generator.state
+            reused = draws.positioned(cell, s, seed, i, j, np.random.default_rng(99))
+            assert reused.bit_generator.state == rng.bit_generator.state
 
 
 def _world(n: int = 4000, seed: int = 1) -> Objects:

@@ -127,6 +127,7 @@ class Poses:
     roll: np.ndarray
     pitch: np.ndarray
     altitude: float
+    states: list[tuple[int, int]] | None = None  # each image's PCG64 (state, inc) before its draws, if hashed here
 
     def pose(self, s: int) -> Pose:
         return Pose(float(self.x[s]), float(self.y[s]), self.altitude, float(self.heading[s]), float(self.roll[s]),
@@ -148,13 +149,12 @@ def cell_poses(seed: int, cells: np.ndarray, samples: int, cell_m: float, altitu
                             np.tile(np.arange(samples), n)])
     raw = np.zeros((n * samples, 3), np.uint64)
     normal = np.zeros((n * samples, 2))
+    states: list[tuple[int, int]] | None = None
     if seed < 2**32 and (keys < 2**32).all():
         shared = np.random.Generator(np.random.PCG64(0))
-        template = dict(shared.bit_generator.state)
-        for k, (state, inc) in enumerate(pcg_states(np.column_stack([np.full(len(keys), seed), keys]))):
-            template["state"] = {"state": state, "inc": inc}
-            shared.bit_generator.state = template
-            raw[k], normal[k] = _draw(shared)
+        states = pcg_states(np.column_stack([np.full(len(keys), seed), keys]))
+        for k, state in enumerate(states):
+            raw[k], normal[k] = _draw(_restated(shared, state))
     else:  # words of 2**32 or more: SeedSequence's own (longer) mixing
         for k, row in enumerate(keys.tolist()):
             raw[k], normal[k] = _draw(np.random.default_rng([seed, *row]))
@@ -163,8 +163,16 @@ def cell_poses(seed: int, cells: np.ndarray, samples: int, cell_m: float, altitu
     y = (np.repeat(cells[:, 1], samples) + unit[:, 1]) * cell_m
     heading = 0.0 + 360.0 * unit[:, 2]
     tilt = attitude_std * normal
-    return [Poses(x[c], y[c], heading[c], tilt[c, 0], tilt[c, 1], float(altitude))
+    return [Poses(x[c], y[c], heading[c], tilt[c, 0], tilt[c, 1], float(altitude),
+                  None if states is None else states[c])
             for c in (slice(k * samples, (k + 1) * samples) for k in range(n))]
+
+
+def _restated(generator: np.random.Generator, state: tuple[int, int]) -> np.random.Generator:
+    """``generator`` (a PCG64 one) set to a PCG64 ``(state, inc)``, no value buffered."""
+    generator.bit_generator.state = {"bit_generator": "PCG64", "state": {"state": state[0], "inc": state[1]},
+                                     "has_uint32": 0, "uinteger": 0}
+    return generator
 
 
 @dataclass
@@ -258,9 +266,14 @@ def detector_of(label_counts: dict[str, int], pixel_std: float, miss_rate: float
     return Detector(pixel_std, miss_rate, spurious_rate, label_noise, names, mix)
 
 
-def positioned(poses: Poses, s: int, seed: int, i: int, j: int) -> np.random.Generator:
-    """Sample ``s``'s generator where its pose's draws leave it (its image's errors start there)."""
-    generator = sample_generator(seed, i, j, s)
+def positioned(poses: Poses, s: int, seed: int, i: int, j: int,
+               reuse: np.random.Generator | None = None) -> np.random.Generator:
+    """Sample ``s``'s generator where its pose's draws leave it (its image's errors start there): ``reuse`` (a
+    PCG64 generator, which this sets) when given and the poses kept their states, else a new one."""
+    if reuse is not None and poses.states is not None:
+        generator = _restated(reuse, poses.states[s])
+    else:
+        generator = sample_generator(seed, i, j, s)
     _draw(generator)
     return generator
 

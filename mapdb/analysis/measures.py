@@ -274,11 +274,13 @@ class _Context:
     separation: float = 0.0
     stop_width: float = 0.0
     detector: Any = None       # the images' detector (None: no analysed label has objects in the map)
+    generator: Any = None      # a generator each localized image's draws are set into, in turn (one a task)
 
     def __post_init__(self) -> None:
         cfg = self.config
         self.camera, self.reach, self.separation, self.stop_width = (cfg.camera, cfg.reach_m, cfg.separation_m,
                                                                      cfg.stop_width)
+        self.generator = np.random.Generator(np.random.PCG64(0))
         if self.label_counts:
             self.detector = detector_of(self.label_counts, cfg.pixel_std, cfg.miss_rate, cfg.spurious_rate,
                                         cfg.label_noise)
@@ -372,8 +374,8 @@ def _measure_cell(ctx: _Context, i: int, j: int, poses: Poses, out: CellMeasures
             break
         run += 1
         pose = poses.pose(s)
-        error, lost = _localize(ctx, views.near[views.seen[s]], pose, positioned(poses, s, cfg.seed, i, j),
-                                f"{i},{j},{s}")
+        generator = positioned(poses, s, cfg.seed, i, j, ctx.generator)
+        error, lost = _localize(ctx, views.near[views.seen[s]], pose, generator, f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
