@@ -9,7 +9,8 @@ Sample ``s`` of the cell ``(i, j)`` draws everything from ``numpy.random.default
 heading (uniform), roll and pitch (normal), then the detector's errors and the prior's offset.  Nothing
 else reaches it, and the localizer's answers depend on nothing but the image (the whole map's quad index
 serves every query, with or without a prior): a cell's measures are the same bytes whichever worker, task
-or run computes them.
+or run computes them.  The draws of a task's cells are made together (:mod:`mapdb.analysis.draws`: the seeds
+hashed on arrays, a cell's views in one projection), the same numbers as one image at a time.
 
 An image that shows fewer than :data:`MIN_VISIBLE` objects of the analysed labels is counted as not
 localized without being simulated: the fast matcher places an image from a quad of four image objects
