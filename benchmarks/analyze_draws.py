@@ -15,6 +15,10 @@ of them), at the analysis defaults (100 m cells, 16 images, 150 m, 45 degrees, 0
   ``draws.cell_image``, and whether the documents are equal (``truth`` aside).
 
 Prints the medians over the repeats of the CPU microseconds (this process's) a cell and an image, and the ratios.
+
+``--picture OUT``: also the PNG of an earlier run's ``OUT/analysis.tif`` (``mapdb analyze MAP -o OUT`` at the
+defaults above), drawn by the baseline's ``plot_analysis`` and by this tree's, taking turns: CPU seconds and
+whether the files are the same bytes (under ``SOURCE_DATE_EPOCH``).
 """
 
 from __future__ import annotations
@@ -126,12 +130,43 @@ def time_images(blocks, base_sim, order: int) -> tuple[float, float, int, int]:
     return spent[0], spent[1], n, unequal
 
 
+def time_picture(map_path: Path, out: Path, baseline: str, workdir: Path, repeat: int) -> None:
+    """The PNG of ``out/analysis.tif`` drawn by both versions, taking turns: CPU seconds, same bytes or not."""
+    import hashlib
+
+    import rasterio
+
+    from mapdb.analysis.pictures import plot_analysis
+    from mapdb.analysis.run import Analysis
+
+    planned = plan(str(map_path), {"": CONFIG})
+    with rasterio.open(out / "analysis.tif") as src:
+        bands = {name: src.read(k + 1) for k, name in enumerate(src.descriptions)}
+        bands = {name: np.where(values == src.nodata, np.nan, values) for name, values in bands.items()}
+    analysis = Analysis(str(map_path), planned.grid, CONFIG, planned.runs[0][2], bands, planned.map_info)
+    drawers = {"baseline": import_baseline(baseline, workdir, "analysis.pictures").plot_analysis,
+               "tree": plot_analysis}
+    spent: dict[str, list[float]] = {"baseline": [], "tree": []}
+    for r in range(repeat):
+        for who in (["baseline", "tree"] if r % 2 == 0 else ["tree", "baseline"]):
+            start = time.process_time()
+            drawers[who](workdir / f"{who}.png", analysis)
+            spent[who].append(time.process_time() - start)
+    same = hashlib.sha256((workdir / "baseline.png").read_bytes()).digest() == \
+        hashlib.sha256((workdir / "tree.png").read_bytes()).digest()
+    old, new = statistics.median(spent["baseline"]), statistics.median(spent["tree"])
+    print(f"| the PNG of {out / 'analysis.tif'} (s) | {old:.2f} | {new:.2f} | {new / old:.3f} | "
+          f"{'same bytes' if same else 'different bytes'} |")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--map", default="andorra", help="a shared extract's name or a map file")
     parser.add_argument("--baseline", default="c0735fc", help="the revision to compare with")
     parser.add_argument("--cells", type=int, default=800, help="cells to draw (a spread of those to simulate)")
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--picture", type=Path, default=None, metavar="OUT",
+                        help="also draw OUT/analysis.tif's PNG with both versions")
     parser.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "mapdb-analyze-draws")
     args = parser.parse_args()
     args.workdir.mkdir(parents=True, exist_ok=True)
@@ -153,6 +188,8 @@ def main() -> int:
         old = statistics.median(r[k][0] for r in rows) / per * 1e6
         new = statistics.median(r[k][1] for r in rows) / per * 1e6
         print(f"| {label} | {old:,.0f} | {new:,.0f} | {new / old:.3f} | {bad} of {count} |")
+    if args.picture is not None:
+        time_picture(map_path, args.picture, args.baseline, args.workdir, args.repeat)
     return 0
 
 
