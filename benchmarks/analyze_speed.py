@@ -10,8 +10,11 @@ images a cell, 150 m, 45 degrees, in one process so that CPU time is core time),
     sequential: mapdb analyze MAP -o OUT                   # this tree's default: every cell simulated, sequential rule
     adaptive:   mapdb analyze MAP -o OUT --adaptive        # this tree: adaptive cells
 
+    main:       mapdb analyze MAP -o OUT --no-adaptive     # the --main REV revision's default (with --main)
+
     python benchmarks/analyze_speed.py [--repeat 2] [--maps andorra,monaco] [--workdir DIR]
                                        [--country Germany:357588:45e6] [--baseline 402f56b] [--identity]
+                                       [--main REV --modes today,main,sequential]
 
 "Today's projection" is the projection of the baseline revision's fixed-16 run (every image of every cell
 within reach), measured in the same run: the figure the issue's "a tenth of today's projection" is measured
@@ -23,7 +26,9 @@ the process and its workers), core-ms a simulated cell.  Agreement with today's 
 for the cells simulated and the cells inferred: whether the fixed run's success (and false share) lies inside
 the reported 95 % interval.  With ``--identity``, the baseline's sequential run too (once), compared band by
 band with this tree's ``--no-adaptive`` run: the same bytes in every cell (the per-image work changed, not the
-answers).
+answers).  With ``--main REV`` and the mode ``main`` among ``--modes``: the default run of another revision (the
+branch this tree is to be merged into), taking turns with the others; the tree's modes are then also given as
+ratios to it, its start-up measured as the others', and its bands compared with ``sequential``'s.
 
 The projection: a country of AREA km² and OBJECTS map objects in 100 m cells, its cells a mixture of the
 measured maps' cells (a share of Monaco-like cells, the rest Andorra-like, the share chosen so that the
@@ -59,7 +64,7 @@ EXTRACTS = {"andorra": "andorra-2021-06-22.osm.pbf", "monaco": "monaco-2021-12-0
             "liechtenstein": "liechtenstein-2013-08-03.osm.pbf"}
 # mode -> (code: "base" the baseline revision's, "tree" this one's; options)
 MODES = {"today": ("base", ["--no-sequential"]), "sequential": ("tree", ["--no-adaptive"]),
-         "adaptive": ("tree", ["--adaptive"]), "base-sequential": ("base", [])}
+         "adaptive": ("tree", ["--adaptive"]), "base-sequential": ("base", []), "main": ("main", ["--no-adaptive"])}
 BASELINE = "402f56b"
 
 
@@ -206,7 +211,7 @@ def medians(runs: list[dict]) -> dict[str, dict]:
 
 def side_by_side(name: str, med: dict[str, dict], startups: dict[str, float]) -> None:
     today = med["today"]
-    modes = [m for m in ("today", "base-sequential", "sequential", "adaptive") if m in med]
+    modes = [m for m in ("today", "base-sequential", "main", "sequential", "adaptive") if m in med]
     print(f"\n{name}, medians | " + " | ".join(modes) + " |\n|---|" + "---|" * len(modes))
     for mode in modes:
         med[mode]["ms_cell"] = 1000 * med[mode]["cpu_s"] / max(med[mode]["simulated"], 1)
@@ -215,6 +220,11 @@ def side_by_side(name: str, med: dict[str, dict], startups: dict[str, float]) ->
         print(f"| {label} | " + " | ".join(f"{med[m][key]:,.1f} ({med[m][key] / today[key]:.2f}x)" for m in modes)
               + " |")
     print("| start-up CPU (s, one cell) | " + " | ".join(f"{startups[MODES[m][0]]:.1f}" for m in modes) + " |")
+    if "main" in med:
+        for mode in (m for m in ("sequential", "adaptive") if m in med):
+            print(f"\n{mode} against main: CPU {med[mode]['cpu_s'] / med['main']['cpu_s']:.3f}x, core-ms a simulated "
+                  f"cell {med[mode]['ms_cell'] / med['main']['ms_cell']:.3f}x, images localized "
+                  f"{med[mode]['localized'] / med['main']['localized']:.3f}x")
     for mode in modes[1:]:
         a = agreement(today["out"], med[mode]["out"])
         inferred = "" if not a["inferred"] else (
@@ -256,6 +266,10 @@ def projection(country: str, maps: dict[str, dict[str, dict]], startups: dict[st
         print(f"| {mode} | {1000 * per[0]:,.2f} | {1000 * per[1]:,.3f} | {hours[mode][0]:,.0f} | "
               f"{hours[mode][0] / hours['today'][0]:.3f} | {1000 * net[0]:,.2f} | {1000 * net[1]:,.3f} | "
               f"{hours[mode][1]:,.0f} | {hours[mode][1] / hours['today'][1]:.3f} |")
+    if "main" in hours:
+        for mode in (m for m in hours if MODES[m][0] == "tree"):
+            print(f"\n{mode} against main: {hours[mode][0] / hours['main'][0]:.3f}x the core-hours, "
+                  f"{hours[mode][1] / hours['main'][1]:.3f}x without start-up")
 
 
 def measure_map(name: str, args: argparse.Namespace, workdir: Path,
@@ -268,7 +282,7 @@ def measure_map(name: str, args: argparse.Namespace, workdir: Path,
         order.append("base-sequential")
     runs = [analyse(map_path, workdir / f"{name}-{mode}-{k}", mode, envs) for k, mode in enumerate(order)]
     startups = {code: statistics.median(startup(map_path, workdir, code, envs) for _ in range(args.repeat))
-                for code in ("base", "tree")}
+                for code in dict.fromkeys(["base", "tree", *(MODES[m][0] for m in modes)])}
     run_table(name, runs)
     med = medians(runs)
     side_by_side(name, med, startups)
@@ -276,6 +290,10 @@ def measure_map(name: str, args: argparse.Namespace, workdir: Path,
         n, differ = identical(med["base-sequential"]["out"], med["sequential"]["out"])
         print(f"\n{name}: baseline {args.baseline}'s sequential run against this tree's --no-adaptive run, "
               f"{n:,} cells: bands that differ: {', '.join(differ) if differ else 'none'}")
+    if "main" in med and "sequential" in med:
+        n, differ = identical(med["main"]["out"], med["sequential"]["out"])
+        print(f"\n{name}: main {args.main}'s default run against this tree's --no-adaptive run, {n:,} cells: bands "
+              f"that differ: {', '.join(differ) if differ else 'none'}")
     return med, startups
 
 
@@ -288,6 +306,8 @@ def main() -> int:
     parser.add_argument("--identity", action="store_true",
                         help="also run the baseline's sequential rule once and compare it with --no-adaptive")
     parser.add_argument("--workdir", type=Path, default=None, help="keep the maps and outputs here")
+    parser.add_argument("--main", default=None, metavar="REV",
+                        help="the revision whose default run is mode 'main' (e.g. the branch this tree merges into)")
     parser.add_argument("--country", default="Germany:357588:45e6", help="NAME:AREA_KM2:OBJECTS to project")
     args = parser.parse_args()
     if not DATA.is_dir():
@@ -296,7 +316,12 @@ def main() -> int:
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="analyze-speed-"))
     workdir.mkdir(parents=True, exist_ok=True)
     envs = {"base": baseline_env(args.baseline, workdir), "tree": None}
-    print(f"today: {args.baseline}'s fixed-16 run; load average at the start {os.getloadavg()[0]:.1f}")
+    if args.main:
+        envs["main"] = {**os.environ, "PYTHONPATH": str(cli_tree(args.main, workdir / f"main-{args.main}"))}
+    elif "main" in args.modes.split(","):
+        parser.error("mode 'main' needs --main REV")
+    print(f"today: {args.baseline}'s fixed-16 run{f'; main: {args.main}' if args.main else ''}; load average at the "
+          f"start {os.getloadavg()[0]:.1f}")
     measured, startups = {}, {}
     for name in args.maps.split(","):
         measured[name], startups[name] = measure_map(name, args, workdir, envs)

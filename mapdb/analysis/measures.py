@@ -9,7 +9,8 @@ Sample ``s`` of the cell ``(i, j)`` draws everything from ``numpy.random.default
 heading (uniform), roll and pitch (normal), then the detector's errors and the prior's offset.  Nothing
 else reaches it, and the localizer's answers depend on nothing but the image (the whole map's quad index
 serves every query, with or without a prior): a cell's measures are the same bytes whichever worker, task
-or run computes them.
+or run computes them.  The draws of a task's cells are made together (:mod:`mapdb.analysis.draws`: the seeds
+hashed on arrays, a cell's views in one projection), the same numbers as one image at a time.
 
 An image that shows fewer than :data:`MIN_VISIBLE` objects of the analysed labels is counted as not
 localized without being simulated: the fast matcher places an image from a quad of four image objects
@@ -48,8 +49,9 @@ from typing import Any
 import numpy as np
 
 from ..answers import Answer
-from ..camera import Camera, Pose, project_to_image
+from ..camera import Camera, Pose
 from ..evaluation.evaluate import DEFAULT_FP_THRESHOLD_M
+from .draws import Poses, cell_image, cell_poses, cell_views, detector_of, image_view, positioned
 
 __all__ = ["DECISION_LEVEL", "HINT_COLUMNS", "MIN_VISIBLE", "Z95", "CellMeasures", "SampleConfig", "ambiguity",
            "inferred_interval", "measure_cells", "wilson_interval", "wilson_width"]
@@ -192,11 +194,6 @@ class CellMeasures:
                    np.zeros(n, np.int8), label_names=label_names)
 
 
-def _natural(v: int) -> int:
-    """An integer as a non-negative one, one to one (zigzag), as a seed needs."""
-    return 2 * v if v >= 0 else -2 * v - 1
-
-
 def ambiguity(answer: Answer, x: float, y: float, separation: float, min_score: float = 4.0) -> float:
     """How close the best wrong place comes to the true one in a search's answer: 0 unique, 1 indistinguishable.
 
@@ -264,7 +261,7 @@ def _opened(map_path: str) -> tuple[Any, Any]:
 
 @dataclass
 class _Context:
-    """What every sample of a task needs."""
+    """What every sample of a task needs (the configuration's derived values computed once)."""
 
     config: SampleConfig
     cell_m: float
@@ -273,6 +270,21 @@ class _Context:
     tree: Any                  # their KD-tree
     codes: np.ndarray          # label codes (in the map) of the analysed labels
     label_counts: dict[str, int]
+    camera: Camera = field(default_factory=Camera)
+    reach: float = 0.0
+    separation: float = 0.0
+    stop_width: float = 0.0
+    detector: Any = None       # the images' detector (None: no analysed label has objects in the map)
+    generator: Any = None      # a generator each localized image's draws are set into, in turn (one a task)
+
+    def __post_init__(self) -> None:
+        cfg = self.config
+        self.camera, self.reach, self.separation, self.stop_width = (cfg.camera, cfg.reach_m, cfg.separation_m,
+                                                                     cfg.stop_width)
+        self.generator = np.random.Generator(np.random.PCG64(0))
+        if self.label_counts:
+            self.detector = detector_of(self.label_counts, cfg.pixel_std, cfg.miss_rate, cfg.spurious_rate,
+                                        cfg.label_noise)
 
 
 def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.ndarray,
@@ -294,15 +306,21 @@ def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.
     if not n:
         return out
     start = time.perf_counter()
+    from ..simulation.simulate import check_simulate_args
+
+    check_simulate_args(1, 0.0, 0.0, config.pixel_std, config.miss_rate, config.spurious_rate, config.label_noise,
+                        0, 1)
     counts = m.label_counts
     label_counts = {k: counts[k] for k in names if counts.get(k)}
+    # Every image's pose of every cell of the task, drawn at once.
+    poses = cell_poses(config.seed, cells, config.samples, cell_m, config.altitude, config.attitude_std)
     blocks = cells // _READ_BLOCK
     for block in np.unique(blocks, axis=0):
         rows = np.flatnonzero((blocks == block).all(axis=1))
         ctx = _context(m, localizer, config, cell_m, cells[rows], names, codes, label_counts)
         for row in rows.tolist():
             hint = None if hints is None else hints[row]
-            _measure_cell(ctx, int(cells[row, 0]), int(cells[row, 1]), out, row, hint)
+            _measure_cell(ctx, int(cells[row, 0]), int(cells[row, 1]), poses[row], out, row, hint)
     out.seconds = time.perf_counter() - start
     return out
 
@@ -330,44 +348,21 @@ def _known(successes: int, false: int, run: int, ready: int, drawn: int, width: 
     return scale * wilson_width(successes, run) <= width and scale * wilson_width(false, run) <= width
 
 
-def _draws(ctx: _Context, i: int, j: int) -> list[tuple[Pose, np.random.Generator, np.ndarray, np.ndarray]]:
-    """Every sample of cell ``(i, j)``: its pose, its generator (left where the image's errors start), the
-    indices (into ``ctx.objects``, sorted) of the analysed objects within reach and which of them its image
-    shows.  The objects within reach of all the samples are found in one query of the tree."""
-    cfg = ctx.config
-    poses = []
-    for s in range(cfg.samples):
-        rng = np.random.default_rng([cfg.seed, _natural(i), _natural(j), s])
-        where = rng.random(2)
-        heading = float(rng.uniform(0.0, 360.0))
-        roll, pitch = (float(a) for a in cfg.attitude_std * rng.standard_normal(2))
-        poses.append((Pose(float((i + where[0]) * ctx.cell_m), float((j + where[1]) * ctx.cell_m), cfg.altitude,
-                           heading, roll, pitch), rng))
-    if ctx.tree is None:
-        return [(pose, rng, np.zeros(0, np.int64), np.zeros(0, bool)) for pose, rng in poses]
-    centres = np.array([[pose.x, pose.y] for pose, _ in poses])
-    reached = ctx.tree.query_ball_point(centres, cfg.reach_m)
-    camera = cfg.camera
-    out = []
-    for (pose, rng), found in zip(poses, reached, strict=True):
-        near = np.sort(np.asarray(found, np.int64))
-        u, v = project_to_image(ctx.objects.x[near], ctx.objects.y[near], pose, camera)
-        seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-        out.append((pose, rng, near, seen))
-    return out
-
-
-def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int, hint: np.ndarray | None) -> None:
+def _measure_cell(ctx: _Context, i: int, j: int, poses: Poses, out: CellMeasures, row: int,
+                  hint: np.ndarray | None) -> None:
     """Sample one cell (every localizable image, or until the sequential rule stops it, or none where its
     ``hint`` lets it be inferred) and write its measures into row ``row`` of ``out``."""
     cfg = ctx.config
-    drawn = _draws(ctx, i, j)
-    labels = ctx.objects.label
-    visible = np.array([np.bincount(labels[near[seen]], minlength=int(ctx.codes.max()) + 1)[ctx.codes]
-                        for _, _, near, seen in drawn], np.int64).reshape(cfg.samples, len(ctx.codes))
-    ready = [s for s, (_, _, _, seen) in enumerate(drawn) if seen.sum() >= MIN_VISIBLE]
-    out.visible[row] = np.median(visible.sum(axis=1))
-    out.per_label[row] = np.median(visible, axis=0)
+    half = 0.5 * ctx.cell_m
+    views = cell_views(ctx.objects, ctx.tree, poses, ctx.camera, ctx.reach,
+                       ((i + 0.5) * ctx.cell_m, (j + 0.5) * ctx.cell_m), math.hypot(half, half))
+    # Objects of each analysed label each image shows (a label's column; the labels of the objects near).
+    labels = ctx.objects.label[views.near]
+    visible = views.seen.astype(np.int64) @ (labels[:, None] == ctx.codes[None, :]).astype(np.int64)
+    ready = np.flatnonzero(views.seen.sum(axis=1) >= MIN_VISIBLE).tolist()
+    middle = np.median(np.column_stack([visible.sum(axis=1), visible]), axis=0)
+    out.visible[row] = middle[0]
+    out.per_label[row] = middle[1:]
     out.images[row] = cfg.samples
     out.localizable[row] = len(ready)
     if hint is not None and _inferred(hint, len(ready), cfg, out, row):
@@ -376,16 +371,17 @@ def _measure_cell(ctx: _Context, i: int, j: int, out: CellMeasures, row: int, hi
     amb: list[float] = []
     false = run = 0
     for s in ready:
-        if cfg.sequential and _known(len(correct), false, run, len(ready), cfg.samples, cfg.stop_width):
+        if cfg.sequential and _known(len(correct), false, run, len(ready), cfg.samples, ctx.stop_width):
             break
         run += 1
-        pose, rng, near, _ = drawn[s]
-        error, lost = _localize(ctx, ctx.objects.take(near), pose, rng, f"{i},{j},{s}")
+        pose = poses.pose(s)
+        generator = positioned(poses, s, cfg.seed, i, j, ctx.generator)
+        error, lost = _localize(ctx, views.near[views.seen[s]], pose, generator, f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
             false += 1
-        amb.append(ambiguity(lost, pose.x, pose.y, cfg.separation_m))
+        amb.append(ambiguity(lost, pose.x, pose.y, ctx.separation))
     # The shares the fixed run would report: the localizable share (known) times the share of those that ran
     # (integers divided once: the fixed run's k / samples exactly when every localizable image ran).
     n, k = cfg.samples * max(run, 1), len(correct)
@@ -435,16 +431,21 @@ def _inferred(hint: np.ndarray, ready: int, cfg: SampleConfig, out: CellMeasures
     return True
 
 
-def _localize(ctx: _Context, local: Any, pose: Pose, rng: np.random.Generator,
+def _localize(ctx: _Context, shown: np.ndarray, pose: Pose, generator: np.random.Generator,
               image_id: str) -> tuple[float | None, Answer]:
-    """Simulate the image, localize it: the error of an accepted answer (None if rejected), and the answer
-    of the search without a prior (the one ambiguity is read from)."""
-    from ..simulation.simulate import simulate_image_at
-
+    """Simulate the image (``shown``: the objects it shows), localize it: the error of an accepted answer (None
+    if rejected), and the answer of the search without a prior (the one ambiguity is read from)."""
     cfg = ctx.config
-    image = simulate_image_at(local, pose, cfg.camera, rng, pixel_std=cfg.pixel_std, miss_rate=cfg.miss_rate,
-                              spurious_rate=cfg.spurious_rate, label_noise=cfg.label_noise,
-                              label_counts=ctx.label_counts, with_prior=cfg.prior, image_id=image_id)
+    if ctx.detector is not None:
+        image = cell_image(ctx.objects, shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
+    else:  # no label's objects to draw the detector's label mix from: the simulator's own fallback
+        from ..simulation.simulate import simulate_image_at
+
+        near = image_view(ctx.objects, ctx.tree, pose, ctx.camera, ctx.reach)[0]
+        image = simulate_image_at(ctx.objects.take(near), pose, ctx.camera, generator, pixel_std=cfg.pixel_std,
+                                  miss_rate=cfg.miss_rate, spurious_rate=cfg.spurious_rate,
+                                  label_noise=cfg.label_noise, label_counts=ctx.label_counts, with_prior=cfg.prior,
+                                  image_id=image_id)
     answer = ctx.localizer.localize(image)
     lost = answer
     if cfg.prior is not None:

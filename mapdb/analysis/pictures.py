@@ -195,7 +195,14 @@ def plot_analysis(path: str | os.PathLike[str], analysis: Analysis) -> None:
     fig.suptitle(f"Where {name} localizes an aircraft\n{_what(analysis)}", fontsize=11)
     _footnote(fig, analysis)
     fig.tight_layout(rect=(0, 0.02, 1, 0.96))
+    _laid_out(fig)
     save_figure(fig, path, DPI)
+
+
+def _laid_out(fig: Any) -> None:
+    """Drop the placeholder layout engine ``tight_layout`` leaves behind: with it, ``savefig`` lays the figure out
+    again in a draw of its own before drawing it (a quarter of the picture's time; the same bytes without)."""
+    fig.set_layout_engine(None)
 
 
 def _settings(analysis: Analysis) -> str:
@@ -234,6 +241,7 @@ def plot_scenarios(path: str | os.PathLike[str], analyses: Sequence[Analysis]) -
                  f"random positions and headings, seed {first.config.seed}", fontsize=11)
     _footnote(fig, first)
     fig.tight_layout(rect=(0, 0.02, 1, 0.97))
+    _laid_out(fig)
     save_figure(fig, path, DPI)
 
 

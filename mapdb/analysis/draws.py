@@ -1,0 +1,279 @@
+"""A cell's images drawn at once: their poses, the objects each shows, and the image of one to localize.
+
+Sample ``s`` of cell ``(i, j)`` draws from ``numpy.random.default_rng([seed, i', j', s])`` (see
+:mod:`mapdb.analysis.measures`): its position, heading, roll and pitch, then (only if it is localized) the
+detector's errors and the prior's offset.  This module draws exactly those numbers, faster:
+
+* **The generators' seeds** of every sample of a task are hashed together (:func:`pcg_states`): numpy's
+  ``SeedSequence`` mixing, then ``PCG64``'s seeding, on arrays (the 128-bit step in Python integers), so that
+  one reused generator set to each state draws what ``default_rng([seed, i', j', s])`` would.  Entropy words of
+  2**32 or more (a huge ``--seed``) go through ``default_rng`` itself.
+* **The poses** (:func:`cell_poses`): the position and heading from the generator's raw 64-bit outputs (numpy's
+  ``random`` and ``uniform`` are ``(r >> 11) * 2**-53`` and ``low + range * that``), roll and pitch from its
+  ``standard_normal``.
+* **The views** (:func:`cell_views`): the objects within reach of any of the cell's images are found in one
+  query, and projected into all its images in one stacked product.  An object that lands within
+  :data:`MARGIN_PX` of an image's edge, or within :data:`MARGIN_M` of an image's reach, is at a place where
+  rounding could decide: that image's view is then computed as one image's is
+  (:func:`~mapdb.camera.project_to_image` of the objects the tree finds within reach), so that which objects an
+  image shows is always what that per-image computation gives.
+* **The image** of a sample that is localized (:func:`cell_image`): the objects it shows projected by
+  :func:`~mapdb.camera.project_to_image`, then the detector and the prior, with the generator where its pose
+  left it: :func:`~mapdb.simulation.simulate.simulate_image_at`'s document, without its ``truth`` (the
+  localizer does not read it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..camera import Camera, Pose, project_to_image
+from ..labels import BLOCK_LABEL
+from ..simulation.detector import Detector, detect, label_mix
+from ..simulation.documents import add_hints, image_document
+from ..simulation.poses import Shot
+
+__all__ = ["MARGIN_M", "MARGIN_PX", "Poses", "Views", "cell_image", "cell_poses", "cell_views", "detector_of",
+           "image_view", "pcg_states", "positioned", "sample_generator"]
+
+# How close (pixels) to an image's edge, and (metres) to its reach, an object must come for the stacked
+# projection's rounding (1e-12 px) to matter: such an image is computed the per-image way.
+MARGIN_PX = 1e-6
+MARGIN_M = 1e-6
+
+# numpy's SeedSequence (bit_generator.pyx) and PCG64 (pcg64.h) constants.
+_INIT_A, _MULT_A, _INIT_B, _MULT_B = 0x43B0D7E5, 0x931E8875, 0x8B51F9DD, 0x58F38DED
+_MIX_L, _MIX_R = 0xCA01F9DD, 0x4973F715
+_M32 = np.uint64(0xFFFFFFFF)
+_PCG_MULT = 0x2360ED051FC65DA44385DF649FCCF645
+_M128 = (1 << 128) - 1
+_TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53: a double from the top 53 bits of a raw output
+
+
+def _natural(v: np.ndarray) -> np.ndarray:
+    """Integers as non-negative ones, one to one (zigzag), as a seed needs (measures._natural on arrays)."""
+    return np.where(v >= 0, 2 * v, -2 * v - 1)
+
+
+def _hash_constants(n: int, init: int, mult: int) -> list[np.uint64]:
+    """The SeedSequence hash constant after each of ``n`` updates (it is the same whatever the data)."""
+    out, h = [], init
+    for _ in range(n):
+        h = (h * mult) & 0xFFFFFFFF
+        out.append(np.uint64(h))
+    return out
+
+
+# 4 words hashed in, then 12 mixes; 8 words of state out.
+_HASH_A = _hash_constants(16, _INIT_A, _MULT_A)
+_XOR_A = [np.uint64(_INIT_A)] + _HASH_A[:-1]
+_HASH_B = _hash_constants(8, _INIT_B, _MULT_B)
+_XOR_B = [np.uint64(_INIT_B)] + _HASH_B[:-1]
+
+
+def pcg_states(entropy: np.ndarray) -> list[tuple[int, int]]:
+    """The PCG64 ``(state, inc)`` of ``default_rng(row)`` for every row of four entropy words (each below 2**32).
+
+    Examples
+    --------
+    >>> st = np.random.default_rng([0, 3, 4, 5]).bit_generator.state["state"]
+    >>> pcg_states(np.array([[0, 3, 4, 5]])) == [(st["state"], st["inc"])]
+    True
+    """
+    words = np.asarray(entropy, np.uint64).reshape(-1, 4)
+    calls = iter(range(16))
+
+    def hashmix(value: np.ndarray) -> np.ndarray:
+        k = next(calls)
+        value = ((value ^ _XOR_A[k]) * _HASH_A[k]) & _M32
+        return value ^ (value >> np.uint64(16))
+
+    def mix(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        r: np.ndarray = (np.uint64(_MIX_L) * x - np.uint64(_MIX_R) * y) & _M32  # type: ignore[operator]
+        return r ^ (r >> np.uint64(16))
+
+    pool = [hashmix(words[:, k]) for k in range(4)]
+    for src in range(4):
+        for dst in range(4):
+            if src != dst:
+                pool[dst] = mix(pool[dst], hashmix(pool[src]))
+    out = []
+    for k in range(8):
+        value = ((pool[k % 4] ^ _XOR_B[k]) * _HASH_B[k]) & _M32
+        out.append(value ^ (value >> np.uint64(16)))
+    halves = [(out[2 * k] | (out[2 * k + 1] << np.uint64(32))).tolist() for k in range(4)]
+    states = []
+    for a, b, c, d in zip(*halves, strict=True):
+        inc = ((((c << 64) | d) << 1) | 1) & _M128
+        states.append(((((inc + ((a << 64) | b)) & _M128) * _PCG_MULT + inc) & _M128, inc))
+    return states
+
+
+def sample_generator(seed: int, i: int, j: int, s: int) -> np.random.Generator:
+    """Sample ``s`` of cell ``(i, j)``'s generator, before any draw."""
+    return np.random.default_rng([seed, 2 * i if i >= 0 else -2 * i - 1, 2 * j if j >= 0 else -2 * j - 1, s])
+
+
+@dataclass
+class Poses:
+    """The poses of a cell's images: arrays of one value an image."""
+
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    roll: np.ndarray
+    pitch: np.ndarray
+    altitude: float
+    states: list[tuple[int, int]] | None = None  # each image's PCG64 (state, inc) before its draws, if hashed here
+
+    def pose(self, s: int) -> Pose:
+        return Pose(float(self.x[s]), float(self.y[s]), self.altitude, float(self.heading[s]), float(self.roll[s]),
+                    float(self.pitch[s]))
+
+
+def _draw(generator: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One pose's draws: three raw outputs (position, heading), then two standard normals (roll, pitch)."""
+    return generator.bit_generator.random_raw(3), generator.standard_normal(2)
+
+
+def cell_poses(seed: int, cells: np.ndarray, samples: int, cell_m: float, altitude: float,
+               attitude_std: float) -> list[Poses]:
+    """Every sample's pose of every cell (absolute indices, rows ``(i, j)``), as ``default_rng([seed, i', j', s])``
+    draws them: position uniform in the cell, heading uniform, roll and pitch normal."""
+    cells = np.asarray(cells, np.int64).reshape(-1, 2)
+    n = len(cells)
+    keys = np.column_stack([np.repeat(_natural(cells[:, 0]), samples), np.repeat(_natural(cells[:, 1]), samples),
+                            np.tile(np.arange(samples), n)])
+    raw = np.zeros((n * samples, 3), np.uint64)
+    normal = np.zeros((n * samples, 2))
+    states: list[tuple[int, int]] | None = None
+    if seed < 2**32 and (keys < 2**32).all():
+        shared = np.random.Generator(np.random.PCG64(0))
+        states = pcg_states(np.column_stack([np.full(len(keys), seed), keys]))
+        for k, state in enumerate(states):
+            raw[k], normal[k] = _draw(_restated(shared, state))
+    else:  # words of 2**32 or more: SeedSequence's own (longer) mixing
+        for k, row in enumerate(keys.tolist()):
+            raw[k], normal[k] = _draw(np.random.default_rng([seed, *row]))
+    unit = (raw >> np.uint64(11)) * _TO_UNIT
+    x = (np.repeat(cells[:, 0], samples) + unit[:, 0]) * cell_m
+    y = (np.repeat(cells[:, 1], samples) + unit[:, 1]) * cell_m
+    heading = 0.0 + 360.0 * unit[:, 2]
+    tilt = attitude_std * normal
+    return [Poses(x[c], y[c], heading[c], tilt[c, 0], tilt[c, 1], float(altitude),
+                  None if states is None else states[c])
+            for c in (slice(k * samples, (k + 1) * samples) for k in range(n))]
+
+
+def _restated(generator: np.random.Generator, state: tuple[int, int]) -> np.random.Generator:
+    """``generator`` (a PCG64 one) set to a PCG64 ``(state, inc)``, no value buffered."""
+    generator.bit_generator.state = {"bit_generator": "PCG64", "state": {"state": state[0], "inc": state[1]},
+                                     "has_uint32": 0, "uinteger": 0}
+    return generator
+
+
+@dataclass
+class Views:
+    """What a cell's images show: ``near`` (indices into the objects, sorted) within reach of any of them, and
+    ``seen`` (images, near): whether each image shows each."""
+
+    near: np.ndarray
+    seen: np.ndarray
+
+
+def _rotations(poses: Poses) -> np.ndarray:
+    """(images, 3, 3): each image's ``rotation_body_to_ned(...).T`` (body frame from NED)."""
+    cy, sy = np.cos(np.radians(poses.heading)), np.sin(np.radians(poses.heading))
+    cp, sp = np.cos(np.radians(poses.pitch)), np.sin(np.radians(poses.pitch))
+    cr, sr = np.cos(np.radians(poses.roll)), np.sin(np.radians(poses.roll))
+    # Rz(yaw) @ Ry(pitch) @ Rx(roll), written out (camera.rotation_body_to_ned), then transposed.
+    r = np.empty((cy.size, 3, 3))
+    r[:, 0, 0], r[:, 1, 0], r[:, 2, 0] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    r[:, 0, 1], r[:, 1, 1], r[:, 2, 1] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    r[:, 0, 2], r[:, 1, 2], r[:, 2, 2] = -sp, cp * sr, cp * cr
+    return r
+
+
+def cell_views(objects: Any, tree: Any, poses: Poses, camera: Camera, reach: float, centre: tuple[float, float],
+               radius: float) -> Views:
+    """Which objects each of a cell's images shows: those within ``reach`` of its camera that project inside
+    it.  ``tree`` indexes ``objects``; every camera is within ``radius`` of ``centre``."""
+    n = poses.x.size
+    if tree is None:
+        return Views(np.zeros(0, np.int64), np.zeros((n, 0), bool))
+    near = np.sort(np.asarray(tree.query_ball_point(centre, radius + reach + 1.0), np.int64))
+    ox, oy = objects.x[near], objects.y[near]
+    dx, dy = ox[None, :] - poses.x[:, None], oy[None, :] - poses.y[:, None]
+    ned = np.stack([dy, dx, np.full(dx.shape, poses.altitude)], axis=1)
+    frd = _rotations(poses) @ ned
+    f = camera.focal_px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(frd[:, 2] > 0.0, frd[:, 2], np.nan)
+        u = camera.width / 2.0 + f * frd[:, 1] / d
+        v = camera.height / 2.0 - f * frd[:, 0] / d
+    dist = np.hypot(dx, dy)
+    within = dist <= reach
+    seen = within & np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    close = (np.abs(dist - reach) < MARGIN_M) | within & (np.abs(frd[:, 2]) < MARGIN_M)
+    with np.errstate(invalid="ignore"):
+        for edge, value in ((0.0, u), (camera.width, u), (0.0, v), (camera.height, v)):
+            close |= within & (np.abs(value - edge) < MARGIN_PX)
+    for s in np.flatnonzero(close.any(axis=1)).tolist():  # rounding could decide: the per-image way
+        own, _, _, shown = image_view(objects, tree, poses.pose(s), camera, reach)
+        seen[s] = False
+        seen[s, np.searchsorted(near, own[shown])] = True
+    return Views(near, seen)
+
+
+def image_view(objects: Any, tree: Any, pose: Pose, camera: Camera,
+               reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One image's objects within reach (sorted indices), their pixels, and which of them it shows: the
+    per-image way."""
+    near = np.sort(np.asarray(tree.query_ball_point((pose.x, pose.y), reach), np.int64))
+    u, v = project_to_image(objects.x[near], objects.y[near], pose, camera)
+    return near, u, v, np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+
+
+def cell_image(objects: Any, shown: np.ndarray, pose: Pose, camera: Camera, generator: np.random.Generator,
+               detector: Detector, prior: float | None, image_id: str) -> dict[str, Any]:
+    """The image document a sample is localized from (``generator`` where its pose's draws left it):
+    :func:`~mapdb.simulation.simulate.simulate_image_at` of the objects it shows (``shown``, sorted indices into
+    ``objects``, from :func:`cell_views`), without its truth.
+
+    Only the objects shown are projected (the simulator projects all those within reach): a point's pixels do
+    not depend on the other points projected with it, and the objects not shown draw nothing.
+    """
+    local = objects.take(shown)
+    u, v = project_to_image(local.x, local.y, pose, camera)
+    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    if BLOCK_LABEL in local.labels:  # a camera sees the buildings of a block, never the block (place_camera)
+        seen &= local.label != local.labels.index(BLOCK_LABEL)
+    index = np.flatnonzero(seen).astype(np.int64)
+    index, u, v, label_names = detect(generator, local, index, u[seen], v[seen], camera, detector)
+    image = image_document(image_id, camera, label_names, u, v)
+    shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
+    add_hints(generator, image, shot, pose.x, pose.y, prior, False, False)
+    return image
+
+
+def detector_of(label_counts: dict[str, int], pixel_std: float, miss_rate: float, spurious_rate: float,
+                label_noise: float) -> Detector:
+    """The detector every image of an analysis uses (its label mix that of ``label_counts``, not empty)."""
+    names, mix = label_mix(label_counts)
+    return Detector(pixel_std, miss_rate, spurious_rate, label_noise, names, mix)
+
+
+def positioned(poses: Poses, s: int, seed: int, i: int, j: int,
+               reuse: np.random.Generator | None = None) -> np.random.Generator:
+    """Sample ``s``'s generator where its pose's draws leave it (its image's errors start there): ``reuse`` (a
+    PCG64 generator, which this sets) when given and the poses kept their states, else a new one."""
+    if reuse is not None and poses.states is not None:
+        generator = _restated(reuse, poses.states[s])
+    else:
+        generator = sample_generator(seed, i, j, s)
+    _draw(generator)
+    return generator
+
