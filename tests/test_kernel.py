@@ -5,7 +5,9 @@ quotients and square roots, the kernel repeats numpy's arithmetic (pairwise sums
 quotient) and the answers must be identical; where it used ``expm1`` and ``log10``, numpy may take them from a
 SIMD library (SVML on AVX-512 machines) that differs from the C library's by an ulp, so the log10 NFA must agree
 to 1e-12; and the complex products numpy fuses on x86-64 with AVX2 (the kernel always does) agree to 1e-12
-relative where numpy does not fuse them.
+relative where numpy does not fuse them.  The binomial tail is the kernel's own sum, not numpy's betainc: the
+NFA curve agrees with the reference where betainc's tail lies above 1e-250, and with exact rational arithmetic in
+the rows reaching below it (where betainc loses digits and, below about 1e-275, underflows early).
 """
 
 from __future__ import annotations
@@ -167,11 +169,52 @@ def random_sample(rng, h, n, s):
     return sample
 
 
+# Below this log10 tail betainc loses digits and, below about 1e-275, underflows early (to 0, read as the floor):
+# rows of the reference reaching below it are computed again in exact rational arithmetic.
+_BETAINC_TRUSTED = -250.0
+
+
 def assert_nfa_agrees(u, n_sample, log10_tests=2.0, shape=None, sample=None):
+    """The kernel's curve minimum is numpy's, or exact arithmetic's in the rows where betainc's tail is not trusted."""
     want, k_want = ref_log10_nfa_curve(u, n_sample, log10_tests, shape, sample)
     got, k_got = log10_nfa_curve(u, n_sample, log10_tests, shape=shape, sample=sample)
+    deep = deep_rows(u, n_sample, shape, sample)
+    if deep.any():
+        want[deep], k_want[deep] = exact_nfa_curve(u, n_sample, log10_tests, shape, sample, deep)
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(k_got, k_want)
+    return deep
+
+
+def ref_chances(u, n_sample, shape, sample):
+    """The reference's chances of each row's trials, as its betainc reads them."""
+    u = np.asarray(u, dtype=np.float64)
+    if sample is not None:
+        u = np.where(sample, -1.0, u)
+    return np.minimum(np.maximum(ref_trial_chances(u, n_sample, shape), 0.0), 1.0)
+
+
+def deep_rows(u, n_sample, shape, sample):
+    """The rows whose reference tail (betainc's) reaches below ``_BETAINC_TRUSTED`` at some ``k``."""
+    h, n = np.shape(u)
+    trials = n - n_sample
+    if h == 0 or trials <= 0:
+        return np.zeros(h, bool)
+    successes = np.arange(1, trials + 1, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        tail = np.log10(betainc(successes, trials - successes + 1.0, ref_chances(u, n_sample, shape, sample)))
+    return (tail < _BETAINC_TRUSTED).any(axis=1)
+
+
+def exact_nfa_curve(u, n_sample, log10_tests, shape, sample, rows):
+    """The curve's minimum and its ``k`` in the rows picked, each tail in exact rational arithmetic."""
+    p = ref_chances(u, n_sample, shape, sample)[rows]
+    trials = p.shape[1]
+    tail = np.array([[math.nan if math.isnan(c) else exact_log10_tail(trials, j + 1, float(c))
+                      for j, c in enumerate(row)] for row in p])
+    curve = log10_tests + np.log10(trials) + np.maximum(tail, _LOG10_FLOOR)
+    best = curve.argmin(axis=1)
+    return curve[np.arange(len(p)), best], best + 1 + n_sample
 
 
 # ---------------------------------------------------------------- log10_nfa_curve
@@ -208,6 +251,28 @@ def test_the_nfa_curve_at_its_edges() -> None:
         assert_nfa_agrees(u, 4)
         if u.size and u.shape[1] > 4:
             assert_nfa_agrees(u, 4, shape=np.full(u.shape, 1.25), sample=random_sample(rng, *u.shape, 4))
+
+
+def test_the_nfa_curve_keeps_the_tails_betainc_underflows_on() -> None:
+    # 115 trials: 91 at a chance whose tail at k = 91 is 1e-299.07 (betainc gives 0 there), 24 far ones.
+    p = 0.0002778737894631962
+    u = np.concatenate([np.zeros(4), np.full(91, -math.log1p(-p)), np.full(24, 1.0)])[None]
+    assert deep_rows(u, 4, None, None).all() and betainc(91, 25, p) == 0
+    nfa, k = log10_nfa_curve(u, 4, 2.0)
+    want = 2.0 + math.log10(115) + exact_log10_tail(115, 91, p)
+    assert abs(nfa[0] - want) < 1e-12 and k[0] == 95
+    assert nfa[0] > ref_log10_nfa_curve(u, 4, 2.0)[0][0] + 0.9  # numpy's curve read betainc's 0 as the floor
+    # The same through the shaped path, and random rows reaching below 1e-250 against exact arithmetic.
+    assert_nfa_agrees(u, 4, shape=np.ones(u.shape))
+    rng = np.random.default_rng(9)
+    deep = 0
+    for _ in range(30):
+        h, n = int(rng.integers(1, 4)), int(rng.integers(40, 80))
+        u = rng.exponential(1.0, (h, n)) * 10.0 ** rng.uniform(-12, -6, (h, 1))
+        u[rng.random((h, n)) < 0.1] = np.inf
+        deep += int(assert_nfa_agrees(u, 4, 2.5).sum())
+        deep += int(assert_nfa_agrees(u, 4, 2.5, 1.25 + rng.random((h, n)), random_sample(rng, h, n, 4)).sum())
+    assert deep >= 20  # the comparison with exact arithmetic did take place
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")  # numpy's reference divides by zero there
@@ -386,27 +451,38 @@ def test_the_first_allowed_neighbour_is_numpy_s() -> None:
 
 def test_wrong_calls_raise_type_or_value_errors() -> None:
     u = np.zeros((2, 6))
-    out = np.empty((2, 2))
+    nfa, best = np.empty(2), np.empty(2, np.int64)
+
+    def curve(u=u, shape=None, sample=None, n_sample=4, nfa=nfa, best=best):
+        _kernel.nfa_curve(u, shape, sample, n_sample, 0.0, -300.0, nfa, best)
+
+    curve()  # the right call goes through
     with pytest.raises(TypeError):
-        _kernel.trial_chances(u.astype(np.float32), None, None, 4, out)
+        curve(u=u.astype(np.float32))
     with pytest.raises(TypeError):
-        _kernel.trial_chances([[0.0] * 6] * 2, None, None, 4, out)
+        curve(u=[[0.0] * 6] * 2)
     with pytest.raises(TypeError):
-        _kernel.trial_chances(u, None, np.zeros((2, 6), np.int8), 4, out)
+        curve(sample=np.zeros((2, 6), np.int8))
+    with pytest.raises(TypeError):
+        curve(best=np.empty(2))
     with pytest.raises(ValueError, match="contiguous"):
-        _kernel.trial_chances(np.zeros((6, 2)).T, None, None, 4, out)
+        curve(u=np.zeros((6, 2)).T)
     with pytest.raises(ValueError, match="shape"):
-        _kernel.trial_chances(u, None, None, 4, np.empty((2, 3)))
+        curve(nfa=np.empty(3))
     with pytest.raises(ValueError, match="shape"):
-        _kernel.trial_chances(u, np.ones((2, 5)), None, 4, out)
+        curve(shape=np.ones((2, 5)))
+    with pytest.raises(ValueError, match="shape"):
+        curve(sample=np.zeros((1, 6), bool))
     with pytest.raises(ValueError, match="n_sample"):
-        _kernel.trial_chances(u, None, None, 6, out)
+        curve(n_sample=6)
+    with pytest.raises(ValueError, match="n_sample"):
+        curve(n_sample=-1)
     with pytest.raises(ValueError, match="writable"):
-        frozen = np.empty((2, 2))
+        frozen = np.empty(2)
         frozen.flags.writeable = False
-        _kernel.trial_chances(u, None, None, 4, frozen)
+        curve(nfa=frozen)
     with pytest.raises(ValueError, match="1-D"):
-        _kernel.curve_minimum(out, 0.0, -300.0, np.empty((2, 1)), np.empty(2, np.int64))
+        curve(nfa=np.empty((2, 1)))
     with pytest.raises(TypeError):
         _kernel.fit_similarity(np.zeros((1, 3)), np.zeros((1, 3), complex), np.ones((1, 3)),
                                np.empty(1, complex), np.empty(1, complex))

@@ -413,95 +413,6 @@ static void chances_rows(const double *u, const double *shape, const unsigned ch
     }
 }
 
-static PyObject *trial_chances(PyObject *self, PyObject *args)
-{
-    PyObject *ou, *oshape, *osample, *oout;
-    Py_ssize_t ns;
-    Arr a[4] = {{{0}}};
-    if (!PyArg_ParseTuple(args, "OOOnO:trial_chances", &ou, &oshape, &osample, &ns, &oout)) {
-        return NULL;
-    }
-    if (take(ou, &a[0], "u", 'd', 2, 0, 0) || take(oshape, &a[1], "shape", 'd', 2, 0, 1)
-        || take(osample, &a[2], "sample", '?', 2, 0, 1) || take(oout, &a[3], "out", 'd', 2, 1, 0)) {
-        release(a, 4);
-        return NULL;
-    }
-    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
-    if (ns < 0 || ns >= n) {
-        PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", n - 1, ns);
-    } else if (!check_shape(&a[1], "shape", h, n) && !check_shape(&a[2], "sample", h, n)) {
-        check_shape(&a[3], "out", h, n - ns);
-    }
-    if (PyErr_Occurred()) {
-        release(a, 4);
-        return NULL;
-    }
-    Keyed *k = PyMem_Malloc(sizeof(Keyed) * (size_t)(n + 1));
-    double *x = PyMem_Malloc(sizeof(double) * (size_t)(2 * n + 2));
-    if (k == NULL || x == NULL) {
-        PyMem_Free(k);
-        PyMem_Free(x);
-        release(a, 4);
-        return PyErr_NoMemory();
-    }
-    Py_BEGIN_ALLOW_THREADS
-    chances_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, k, x, x + n + 1,
-                 D(a[3]));
-    Py_END_ALLOW_THREADS
-    PyMem_Free(k);
-    PyMem_Free(x);
-    release(a, 4);
-    Py_RETURN_NONE;
-}
-
-/* ------------------------------------------------------------------ the NFA curve's minimum */
-
-static PyObject *curve_minimum(PyObject *self, PyObject *args)
-{
-    PyObject *otail, *onfa, *obest;
-    double offset, floor_;
-    Arr a[3] = {{{0}}};
-    if (!PyArg_ParseTuple(args, "OddOO:curve_minimum", &otail, &offset, &floor_, &onfa, &obest)) {
-        return NULL;
-    }
-    if (take(otail, &a[0], "tail", 'd', 2, 0, 0) || take(onfa, &a[1], "nfa", 'd', 1, 1, 0)
-        || take(obest, &a[2], "best", 'q', 1, 1, 0)) {
-        release(a, 3);
-        return NULL;
-    }
-    Py_ssize_t h = dim(&a[0], 0), t = dim(&a[0], 1);
-    if (t < 1) {
-        PyErr_SetString(PyExc_ValueError, "tail must have at least one column");
-    } else if (!check_shape(&a[1], "nfa", h, 0)) {
-        check_shape(&a[2], "best", h, 0);
-    }
-    if (PyErr_Occurred()) {
-        release(a, 3);
-        return NULL;
-    }
-    const double *tail = D(a[0]);
-    double *nfa = D(a[1]);
-    int64_t *best = Q(a[2]);
-    Py_BEGIN_ALLOW_THREADS
-    for (Py_ssize_t r = 0; r < h; r++) {
-        Py_ssize_t arg = 0;
-        double low = 0.0;
-        for (Py_ssize_t j = 0; j < t; j++) {
-            double l = log10(tail[r * t + j]);
-            double c = offset + ((l >= floor_ || isnan(l)) ? l : floor_);
-            if (j == 0 || (!isnan(low) && (c < low || isnan(c)))) {  /* numpy's argmin: the first NaN wins */
-                low = c;
-                arg = j;
-            }
-        }
-        nfa[r] = low;
-        best[r] = (int64_t)arg;
-    }
-    Py_END_ALLOW_THREADS
-    release(a, 3);
-    Py_RETURN_NONE;
-}
-
 /* ------------------------------------------------------------------ refinement */
 
 static double row_sigma(const double *dist, const unsigned char *inlier, Py_ssize_t n, double *tmp)
@@ -863,17 +774,14 @@ static PyObject *tail_log10(PyObject *self, PyObject *args)
 
 /* Each row's minimum over k of offset + max(log10 tail, floor), and where it is (numpy's argmin: the first
  * minimum, the first NaN if any). */
-static Py_ssize_t curve_rows(const double *p, Py_ssize_t h, Py_ssize_t t, double offset, double floor_,
-                             double exact_from, const double *lf, double *nfa, int64_t *best, unsigned char *beyond)
+static void curve_rows(const double *p, Py_ssize_t h, Py_ssize_t t, double offset, double floor_, const double *lf,
+                       double *nfa, int64_t *best)
 {
-    Py_ssize_t count = 0;
     for (Py_ssize_t r = 0; r < h; r++) {
         Py_ssize_t arg = 0;
         double low = 0.0;
-        beyond[r] = 0;
         for (Py_ssize_t j = 0; j < t; j++) {
             double l = log10_tail(t, j + 1, p[r * t + j], lf);
-            beyond[r] |= l < exact_from;
             double c = offset + ((l >= floor_ || isnan(l)) ? l : floor_);
             if (j == 0 || (!isnan(low) && (c < low || isnan(c)))) {
                 low = c;
@@ -882,36 +790,34 @@ static Py_ssize_t curve_rows(const double *p, Py_ssize_t h, Py_ssize_t t, double
         }
         nfa[r] = low;
         best[r] = (int64_t)arg;
-        count += beyond[r];
     }
-    return count;
 }
 
 static PyObject *nfa_curve(PyObject *self, PyObject *args)
 {
-    PyObject *ou, *oshape, *osample, *onfa, *obest, *obeyond;
-    Py_ssize_t ns, count;
-    double offset, floor_, exact_from;
-    Arr a[6] = {{{0}}};
-    if (!PyArg_ParseTuple(args, "OOOndddOOO:nfa_curve", &ou, &oshape, &osample, &ns, &offset, &floor_, &exact_from,
-                          &onfa, &obest, &obeyond)) {
+    PyObject *ou, *oshape, *osample, *onfa, *obest;
+    Py_ssize_t ns;
+    double offset, floor_;
+    Arr a[5] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOnddOO:nfa_curve", &ou, &oshape, &osample, &ns, &offset, &floor_, &onfa,
+                          &obest)) {
         return NULL;
     }
     if (take(ou, &a[0], "u", 'd', 2, 0, 0) || take(oshape, &a[1], "shape", 'd', 2, 0, 1)
         || take(osample, &a[2], "sample", '?', 2, 0, 1) || take(onfa, &a[3], "nfa", 'd', 1, 1, 0)
-        || take(obest, &a[4], "best", 'q', 1, 1, 0) || take(obeyond, &a[5], "beyond", '?', 1, 1, 0)) {
-        release(a, 6);
+        || take(obest, &a[4], "best", 'q', 1, 1, 0)) {
+        release(a, 5);
         return NULL;
     }
     Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1), t = n - ns;
     if (ns < 0 || ns >= n) {
         PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", n - 1, ns);
     } else if (!check_shape(&a[1], "shape", h, n) && !check_shape(&a[2], "sample", h, n)
-               && !check_shape(&a[3], "nfa", h, 0) && !check_shape(&a[4], "best", h, 0)) {
-        check_shape(&a[5], "beyond", h, 0);
+               && !check_shape(&a[3], "nfa", h, 0)) {
+        check_shape(&a[4], "best", h, 0);
     }
     if (PyErr_Occurred()) {
-        release(a, 6);
+        release(a, 5);
         return NULL;
     }
     Keyed *k = PyMem_Malloc(sizeof(Keyed) * (size_t)(n + 1));
@@ -919,7 +825,7 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
     if (k == NULL || x == NULL) {
         PyMem_Free(k);
         PyMem_Free(x);
-        release(a, 6);
+        release(a, 5);
         return PyErr_NoMemory();
     }
     double *lf = x + 2 * n + 2, *p = lf + t + 1;
@@ -928,12 +834,12 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
     }
     Py_BEGIN_ALLOW_THREADS
     chances_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, k, x, x + n + 1, p);
-    count = curve_rows(p, h, t, offset, floor_, exact_from, lf, D(a[3]), Q(a[4]), B(a[5]));
+    curve_rows(p, h, t, offset, floor_, lf, D(a[3]), Q(a[4]));
     Py_END_ALLOW_THREADS
     PyMem_Free(k);
     PyMem_Free(x);
-    release(a, 6);
-    return PyLong_FromSsize_t(count);
+    release(a, 5);
+    Py_RETURN_NONE;
 }
 
 /* ------------------------------------------------------------------ the decision's tolerance shapes */
@@ -1002,10 +908,6 @@ static PyObject *quad_tolerance(PyObject *self, PyObject *args)
 /* ------------------------------------------------------------------ module */
 
 static PyMethodDef methods[] = {
-    {"trial_chances", trial_chances, METH_VARARGS,
-     "trial_chances(u, shape, sample, n_sample, out): each hypothesis's chances under the null, clipped to [0, 1]."},
-    {"curve_minimum", curve_minimum, METH_VARARGS,
-     "curve_minimum(tail, offset, floor, nfa, best): min over k of offset + max(log10 tail, floor), and its index."},
     {"refine_inliers", refine_inliers, METH_VARARGS,
      "refine_inliers(u, dist, mid, k_best, gate_sigmas, inlier): the refinement's inlier mask."},
     {"residual_sigmas", residual_sigmas, METH_VARARGS,
@@ -1017,8 +919,8 @@ static PyMethodDef methods[] = {
     {"first_allowed", first_allowed, METH_VARARGS,
      "first_allowed(d, i, reach, z, exclude, repeat, allowed, out_d, out_i): the nearest allowed neighbour."},
     {"nfa_curve", nfa_curve, METH_VARARGS,
-     "nfa_curve(u, shape, sample, n_sample, offset, floor, exact_from, nfa, best, beyond): log10_nfa_curve's "
-     "minimum, the tail included; rows with a log10 tail below exact_from are marked in beyond (returns how many)."},
+     "nfa_curve(u, shape, sample, n_sample, offset, floor, nfa, best): log10_nfa_curve's minimum over k, the "
+     "binomial tail included, and its index."},
     {"tail_log10", tail_log10, METH_VARARGS,
      "tail_log10(n, k, p): log10 P(Binomial(n, p) >= k), the kernel's binomial tail (for tests)."},
     {"quad_tolerance", quad_tolerance, METH_VARARGS,

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._scipy import betainc
-from ._kernel import curve_minimum, nfa_curve, trial_chances
+from ._kernel import nfa_curve
 
 __all__ = ["log10_binomial_tail", "log10_nfa_curve"]
 
@@ -117,43 +117,18 @@ def log10_nfa_curve(
     trials = n - n_sample
     if h == 0 or trials <= 0:
         return np.full(h, np.inf), np.zeros(h, dtype=np.int64)
-    successes, failures, log10_trials = _counts(trials)
     if shape is not None:
         shape = _full(np.asarray(shape, dtype=np.float64), u.shape)
     if sample is not None:
         sample = _full(np.asarray(sample, dtype=bool), u.shape)
-    # The compiled kernel sorts each row, forms the chances, the binomial tails, the curve and its minimum.
-    offset = log10_tests + log10_trials
+    # The compiled kernel sorts each row, forms the chances, the binomial tails, the curve and its minimum.  Its
+    # tail (a sum of the binomial's terms from the largest) agrees with scipy's incomplete beta function (boost's
+    # ibeta) to 1.4e-13 in log10 down to tails of 1e-275 and is exact below, where betainc underflows early (to 0,
+    # read as the floor, for a tail of 1e-299.07; tests/test_kernel.py).
     nfa = np.empty(h)
     best = np.empty(h, dtype=np.int64)
-    beyond = np.empty(h, dtype=bool)
-    if nfa_curve(u, shape, sample, n_sample, offset, _LOG10_FLOOR, _BETAINC_BELOW, nfa, best, beyond):
-        rows = np.flatnonzero(beyond)
-        nfa[rows], best[rows] = _betainc_curve(u[rows], n_sample, offset, successes, failures,
-                                               None if shape is None else shape[rows],
-                                               None if sample is None else sample[rows])
+    nfa_curve(u, shape, sample, n_sample, log10_tests + _log10_trials(trials), _LOG10_FLOOR, nfa, best)
     return nfa, best + 1 + n_sample
-
-
-# The kernel's binomial tail (a sum of its terms from the largest) agrees with scipy's incomplete beta function
-# (boost's ibeta) to 1.4e-13 in log10 down to tails of 1e-275, but below that betainc underflows early (to 0, read
-# as the floor, for a tail of 1e-299.07, which the kernel's sum gives as exact rational arithmetic does;
-# tests/test_kernel.py).  The rows with a tail below 1e-250 take betainc's values, as before the kernel, so that
-# no ranking or answer changes.
-_BETAINC_BELOW = -250.0
-
-
-def _betainc_curve(u: np.ndarray, n_sample: int, offset: float, successes: np.ndarray, failures: np.ndarray,
-                   shape: np.ndarray | None, sample: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-    """The curve's minimum and its index (0-based) with scipy's tail: the kernel's chances, one betainc call."""
-    h, trials = len(u), len(successes)
-    p = np.empty((h, trials))
-    trial_chances(u, shape, sample, n_sample, p)
-    betainc(successes, failures, p, out=p)
-    nfa = np.empty(h)
-    best = np.empty(h, dtype=np.int64)
-    curve_minimum(p, offset, _LOG10_FLOOR, nfa, best)
-    return nfa, best
 
 
 def _full(v: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -161,14 +136,13 @@ def _full(v: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     return np.ascontiguousarray(v if v.shape == shape else np.broadcast_to(v, shape))
 
 
-_COUNTS: dict[int, tuple[np.ndarray, np.ndarray, float]] = {}
+_LOG10_TRIALS: dict[int, float] = {}
 
 
-def _counts(trials: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """The binomial tail's arguments for ``trials`` trials, ``k`` = 1..trials successes (``k`` and
-    ``trials - k + 1``), and ``log10(trials)``: the same few dozen values for every image, made once."""
-    found = _COUNTS.get(trials)
+def _log10_trials(trials: int) -> float:
+    """``log10(trials)``, the count of choices of ``k`` in the curve: the same few dozen values for every image,
+    made once."""
+    found = _LOG10_TRIALS.get(trials)
     if found is None:
-        successes = np.arange(1, trials + 1, dtype=np.float64)
-        found = _COUNTS[trials] = successes, trials - successes + 1.0, np.log10(trials)
+        found = _LOG10_TRIALS[trials] = float(np.log10(trials))
     return found
