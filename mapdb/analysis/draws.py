@@ -31,10 +31,10 @@ from typing import Any
 import numpy as np
 
 from ..camera import Camera, Pose, project_to_image
-from ..labels import BLOCK_LABEL
 from ..simulation.detector import Detector, detect, label_mix
 from ..simulation.documents import add_hints, image_document
 from ..simulation.poses import Shot
+from ..simulation.simulate import visible_objects
 
 __all__ = ["MARGIN_M", "MARGIN_PX", "Poses", "Views", "cell_image", "cell_poses", "cell_views", "detector_of",
            "image_view", "pcg_states", "positioned", "sample_generator"]
@@ -247,10 +247,7 @@ def cell_image(objects: Any, shown: np.ndarray, pose: Pose, camera: Camera, gene
     not depend on the other points projected with it, and the objects not shown draw nothing.
     """
     local = objects.take(shown)
-    u, v = project_to_image(local.x, local.y, pose, camera)
-    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    if BLOCK_LABEL in local.labels:  # a camera sees the buildings of a block, never the block (place_camera)
-        seen &= local.label != local.labels.index(BLOCK_LABEL)
+    u, v, seen = visible_objects(local, pose, camera)
     index = np.flatnonzero(seen).astype(np.int64)
     index, u, v, label_names = detect(generator, local, index, u[seen], v[seen], camera, detector)
     image = image_document(image_id, camera, label_names, u, v)

@@ -48,6 +48,7 @@ __all__ = [
     "paper_map",
     "simulate_image_at",
     "simulate_images",
+    "visible_objects",
     "sparse_images",
 ]
 
@@ -310,10 +311,7 @@ def simulate_image_at(
     names, mix = label_mix(label_counts or own or {"": 1})
     detector = Detector(pixel_std, miss_rate, spurious_rate, label_noise, names, mix)
     shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
-    u, v = project_to_image(objects.x, objects.y, pose, camera)
-    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    if BLOCK_LABEL in objects.labels:  # a camera sees the buildings of a block, never the block (place_camera)
-        seen &= objects.label != objects.labels.index(BLOCK_LABEL)
+    u, v, seen = visible_objects(objects, pose, camera)
     index = np.flatnonzero(seen).astype(np.int64)
     index, u, v, label_names = detect(rng, objects, index, u[seen], v[seen], camera, detector)
     bound = bound_entry(objects, index, u, v, shot, pose.x, pose.y, False)
@@ -345,3 +343,20 @@ def sparse_images(images: Sequence[dict[str, Any]], map_name: str) -> str | None
             f"show fewer than {USABLE_OBJECTS}, the fewest the matcher localizes from): camera positions are drawn "
             "uniformly over the map's bounds, where most places show no object at this altitude and field of view; "
             "--min-objects 6 draws them where 6 objects are in view (or widen the view: --altitude, --fov)")
+
+
+def visible_objects(objects: Objects, pose: Pose, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every object's pixels ``u, v`` under ``pose`` and which of them the camera sees (bool): those inside the
+    image, blocks left out (a camera sees the buildings of a block, never the block: :func:`place_camera`).
+
+    Examples
+    --------
+    >>> u, v, seen = visible_objects(paper_map(), Pose(500_125.0, 5_000_075.0, 100.0), Camera())
+    >>> bool(seen.any()), u.shape == seen.shape
+    (True, True)
+    """
+    u, v = project_to_image(objects.x, objects.y, pose, camera)
+    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    if BLOCK_LABEL in objects.labels:
+        seen &= objects.label != objects.labels.index(BLOCK_LABEL)
+    return u, v, seen
