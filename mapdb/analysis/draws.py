@@ -54,7 +54,7 @@ _TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53: a double from the top 53 bits of 
 
 
 def _natural(v: np.ndarray) -> np.ndarray:
-    """Integers as non-negative ones, one to one (zigzag), as a seed needs (measures._natural on arrays)."""
+    """Integers as non-negative ones, one to one (zigzag), as a seed needs."""
     return np.where(v >= 0, 2 * v, -2 * v - 1)
 
 
@@ -114,7 +114,7 @@ def pcg_states(entropy: np.ndarray) -> list[tuple[int, int]]:
 
 def sample_generator(seed: int, i: int, j: int, s: int) -> np.random.Generator:
     """Sample ``s`` of cell ``(i, j)``'s generator, before any draw."""
-    return np.random.default_rng([seed, 2 * i if i >= 0 else -2 * i - 1, 2 * j if j >= 0 else -2 * j - 1, s])
+    return np.random.default_rng([seed, *_natural(np.array([i, j], np.int64)).tolist(), s])
 
 
 @dataclass

@@ -51,7 +51,7 @@ import numpy as np
 from ..answers import Answer
 from ..camera import Camera, Pose
 from ..evaluation.evaluate import DEFAULT_FP_THRESHOLD_M
-from .draws import Poses, cell_image, cell_poses, cell_views, detector_of, image_view, positioned
+from .draws import Poses, cell_image, cell_poses, cell_views, detector_of, positioned
 
 __all__ = ["DECISION_LEVEL", "HINT_COLUMNS", "MIN_VISIBLE", "Z95", "CellMeasures", "SampleConfig", "ambiguity",
            "inferred_interval", "measure_cells", "wilson_interval", "wilson_width"]
@@ -436,16 +436,10 @@ def _localize(ctx: _Context, shown: np.ndarray, pose: Pose, generator: np.random
     """Simulate the image (``shown``: the objects it shows), localize it: the error of an accepted answer (None
     if rejected), and the answer of the search without a prior (the one ambiguity is read from)."""
     cfg = ctx.config
-    if ctx.detector is not None:
-        image = cell_image(ctx.objects, shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
-    else:  # no label's objects to draw the detector's label mix from: the simulator's own fallback
-        from ..simulation.simulate import simulate_image_at
-
-        near = image_view(ctx.objects, ctx.tree, pose, ctx.camera, ctx.reach)[0]
-        image = simulate_image_at(ctx.objects.take(near), pose, ctx.camera, generator, pixel_std=cfg.pixel_std,
-                                  miss_rate=cfg.miss_rate, spurious_rate=cfg.spurious_rate,
-                                  label_noise=cfg.label_noise, label_counts=ctx.label_counts, with_prior=cfg.prior,
-                                  image_id=image_id)
+    # An image is localized only when it shows MIN_VISIBLE analysed objects, so the map holds some: the detector
+    # exists (it is None only for a map without any).
+    assert ctx.detector is not None
+    image = cell_image(ctx.objects, shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
     answer = ctx.localizer.localize(image)
     lost = answer
     if cfg.prior is not None:

@@ -16,8 +16,8 @@ import numpy as np
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys",
-           "near_only", "nearest_others", "neighbour_quads", "quad_frames"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "near_only",
+           "nearest_others", "neighbour_quads", "quad_frames"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -239,6 +239,10 @@ class QuadIndex:
     (True, 4)
     """
 
+    # The box of the quads' positions (tree units), made on the first lookup that needs it (for every index,
+    # however made: merged, or a part of blocks_view's).
+    _where: tuple[float, float, float, float] | None = None
+
     def __init__(self, objects: Objects, neighbours: int = 8, anchors: np.ndarray | None = None,
                  positions: bool = False) -> None:
         self.labels = tuple(objects.labels)
@@ -269,7 +273,6 @@ class QuadIndex:
         else:
             self.tree = None
         self.quad_z = zq
-        self._where: tuple[float, float, float, float] | None = None
 
     @property
     def n_quads(self) -> int:
@@ -332,7 +335,7 @@ class QuadIndex:
     def _out_of_reach(self, place: complex, reach: float) -> bool:
         """No quad's position (tree units) within ``reach`` of ``place``, by the box of the positions (per axis no
         nearer than any position, in floating point too): the lookup would keep no hit, its tree query is saved."""
-        where = getattr(self, "_where", None)  # an index made without __init__ (blocks_view's parts) has none yet
+        where = self._where
         if where is None:
             assert self.tree is not None
             lo, hi = self.tree.data[:, 5:7].min(axis=0).tolist(), self.tree.data[:, 5:7].max(axis=0).tolist()
@@ -358,7 +361,6 @@ class QuadIndex:
         merged = cls.__new__(cls)
         merged.labels = parts[0].labels if parts else ()
         merged.positions = bool(parts) and parts[0].positions
-        merged._where = None
         if any(q.positions != merged.positions for q in parts):
             raise ValueError("cannot merge quad indexes with and without positions")
         if not parts:
