@@ -1,4 +1,4 @@
-"""Build of mapdb's compiled kernel (``mapdb/match/_kernel.c``); the metadata is in pyproject.toml.
+"""Build of mapdb's compiled kernel (``mapdb/match/_kernel*.c``); the metadata is in pyproject.toml.
 
 The kernel is plain C on the CPython API: a C compiler and Python's headers build it (on Debian ``gcc`` and
 ``python3-dev``), with no numpy headers, Cython or other build dependency.
@@ -10,7 +10,9 @@ setup(
     ext_modules=[
         Extension(
             "mapdb.match._kernel",
-            sources=["mapdb/match/_kernel.c"],
+            # One module from several files, a concept each (see _kernel.h).
+            sources=["mapdb/match/_kernel.c", "mapdb/match/_kernel_buffers.c", "mapdb/match/_kernel_numpy.c"],
+            depends=["mapdb/match/_kernel.h"],
             # No fused multiply-adds: the kernel's sums and products round as numpy's do.
             extra_compile_args=["-O2", "-ffp-contract=off"],
         )

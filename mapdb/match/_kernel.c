@@ -6,334 +6,23 @@
  * dtypes and shapes and make arrays contiguous; every function here checks formats, dimensions and sizes again
  * and raises TypeError or ValueError rather than read past a buffer.
  *
- * Where the numpy code this replaces summed, it summed pairwise (numpy's pairwise_sum, reproduced here in
- * pw_sum and cpw_sum with the same blocks and order), and complex products and quotients follow numpy's
- * formulas (cmul, cdiv: Smith's division; cabs_np), so that the same inputs give the same bits; the exceptions
- * are expm1 and log10, which numpy may take from SIMD libraries (SVML on AVX-512 machines) that differ from
- * the C library's by an ulp.  Compiled with -ffp-contract=off: no fused multiply-adds but the explicit ones.
+ * Where the numpy code this replaces summed, it summed pairwise (numpy's pairwise_sum, reproduced in
+ * _kernel_numpy.c's pw_sum and cpw_sum with the same blocks and order), and complex products and quotients
+ * follow numpy's formulas (cmul, cdiv: Smith's division; cabs_np), so that the same inputs give the same bits;
+ * the exceptions are expm1 and log10, which numpy may take from SIMD libraries (SVML on AVX-512 machines) that
+ * differ from the C library's by an ulp.  Compiled with -ffp-contract=off: no fused multiply-adds but the
+ * explicit ones.
+ *
+ * This file holds the module and the matcher's arithmetic; _kernel_buffers.c the argument checks and
+ * _kernel_numpy.c numpy's arithmetic (both declared in _kernel.h).
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "_kernel.h"
+
 #include <math.h>
 #include <float.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
-
-/* ------------------------------------------------------------------ buffers */
-
-typedef struct {
-    Py_buffer view;
-    int held;
-} Arr;
-
-static void release(Arr *a, int count)
-{
-    for (int i = 0; i < count; i++) {
-        if (a[i].held) {
-            PyBuffer_Release(&a[i].view);
-            a[i].held = 0;
-        }
-    }
-}
-
-/* The format letter of a buffer, without a byte-order prefix of the native order. */
-static const char *bare_format(const char *f)
-{
-    if (f == NULL) {
-        return "B";
-    }
-    if (f[0] == '@' || f[0] == '=' || f[0] == '<') {
-        return f + 1;
-    }
-    return f;
-}
-
-static int format_is(const Py_buffer *v, char kind)
-{
-    const char *f = bare_format(v->format);
-    switch (kind) {
-    case 'd': return strcmp(f, "d") == 0 && v->itemsize == 8;
-    case 'Z': return strcmp(f, "Zd") == 0 && v->itemsize == 16;
-    case '?': return strcmp(f, "?") == 0 && v->itemsize == 1;
-    case 'q': return (strcmp(f, "q") == 0 || strcmp(f, "l") == 0) && v->itemsize == 8;
-    default: return 0;
-    }
-}
-
-static const char *kind_name(char kind)
-{
-    switch (kind) {
-    case 'd': return "float64";
-    case 'Z': return "complex128";
-    case '?': return "bool";
-    default: return "int64";
-    }
-}
-
-/* Take a C-contiguous buffer of format ``kind`` and ``ndim`` dimensions from ``obj`` (None allowed when
- * ``optional``: then nothing is held).  Returns 0, or -1 with TypeError / ValueError set. */
-static int take(PyObject *obj, Arr *a, const char *name, char kind, int ndim, int writable, int optional)
-{
-    a->held = 0;
-    if (obj == Py_None && optional) {
-        return 0;
-    }
-    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
-    if (!PyObject_CheckBuffer(obj)) {
-        PyErr_Format(PyExc_TypeError, "%s must be a %s array, got %.100s", name, kind_name(kind),
-                     Py_TYPE(obj)->tp_name);
-        return -1;
-    }
-    if (PyObject_GetBuffer(obj, &a->view, flags) < 0) {
-        PyErr_Clear();
-        PyErr_Format(PyExc_ValueError, "%s must be a C-contiguous%s array", name, writable ? " writable" : "");
-        return -1;
-    }
-    a->held = 1;
-    if (!format_is(&a->view, kind)) {
-        PyErr_Format(PyExc_TypeError, "%s must be %s, got buffer format '%s'", name, kind_name(kind),
-                     a->view.format ? a->view.format : "B");
-        release(a, 1);
-        return -1;
-    }
-    if (a->view.ndim != ndim) {
-        PyErr_Format(PyExc_ValueError, "%s must be %d-D, got %d-D", name, ndim, a->view.ndim);
-        release(a, 1);
-        return -1;
-    }
-    return 0;
-}
-
-static Py_ssize_t dim(const Arr *a, int axis)
-{
-    return a->held ? a->view.shape[axis] : -1;
-}
-
-static int check_shape(const Arr *a, const char *name, Py_ssize_t rows, Py_ssize_t cols)
-{
-    if (!a->held) {
-        return 0;
-    }
-    if (dim(a, 0) != rows || (a->view.ndim > 1 && dim(a, 1) != cols)) {
-        if (a->view.ndim > 1) {
-            PyErr_Format(PyExc_ValueError, "%s must have shape (%zd, %zd), got (%zd, %zd)", name, rows, cols,
-                         dim(a, 0), dim(a, 1));
-        } else {
-            PyErr_Format(PyExc_ValueError, "%s must have shape (%zd,), got (%zd,)", name, rows, dim(a, 0));
-        }
-        return -1;
-    }
-    return 0;
-}
-
-#define D(a) ((double *)(a).view.buf)
-#define B(a) ((unsigned char *)(a).view.buf)
-#define Q(a) ((int64_t *)(a).view.buf)
-
-/* ------------------------------------------------------------------ numpy's arithmetic */
-
-/* numpy's pairwise summation of n doubles (DOUBLE_pairwise_sum), as add.reduce runs it: 0.0 + the sum. */
-static double pw_rec(const double *a, Py_ssize_t n)
-{
-    if (n < 8) {
-        double res = -0.0;
-        for (Py_ssize_t i = 0; i < n; i++) {
-            res += a[i];
-        }
-        return res;
-    }
-    if (n <= 128) {
-        double r[8];
-        Py_ssize_t i;
-        for (int j = 0; j < 8; j++) {
-            r[j] = a[j];
-        }
-        for (i = 8; i < n - (n % 8); i += 8) {
-            for (int j = 0; j < 8; j++) {
-                r[j] += a[i + j];
-            }
-        }
-        double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-        for (; i < n; i++) {
-            res += a[i];
-        }
-        return res;
-    }
-    Py_ssize_t n2 = n / 2;
-    n2 -= n2 % 8;
-    return pw_rec(a, n2) + pw_rec(a + n2, n - n2);
-}
-
-static double pw_sum(const double *a, Py_ssize_t n)
-{
-    return 0.0 + pw_rec(a, n);
-}
-
-/* numpy's pairwise summation of complex numbers (CDOUBLE_pairwise_sum): ``a`` holds n interleaved (re, im)
- * pairs; numpy counts doubles, so its blocks of 8 are 4 complex numbers. */
-static void cpw_rec(const double *a, Py_ssize_t n, double *rr, double *ri)
-{
-    Py_ssize_t m = 2 * n;  /* numpy's n: doubles */
-    if (m < 8) {
-        *rr = -0.0;
-        *ri = -0.0;
-        for (Py_ssize_t i = 0; i < m; i += 2) {
-            *rr += a[i];
-            *ri += a[i + 1];
-        }
-        return;
-    }
-    if (m <= 128) {
-        double r[8];
-        Py_ssize_t i;
-        for (int j = 0; j < 8; j++) {
-            r[j] = a[j];
-        }
-        for (i = 8; i < m - (m % 8); i += 8) {
-            for (int j = 0; j < 8; j++) {
-                r[j] += a[i + j];
-            }
-        }
-        *rr = ((r[0] + r[2]) + (r[4] + r[6]));
-        *ri = ((r[1] + r[3]) + (r[5] + r[7]));
-        for (; i < m; i += 2) {
-            *rr += a[i];
-            *ri += a[i + 1];
-        }
-        return;
-    }
-    Py_ssize_t m2 = m / 2;
-    m2 -= m2 % 8;
-    double rr1, ri1, rr2, ri2;
-    cpw_rec(a, m2 / 2, &rr1, &ri1);
-    cpw_rec(a + m2, n - m2 / 2, &rr2, &ri2);
-    *rr = rr1 + rr2;
-    *ri = ri1 + ri2;
-}
-
-static void cpw_sum(const double *a, Py_ssize_t n, double *rr, double *ri)
-{
-    cpw_rec(a, n, rr, ri);
-    *rr = 0.0 + *rr;
-    *ri = 0.0 + *ri;
-}
-
-/* numpy's complex product as its SIMD loops form it (x86-64 with AVX2 or AVX-512: one fused multiply-add a
- * component, ``fmaddsub``), and its quotient (Smith's algorithm, numpy's special cases).  fma() is correctly
- * rounded on every machine, so the kernel's products are the same everywhere. */
-static void cmul(double ar, double ai, double br, double bi, double *cr, double *ci)
-{
-    *cr = fma(ar, br, -(ai * bi));
-    *ci = fma(ar, bi, ai * br);
-}
-
-static void cdiv(double ar, double ai, double br, double bi, double *cr, double *ci)
-{
-    double babs_r = fabs(br), babs_i = fabs(bi);
-    if (babs_r >= babs_i) {
-        if (babs_r == 0 && babs_i == 0) {
-            *cr = ar / babs_r;
-            *ci = ai / babs_r;
-        } else {
-            double rat = bi / br;
-            double scl = 1.0 / (br + bi * rat);
-            *cr = (ar + ai * rat) * scl;
-            *ci = (ai - ar * rat) * scl;
-        }
-    } else {
-        double rat = br / bi;
-        double scl = 1.0 / (bi + br * rat);
-        *cr = (ar * rat + ai) * scl;
-        *ci = (ai * rat - ar) * scl;
-    }
-}
-
-/* numpy's absolute value of a complex number as its SIMD loops compute it (x86-64 with AVX2 or AVX-512):
- * larger * sqrt(1 + (smaller / larger)^2) with one fused multiply-add, infinities and NaNs first. */
-static double cabs_np(double re, double im)
-{
-    re = fabs(re);
-    im = fabs(im);
-    if (re == INFINITY || im == INFINITY) {
-        return INFINITY;
-    }
-    if (isnan(re) || isnan(im)) {
-        return NAN;
-    }
-    double larger = re > im ? re : im, smaller = re > im ? im : re;
-    double ratio = larger == 0.0 ? 0.0 : smaller / larger;
-    return sqrt(fma(ratio, ratio, 1.0)) * larger;
-}
-
-/* ------------------------------------------------------------------ sorting */
-
-/* numpy's order for floats: ascending, NaN last. */
-static int less(double a, double b)
-{
-    if (isnan(b)) {
-        return !isnan(a);
-    }
-    return a < b;
-}
-
-typedef struct {
-    double v;
-    Py_ssize_t i;
-} Keyed;
-
-static int keyed_cmp(const void *pa, const void *pb)
-{
-    const Keyed *a = pa, *b = pb;
-    if (less(a->v, b->v)) {
-        return -1;
-    }
-    if (less(b->v, a->v)) {
-        return 1;
-    }
-    return (a->i > b->i) - (a->i < b->i);
-}
-
-/* Sort by value (NaN last), ties by index: a stable argsort. */
-static void sort_keyed(Keyed *k, Py_ssize_t n)
-{
-    if (n > 48) {
-        qsort(k, (size_t)n, sizeof(Keyed), keyed_cmp);
-        return;
-    }
-    for (Py_ssize_t i = 1; i < n; i++) {
-        Keyed x = k[i];
-        Py_ssize_t j = i;
-        while (j > 0 && keyed_cmp(&x, &k[j - 1]) < 0) {
-            k[j] = k[j - 1];
-            j--;
-        }
-        k[j] = x;
-    }
-}
-
-static int double_cmp(const void *pa, const void *pb)
-{
-    double a = *(const double *)pa, b = *(const double *)pb;
-    return less(a, b) ? -1 : (less(b, a) ? 1 : 0);
-}
-
-static void sort_values(double *x, Py_ssize_t n)
-{
-    if (n > 48) {
-        qsort(x, (size_t)n, sizeof(double), double_cmp);
-        return;
-    }
-    for (Py_ssize_t i = 1; i < n; i++) {
-        double v = x[i];
-        Py_ssize_t j = i;
-        while (j > 0 && less(v, x[j - 1])) {
-            x[j] = x[j - 1];
-            j--;
-        }
-        x[j] = v;
-    }
-}
 
 /* ------------------------------------------------------------------ trial chances */
 
@@ -437,7 +126,7 @@ static void row_first_per_map_object(const int64_t *mid, const double *dist, con
         }
         for (Py_ssize_t j = 0; j < n; j++) {
             if (j != i && inlier[j] && mid[j] == mid[i]
-                && (less(dist[j], dist[i]) || (!less(dist[i], dist[j]) && j < i))) {
+                && (np_less(dist[j], dist[i]) || (!np_less(dist[i], dist[j]) && j < i))) {
                 keep[i] = 0;
                 break;
             }
@@ -473,21 +162,21 @@ static PyObject *refine_inliers(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOdO:refine_inliers", &ou, &odist, &omid, &okb, &gate, &oout)) {
         return NULL;
     }
-    if (take(ou, &a[0], "u", 'd', 2, 0, 0) || take(odist, &a[1], "dist", 'd', 2, 0, 0)
-        || take(omid, &a[2], "mid", 'q', 2, 0, 0) || take(okb, &a[3], "k_best", 'q', 1, 0, 0)
-        || take(oout, &a[4], "inlier", '?', 2, 1, 0)) {
-        release(a, 5);
+    if (arr_take(ou, &a[0], "u", 'd', 2, 0, 0) || arr_take(odist, &a[1], "dist", 'd', 2, 0, 0)
+        || arr_take(omid, &a[2], "mid", 'q', 2, 0, 0) || arr_take(okb, &a[3], "k_best", 'q', 1, 0, 0)
+        || arr_take(oout, &a[4], "inlier", '?', 2, 1, 0)) {
+        arr_release(a, 5);
         return NULL;
     }
-    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
+    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1);
     if (n < 1) {
         PyErr_SetString(PyExc_ValueError, "u must have at least one column");
-    } else if (!check_shape(&a[1], "dist", h, n) && !check_shape(&a[2], "mid", h, n)
-               && !check_shape(&a[3], "k_best", h, 0)) {
-        check_shape(&a[4], "inlier", h, n);
+    } else if (!arr_check_shape(&a[1], "dist", h, n) && !arr_check_shape(&a[2], "mid", h, n)
+               && !arr_check_shape(&a[3], "k_best", h, 0)) {
+        arr_check_shape(&a[4], "inlier", h, n);
     }
     if (PyErr_Occurred()) {
-        release(a, 5);
+        arr_release(a, 5);
         return NULL;
     }
     double *x = PyMem_Malloc(sizeof(double) * (size_t)n);
@@ -495,7 +184,7 @@ static PyObject *refine_inliers(PyObject *self, PyObject *args)
     if (x == NULL || keep == NULL) {
         PyMem_Free(x);
         PyMem_Free(keep);
-        release(a, 5);
+        arr_release(a, 5);
         return PyErr_NoMemory();
     }
     Py_BEGIN_ALLOW_THREADS
@@ -506,7 +195,7 @@ static PyObject *refine_inliers(PyObject *self, PyObject *args)
     Py_END_ALLOW_THREADS
     PyMem_Free(x);
     PyMem_Free(keep);
-    release(a, 5);
+    arr_release(a, 5);
     Py_RETURN_NONE;
 }
 
@@ -517,26 +206,26 @@ static PyObject *residual_sigmas(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOO:residual_sigmas", &odist, &oinl, &oout)) {
         return NULL;
     }
-    if (take(odist, &a[0], "dist", 'd', 2, 0, 0) || take(oinl, &a[1], "inlier", '?', 2, 0, 0)
-        || take(oout, &a[2], "out", 'd', 1, 1, 0)) {
-        release(a, 3);
+    if (arr_take(odist, &a[0], "dist", 'd', 2, 0, 0) || arr_take(oinl, &a[1], "inlier", '?', 2, 0, 0)
+        || arr_take(oout, &a[2], "out", 'd', 1, 1, 0)) {
+        arr_release(a, 3);
         return NULL;
     }
-    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
-    if (check_shape(&a[1], "inlier", h, n) || check_shape(&a[2], "out", h, 0)) {
-        release(a, 3);
+    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1);
+    if (arr_check_shape(&a[1], "inlier", h, n) || arr_check_shape(&a[2], "out", h, 0)) {
+        arr_release(a, 3);
         return NULL;
     }
     double *x = PyMem_Malloc(sizeof(double) * (size_t)(n + 1));
     if (x == NULL) {
-        release(a, 3);
+        arr_release(a, 3);
         return PyErr_NoMemory();
     }
     for (Py_ssize_t r = 0; r < h; r++) {
         D(a[2])[r] = row_sigma(D(a[0]) + r * n, B(a[1]) + r * n, n, x);
     }
     PyMem_Free(x);
-    release(a, 3);
+    arr_release(a, 3);
     Py_RETURN_NONE;
 }
 
@@ -547,20 +236,20 @@ static PyObject *first_per_map_object(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOO:first_per_map_object", &omid, &odist, &oinl, &oout)) {
         return NULL;
     }
-    if (take(omid, &a[0], "mid", 'q', 2, 0, 0) || take(odist, &a[1], "dist", 'd', 2, 0, 0)
-        || take(oinl, &a[2], "inlier", '?', 2, 0, 0) || take(oout, &a[3], "keep", '?', 2, 1, 0)) {
-        release(a, 4);
+    if (arr_take(omid, &a[0], "mid", 'q', 2, 0, 0) || arr_take(odist, &a[1], "dist", 'd', 2, 0, 0)
+        || arr_take(oinl, &a[2], "inlier", '?', 2, 0, 0) || arr_take(oout, &a[3], "keep", '?', 2, 1, 0)) {
+        arr_release(a, 4);
         return NULL;
     }
-    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1);
-    if (check_shape(&a[1], "dist", h, n) || check_shape(&a[2], "inlier", h, n) || check_shape(&a[3], "keep", h, n)) {
-        release(a, 4);
+    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1);
+    if (arr_check_shape(&a[1], "dist", h, n) || arr_check_shape(&a[2], "inlier", h, n) || arr_check_shape(&a[3], "keep", h, n)) {
+        arr_release(a, 4);
         return NULL;
     }
     for (Py_ssize_t r = 0; r < h; r++) {
         row_first_per_map_object(Q(a[0]) + r * n, D(a[1]) + r * n, B(a[2]) + r * n, n, B(a[3]) + r * n);
     }
-    release(a, 4);
+    arr_release(a, 4);
     Py_RETURN_NONE;
 }
 
@@ -606,21 +295,21 @@ static PyObject *fit_similarity(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOO:fit_similarity", &osrc, &odst, &ow, &oa, &ob)) {
         return NULL;
     }
-    if (take(osrc, &a[0], "src", 'Z', 2, 0, 0) || take(odst, &a[1], "dst", 'Z', 2, 0, 0)
-        || take(ow, &a[2], "weights", 'd', 2, 0, 0) || take(oa, &a[3], "a", 'Z', 1, 1, 0)
-        || take(ob, &a[4], "b", 'Z', 1, 1, 0)) {
-        release(a, 5);
+    if (arr_take(osrc, &a[0], "src", 'Z', 2, 0, 0) || arr_take(odst, &a[1], "dst", 'Z', 2, 0, 0)
+        || arr_take(ow, &a[2], "weights", 'd', 2, 0, 0) || arr_take(oa, &a[3], "a", 'Z', 1, 1, 0)
+        || arr_take(ob, &a[4], "b", 'Z', 1, 1, 0)) {
+        arr_release(a, 5);
         return NULL;
     }
-    Py_ssize_t m = dim(&a[0], 0), k = dim(&a[0], 1);
-    if (check_shape(&a[1], "dst", m, k) || check_shape(&a[2], "weights", m, k) || check_shape(&a[3], "a", m, 0)
-        || check_shape(&a[4], "b", m, 0)) {
-        release(a, 5);
+    Py_ssize_t m = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1);
+    if (arr_check_shape(&a[1], "dst", m, k) || arr_check_shape(&a[2], "weights", m, k) || arr_check_shape(&a[3], "a", m, 0)
+        || arr_check_shape(&a[4], "b", m, 0)) {
+        arr_release(a, 5);
         return NULL;
     }
     double *buf = PyMem_Malloc(sizeof(double) * (size_t)(3 * k + 1));
     if (buf == NULL) {
-        release(a, 5);
+        arr_release(a, 5);
         return PyErr_NoMemory();
     }
     double *pa = D(a[3]), *pb = D(a[4]), out[4];
@@ -632,7 +321,7 @@ static PyObject *fit_similarity(PyObject *self, PyObject *args)
         pb[2 * r + 1] = out[3];
     }
     PyMem_Free(buf);
-    release(a, 5);
+    arr_release(a, 5);
     Py_RETURN_NONE;
 }
 
@@ -673,37 +362,37 @@ static PyObject *first_allowed(PyObject *self, PyObject *args)
                           &outd, &outi)) {
         return NULL;
     }
-    if (take(od, &a[0], "d", 'd', 2, 0, 0) || take(oi, &a[1], "i", 'q', 2, 0, 0)
-        || take(oreach, &a[2], "reach", 'd', 1, 0, 0) || take(oz, &a[3], "z", 'Z', 1, 0, 0)
-        || take(oex, &a[4], "exclude", 'Z', 2, 0, 1) || take(oallowed, &a[5], "allowed", '?', 2, 0, 1)
-        || take(outd, &a[6], "out_d", 'd', 1, 1, 0) || take(outi, &a[7], "out_i", 'q', 1, 1, 0)) {
-        release(a, 8);
+    if (arr_take(od, &a[0], "d", 'd', 2, 0, 0) || arr_take(oi, &a[1], "i", 'q', 2, 0, 0)
+        || arr_take(oreach, &a[2], "reach", 'd', 1, 0, 0) || arr_take(oz, &a[3], "z", 'Z', 1, 0, 0)
+        || arr_take(oex, &a[4], "exclude", 'Z', 2, 0, 1) || arr_take(oallowed, &a[5], "allowed", '?', 2, 0, 1)
+        || arr_take(outd, &a[6], "out_d", 'd', 1, 1, 0) || arr_take(outi, &a[7], "out_i", 'q', 1, 1, 0)) {
+        arr_release(a, 8);
         return NULL;
     }
-    Py_ssize_t m = dim(&a[0], 0), k = dim(&a[0], 1), nz = dim(&a[3], 0);
-    Py_ssize_t ne = a[4].held ? dim(&a[4], 1) : 0;
-    for (Py_ssize_t j = 0; j < dim(&a[1], 0) * dim(&a[1], 1) && !PyErr_Occurred(); j++) {
+    Py_ssize_t m = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1), nz = arr_dim(&a[3], 0);
+    Py_ssize_t ne = a[4].held ? arr_dim(&a[4], 1) : 0;
+    for (Py_ssize_t j = 0; j < arr_dim(&a[1], 0) * arr_dim(&a[1], 1) && !PyErr_Occurred(); j++) {
         if (Q(a[1])[j] < 0) {  /* a KD-tree's indices: 0 .. len(objects), the last for "none" */
             PyErr_SetString(PyExc_ValueError, "i must hold no negative index");
         }
     }
     if (PyErr_Occurred()) {
-        release(a, 8);
+        arr_release(a, 8);
         return NULL;
     }
-    if (repeat < 1 || nz < 1 || (a[4].held && dim(&a[4], 0) * repeat < m)) {
+    if (repeat < 1 || nz < 1 || (a[4].held && arr_dim(&a[4], 0) * repeat < m)) {
         PyErr_SetString(PyExc_ValueError, "need repeat >= 1, a map object, and an exclude row per repeat rows");
-    } else if (!check_shape(&a[1], "i", m, k) && !check_shape(&a[2], "reach", m, 0)
-               && !check_shape(&a[5], "allowed", m, k) && !check_shape(&a[6], "out_d", m, 0)) {
-        check_shape(&a[7], "out_i", m, 0);
+    } else if (!arr_check_shape(&a[1], "i", m, k) && !arr_check_shape(&a[2], "reach", m, 0)
+               && !arr_check_shape(&a[5], "allowed", m, k) && !arr_check_shape(&a[6], "out_d", m, 0)) {
+        arr_check_shape(&a[7], "out_i", m, 0);
     }
     if (PyErr_Occurred()) {
-        release(a, 8);
+        arr_release(a, 8);
         return NULL;
     }
     first_allowed_rows(D(a[0]), Q(a[1]), D(a[2]), D(a[3]), nz, a[4].held ? D(a[4]) : NULL, ne, repeat,
                        a[5].held ? B(a[5]) : NULL, m, k, D(a[6]), Q(a[7]));
-    release(a, 8);
+    arr_release(a, 8);
     Py_RETURN_NONE;
 }
 
@@ -803,21 +492,21 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
                           &obest)) {
         return NULL;
     }
-    if (take(ou, &a[0], "u", 'd', 2, 0, 0) || take(oshape, &a[1], "shape", 'd', 2, 0, 1)
-        || take(osample, &a[2], "sample", '?', 2, 0, 1) || take(onfa, &a[3], "nfa", 'd', 1, 1, 0)
-        || take(obest, &a[4], "best", 'q', 1, 1, 0)) {
-        release(a, 5);
+    if (arr_take(ou, &a[0], "u", 'd', 2, 0, 0) || arr_take(oshape, &a[1], "shape", 'd', 2, 0, 1)
+        || arr_take(osample, &a[2], "sample", '?', 2, 0, 1) || arr_take(onfa, &a[3], "nfa", 'd', 1, 1, 0)
+        || arr_take(obest, &a[4], "best", 'q', 1, 1, 0)) {
+        arr_release(a, 5);
         return NULL;
     }
-    Py_ssize_t h = dim(&a[0], 0), n = dim(&a[0], 1), t = n - ns;
+    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1), t = n - ns;
     if (ns < 0 || ns >= n) {
         PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", n - 1, ns);
-    } else if (!check_shape(&a[1], "shape", h, n) && !check_shape(&a[2], "sample", h, n)
-               && !check_shape(&a[3], "nfa", h, 0)) {
-        check_shape(&a[4], "best", h, 0);
+    } else if (!arr_check_shape(&a[1], "shape", h, n) && !arr_check_shape(&a[2], "sample", h, n)
+               && !arr_check_shape(&a[3], "nfa", h, 0)) {
+        arr_check_shape(&a[4], "best", h, 0);
     }
     if (PyErr_Occurred()) {
-        release(a, 5);
+        arr_release(a, 5);
         return NULL;
     }
     Keyed *k = PyMem_Malloc(sizeof(Keyed) * (size_t)(n + 1));
@@ -825,7 +514,7 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
     if (k == NULL || x == NULL) {
         PyMem_Free(k);
         PyMem_Free(x);
-        release(a, 5);
+        arr_release(a, 5);
         return PyErr_NoMemory();
     }
     double *lf = x + 2 * n + 2, *p = lf + t + 1;
@@ -838,7 +527,7 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
     Py_END_ALLOW_THREADS
     PyMem_Free(k);
     PyMem_Free(x);
-    release(a, 5);
+    arr_release(a, 5);
     Py_RETURN_NONE;
 }
 
@@ -877,31 +566,31 @@ static PyObject *quad_tolerance(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOO:quad_tolerance", &oz, &oids, &oshape, &osample)) {
         return NULL;
     }
-    if (take(oz, &a[0], "z", 'Z', 1, 0, 0) || take(oids, &a[1], "img_ids", 'q', 2, 0, 0)
-        || take(oshape, &a[2], "shape", 'd', 2, 1, 0) || take(osample, &a[3], "sample", '?', 2, 1, 0)) {
-        release(a, 4);
+    if (arr_take(oz, &a[0], "z", 'Z', 1, 0, 0) || arr_take(oids, &a[1], "img_ids", 'q', 2, 0, 0)
+        || arr_take(oshape, &a[2], "shape", 'd', 2, 1, 0) || arr_take(osample, &a[3], "sample", '?', 2, 1, 0)) {
+        arr_release(a, 4);
         return NULL;
     }
-    Py_ssize_t n = dim(&a[0], 0), h = dim(&a[1], 0), q = dim(&a[1], 1);
+    Py_ssize_t n = arr_dim(&a[0], 0), h = arr_dim(&a[1], 0), q = arr_dim(&a[1], 1);
     for (Py_ssize_t j = 0; j < h * q && !PyErr_Occurred(); j++) {
         if (Q(a[1])[j] < 0 || Q(a[1])[j] >= n) {
             PyErr_Format(PyExc_ValueError, "img_ids must lie in 0..%zd", n - 1);
         }
     }
-    if (PyErr_Occurred() || check_shape(&a[2], "shape", h, n) || check_shape(&a[3], "sample", h, n)) {
-        release(a, 4);
+    if (PyErr_Occurred() || arr_check_shape(&a[2], "shape", h, n) || arr_check_shape(&a[3], "sample", h, n)) {
+        arr_release(a, 4);
         return NULL;
     }
     double *buf = PyMem_Malloc(sizeof(double) * (size_t)(2 * q + 1));
     if (buf == NULL) {
-        release(a, 4);
+        arr_release(a, 4);
         return PyErr_NoMemory();
     }
     for (Py_ssize_t r = 0; r < h; r++) {
         quad_row(D(a[0]), n, Q(a[1]) + r * q, q, buf, D(a[2]) + r * n, B(a[3]) + r * n);
     }
     PyMem_Free(buf);
-    release(a, 4);
+    arr_release(a, 4);
     Py_RETURN_NONE;
 }
 

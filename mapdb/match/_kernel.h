@@ -1,0 +1,48 @@
+/* The compiled kernel's shared parts: arrays taken through the buffer protocol (_kernel_buffers.c).
+ *
+ * The kernel is one extension module, mapdb.match._kernel, built from several C files (setup.py lists them), one
+ * concept a file; _kernel.c holds the module and adds each file's functions by its method table.
+ */
+#ifndef MAPDB_KERNEL_H
+#define MAPDB_KERNEL_H
+
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <stdint.h>
+
+/* A buffer taken from a Python object (``held`` when it must be released). */
+typedef struct {
+    Py_buffer view;
+    int held;
+} Arr;
+
+/* Release the held buffers of ``a[0 .. count)``. */
+void arr_release(Arr *a, int count);
+/* Take a C-contiguous buffer of format ``kind`` ('d' float64, 'Z' complex128, '?' bool, 'q' int64) and ``ndim``
+ * dimensions from ``obj`` (None allowed when ``optional``: then nothing is held).  Returns 0, or -1 with
+ * TypeError / ValueError set. */
+int arr_take(PyObject *obj, Arr *a, const char *name, char kind, int ndim, int writable, int optional);
+/* The length of axis ``axis`` (-1 when nothing is held). */
+Py_ssize_t arr_dim(const Arr *a, int axis);
+/* 0 when ``a`` (if held) has ``rows`` rows (and ``cols`` columns when 2-D), else -1 with ValueError set. */
+int arr_check_shape(const Arr *a, const char *name, Py_ssize_t rows, Py_ssize_t cols);
+
+/* numpy's arithmetic and sorts, reproduced (_kernel_numpy.c): the same inputs give numpy's bits. */
+typedef struct {
+    double v;
+    Py_ssize_t i;
+} Keyed;
+double pw_sum(const double *a, Py_ssize_t n);
+void cpw_sum(const double *a, Py_ssize_t n, double *rr, double *ri);
+void cmul(double ar, double ai, double br, double bi, double *cr, double *ci);
+void cdiv(double ar, double ai, double br, double bi, double *cr, double *ci);
+double cabs_np(double re, double im);
+int np_less(double a, double b);
+void sort_keyed(Keyed *k, Py_ssize_t n);
+void sort_values(double *x, Py_ssize_t n);
+
+#define D(a) ((double *)(a).view.buf)
+#define B(a) ((unsigned char *)(a).view.buf)
+#define Q(a) ((int64_t *)(a).view.buf)
+
+#endif
