@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mapdb._scipy import cKDTree
 from mapdb.localize.localizer import Localizer
 from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
 from mapdb.match.index.stored import build_index
 from mapdb.match.mapobjects import paged_objects
 from mapdb.match.mapobjects.kd_forest import MAX_TREES, Forest
+from mapdb.match.mapobjects.label_trees import LabelTrees
 from mapdb.match.mapobjects.paged_objects import PagedObjectIndex, WholeMapObjects
 from mapdb.match.verify import ObjectIndex
 from mapdb.objects import Objects
@@ -111,24 +111,30 @@ def test_a_small_or_in_memory_map_is_indexed_whole_at_once(paged_map) -> None:
 
 def test_a_forest_answers_as_one_tree_over_all_its_points() -> None:
     rng = np.random.default_rng(5)
-    points = np.column_stack([rng.uniform(0, 1000, (3000, 2)), rng.integers(0, 3, 3000) * 1e6])
-    forest = Forest()
+    z = rng.uniform(0, 1000, 3000) + 1j * rng.uniform(0, 1000, 3000)
+    z[2500:2600] = z[:100]  # duplicates in another run: ties across trees, the lower index first
+    label = rng.integers(0, 3, 3000)
+    label[2500:2600] = label[:100]
+    forest = Forest(3)
     # Seven runs, more than MAX_TREES: the smallest neighbours are merged as runs come.
     cuts = [0, 900, 1000, 1010, 1500, 1600, 2999, 3000]
     for a, b in zip(cuts[:-1], cuts[1:]):
-        forest.add(points[a:b])
+        forest.add(z[a:b], label[a:b])
     assert 1 < len(forest.trees) <= MAX_TREES and forest.n == 3000
-    whole = cKDTree(points)
-    x = np.column_stack([rng.uniform(-50, 1050, (400, 2)), rng.integers(0, 3, 400) * 1e6])
+    whole = LabelTrees(z, label, 3)
+    x = rng.uniform(-50, 1050, 400) + 1j * rng.uniform(-50, 1050, 400)
+    x[:50] = z[:50]
+    xl = rng.integers(0, 3, 400)
+    xl[:50] = label[:50]
     for k in (1, 5):
-        d_f, i_f = forest.query(x, k=k, distance_upper_bound=40.0)
-        d_w, i_w = whole.query(x, k=k, distance_upper_bound=40.0)
+        d_f, i_f = forest.query(x, xl, k, 40.0)
+        d_w, i_w = whole.query(x, xl, k, 40.0)
         assert d_f.shape == d_w.shape and np.array_equal(d_f, d_w) and np.array_equal(i_f, i_w)
-        assert np.isinf(d_f).any() and (i_f[np.isinf(d_f)] == 3000).all()  # missing: inf and n, as cKDTree
+        assert np.isinf(d_f).any() and (i_f[np.isinf(d_f)] == 3000).all()  # missing: inf and n
+    assert (whole.query(x[:50], xl[:50], 2, 1.0)[1] == np.arange(50)[:, None] + [0, 2500]).all()
     r = rng.uniform(0, 60, 400)
-    assert np.array_equal(forest.query_ball_point(x, r, return_length=True),
-                          whole.query_ball_point(x, r, return_length=True))
-    assert [list(h) for h in forest.query_ball_point(x, r)] == [sorted(h) for h in whole.query_ball_point(x, r)]
+    assert np.array_equal(forest.count(x, xl, r), whole.count(x, xl, r))
+    assert all(np.array_equal(a, b) for a, b in zip(forest.members(x, xl, r), whole.members(x, xl, r), strict=True))
 
 
 def test_the_paged_index_grows_by_new_trees_and_finds_nearest_objects_beyond_its_first_reach(paged_map) -> None:

@@ -1,4 +1,4 @@
-"""The map's objects for verification: one KD-tree over all labels, label densities, stored areas.
+"""The map's objects for verification: a KD-tree per label (the compiled kernel's), label densities, stored areas.
 
 :class:`ObjectIndex` answers what :mod:`mapdb.match.verify` asks of the map: the nearest object of an image
 object's label where a hypothesis projects it (optionally with a compatible area), objects within a gate,
@@ -12,11 +12,12 @@ import math
 
 import numpy as np
 
-from ..._scipy import quick_tree
 from ...objects import Objects
 from .._kernel import first_allowed
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
+from .kd_forest import Forest
+from .label_trees import LabelTrees
 
 __all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "Neighbours", "ObjectIndex"]
 
@@ -49,9 +50,9 @@ class Neighbours:
     read by every query of the same points (:meth:`ObjectIndex.neighbours`).
 
     A round's decision, its label densities around each projected object and its refinement's first
-    association all ask about the same projections; one KD-tree query answers all three (a query costs tens
-    of microseconds whatever its size), and a query of the ``k`` nearest with no bound holds the answer of any
-    query of fewer neighbours within any bound: the first ones within the bound.
+    association all ask about the same projections; one query answers all three, and a query of the ``k``
+    nearest with no bound holds the answer of any query of fewer neighbours within any bound: the first ones
+    within the bound.
 
     Attributes
     ----------
@@ -80,11 +81,11 @@ class Neighbours:
 
 
 class ObjectIndex:
-    """Map objects for verification: one cKDTree over all labels, label densities, the region's bounds.
+    """Map objects for verification: a KD-tree per label, label densities, the region's bounds.
 
-    The tree holds ``(x, y, label * gap)``: with a search bound below the gap, one query finds the
-    nearest objects of each query's own label, whatever the mix of labels, instead of one query per
-    label (a cKDTree query costs tens of microseconds whatever its size).
+    ``tree`` (a :class:`~mapdb.match.mapobjects.label_trees.LabelTrees`) finds, in one call of the compiled
+    kernel, the nearest objects of each query's own label whatever the mix of labels (a call costs about a
+    microsecond whatever its size; the cKDTree over ``(x, y, label * gap)`` it replaced cost tens).
 
     Parameters
     ----------
@@ -122,10 +123,10 @@ class ObjectIndex:
         self.counts = np.bincount(self.label, minlength=len(self.labels)) if n else np.zeros(len(self.labels), int)
         # Densities over the whole region only rank hypotheses; the decision uses local ones.
         self.density = np.maximum(self.counts, 1) / self.area
-        # Far beyond any search bound (those stay below the region's size, see ``_bound``), so a bounded
-        # search never crosses from one label to another.
+        # Search bounds stay below half of it (``_bound``), as when one cKDTree kept the labels apart by it: the
+        # same bounds, the same answers.
         self.gap = 1e3 * (math.sqrt(self.area) + 1e4)
-        self.tree = quick_tree(np.column_stack([objects.x, objects.y, self.label * self.gap])) if n else None
+        self.tree: LabelTrees | Forest | None = LabelTrees(self.z, self.label, len(self.labels)) if n else None
         self._area = objects.area
         self._log_area: np.ndarray | None = None  # made on first use: only images with areas need it
         self._global_reach: tuple[np.ndarray, np.ndarray] | None = None  # (density, reaches): see ``_reach``
@@ -136,14 +137,6 @@ class ObjectIndex:
 
     def __len__(self) -> int:
         return int(self.z.size)
-
-    def _points(self, w: np.ndarray, labels: np.ndarray) -> np.ndarray:
-        """The tree points of map positions ``w`` (complex, 1-D) of ``labels``: ``(x, y, label * gap)``."""
-        points = np.empty((w.size, 3))  # filled column by column: a column_stack costs several calls more
-        points[:, 0] = w.real
-        points[:, 1] = w.imag
-        np.multiply(labels, self.gap, out=points[:, 2])
-        return points
 
     def _bound(self, reach: float) -> float:
         return float(min(reach, 0.5 * self.gap))
@@ -168,8 +161,8 @@ class ObjectIndex:
             w = np.repeat(centres, present.size)
             codes = present[None, :].repeat(h, axis=0).ravel()  # np.tile's numbers in one call
             r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
-            found = self.tree.query_ball_point(self._points(w, codes), r, return_length=True)
-            count[:, present] = np.maximum(np.asarray(found).reshape(h, present.size), 1)
+            found = self.tree.count(w, codes, r)
+            count[:, present] = np.maximum(found.reshape(h, present.size), 1)
         return count / area[:, None]
 
     def neighbours(self, w: np.ndarray, img_label: np.ndarray, k: int) -> Neighbours | None:
@@ -179,8 +172,8 @@ class ObjectIndex:
         if self.tree is None or type(self).nearest is not ObjectIndex.nearest:
             return None
         labels = _flat_labels(img_label, w.shape)
-        d, i = self.tree.query(self._points(w.ravel(), labels), k=k, distance_upper_bound=self._bound(0.5 * self.gap))
-        return Neighbours(d.reshape(labels.size, k), i.reshape(labels.size, k), w.shape)
+        d, i = self.tree.query(w, labels, k, self._bound(0.5 * self.gap))
+        return Neighbours(d, i, w.shape)
 
     def knn_density(self, w: np.ndarray, img_label: np.ndarray, k: int,
                     near: Neighbours | None = None) -> np.ndarray:
@@ -204,9 +197,8 @@ class ObjectIndex:
             d = near.dist[sel, kk[sel] - 1]
         else:
             k_max = int(kk[sel].max())
-            d, _ = self.tree.query(self._points(w.ravel()[sel], labels[sel]), k=k_max,
-                                   distance_upper_bound=self._bound(0.5 * self.gap))
-            d = d.reshape(sel.size, k_max)[np.arange(sel.size), kk[sel] - 1]
+            d, _ = self.tree.query(w.ravel()[sel], labels[sel], k_max, self._bound(0.5 * self.gap))
+            d = d[np.arange(sel.size), kk[sel] - 1]
         out[sel] = np.maximum(kk[sel] - 1, 1) / (math.pi * np.maximum(d, 1e-3) ** 2)
         return out.reshape(shape)
 
@@ -232,8 +224,8 @@ class ObjectIndex:
             # Its first k within the reach are what a query of k bounded by the reach finds.
             d, i = (near.dist[:, 0], near.index[:, 0]) if k == 1 else (near.dist[:, :k], near.index[:, :k])
         else:
-            d, i = self.tree.query(self._points(w.ravel(), labels), k=k,
-                                   distance_upper_bound=self._bound(reach.max()))
+            d, i = self.tree.query(w, labels, k, self._bound(reach.max()))
+            d, i = (d[:, 0], i[:, 0]) if k == 1 else (d, i)
         if exclude is None:  # nothing to exclude: the nearest is the answer when within reach
             ok = d <= reach
             return np.where(ok, d, np.inf).reshape(shape), np.where(ok, i, -1).reshape(shape)
@@ -294,9 +286,7 @@ class ObjectIndex:
         labels = np.broadcast_to(img_label, shape).ravel()[redo]
         reach = self._reach(density, labels)
         k = min(len(self), AREA_NEIGHBOURS + (0 if exclude is None else exclude.shape[1]))
-        d, i = self.tree.query(self._points(w.ravel()[redo], labels), k=k,  # type: ignore[union-attr]
-                               distance_upper_bound=self._bound(reach.max()))
-        d, i = d.reshape(redo.size, k), i.reshape(redo.size, k)
+        d, i = self.tree.query(w.ravel()[redo], labels, k, self._bound(reach.max()))  # type: ignore[union-attr]
         allowed = compatible(self.log_area[np.minimum(i, len(self) - 1)], lo.ravel()[redo][:, None],
                              hi.ravel()[redo][:, None])
         rows = redo // shape[1]
@@ -309,7 +299,7 @@ class ObjectIndex:
         where there is none (within a millimetre)."""
         if self.tree is None:
             return np.full(np.shape(points), -1, np.int64)
-        d, i = self.tree.query(self._points(np.ravel(points), np.ravel(labels)), k=1, distance_upper_bound=1e-3)
+        d, i = self.tree.query(points, labels, 1, 1e-3)
         return np.where(np.isfinite(d), i, -1).reshape(np.shape(points))
 
     def disc_members(self, centres: np.ndarray, radius: np.ndarray, codes: np.ndarray) -> list[list[np.ndarray]]:
@@ -323,10 +313,10 @@ class ObjectIndex:
             return out
         codes = sorted_unique(codes)
         w = np.repeat(centres, codes.size)
-        found = self.tree.query_ball_point(self._points(w, np.tile(codes, centres.size)),
-                                           np.minimum(np.repeat(radius, codes.size), 0.5 * self.gap))
+        found = self.tree.members(w, np.tile(codes, centres.size), np.minimum(np.repeat(radius, codes.size),
+                                                                              0.5 * self.gap))
         for j, hits in enumerate(found):
-            out[j // codes.size][int(codes[j % codes.size])] = np.asarray(hits, np.int64)
+            out[j // codes.size][int(codes[j % codes.size])] = hits
         return out
 
     def within(self, w: np.ndarray, img_label: np.ndarray, gate: float, k: int) -> tuple[np.ndarray, ...]:
@@ -335,7 +325,6 @@ class ObjectIndex:
             empty = np.zeros(0, np.int64)
             return empty, empty, np.zeros(0)
         k = max(1, min(k, len(self)))
-        d, i = self.tree.query(self._points(w, img_label), k=k, distance_upper_bound=self._bound(gate))
-        d, i = d.reshape(w.size, k), i.reshape(w.size, k)
+        d, i = self.tree.query(w, img_label, k, self._bound(gate))
         rows, cols = np.nonzero(np.isfinite(d))
         return rows, i[rows, cols], d[rows, cols] ** 2

@@ -2,15 +2,15 @@
 
 A lost-in-space answer verifies its hypotheses against the whole map's objects.  On a map of millions
 of objects, building that :class:`~mapdb.match.mapobjects.object_index.ObjectIndex` means decoding every page and a
-KD-tree over all of them: on a 5M-object map, 2.5 s to decode and 0.8-1.8 s for the tree, before the
+KD-tree over all of them: on a 5M-object map, 2.5 s to decode, then the trees over them, before the
 first answer, which itself needs only the pages around its few hundred hypotheses.
 
 :class:`PagedObjectIndex` answers every :class:`ObjectIndex` query *exactly as the whole map's index
 would*, from only the pages those queries reach.  Before a query runs, the boxes it can reach (each
 query point with its search radius: the nearest-object reach, a gate, a density disc) are checked
-against what is loaded; the pages that meet a box not yet covered are decoded and appended, with a KD-tree
-over the new objects only (a :class:`~mapdb.match.mapobjects.kd_forest.Forest` answers as one tree over all of them
-would).  Objects are only ever appended, so an object's index stays valid.  The label counts,
+against what is loaded; the pages that meet a box not yet covered are decoded and appended, with KD-trees
+over the new objects only (a :class:`~mapdb.match.mapobjects.kd_forest.Forest` answers as one structure over all of
+them would).  Objects are only ever appended, so an object's index stays valid.  The label counts,
 the region's bounds and area (hence the global densities and the label gap) are the whole map's, from
 its header.  A ``k``-th-nearest density is first taken from what is loaded: the distance found there
 bounds the true one from above, so covering that distance and asking again gives the exact answer.  A
@@ -80,7 +80,7 @@ class PagedObjectIndex(ObjectIndex):
         counts = map_.label_counts
         self.counts = np.array([counts.get(name, 0) for name in map_.labels], np.int64)
         self.density = np.maximum(self.counts, 1) / self.area
-        self._forest = Forest()
+        self._forest = Forest(len(self.labels))
 
     @property
     def loaded_pages(self) -> int:
@@ -130,7 +130,7 @@ class PagedObjectIndex(ObjectIndex):
         self.label = np.concatenate([self.label, new.label.astype(np.int64)])
         self._area = np.concatenate([self._area, new.area])
         self._log_area = None
-        self._forest.add(self._points(new.x + 1j * new.y, new.label.astype(np.int64)))
+        self._forest.add(new.x + 1j * new.y, new.label)
         self.tree = self._forest if len(self) else None
         return True
 

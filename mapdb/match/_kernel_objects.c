@@ -1,0 +1,543 @@
+/* The map objects' spatial queries (mapdb.match.mapobjects.label_trees): a 2-D KD-tree per label.
+ *
+ * The objects are grouped by label (ascending index within a label) and each label's run is split at its median
+ * along the wider side of its tight bounding box until a node holds at most OBJECTS_LEAF objects (a node whose
+ * objects all lie at one place stays a leaf however many it holds).  The tree lives in arrays the Python caller
+ * allocates (so it pickles and needs no object type here):
+ *
+ *   pts  (n, 2) float64  the objects' x, y in tree order
+ *   pid  (n,)   int64    each tree position's object index
+ *   box  (m, 4) float64  each node's tight box: min x, min y, max x, max y
+ *   node (m, 3) int64    each node's first and end tree position, and its right child (-1: a leaf); the left
+ *                        child is the next node
+ *   root (L,)   int64    each label's root node (-1: no object of the label)
+ *
+ * Queries answer as scipy's cKDTree over (x, y, label * gap) did: a squared distance is dx * dx + dy * dy, a
+ * neighbour counts when its squared distance is below the bound's square (strictly), a disc member when it is at
+ * most the radius' square; distances are square roots of squared distances.  Where distances tie (duplicate
+ * objects), the lower object index comes first (cKDTree's order there was its heap's).  Pruning by a box is exact:
+ * rounding is monotonic, so no object in a box is nearer (farther) than the box's computed nearest (farthest)
+ * point.
+ */
+#include "_kernel.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define OBJECTS_LEAF 8
+
+/* ------------------------------------------------------------------ the tree */
+
+typedef struct {
+    const double *pts;
+    const int64_t *pid;
+    const double *box;
+    const int64_t *node;
+    const int64_t *root;
+    Py_ssize_t n, m, n_labels;
+    int bad;  /* set when a node read names a position or child outside the arrays (arrays changed by hand) */
+} ObjectsTree;
+
+/* Whether node ``nd`` lies in the arrays with its positions, and its children after it (so a walk ends); checked
+ * as each node is read, since the arrays come from Python at every call and a whole check costs a walk of all. */
+static inline int objects_node_ok(ObjectsTree *t, int64_t nd)
+{
+    const int64_t *nn = t->node + 3 * nd;
+    if (nd < 0 || nd >= t->m || nn[0] < 0 || nn[1] > t->n || nn[0] > nn[1]
+        || (nn[2] != -1 && (nn[2] <= nd + 1 || nn[2] >= t->m))) {
+        t->bad = 1;
+        return 0;
+    }
+    return 1;
+}
+
+/* The squared distance from (qx, qy) to the nearest point of node ``nd``'s box (0 inside it). */
+static inline double objects_box_near2(const ObjectsTree *t, int64_t nd, double qx, double qy)
+{
+    const double *b = t->box + 4 * nd;
+    double dx = qx < b[0] ? b[0] - qx : (qx > b[2] ? qx - b[2] : 0.0);
+    double dy = qy < b[1] ? b[1] - qy : (qy > b[3] ? qy - b[3] : 0.0);
+    return dx * dx + dy * dy;
+}
+
+/* The squared distance from (qx, qy) to the farthest corner of node ``nd``'s box. */
+static inline double objects_box_far2(const ObjectsTree *t, int64_t nd, double qx, double qy)
+{
+    const double *b = t->box + 4 * nd;
+    double dx = fmax(fabs(qx - b[0]), fabs(qx - b[2]));
+    double dy = fmax(fabs(qy - b[1]), fabs(qy - b[3]));
+    return dx * dx + dy * dy;
+}
+
+static inline double objects_d2(const double *p, double qx, double qy)
+{
+    double dx = p[0] - qx, dy = p[1] - qy;
+    return dx * dx + dy * dy;
+}
+
+/* ------------------------------------------------------------------ building */
+
+typedef struct {
+    double v;
+    int64_t i;
+} ObjectsKey;
+
+static inline int objects_key_less(ObjectsKey a, ObjectsKey b)
+{
+    return a.v < b.v || (a.v == b.v && a.i < b.i);
+}
+
+/* Reorder k[0 .. n) so that k[nth] is where a sort would put it, the smaller before it, the larger after. */
+static void objects_select(ObjectsKey *k, Py_ssize_t n, Py_ssize_t nth)
+{
+    Py_ssize_t lo = 0, hi = n - 1;
+    while (hi > lo) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;  /* median of three as the pivot */
+        if (objects_key_less(k[mid], k[lo])) { ObjectsKey s = k[mid]; k[mid] = k[lo]; k[lo] = s; }
+        if (objects_key_less(k[hi], k[lo])) { ObjectsKey s = k[hi]; k[hi] = k[lo]; k[lo] = s; }
+        if (objects_key_less(k[hi], k[mid])) { ObjectsKey s = k[hi]; k[hi] = k[mid]; k[mid] = s; }
+        ObjectsKey pivot = k[mid];
+        Py_ssize_t i = lo, j = hi;
+        while (i <= j) {
+            while (objects_key_less(k[i], pivot)) i++;
+            while (objects_key_less(pivot, k[j])) j--;
+            if (i <= j) {
+                ObjectsKey s = k[i]; k[i] = k[j]; k[j] = s;
+                i++;
+                j--;
+            }
+        }
+        if (nth <= j) {
+            hi = j;
+        } else if (nth >= i) {
+            lo = i;
+        } else {
+            return;
+        }
+    }
+}
+
+typedef struct {
+    const double *x, *y;
+    int64_t *pid;
+    double *box;
+    int64_t *node;
+    Py_ssize_t used, capacity;
+    ObjectsKey *keys;
+} ObjectsBuild;
+
+/* Node over tree positions [s, e); returns its number, or -1 when the node arrays are full. */
+static int64_t objects_build_node(ObjectsBuild *b, Py_ssize_t s, Py_ssize_t e)
+{
+    if (b->used >= b->capacity) {
+        return -1;
+    }
+    int64_t nd = b->used++;
+    double *bx = b->box + 4 * nd;
+    bx[0] = bx[2] = b->x[b->pid[s]];
+    bx[1] = bx[3] = b->y[b->pid[s]];
+    for (Py_ssize_t j = s + 1; j < e; j++) {
+        double px = b->x[b->pid[j]], py = b->y[b->pid[j]];
+        bx[0] = fmin(bx[0], px);
+        bx[1] = fmin(bx[1], py);
+        bx[2] = fmax(bx[2], px);
+        bx[3] = fmax(bx[3], py);
+    }
+    int64_t *nn = b->node + 3 * nd;
+    nn[0] = s;
+    nn[1] = e;
+    nn[2] = -1;
+    double wx = bx[2] - bx[0], wy = bx[3] - bx[1];
+    if (e - s <= OBJECTS_LEAF || !(wx > 0.0 || wy > 0.0)) {
+        return nd;  /* few objects, or all at one place (or not finite): a leaf */
+    }
+    const double *c = wx >= wy ? b->x : b->y;
+    for (Py_ssize_t j = s; j < e; j++) {
+        b->keys[j - s].v = c[b->pid[j]];
+        b->keys[j - s].i = b->pid[j];
+    }
+    Py_ssize_t half = (e - s) / 2;
+    objects_select(b->keys, e - s, half);
+    for (Py_ssize_t j = s; j < e; j++) {
+        b->pid[j] = b->keys[j - s].i;
+    }
+    if (objects_build_node(b, s, s + half) < 0) {
+        return -1;
+    }
+    int64_t right = objects_build_node(b, s + half, e);
+    if (right < 0) {
+        return -1;
+    }
+    nn[2] = right;
+    return nd;
+}
+
+/* Group pid by label (counting sort: ascending index within a label) and build each label's tree. */
+static int objects_build_all(ObjectsBuild *b, const int64_t *label, Py_ssize_t n, Py_ssize_t n_labels,
+                             int64_t *root, Py_ssize_t *start)
+{
+    for (Py_ssize_t l = 0; l <= n_labels; l++) {
+        start[l] = 0;
+    }
+    for (Py_ssize_t j = 0; j < n; j++) {
+        start[label[j] + 1]++;
+    }
+    for (Py_ssize_t l = 0; l < n_labels; l++) {
+        start[l + 1] += start[l];
+    }
+    for (Py_ssize_t j = 0; j < n; j++) {
+        b->pid[start[label[j]]++] = j;
+    }
+    for (Py_ssize_t l = n_labels; l > 0; l--) {
+        start[l] = start[l - 1];
+    }
+    start[0] = 0;
+    for (Py_ssize_t l = 0; l < n_labels; l++) {
+        root[l] = start[l + 1] > start[l] ? objects_build_node(b, start[l], start[l + 1]) : -1;
+        if (start[l + 1] > start[l] && root[l] < 0) {
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static PyObject *objects_build(PyObject *self, PyObject *args)
+{
+    PyObject *ox, *oy, *olab, *opts, *opid, *obox, *onode, *oroot;
+    Arr a[8] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOOOOO:objects_build", &ox, &oy, &olab, &opts, &opid, &obox, &onode, &oroot)) {
+        return NULL;
+    }
+    if (arr_take(ox, &a[0], "x", 'd', 1, 0, 0) || arr_take(oy, &a[1], "y", 'd', 1, 0, 0)
+        || arr_take(olab, &a[2], "label", 'q', 1, 0, 0) || arr_take(opts, &a[3], "pts", 'd', 2, 1, 0)
+        || arr_take(opid, &a[4], "pid", 'q', 1, 1, 0) || arr_take(obox, &a[5], "box", 'd', 2, 1, 0)
+        || arr_take(onode, &a[6], "node", 'q', 2, 1, 0) || arr_take(oroot, &a[7], "root", 'q', 1, 1, 0)) {
+        arr_release(a, 8);
+        return NULL;
+    }
+    Py_ssize_t n = arr_dim(&a[0], 0), m = arr_dim(&a[5], 0), n_labels = arr_dim(&a[7], 0);
+    if (!arr_check_shape(&a[1], "y", n, 0) && !arr_check_shape(&a[2], "label", n, 0)
+        && !arr_check_shape(&a[3], "pts", n, 2) && !arr_check_shape(&a[4], "pid", n, 0)
+        && !arr_check_shape(&a[5], "box", m, 4)) {
+        arr_check_shape(&a[6], "node", m, 3);
+    }
+    for (Py_ssize_t j = 0; j < n && !PyErr_Occurred(); j++) {
+        if (Q(a[2])[j] < 0 || Q(a[2])[j] >= n_labels) {
+            PyErr_Format(PyExc_ValueError, "label must lie in 0..%zd", n_labels - 1);
+        }
+    }
+    if (PyErr_Occurred()) {
+        arr_release(a, 8);
+        return NULL;
+    }
+    ObjectsBuild b = {D(a[0]), D(a[1]), Q(a[4]), D(a[5]), Q(a[6]), 0, m, NULL};
+    b.keys = PyMem_Malloc(sizeof(ObjectsKey) * (size_t)(n + 1));
+    Py_ssize_t *start = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(n_labels + 1));
+    if (b.keys == NULL || start == NULL) {
+        PyMem_Free(b.keys);
+        PyMem_Free(start);
+        arr_release(a, 8);
+        return PyErr_NoMemory();
+    }
+    int status;
+    Py_BEGIN_ALLOW_THREADS
+    status = objects_build_all(&b, Q(a[2]), n, n_labels, Q(a[7]), start);
+    for (Py_ssize_t j = 0; status == 0 && j < n; j++) {
+        D(a[3])[2 * j] = b.x[b.pid[j]];
+        D(a[3])[2 * j + 1] = b.y[b.pid[j]];
+    }
+    Py_END_ALLOW_THREADS
+    PyMem_Free(b.keys);
+    PyMem_Free(start);
+    arr_release(a, 8);
+    if (status < 0) {
+        PyErr_Format(PyExc_ValueError, "node arrays of %zd rows are too few", m);
+        return NULL;
+    }
+    return PyLong_FromSsize_t(b.used);
+}
+
+/* ------------------------------------------------------------------ taking a tree and queries */
+
+/* The tree's five arrays (a[0 .. 5)) checked against each other; 0, or -1 with an error set. */
+static int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t)
+{
+    if (arr_take(o[0], &a[0], "pts", 'd', 2, 0, 0) || arr_take(o[1], &a[1], "pid", 'q', 1, 0, 0)
+        || arr_take(o[2], &a[2], "box", 'd', 2, 0, 0) || arr_take(o[3], &a[3], "node", 'q', 2, 0, 0)
+        || arr_take(o[4], &a[4], "root", 'q', 1, 0, 0)) {
+        return -1;
+    }
+    Py_ssize_t n = arr_dim(&a[0], 0), m = arr_dim(&a[2], 0), nl = arr_dim(&a[4], 0);
+    if (arr_check_shape(&a[0], "pts", n, 2) || arr_check_shape(&a[1], "pid", n, 0)
+        || arr_check_shape(&a[2], "box", m, 4) || arr_check_shape(&a[3], "node", m, 3)) {
+        return -1;
+    }
+    t->pts = D(a[0]);
+    t->pid = Q(a[1]);
+    t->box = D(a[2]);
+    t->node = Q(a[3]);
+    t->root = Q(a[4]);
+    t->n = n;
+    t->m = m;
+    t->n_labels = nl;
+    t->bad = 0;
+    return 0;
+}
+
+/* The root of label ``l``'s tree, -1 when it has none (or is not a label). */
+static inline int64_t objects_root(ObjectsTree *t, int64_t l)
+{
+    if (l < 0 || l >= t->n_labels || t->root[l] == -1) {
+        return -1;
+    }
+    return objects_node_ok(t, t->root[l]) ? t->root[l] : -1;
+}
+
+/* None, or NULL with ValueError when a walk met a node outside the arrays. */
+static PyObject *objects_checked(const ObjectsTree *t)
+{
+    if (t->bad) {
+        PyErr_SetString(PyExc_ValueError, "node or root holds a position or child outside the tree");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ k nearest */
+
+typedef struct {
+    double *d2;   /* k best squared distances, ascending (ties: lower index first) */
+    int64_t *idx;
+    Py_ssize_t k, count;
+    double bound2;
+} ObjectsBest;
+
+static inline void objects_offer(ObjectsBest *b, double d2, int64_t i)
+{
+    if (!(d2 < b->bound2)) {
+        return;
+    }
+    Py_ssize_t at = b->count;
+    if (at == b->k) {
+        if (!(d2 < b->d2[at - 1] || (d2 == b->d2[at - 1] && i < b->idx[at - 1]))) {
+            return;
+        }
+        at--;
+    } else {
+        b->count++;
+    }
+    while (at > 0 && (d2 < b->d2[at - 1] || (d2 == b->d2[at - 1] && i < b->idx[at - 1]))) {
+        b->d2[at] = b->d2[at - 1];
+        b->idx[at] = b->idx[at - 1];
+        at--;
+    }
+    b->d2[at] = d2;
+    b->idx[at] = i;
+}
+
+/* Whether a node whose box is ``near2`` away can hold a neighbour (a tie with the k-th can: its index may be lower). */
+static inline int objects_may_hold(const ObjectsBest *b, double near2)
+{
+    return b->count == b->k ? near2 <= b->d2[b->k - 1] : near2 < b->bound2;
+}
+
+static void objects_knn_node(ObjectsTree *t, int64_t nd, double qx, double qy, ObjectsBest *b)
+{
+    const int64_t *nn = t->node + 3 * nd;
+    if (nn[2] < 0) {
+        for (int64_t j = nn[0]; j < nn[1]; j++) {
+            objects_offer(b, objects_d2(t->pts + 2 * j, qx, qy), t->pid[j]);
+        }
+        return;
+    }
+    int64_t c[2] = {nd + 1, nn[2]};
+    if (!objects_node_ok(t, c[0]) || !objects_node_ok(t, c[1])) {
+        return;
+    }
+    double near2[2] = {objects_box_near2(t, c[0], qx, qy), objects_box_near2(t, c[1], qx, qy)};
+    int first = near2[1] < near2[0];  /* the nearer child first: the bound shrinks sooner */
+    for (int s = 0; s < 2; s++) {
+        int which = s ? 1 - first : first;
+        if (objects_may_hold(b, near2[which])) {
+            objects_knn_node(t, c[which], qx, qy, b);
+        }
+    }
+}
+
+static PyObject *objects_knn(PyObject *self, PyObject *args)
+{
+    PyObject *o[5], *oq, *olab, *od, *oi;
+    Py_ssize_t missing;
+    double bound;
+    Arr a[9] = {{{0}}};
+    ObjectsTree t;
+    if (!PyArg_ParseTuple(args, "OOOOOOOdnOO:objects_knn", &o[0], &o[1], &o[2], &o[3], &o[4], &oq, &olab, &bound,
+                          &missing, &od, &oi)) {
+        return NULL;
+    }
+    if (objects_take_tree(o, a, &t) || arr_take(oq, &a[5], "w", 'Z', 1, 0, 0)
+        || arr_take(olab, &a[6], "labels", 'q', 1, 0, 0) || arr_take(od, &a[7], "out_d", 'd', 2, 1, 0)
+        || arr_take(oi, &a[8], "out_i", 'q', 2, 1, 0)) {
+        arr_release(a, 9);
+        return NULL;
+    }
+    Py_ssize_t q = arr_dim(&a[5], 0), k = arr_dim(&a[7], 1);
+    if (k < 1) {
+        PyErr_SetString(PyExc_ValueError, "out_d must have at least one column");
+    } else if (!arr_check_shape(&a[6], "labels", q, 0) && !arr_check_shape(&a[7], "out_d", q, k)) {
+        arr_check_shape(&a[8], "out_i", q, k);
+    }
+    if (PyErr_Occurred()) {
+        arr_release(a, 9);
+        return NULL;
+    }
+    const double *w = D(a[5]);
+    const int64_t *lab = Q(a[6]);
+    double *out_d = D(a[7]);
+    int64_t *out_i = Q(a[8]);
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t j = 0; j < q; j++) {
+        ObjectsBest b = {out_d + j * k, out_i + j * k, k, 0, bound * bound};
+        int64_t r = objects_root(&t, lab[j]);
+        if (r >= 0 && objects_may_hold(&b, objects_box_near2(&t, r, w[2 * j], w[2 * j + 1]))) {
+            objects_knn_node(&t, r, w[2 * j], w[2 * j + 1], &b);
+        }
+        for (Py_ssize_t c = 0; c < k; c++) {
+            out_d[j * k + c] = c < b.count ? sqrt(out_d[j * k + c]) : INFINITY;
+            out_i[j * k + c] = c < b.count ? out_i[j * k + c] : (int64_t)missing;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    arr_release(a, 9);
+    return objects_checked(&t);
+}
+
+/* ------------------------------------------------------------------ discs */
+
+/* The objects of node ``nd`` within squared distance ``r2`` of (qx, qy): counted, and written to ``out`` (when not
+ * NULL, at most ``room``). */
+static Py_ssize_t objects_disc_node(ObjectsTree *t, int64_t nd, double qx, double qy, double r2,
+                                    int64_t *out, Py_ssize_t room)
+{
+    const int64_t *nn = t->node + 3 * nd;
+    if (!objects_node_ok(t, nd) || objects_box_near2(t, nd, qx, qy) > r2 || isnan(r2)) {
+        return 0;
+    }
+    if (objects_box_far2(t, nd, qx, qy) <= r2) {
+        Py_ssize_t c = (Py_ssize_t)(nn[1] - nn[0]);
+        for (Py_ssize_t j = 0; out != NULL && j < c && j < room; j++) {
+            out[j] = t->pid[nn[0] + j];
+        }
+        return c;
+    }
+    if (nn[2] < 0) {
+        Py_ssize_t c = 0;
+        for (int64_t j = nn[0]; j < nn[1]; j++) {
+            if (objects_d2(t->pts + 2 * j, qx, qy) <= r2) {
+                if (out != NULL && c < room) {
+                    out[c] = t->pid[j];
+                }
+                c++;
+            }
+        }
+        return c;
+    }
+    Py_ssize_t c = objects_disc_node(t, nd + 1, qx, qy, r2, out, room);
+    return c + objects_disc_node(t, nn[2], qx, qy, r2, out ? out + c : NULL, room - c);
+}
+
+static int objects_cmp_index(const void *a, const void *b)
+{
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* One disc's members (sorted) or count: -1 radius or none: nothing. */
+static Py_ssize_t objects_disc(ObjectsTree *t, int64_t l, double qx, double qy, double r, int64_t *out,
+                               Py_ssize_t room)
+{
+    int64_t root = objects_root(t, l);
+    if (root < 0 || !(r >= 0.0)) {
+        return 0;
+    }
+    Py_ssize_t c = objects_disc_node(t, root, qx, qy, r * r, out, room);
+    if (out != NULL && c == room) {
+        qsort(out, (size_t)c, sizeof(int64_t), objects_cmp_index);
+    }
+    return c;
+}
+
+/* objects_disc(tree..., w, labels, r, offsets, out): with ``offsets`` None, each disc's count into ``out`` (q,);
+ * else its members into out[offsets[j] .. offsets[j + 1]), which must be its count. */
+static PyObject *objects_disc_query(PyObject *self, PyObject *args)
+{
+    PyObject *o[5], *oq, *olab, *or, *ooff, *oout;
+    Arr a[10] = {{{0}}};
+    ObjectsTree t;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOO:objects_disc", &o[0], &o[1], &o[2], &o[3], &o[4], &oq, &olab, &or,
+                          &ooff, &oout)) {
+        return NULL;
+    }
+    if (objects_take_tree(o, a, &t) || arr_take(oq, &a[5], "w", 'Z', 1, 0, 0)
+        || arr_take(olab, &a[6], "labels", 'q', 1, 0, 0) || arr_take(or, &a[7], "r", 'd', 1, 0, 0)
+        || arr_take(ooff, &a[8], "offsets", 'q', 1, 0, 1) || arr_take(oout, &a[9], "out", 'q', 1, 1, 0)) {
+        arr_release(a, 10);
+        return NULL;
+    }
+    Py_ssize_t q = arr_dim(&a[5], 0), total = arr_dim(&a[9], 0);
+    if (!arr_check_shape(&a[6], "labels", q, 0) && !arr_check_shape(&a[7], "r", q, 0)) {
+        if (!a[8].held) {
+            arr_check_shape(&a[9], "out", q, 0);
+        } else if (!arr_check_shape(&a[8], "offsets", q + 1, 0)) {
+            const int64_t *off = Q(a[8]);
+            for (Py_ssize_t j = 0; j < q && !PyErr_Occurred(); j++) {
+                if (off[0] != 0 || off[j] > off[j + 1] || off[q] != total) {
+                    PyErr_SetString(PyExc_ValueError, "offsets must rise from 0 to len(out)");
+                }
+            }
+        }
+    }
+    if (PyErr_Occurred()) {
+        arr_release(a, 10);
+        return NULL;
+    }
+    const double *w = D(a[5]), *r = D(a[7]);
+    const int64_t *lab = Q(a[6]), *off = a[8].held ? Q(a[8]) : NULL;
+    int64_t *out = Q(a[9]);
+    Py_ssize_t bad = -1;
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t j = 0; j < q; j++) {
+        if (off == NULL) {
+            out[j] = objects_disc(&t, lab[j], w[2 * j], w[2 * j + 1], r[j], NULL, 0);
+        } else if (objects_disc(&t, lab[j], w[2 * j], w[2 * j + 1], r[j], out + off[j], off[j + 1] - off[j])
+                   != off[j + 1] - off[j] && bad < 0) {
+            bad = j;
+        }
+    }
+    Py_END_ALLOW_THREADS
+    arr_release(a, 10);
+    if (t.bad) {
+        return objects_checked(&t);
+    }
+    if (bad >= 0) {
+        PyErr_Format(PyExc_ValueError, "offsets give disc %zd a room other than its count", bad);
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ method table */
+
+PyMethodDef objects_methods[] = {
+    {"objects_build", objects_build, METH_VARARGS,
+     "objects_build(x, y, label, pts, pid, box, node, root): a KD-tree per label into the arrays given; returns "
+     "the number of nodes used."},
+    {"objects_knn", objects_knn, METH_VARARGS,
+     "objects_knn(pts, pid, box, node, root, w, labels, bound, missing, out_d, out_i): the k nearest objects of "
+     "each point's label within bound (k: out_d's columns), nearest first."},
+    {"objects_disc", objects_disc_query, METH_VARARGS,
+     "objects_disc(pts, pid, box, node, root, w, labels, r, offsets, out): objects of each point's label within "
+     "r: counts (offsets None) or sorted members."},
+    {NULL, NULL, 0, NULL},
+};
