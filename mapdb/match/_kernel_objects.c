@@ -1,8 +1,9 @@
 /* The map objects' spatial queries (mapdb.match.mapobjects.label_trees): a 2-D KD-tree per label.
  *
- * The objects are grouped by label (ascending index within a label) and each label's run is split at its median
- * along the wider side of its tight bounding box until a node holds at most OBJECTS_LEAF objects (a node whose
- * objects all lie at one place stays a leaf however many it holds).  The tree lives in arrays the Python caller
+ * The objects are grouped by label (ascending index within a label) and each label's run is split at the middle of
+ * the wider side of its tight bounding box (sliding midpoint, as scipy's cKDTree splits: one pass a level, half the
+ * build time of median splits) until a node holds at most OBJECTS_LEAF objects (a node whose objects all lie at
+ * one place stays a leaf however many it holds).  The tree lives in arrays the Python caller
  * allocates (so it pickles and needs no object type here):
  *
  *   pts  (n, 2) float64  the objects' x, y in tree order
@@ -14,7 +15,8 @@
  *
  * Queries answer as scipy's cKDTree over (x, y, label * gap) did: a squared distance is dx * dx + dy * dy, a
  * neighbour counts when its squared distance is below the bound's square (strictly), a disc member when it is at
- * most the radius' square; distances are square roots of squared distances.  Where distances tie (duplicate
+ * most the radius' square; distances are square roots of squared distances.  A query point that is not finite
+ * finds nothing (cKDTree refused it).  Where distances tie (duplicate
  * objects), the lower object index comes first (cKDTree's order there was its heap's).  Pruning by a box is exact:
  * rounding is monotonic, so no object in a box is nearer (farther) than the box's computed nearest (farthest)
  * point.
@@ -25,7 +27,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define OBJECTS_LEAF 8
+#define OBJECTS_LEAF 16
 
 /* ------------------------------------------------------------------ the tree */
 
@@ -65,8 +67,8 @@ static inline double objects_box_near2(const ObjectsTree *t, int64_t nd, double 
 static inline double objects_box_far2(const ObjectsTree *t, int64_t nd, double qx, double qy)
 {
     const double *b = t->box + 4 * nd;
-    double dx = fmax(fabs(qx - b[0]), fabs(qx - b[2]));
-    double dy = fmax(fabs(qy - b[1]), fabs(qy - b[3]));
+    double ax = fabs(qx - b[0]), bx = fabs(qx - b[2]), ay = fabs(qy - b[1]), by = fabs(qy - b[3]);
+    double dx = ax > bx ? ax : bx, dy = ay > by ? ay : by;
     return dx * dx + dy * dy;
 }
 
@@ -78,53 +80,58 @@ static inline double objects_d2(const double *p, double qx, double qy)
 
 /* ------------------------------------------------------------------ building */
 
+/* An object as the build moves it: its place and index side by side, so that splits read memory in order. */
 typedef struct {
-    double v;
+    double c[2];
     int64_t i;
-} ObjectsKey;
+} ObjectsRec;
 
-static inline int objects_key_less(ObjectsKey a, ObjectsKey b)
+static inline void objects_rec_swap(ObjectsRec *a, ObjectsRec *b)
 {
-    return a.v < b.v || (a.v == b.v && a.i < b.i);
+    ObjectsRec s = *a;
+    *a = *b;
+    *b = s;
 }
 
-/* Reorder k[0 .. n) so that k[nth] is where a sort would put it, the smaller before it, the larger after. */
-static void objects_select(ObjectsKey *k, Py_ssize_t n, Py_ssize_t nth)
+/* Split k[0 .. n) (n >= 2, not all at one place along ``ax``) at the middle of its extent [lo, hi] along ``ax``,
+ * sliding the split to the nearest object when one side would be empty (scipy's sliding midpoint): the
+ * objects before the split first.  Returns how many there are (1 .. n - 1). */
+static Py_ssize_t objects_split(ObjectsRec *k, Py_ssize_t n, int ax, double lo, double hi)
 {
-    Py_ssize_t lo = 0, hi = n - 1;
-    while (hi > lo) {
-        Py_ssize_t mid = lo + (hi - lo) / 2;  /* median of three as the pivot */
-        if (objects_key_less(k[mid], k[lo])) { ObjectsKey s = k[mid]; k[mid] = k[lo]; k[lo] = s; }
-        if (objects_key_less(k[hi], k[lo])) { ObjectsKey s = k[hi]; k[hi] = k[lo]; k[lo] = s; }
-        if (objects_key_less(k[hi], k[mid])) { ObjectsKey s = k[hi]; k[hi] = k[mid]; k[mid] = s; }
-        ObjectsKey pivot = k[mid];
-        Py_ssize_t i = lo, j = hi;
-        while (i <= j) {
-            while (objects_key_less(k[i], pivot)) i++;
-            while (objects_key_less(pivot, k[j])) j--;
-            if (i <= j) {
-                ObjectsKey s = k[i]; k[i] = k[j]; k[j] = s;
-                i++;
-                j--;
-            }
-        }
-        if (nth <= j) {
-            hi = j;
-        } else if (nth >= i) {
-            lo = i;
+    double split = lo + 0.5 * (hi - lo);
+    Py_ssize_t i = 0, j = n - 1;
+    while (i <= j) {
+        if (k[i].c[ax] < split) {
+            i++;
+        } else if (!(k[j].c[ax] < split)) {
+            j--;
         } else {
-            return;
+            objects_rec_swap(&k[i++], &k[j--]);
         }
     }
+    Py_ssize_t at = 0;
+    if (i == 0) {  /* nothing below the split (it rounded to lo): the lowest alone goes first */
+        for (Py_ssize_t t = 1; t < n; t++) {
+            at = k[t].c[ax] < k[at].c[ax] ? t : at;
+        }
+        objects_rec_swap(&k[0], &k[at]);
+        return 1;
+    }
+    if (i == n) {  /* nothing at or above it: the highest alone goes last */
+        for (Py_ssize_t t = 1; t < n; t++) {
+            at = k[t].c[ax] > k[at].c[ax] ? t : at;
+        }
+        objects_rec_swap(&k[n - 1], &k[at]);
+        return n - 1;
+    }
+    return i;
 }
 
 typedef struct {
-    const double *x, *y;
-    int64_t *pid;
+    ObjectsRec *rec;
     double *box;
     int64_t *node;
     Py_ssize_t used, capacity;
-    ObjectsKey *keys;
 } ObjectsBuild;
 
 /* Node over tree positions [s, e); returns its number, or -1 when the node arrays are full. */
@@ -135,15 +142,19 @@ static int64_t objects_build_node(ObjectsBuild *b, Py_ssize_t s, Py_ssize_t e)
     }
     int64_t nd = b->used++;
     double *bx = b->box + 4 * nd;
-    bx[0] = bx[2] = b->x[b->pid[s]];
-    bx[1] = bx[3] = b->y[b->pid[s]];
-    for (Py_ssize_t j = s + 1; j < e; j++) {
-        double px = b->x[b->pid[j]], py = b->y[b->pid[j]];
-        bx[0] = fmin(bx[0], px);
-        bx[1] = fmin(bx[1], py);
-        bx[2] = fmax(bx[2], px);
-        bx[3] = fmax(bx[3], py);
+    const ObjectsRec *r = b->rec;
+    double x0 = INFINITY, y0 = INFINITY, x1 = -INFINITY, y1 = -INFINITY;  /* NaN places stay out: never an answer */
+    for (Py_ssize_t j = s; j < e; j++) {
+        double px = r[j].c[0], py = r[j].c[1];
+        x0 = px < x0 ? px : x0;
+        y0 = py < y0 ? py : y0;
+        x1 = px > x1 ? px : x1;
+        y1 = py > y1 ? py : y1;
     }
+    bx[0] = x0;
+    bx[1] = y0;
+    bx[2] = x1;
+    bx[3] = y1;
     int64_t *nn = b->node + 3 * nd;
     nn[0] = s;
     nn[1] = e;
@@ -152,16 +163,8 @@ static int64_t objects_build_node(ObjectsBuild *b, Py_ssize_t s, Py_ssize_t e)
     if (e - s <= OBJECTS_LEAF || !(wx > 0.0 || wy > 0.0)) {
         return nd;  /* few objects, or all at one place (or not finite): a leaf */
     }
-    const double *c = wx >= wy ? b->x : b->y;
-    for (Py_ssize_t j = s; j < e; j++) {
-        b->keys[j - s].v = c[b->pid[j]];
-        b->keys[j - s].i = b->pid[j];
-    }
-    Py_ssize_t half = (e - s) / 2;
-    objects_select(b->keys, e - s, half);
-    for (Py_ssize_t j = s; j < e; j++) {
-        b->pid[j] = b->keys[j - s].i;
-    }
+    int ax = wx >= wy ? 0 : 1;
+    Py_ssize_t half = objects_split(b->rec + s, e - s, ax, bx[ax], bx[ax + 2]);
     if (objects_build_node(b, s, s + half) < 0) {
         return -1;
     }
@@ -173,9 +176,9 @@ static int64_t objects_build_node(ObjectsBuild *b, Py_ssize_t s, Py_ssize_t e)
     return nd;
 }
 
-/* Group pid by label (counting sort: ascending index within a label) and build each label's tree. */
-static int objects_build_all(ObjectsBuild *b, const int64_t *label, Py_ssize_t n, Py_ssize_t n_labels,
-                             int64_t *root, Py_ssize_t *start)
+/* Group the objects by label (counting sort: ascending index within a label) and build each label's tree. */
+static int objects_build_all(ObjectsBuild *b, const double *x, const double *y, const int64_t *label, Py_ssize_t n,
+                             Py_ssize_t n_labels, int64_t *root, Py_ssize_t *start)
 {
     for (Py_ssize_t l = 0; l <= n_labels; l++) {
         start[l] = 0;
@@ -187,7 +190,10 @@ static int objects_build_all(ObjectsBuild *b, const int64_t *label, Py_ssize_t n
         start[l + 1] += start[l];
     }
     for (Py_ssize_t j = 0; j < n; j++) {
-        b->pid[start[label[j]]++] = j;
+        ObjectsRec *r = &b->rec[start[label[j]]++];
+        r->c[0] = x[j];
+        r->c[1] = y[j];
+        r->i = j;
     }
     for (Py_ssize_t l = n_labels; l > 0; l--) {
         start[l] = start[l - 1];
@@ -231,24 +237,25 @@ static PyObject *objects_build(PyObject *self, PyObject *args)
         arr_release(a, 8);
         return NULL;
     }
-    ObjectsBuild b = {D(a[0]), D(a[1]), Q(a[4]), D(a[5]), Q(a[6]), 0, m, NULL};
-    b.keys = PyMem_Malloc(sizeof(ObjectsKey) * (size_t)(n + 1));
+    ObjectsBuild b = {NULL, D(a[5]), Q(a[6]), 0, m};
+    b.rec = PyMem_Malloc(sizeof(ObjectsRec) * (size_t)(n + 1));
     Py_ssize_t *start = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(n_labels + 1));
-    if (b.keys == NULL || start == NULL) {
-        PyMem_Free(b.keys);
+    if (b.rec == NULL || start == NULL) {
+        PyMem_Free(b.rec);
         PyMem_Free(start);
         arr_release(a, 8);
         return PyErr_NoMemory();
     }
     int status;
     Py_BEGIN_ALLOW_THREADS
-    status = objects_build_all(&b, Q(a[2]), n, n_labels, Q(a[7]), start);
+    status = objects_build_all(&b, D(a[0]), D(a[1]), Q(a[2]), n, n_labels, Q(a[7]), start);
     for (Py_ssize_t j = 0; status == 0 && j < n; j++) {
-        D(a[3])[2 * j] = b.x[b.pid[j]];
-        D(a[3])[2 * j + 1] = b.y[b.pid[j]];
+        D(a[3])[2 * j] = b.rec[j].c[0];
+        D(a[3])[2 * j + 1] = b.rec[j].c[1];
+        Q(a[4])[j] = b.rec[j].i;
     }
     Py_END_ALLOW_THREADS
-    PyMem_Free(b.keys);
+    PyMem_Free(b.rec);
     PyMem_Free(start);
     arr_release(a, 8);
     if (status < 0) {
@@ -399,7 +406,7 @@ static PyObject *objects_knn(PyObject *self, PyObject *args)
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t j = 0; j < q; j++) {
         ObjectsBest b = {out_d + j * k, out_i + j * k, k, 0, bound * bound};
-        int64_t r = objects_root(&t, lab[j]);
+        int64_t r = isfinite(w[2 * j]) && isfinite(w[2 * j + 1]) ? objects_root(&t, lab[j]) : -1;
         if (r >= 0 && objects_may_hold(&b, objects_box_near2(&t, r, w[2 * j], w[2 * j + 1]))) {
             objects_knn_node(&t, r, w[2 * j], w[2 * j + 1], &b);
         }
@@ -457,7 +464,7 @@ static int objects_cmp_index(const void *a, const void *b)
 static Py_ssize_t objects_disc(ObjectsTree *t, int64_t l, double qx, double qy, double r, int64_t *out,
                                Py_ssize_t room)
 {
-    int64_t root = objects_root(t, l);
+    int64_t root = isfinite(qx) && isfinite(qy) ? objects_root(t, l) : -1;
     if (root < 0 || !(r >= 0.0)) {
         return 0;
     }

@@ -47,8 +47,8 @@ class LabelTrees:
             raise ValueError(f"label must have shape ({self.n},), got {self.label.shape}")
         self.pts = np.empty((self.n, 2))
         self.pid = np.empty(self.n, np.int64)
-        # At most n / 2 + 1 nodes a label: leaves of 4 to 8 objects, or one.
-        box, node = np.empty((self.n // 2 + n_labels + 1, 4)), np.empty((self.n // 2 + n_labels + 1, 3), np.int64)
+        # At most 2 c - 1 nodes for a label of c objects (each leaf holds one at least); most hold several.
+        box, node = np.empty((2 * self.n + 1, 4)), np.empty((2 * self.n + 1, 3), np.int64)
         self.root = np.empty(n_labels, np.int64)
         used = objects_build(np.ascontiguousarray(self.z.real), np.ascontiguousarray(self.z.imag), self.label,
                              self.pts, self.pid, box, node, self.root)
