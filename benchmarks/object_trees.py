@@ -54,7 +54,7 @@ def _median_us(call, repeats: int) -> float:
 
 def builds(name: str, objects, repeats: int) -> None:
     z, label = objects.x + 1j * objects.y, objects.label.astype(np.int64)
-    gap = 1e3 * (math.sqrt((np.ptp(objects.x) * np.ptp(objects.y))) + 1e4)
+    gap = 1e3 * (math.sqrt(np.ptp(objects.x) * np.ptp(objects.y)) + 1e4)
     old, new = [], []
     for r in range(repeats):
         for which in (0, 1) if r % 2 == 0 else (1, 0):
@@ -72,7 +72,7 @@ def builds(name: str, objects, repeats: int) -> None:
 def queries(name: str, objects, calls: int) -> None:
     z, label = objects.x + 1j * objects.y, objects.label.astype(np.int64)
     n_labels = len(objects.labels)
-    gap = 1e3 * (math.sqrt((np.ptp(objects.x) * np.ptp(objects.y))) + 1e4)
+    gap = 1e3 * (math.sqrt(np.ptp(objects.x) * np.ptp(objects.y)) + 1e4)
     tree, trees = quick_tree(np.column_stack([objects.x, objects.y, label * gap])), LabelTrees(z, label, n_labels)
     rng = np.random.default_rng(0)
     print(f"  {name}: one call, median us   (cKDTree | LabelTrees | ratio | identical)")
@@ -107,15 +107,17 @@ def queries(name: str, objects, calls: int) -> None:
         rtrees = {}
         for code in np.unique(label):
             at = np.flatnonzero(label == code)
-            rtrees[code] = rtree.index.Index(((int(i), (z[i].real, z[i].imag, z[i].real, z[i].imag), None)
-                                              for i in at))
+            rtrees[code] = rtree.index.Index((int(i), (z[i].real, z[i].imag, z[i].real, z[i].imag), None)
+                                              for i in at)
         pick = rng.integers(0, z.size, 200)
         w = z[pick] + rng.normal(0, 30, 200) + 1j * rng.normal(0, 30, 200)
 
-        def one(j=[0]):  # one point a call, cycling through 200
-            p = w[j[0] % 200]
-            j[0] += 1
-            return list(rtrees[label[pick[j[0] % 200]]].nearest((p.real, p.imag, p.real, p.imag), 1))
+        turn = iter(range(10**9))
+
+        def one():  # one point a call, cycling through 200
+            j = next(turn) % 200
+            p = w[j]
+            return list(rtrees[label[pick[j]]].nearest((p.real, p.imag, p.real, p.imag), 1))
 
         c = _median_us(one, calls)
         b = _median_us(lambda: trees.query(w[:1], label[pick[:1]], 1, 300.0), calls)
