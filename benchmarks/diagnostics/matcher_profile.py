@@ -38,8 +38,9 @@ import mapdb.localize.localizer as localizer_module  # noqa: E402
 import mapdb.match.fast as fast  # noqa: E402
 from mapdb.mapfile.reader import open_map  # noqa: E402
 
-TREE_MODULES = ("mapdb.match.quads", "mapdb.match.mapobjects.object_index", "mapdb.match.mapobjects.kd_forest",
-                "mapdb.match.evidence.terrain")
+TREE_MODULES = ("mapdb.match.quads", "mapdb.match.evidence.terrain")
+# The map objects' queries go to the compiled kernel's trees (mapdb.match.mapobjects.label_trees), timed by method.
+OBJECT_QUERIES = ("query", "count", "members")
 STAGES = ("_search", "round_hypotheses", "screen_round", "find_rivals", "polish")
 
 
@@ -73,6 +74,22 @@ def answer_all(images: list[dict], map_: Any) -> float:
     return time.perf_counter() - start
 
 
+def _timed(f: Callable[..., Any], tag: str, times: collections.Counter, calls: collections.Counter
+           ) -> Callable[..., Any]:
+    """``f`` timed and counted under ``tag``."""
+
+    @functools.wraps(f)
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        start = time.perf_counter()
+        try:
+            return f(*args, **kwargs)
+        finally:
+            times[tag] += time.perf_counter() - start
+            calls[tag] += 1
+
+    return timed
+
+
 def kd_probe(path: Path, images: list[dict]) -> None:
     """KD-tree queries an image, their time and share of the whole, by tree."""
     import importlib
@@ -83,6 +100,11 @@ def kd_probe(path: Path, images: list[dict]) -> None:
     made = [module.quick_tree for module in modules]
     for module, f in zip(modules, made):
         module.quick_tree = lambda points, f=f: TimedTree(f(points), f"tree{points.shape[1]}d", times, calls)
+    from mapdb.match.mapobjects.label_trees import LabelTrees
+
+    kernel = {name: getattr(LabelTrees, name) for name in OBJECT_QUERIES}
+    for name, f in kernel.items():
+        setattr(LabelTrees, name, _timed(f, f"objects {name}", times, calls))
     try:
         with open_map(path) as m:
             answer_all(images, m)
@@ -92,6 +114,8 @@ def kd_probe(path: Path, images: list[dict]) -> None:
     finally:
         for module, f in zip(modules, made):
             module.quick_tree = f
+        for name, f in kernel.items():
+            setattr(LabelTrees, name, f)
     n = len(images)
     print(f"  ms/image {1000 * total / n:.2f}; KD-tree queries {sum(calls.values()) / n:.1f} an image,"
           f" {1000 * sum(times.values()) / n:.2f} ms an image ({sum(times.values()) / total:.0%})")
