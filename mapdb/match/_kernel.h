@@ -41,6 +41,8 @@ int np_less(double a, double b);
 void sort_keyed(Keyed *k, Py_ssize_t n);
 void sort_values(double *x, Py_ssize_t n);
 
+extern PyMethodDef verify_methods[];
+
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)
 #define Q(a) ((int64_t *)(a).view.buf)

@@ -36,6 +36,7 @@ from itertools import combinations
 
 import numpy as np
 
+from ._kernel import verify_shifted
 from .evidence.image import ImageEvidence
 from .evidence.terrain import TerrainModel
 from .hypotheses import allowed_poses, round_hypotheses
@@ -148,17 +149,12 @@ def _shifted(best: Candidate, index: ObjectIndex, tolerance: float) -> tuple[np.
     mid = best.pairs[:, 1]
     if mid.size < 3:
         return np.zeros(0, np.complex128), np.zeros(0, np.complex128)
-    p, lab = index.z[mid], index.label[mid]
-    i0 = int(np.argmin(np.abs(p - best.b)))
-    gap = np.abs(p - p[i0])
-    gap[gap == 0.0] = np.inf
-    i1 = int(np.argmin(gap))
-    base = p[i1] - p[i0]
-    step = p[None, :] - p[:, None]  # step[j, k]: from inlier j's map point to inlier k's
-    j, k = np.nonzero((np.abs(np.abs(step) - abs(base)) <= tolerance) & (lab[:, None] == lab[i0])
-                      & (lab[None, :] == lab[i1]))
-    turn = step[j, k] / base
-    return turn * best.a, turn * (best.b - p[i0]) + p[j]
+    # The pairwise steps of a few dozen points and the poses they give, in one kernel call.
+    hit_a = np.empty(mid.size * mid.size, np.complex128)
+    hit_b = np.empty(mid.size * mid.size, np.complex128)
+    found = verify_shifted(index.z[mid], np.ascontiguousarray(index.label[mid], np.int64), best.a, best.b, tolerance,
+                           hit_a, hit_b)
+    return hit_a[:found], hit_b[:found]
 
 
 def _elsewhere(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np.ndarray:
