@@ -100,7 +100,8 @@ def decision_nfa(
         # mean density is too low there) nor an isolated object on a slope (its neighbours' distances
         # say the map is emptier than it is around the footprint) makes a chance alignment look rarer.
         lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours, near=near))
-    u = lam * share * math.pi * r2
+    # A share of 1.0 (no areas) leaves lam as it is: its product skipped.
+    u = (lam if isinstance(share, float) and share == 1.0 else lam * share) * math.pi * r2
     # shape = 1.25 + |z - mean|^2 / spread of each quad's points, and its sample mask, in the compiled kernel.
     shape = np.empty((h, n))
     sample = np.empty((h, n), bool)
@@ -130,11 +131,12 @@ def refine(
     association's (on flat ground) instead of a query."""
     previous: tuple[np.ndarray, np.ndarray] | None = None
     terrain = None if evidence is None else evidence.terrain
+    # Each object's density and its share of u, the same every iteration.
+    lam = (density[:, img_label] if density.ndim > 1 else density[img_label][None, :]) * math.pi
     for it in range(iterations + 1):
         w = a[:, None] * z[None, :] + b[:, None] if terrain is None else terrain.project(a, b, z, map_z)
         dist, mid = index.nearest(w, img_label, density, near=near if it == 0 and terrain is None else None)
-        lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
-        u = lam * math.pi * dist**2
+        u = lam * dist**2
         nfa, k_best = log10_nfa_curve(u, 4, log10_tests)
         inlier = refinement_inliers(u, dist, mid, k_best)
         if it == iterations:
