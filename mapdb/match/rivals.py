@@ -97,12 +97,16 @@ def find_rivals(
     hit_a, hit_b = _shifted(best, index, opts.tolerance_factor * math.sqrt(2.0) * sigma_px * abs(best.a))
     allowed = allowed_poses(hit_a, hit_b, prior, scale_range)
     hit_a, hit_b = hit_a[allowed], hit_b[allowed]
-    batch = inlier_quads(z, best.pairs[:, 0], opts.image_neighbours, opts.ambiguity_anchors)
-    if len(batch):
-        found = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
-        hit_a, hit_b = np.concatenate([hit_a, found.a]), np.concatenate([hit_b, found.b])
-    keep = _places(hit_a, hit_b, best, diag_px)
-    a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
+    if opts.ambiguity_anchors > 0:
+        batch = inlier_quads(z, best.pairs[:, 0], opts.image_neighbours, opts.ambiguity_anchors)
+        if len(batch):
+            found = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
+            hit_a, hit_b = np.concatenate([hit_a, found.a]), np.concatenate([hit_b, found.b])
+    if hit_a.size:  # (no repeats, no look-up: the runner-ups alone)
+        keep = _places(hit_a, hit_b, best, diag_px)
+        a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
+    if not a.size:
+        return []
     near = _near_counts(a, b, best, z, img_label, index, opts)
     ok = _elsewhere(a, b, best, diag_px) & (near >= max(4.0, SCREEN_SHARE * best.inliers))
     # The places where most objects land near a map object of their label are refitted first.
