@@ -64,9 +64,9 @@ _COMPILED: dict[int, tuple[Any, Callable[[Any], bool]]] = {}
 
 
 def compiled(schema: Any) -> Callable[[Any], bool]:
-    """``schema`` as one function of a value: :func:`_valid`'s verdict, the same keywords tested in the same order
-    (False at the first failing one, :class:`_UnsureError` at the first it does not know), without walking the
-    schema's dictionaries again for every document.
+    """``schema`` as one function of a value: the verdict of walking the schema keyword by keyword (False at the
+    first failing one, :class:`_UnsureError` at the first it does not know or at a value of a type the JSON decoder
+    does not make), compiled once instead of walking the schema's dictionaries for every document.
 
     Examples
     --------
@@ -93,7 +93,7 @@ def _compile(schema: Any) -> Callable[[Any], bool]:
             continue
         build = _COMPILERS.get(keyword)
         if build is None:
-            checks.append(_unsure)  # raises when reached, as _valid does, after the keywords before it
+            checks.append(_unsure)  # raises when reached, after the keywords before it have passed
             break
         checks.append(build(rule))
     return _all_of(checks)
@@ -172,20 +172,6 @@ def _compile_not(rule: Any) -> Callable[[Any], bool]:
     return lambda v: not check(v)
 
 
-def _valid(schema: Any, value: Any) -> bool:
-    if not isinstance(schema, Mapping) or type(value) not in _DECODED:
-        raise _UnsureError
-    for keyword, rule in schema.items():
-        if keyword in _ANNOTATIONS:
-            continue
-        check = _KEYWORDS.get(keyword)
-        if check is None:
-            raise _UnsureError
-        if not check(rule, value):
-            return False
-    return True
-
-
 def _type(rule: Any, value: Any) -> bool:
     for name in [rule] if isinstance(rule, str) else rule:
         if name == "integer":
@@ -204,11 +190,9 @@ def _is_number(value: Any) -> bool:
     return type(value) in (int, float)
 
 
+# The keywords whose rule is a plain value: a test of (rule, value).
 _KEYWORDS: dict[str, Callable[[Any, Any], bool]] = {
-    "type": _type,
     "required": lambda rule, v: type(v) is not dict or all(key in v for key in rule),
-    "properties": lambda rule, v: type(v) is not dict or all(_valid(sub, v[k]) for k, sub in rule.items() if k in v),
-    "items": lambda rule, v: type(v) is not list or all(_valid(rule, item) for item in v),
     "minItems": lambda rule, v: type(v) is not list or len(v) >= rule,
     "maxItems": lambda rule, v: type(v) is not list or len(v) <= rule,
     "minLength": lambda rule, v: type(v) is not str or len(v) >= rule,
@@ -218,10 +202,6 @@ _KEYWORDS: dict[str, Callable[[Any, Any], bool]] = {
     "maximum": lambda rule, v: not (_is_number(v) and v > rule),
     "exclusiveMinimum": lambda rule, v: not (_is_number(v) and v <= rule),
     "exclusiveMaximum": lambda rule, v: not (_is_number(v) and v >= rule),
-    "allOf": lambda rule, v: all(_valid(sub, v) for sub in rule),
-    "anyOf": lambda rule, v: any(_valid(sub, v) for sub in rule),
-    "oneOf": lambda rule, v: sum(_valid(sub, v) for sub in rule) == 1,
-    "not": lambda rule, v: not _valid(rule, v),
 }
 
 
@@ -230,8 +210,8 @@ def _closing(test: Callable[[Any, Any], bool]) -> Callable[[Any], Callable[[Any]
     return lambda rule: lambda v: test(rule, v)
 
 
-# How each keyword compiles: the ones whose rule holds subschemas compile those once; the others close over their
-# rule and test as _KEYWORDS does.
+# How each keyword compiles: the ones whose rule holds subschemas (or a type) compile it once; the others close over
+# their rule.
 _COMPILERS: dict[str, Callable[[Any], Callable[[Any], bool]]] = {
     **{keyword: _closing(test) for keyword, test in _KEYWORDS.items()},
     "type": _compile_type,
