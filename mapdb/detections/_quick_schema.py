@@ -42,6 +42,9 @@ class _UnsureError(Exception):
 def surely_valid(schema: Mapping[str, Any], document: Any) -> bool:
     """True when ``document`` certainly satisfies ``schema``; False when it does not or when this cannot tell.
 
+    The schema is compiled once (:func:`compiled`) and must not change afterwards: the image schema is read once and
+    shared.
+
     Examples
     --------
     >>> schema = {"type": "object", "required": ["r"], "properties": {"r": {"type": "number", "minimum": 0}}}
@@ -51,23 +54,122 @@ def surely_valid(schema: Mapping[str, Any], document: Any) -> bool:
     False
     """
     try:
-        return _valid(schema, document)
+        return compiled(schema)(document)
     except _UnsureError:
         return False
 
 
-def _valid(schema: Any, value: Any) -> bool:
-    if not isinstance(schema, Mapping) or type(value) not in _DECODED:
-        raise _UnsureError
+# Compiled schemas by id, each beside the schema it was compiled from (held, so that its id is not reused).
+_COMPILED: dict[int, tuple[Any, Callable[[Any], bool]]] = {}
+
+
+def compiled(schema: Any) -> Callable[[Any], bool]:
+    """``schema`` as one function of a value: the verdict of walking the schema keyword by keyword (False at the
+    first failing one, :class:`_UnsureError` at the first it does not know or at a value of a type the JSON decoder
+    does not make), compiled once instead of walking the schema's dictionaries for every document.
+
+    Examples
+    --------
+    >>> check = compiled({"type": "array", "items": {"type": "integer"}, "maxItems": 2})
+    >>> check([1, 2]), check([1, 2, 3]), check([True])
+    (True, False, False)
+    """
+    found = _COMPILED.get(id(schema))
+    if found is not None and found[0] is schema:
+        return found[1]
+    check = _compile(schema)
+    if len(_COMPILED) < 64:  # a few schemas in a process; others are compiled at each call
+        _COMPILED[id(schema)] = (schema, check)
+    return check
+
+
+def _compile(schema: Any) -> Callable[[Any], bool]:
+    """The function :func:`compiled` returns (uncached)."""
+    if not isinstance(schema, Mapping):
+        return _unsure
+    checks: list[Callable[[Any], bool]] = []
     for keyword, rule in schema.items():
         if keyword in _ANNOTATIONS:
             continue
-        check = _KEYWORDS.get(keyword)
-        if check is None:
+        build = _COMPILERS.get(keyword)
+        if build is None:
+            checks.append(_unsure)  # raises when reached, after the keywords before it have passed
+            break
+        checks.append(build(rule))
+    return _all_of(checks)
+
+
+def _all_of(checks: list[Callable[[Any], bool]]) -> Callable[[Any], bool]:
+    """A value's check by ``checks`` in order: False at the first failing one; a value of a type the JSON decoder
+    does not make is judged by jsonschema."""
+    decoded = _DECODED
+
+    def check(value: Any) -> bool:
+        if type(value) not in decoded:
             raise _UnsureError
-        if not check(rule, value):
-            return False
-    return True
+        for one in checks:
+            if not one(value):
+                return False
+        return True
+
+    return check
+
+
+def _unsure(value: Any) -> bool:
+    raise _UnsureError
+
+
+def _compile_type(rule: Any) -> Callable[[Any], bool]:
+    if isinstance(rule, str) and rule in _JSON_TYPES:  # one plain type, the usual rule: a set membership
+        types = _JSON_TYPES[rule]
+        return lambda value: type(value) in types
+    if rule == "integer":
+        return _integer
+    return lambda value: _type(rule, value)
+
+
+def _integer(value: Any) -> bool:
+    if type(value) is float:
+        raise _UnsureError  # 1.0 is an integer to draft 2020-12; jsonschema decides
+    return type(value) is int
+
+
+def _compile_properties(rule: Any) -> Callable[[Any], bool]:
+    subs = [(key, _compile(sub)) for key, sub in rule.items()]
+
+    def check(v: Any) -> bool:
+        if type(v) is dict:
+            for key, sub in subs:
+                if key in v and not sub(v[key]):
+                    return False
+        return True
+
+    return check
+
+
+def _compile_items(rule: Any) -> Callable[[Any], bool]:
+    check = _compile(rule)
+    return lambda v: type(v) is not list or all(check(item) for item in v)
+
+
+def _compile_all(rule: Any) -> Callable[[Any], bool]:
+    subs = [_compile(sub) for sub in rule]
+    return lambda v: all(check(v) for check in subs)
+
+
+def _compile_any(rule: Any) -> Callable[[Any], bool]:
+    subs = [_compile(sub) for sub in rule]
+    return lambda v: any(check(v) for check in subs)
+
+
+def _compile_one(rule: Any) -> Callable[[Any], bool]:
+    subs = [_compile(sub) for sub in rule]
+    return lambda v: sum(check(v) for check in subs) == 1
+
+
+def _compile_not(rule: Any) -> Callable[[Any], bool]:
+    check = _compile(rule)
+    return lambda v: not check(v)
 
 
 def _type(rule: Any, value: Any) -> bool:
@@ -88,11 +190,9 @@ def _is_number(value: Any) -> bool:
     return type(value) in (int, float)
 
 
+# The keywords whose rule is a plain value: a test of (rule, value).
 _KEYWORDS: dict[str, Callable[[Any, Any], bool]] = {
-    "type": _type,
     "required": lambda rule, v: type(v) is not dict or all(key in v for key in rule),
-    "properties": lambda rule, v: type(v) is not dict or all(_valid(sub, v[k]) for k, sub in rule.items() if k in v),
-    "items": lambda rule, v: type(v) is not list or all(_valid(rule, item) for item in v),
     "minItems": lambda rule, v: type(v) is not list or len(v) >= rule,
     "maxItems": lambda rule, v: type(v) is not list or len(v) <= rule,
     "minLength": lambda rule, v: type(v) is not str or len(v) >= rule,
@@ -102,8 +202,23 @@ _KEYWORDS: dict[str, Callable[[Any, Any], bool]] = {
     "maximum": lambda rule, v: not (_is_number(v) and v > rule),
     "exclusiveMinimum": lambda rule, v: not (_is_number(v) and v <= rule),
     "exclusiveMaximum": lambda rule, v: not (_is_number(v) and v >= rule),
-    "allOf": lambda rule, v: all(_valid(sub, v) for sub in rule),
-    "anyOf": lambda rule, v: any(_valid(sub, v) for sub in rule),
-    "oneOf": lambda rule, v: sum(_valid(sub, v) for sub in rule) == 1,
-    "not": lambda rule, v: not _valid(rule, v),
+}
+
+
+def _closing(test: Callable[[Any, Any], bool]) -> Callable[[Any], Callable[[Any], bool]]:
+    """A keyword's test of (rule, value) compiled by closing over the rule."""
+    return lambda rule: lambda v: test(rule, v)
+
+
+# How each keyword compiles: the ones whose rule holds subschemas (or a type) compile it once; the others close over
+# their rule.
+_COMPILERS: dict[str, Callable[[Any], Callable[[Any], bool]]] = {
+    **{keyword: _closing(test) for keyword, test in _KEYWORDS.items()},
+    "type": _compile_type,
+    "properties": _compile_properties,
+    "items": _compile_items,
+    "allOf": _compile_all,
+    "anyOf": _compile_any,
+    "oneOf": _compile_one,
+    "not": _compile_not,
 }

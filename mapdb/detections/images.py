@@ -295,8 +295,7 @@ def check_prior(x: float, y: float, radius: float, source: str = "prior", *, lon
     """
     doc = {"lon": x, "lat": y, "radius": radius} if lonlat else {"x": x, "y": y, "radius": radius}
     doc.update(zip(("heading_deg", "heading_sigma_deg"), heading, strict=False))
-    error = _first_error(doc, "prior")
-    if error is not None:
+    if (error := _first_error(doc, "prior")) is not None:
         raise ImageInputError(f"{source}: {_schema_message(error, ('prior',))}")
     return _make_prior(doc, source)
 
@@ -317,11 +316,11 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
         With a one-line message: the first schema violation, a non-finite number, or an object outside
         the image.
     """
-    _check_schema(doc, source)
+    plain = _check_schema(doc, source)
     width = _finite(doc["width"], "width", source)
     height = _finite(doc["height"], "height", source)
     objects = doc["objects"]
-    x, y = _positions(objects, width, height, source)
+    x, y = _positions(objects, width, height, source, finite=plain)
     names = np.array([o["label"] for o in objects], dtype=object)
     area_px, border, bbox = _region_fields(objects, source)
     prior = _make_prior(doc["prior"], source) if "prior" in doc else None
@@ -351,12 +350,11 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
 def _region_fields(objects: list[dict[str, Any]], source: str
                    ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """The objects' optional ``area_px``, ``border`` and ``bbox`` as arrays (None when no object has one)."""
-    nan_box = (math.nan,) * 4
-    area = np.array([o.get("area_px", math.nan) for o in objects], np.float64) \
-        if any("area_px" in o for o in objects) else None
-    border = np.array([o.get("border", False) for o in objects], bool) if any("border" in o for o in objects) else None
-    bbox = np.array([o.get("bbox", nan_box) for o in objects], np.float64).reshape(-1, 4) \
-        if any("bbox" in o for o in objects) else None
+    has = {key for o in objects for key in ("area_px", "border", "bbox") if key in o}  # one pass for the three
+    area = np.array([o.get("area_px", math.nan) for o in objects], np.float64) if "area_px" in has else None
+    border = np.array([o.get("border", False) for o in objects], bool) if "border" in has else None
+    bbox = np.array([o.get("bbox", (math.nan,) * 4) for o in objects], np.float64).reshape(-1, 4) \
+        if "bbox" in has else None
     # The schema lets NaN and infinities through (JSON's readers accept them): a value given must be finite.
     for name, values in (("area_px", area), ("bbox", bbox)):
         if values is None:
@@ -369,29 +367,31 @@ def _region_fields(objects: list[dict[str, Any]], source: str
     return area, border, bbox
 
 
-def _check_schema(doc: Any, source: str) -> None:
-    """Raise the first schema violation of an image document, in one line."""
+def _check_schema(doc: Any, source: str) -> bool:
+    """Raise the first schema violation of an image document, in one line; else whether all objects were plain."""
     if not isinstance(doc, dict):
         raise ImageInputError(_not_an_object(doc, source))
     objects = doc.get("objects")
     if isinstance(objects, list) and len(objects) > MAX_OBJECTS:
         raise ImageInputError(f"{source}: {len(objects)} objects; at most {MAX_OBJECTS} are accepted")
-    # The schema is checked on the document with its object list emptied (a constant cost), and the
-    # objects by the same rules in one plain loop - jsonschema costs ~20 us per object, more than matching.
-    # Any object failing that loop sends the whole document through the schema, which words the error.
+    # The schema is checked on the document with its object list emptied (a constant cost), and the objects by
+    # the same rules in one plain loop (jsonschema costs ~20 us per object, more than matching); any object failing
+    # it sends the whole document through the schema, which words the error.
     whole = not (isinstance(objects, list) and all(map(_plain_object_ok, objects)))
     checked = doc if whole else {**doc, "objects": []}
-    error = _first_error(checked)
-    if error is not None:
+    if (error := _first_error(checked)) is not None:
         raise ImageInputError(f"{source}: {_schema_message(error)}")
+    return not whole
 
 
-def _positions(objects: list[dict[str, Any]], width: float, height: float, source: str
+def _positions(objects: list[dict[str, Any]], width: float, height: float, source: str, finite: bool = False
                ) -> tuple[np.ndarray, np.ndarray]:
-    """The objects' pixel positions, each finite and inside the image."""
+    """The objects' pixel positions, each finite (``finite``: known, as for plain objects) and inside the image."""
     n = len(objects)
     x = np.fromiter((o["x"] for o in objects), dtype=np.float64, count=n)
     y = np.fromiter((o["y"] for o in objects), dtype=np.float64, count=n)
+    if finite and (not n or (x.max() <= width and y.max() <= height)):  # the usual document: two reductions
+        return x, y
     bad = ~(np.isfinite(x) & np.isfinite(y))
     if bad.any():
         i = int(np.argmax(bad))

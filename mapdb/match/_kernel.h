@@ -43,6 +43,7 @@ void sort_values(double *x, Py_ssize_t n);
 
 /* Each concept's method table, added to the module by PyInit__kernel. */
 extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD-trees per label */
+extern PyMethodDef verify_methods[];
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

@@ -147,18 +147,26 @@ def fit_similarity_complex(
     """
     src = np.asarray(src, dtype=np.complex128)
     dst = np.asarray(dst, dtype=np.complex128)
-    w = np.ones(src.shape) if weights is None else np.asarray(weights, dtype=np.float64)
-    same = src.shape == dst.shape == w.shape  # the usual call: no broadcasting (np.broadcast_* cost 10 us each)
-    shape = src.shape if same else np.broadcast_shapes(src.shape, dst.shape, w.shape)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
+    # The usual calls need no broadcasting (np.broadcast_* cost 10 us each) and pass contiguous arrays through.
+    shape = src.shape if src.shape == dst.shape and (w is None or w.shape == src.shape) else np.broadcast_shapes(
+        src.shape, dst.shape, () if w is None else w.shape)
     if not shape:
         raise ValueError("the point sets must have at least one axis (the points)")
     # The compiled kernel fits each set with numpy's arithmetic (pairwise sums, its complex product and quotient).
     rows = (math.prod(shape[:-1]), shape[-1])
-    src, dst, w = (np.ascontiguousarray(v if same else np.broadcast_to(v, shape)).reshape(rows) for v in (src, dst, w))
     a = np.empty(rows[0], np.complex128)
     b = np.empty(rows[0], np.complex128)
-    _fit_similarity(src, dst, w, a, b)
+    _fit_similarity(_rows(src, shape, rows), _rows(dst, shape, rows),
+                    np.ones(rows) if w is None else _rows(w, shape, rows), a, b)
     return a.reshape(shape[:-1])[()], b.reshape(shape[:-1])[()]
+
+
+def _rows(v: np.ndarray, shape: tuple[int, ...], rows: tuple[int, int]) -> np.ndarray:
+    """``v`` broadcast to ``shape`` as a contiguous ``rows``-shaped array (itself when it already is one)."""
+    if v.shape == rows and v.flags.c_contiguous:
+        return v
+    return np.ascontiguousarray(v if v.shape == shape else np.broadcast_to(v, shape)).reshape(rows)
 
 
 def prediction_variance_factor(src: np.ndarray, at: complex = 0j, weights: np.ndarray | None = None) -> np.ndarray:

@@ -15,9 +15,8 @@ import numpy as np
 from .._scipy import csr_array, min_weight_full_bipartite_matching
 from .arrays import all_distinct
 from .evidence.image import ImageEvidence
-from .evidence.points import GATE_SIGMAS, residual_sigmas
+from .evidence.points import GATE_SIGMAS, fit_errors, residual_sigmas
 from .evidence.relief import ReliefFit
-from .geometry import prediction_variance_factor
 from .mapobjects.object_index import ObjectIndex
 
 __all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "merged_one_by_one", "polish",
@@ -55,22 +54,25 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
                dist: np.ndarray, z: np.ndarray, nfa_points: np.ndarray | None = None) -> list[Candidate]:
     """Refined hypotheses with at least three inliers as :class:`Candidate` s (``nfa_points``: their decision's
     log10 NFA without areas, when it has them)."""
-    out = []
-    for j in range(len(a)):
-        k = int(inlier[j].sum())
-        if not np.isfinite(a[j]) or k < 3:
-            continue
-        out.append(Candidate(
-            a=complex(a[j]),
-            b=complex(b[j]),
-            log10_nfa=float(nfa[j]),
-            inliers=k,
-            sigma_axis_m=residual_sigma(dist[j, inlier[j]]),
-            variance_factor=float(prediction_variance_factor(z[inlier[j]])),
-            pairs=np.column_stack([np.flatnonzero(inlier[j]), mid[j, inlier[j]]]),
-            log10_nfa_points=None if nfa_points is None else float(nfa_points[j]),
-        ))
-    return out
+    inlier = np.ascontiguousarray(inlier, bool)
+    counts = inlier.sum(axis=1)
+    keep = np.flatnonzero(np.isfinite(a) & (counts >= 3))
+    if not keep.size:
+        return []
+    # Every row's error model in one kernel call (the residual sigma and the prediction variance factor of each
+    # row's inliers: fit_errors), every row's pairs sliced from one array: no numpy call a candidate.
+    kept = inlier[keep]
+    sigma, variance = fit_errors(z, dist[keep], kept)
+    rows, cols = np.nonzero(kept)
+    pairs = np.column_stack([cols, mid[keep][rows, cols]])
+    ends = np.cumsum(counts[keep]).tolist()
+    points = None if nfa_points is None else nfa_points[keep].tolist()
+    return [Candidate(a=a_j, b=b_j, log10_nfa=nfa_j, inliers=end - start, sigma_axis_m=sigma_j,
+                      variance_factor=variance_j, pairs=pairs[start:end],
+                      log10_nfa_points=None if points is None else points[j])
+            for j, (a_j, b_j, nfa_j, sigma_j, variance_j, start, end) in enumerate(zip(
+                a[keep].tolist(), b[keep].tolist(), nfa[keep].tolist(), sigma.tolist(), variance.tolist(),
+                [0, *ends[:-1]], ends, strict=True))]
 
 
 def residual_sigma(dist: np.ndarray) -> float:

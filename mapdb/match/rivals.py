@@ -36,6 +36,7 @@ from itertools import combinations
 
 import numpy as np
 
+from ._kernel import verify_shifted
 from .evidence.image import ImageEvidence
 from .evidence.terrain import TerrainModel
 from .hypotheses import allowed_poses, round_hypotheses
@@ -96,12 +97,16 @@ def find_rivals(
     hit_a, hit_b = _shifted(best, index, opts.tolerance_factor * math.sqrt(2.0) * sigma_px * abs(best.a))
     allowed = allowed_poses(hit_a, hit_b, prior, scale_range)
     hit_a, hit_b = hit_a[allowed], hit_b[allowed]
-    batch = inlier_quads(z, best.pairs[:, 0], opts.image_neighbours, opts.ambiguity_anchors)
-    if len(batch):
-        found = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
-        hit_a, hit_b = np.concatenate([hit_a, found.a]), np.concatenate([hit_b, found.b])
-    keep = _places(hit_a, hit_b, best, diag_px)
-    a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
+    if opts.ambiguity_anchors > 0:
+        batch = inlier_quads(z, best.pairs[:, 0], opts.image_neighbours, opts.ambiguity_anchors)
+        if len(batch):
+            found = round_hypotheses(z, img_label, batch, quads, opts, sigma_px, prior, scale_range)
+            hit_a, hit_b = np.concatenate([hit_a, found.a]), np.concatenate([hit_b, found.b])
+    if hit_a.size:  # (no repeats, no look-up: the runner-ups alone)
+        keep = _places(hit_a, hit_b, best, diag_px)
+        a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
+    if not a.size:
+        return []
     near = _near_counts(a, b, best, z, img_label, index, opts)
     ok = _elsewhere(a, b, best, diag_px) & (near >= max(4.0, SCREEN_SHARE * best.inliers))
     # The places where most objects land near a map object of their label are refitted first.
@@ -148,17 +153,12 @@ def _shifted(best: Candidate, index: ObjectIndex, tolerance: float) -> tuple[np.
     mid = best.pairs[:, 1]
     if mid.size < 3:
         return np.zeros(0, np.complex128), np.zeros(0, np.complex128)
-    p, lab = index.z[mid], index.label[mid]
-    i0 = int(np.argmin(np.abs(p - best.b)))
-    gap = np.abs(p - p[i0])
-    gap[gap == 0.0] = np.inf
-    i1 = int(np.argmin(gap))
-    base = p[i1] - p[i0]
-    step = p[None, :] - p[:, None]  # step[j, k]: from inlier j's map point to inlier k's
-    j, k = np.nonzero((np.abs(np.abs(step) - abs(base)) <= tolerance) & (lab[:, None] == lab[i0])
-                      & (lab[None, :] == lab[i1]))
-    turn = step[j, k] / base
-    return turn * best.a, turn * (best.b - p[i0]) + p[j]
+    # The pairwise steps of a few dozen points and the poses they give, in one kernel call.
+    hit_a = np.empty(mid.size * mid.size, np.complex128)
+    hit_b = np.empty(mid.size * mid.size, np.complex128)
+    found = verify_shifted(index.z[mid], np.ascontiguousarray(index.label[mid], np.int64), best.a, best.b, tolerance,
+                           hit_a, hit_b)
+    return hit_a[:found], hit_b[:found]
 
 
 def _elsewhere(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np.ndarray:
@@ -192,7 +192,7 @@ def _near_counts(a: np.ndarray, b: np.ndarray, best: Candidate, z: np.ndarray, i
         return np.zeros(0, np.int64)
     sigma = max(best.sigma_axis_m, opts.pixel_sigmas[0] * abs(best.a))
     w = (a[:, None] * z[None, :] + b[:, None]).ravel()
-    rows, _, _ = index.within(w, img_label[None, :].repeat(a.size, axis=0).ravel(), SCREEN_SIGMAS * sigma, 1)
+    rows, _, _ = index.within(w, np.tile(img_label, a.size), SCREEN_SIGMAS * sigma, 1)
     near = np.bincount(rows // z.size, minlength=a.size)
     return near
 

@@ -50,8 +50,9 @@ def screen(
     benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2 --baseline 2731d67``) and
     Monaco's rendered sim-000073 (300 m, heights) moved from 0.08 to 1.66 m off: left out."""
     objects = screen_of[img_ids[:, 0]]
-    dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], img_label[objects], index.density)
-    u = index.density[img_label[objects]] * math.pi * dist**2
+    labels = img_label[objects]
+    dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], labels, index.density)
+    u = index.density[labels] * math.pi * dist**2
     nfa, _ = log10_nfa_curve(u, 4, log10_tests)
     return np.argsort(nfa, kind="stable")[:keep]
 
@@ -100,7 +101,8 @@ def decision_nfa(
         # mean density is too low there) nor an isolated object on a slope (its neighbours' distances
         # say the map is emptier than it is around the footprint) makes a chance alignment look rarer.
         lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours, near=near))
-    u = lam * share * math.pi * r2
+    # A share of 1.0 (no areas) leaves lam as it is: its product skipped.
+    u = (lam if isinstance(share, float) and share == 1.0 else lam * share) * math.pi * r2
     # shape = 1.25 + |z - mean|^2 / spread of each quad's points, and its sample mask, in the compiled kernel.
     shape = np.empty((h, n))
     sample = np.empty((h, n), bool)
@@ -130,11 +132,12 @@ def refine(
     association's (on flat ground) instead of a query."""
     previous: tuple[np.ndarray, np.ndarray] | None = None
     terrain = None if evidence is None else evidence.terrain
+    # Each object's density and its share of u, the same every iteration.
+    lam = (density[:, img_label] if density.ndim > 1 else density[img_label][None, :]) * math.pi
     for it in range(iterations + 1):
         w = a[:, None] * z[None, :] + b[:, None] if terrain is None else terrain.project(a, b, z, map_z)
         dist, mid = index.nearest(w, img_label, density, near=near if it == 0 and terrain is None else None)
-        lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
-        u = lam * math.pi * dist**2
+        u = lam * dist**2
         nfa, k_best = log10_nfa_curve(u, 4, log10_tests)
         inlier = refinement_inliers(u, dist, mid, k_best)
         if it == iterations:

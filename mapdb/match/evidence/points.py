@@ -14,8 +14,9 @@ import numpy as np
 from .._kernel import first_per_map_object as _first_per_map_object
 from .._kernel import refine_inliers as _refine_inliers
 from .._kernel import residual_sigmas as _residual_sigmas
+from .._kernel import verify_errors as _verify_errors
 
-__all__ = ["GATE_SIGMAS", "first_per_map_object", "refinement_inliers", "residual_sigmas"]
+__all__ = ["GATE_SIGMAS", "first_per_map_object", "fit_errors", "refinement_inliers", "residual_sigmas"]
 
 # Residual sigmas within which an association is kept (refinement's second net, the final assignment's gate).
 GATE_SIGMAS = 3.5
@@ -38,6 +39,25 @@ def residual_sigmas(dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:
     out = np.empty(dist.shape[0])
     _residual_sigmas(dist, _mask(inlier, dist.shape), out)
     return out
+
+
+def fit_errors(z: np.ndarray, dist: np.ndarray, inlier: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's error model over its inliers: the residual sigma (:func:`residual_sigmas` of the row's inliers
+    alone: their own pairwise sum)
+    and the prediction variance factor at the image centre
+    (:func:`~mapdb.match.geometry.prediction_variance_factor` of ``z[inlier[j]]``), in the compiled kernel.
+
+    Examples
+    --------
+    >>> s, v = fit_errors(np.array([-1, 1, 1j, -1j]), np.array([[1.0, 1.0, 1.0, 1.0]]), np.ones((1, 4), bool))
+    >>> s.tolist(), v.tolist()
+    ([1.0], [0.25])
+    """
+    dist = np.ascontiguousarray(dist, np.float64)
+    sigma = np.empty(dist.shape[0])
+    variance = np.empty(dist.shape[0])
+    _verify_errors(np.ascontiguousarray(z, np.complex128), dist, np.ascontiguousarray(inlier, bool), sigma, variance)
+    return sigma, variance
 
 
 def first_per_map_object(mid: np.ndarray, dist: np.ndarray, inlier: np.ndarray) -> np.ndarray:

@@ -39,8 +39,8 @@ import math
 
 import numpy as np
 
-from ..geometry import fit_similarity_complex, prediction_variance_factor
-from .points import residual_sigmas
+from ..geometry import fit_similarity_complex
+from .points import fit_errors
 
 __all__ = ["RELIEF_ITERATIONS", "ReliefFit", "fit_with_relief", "leave_one_out_sigma", "radial_excess"]
 
@@ -118,8 +118,8 @@ def fit_with_relief(src: np.ndarray, dst: np.ndarray) -> ReliefFit | None:
         return None
     rho, tau, excess = radial_excess(src, dst, a, b)
     if not excess:
-        sigma = float(residual_sigmas(np.hypot(rho, tau)[None, :], np.ones((1, src.size), bool))[0])
-        return ReliefFit(a, b, sigma, float(prediction_variance_factor(src)), 0.0)
+        sigma, variance = fit_errors(src, np.hypot(rho, tau)[None, :], np.ones((1, src.size), bool))
+        return ReliefFit(a, b, float(sigma[0]), float(variance[0]), 0.0)
     kappa = 0.0
     for _ in range(RELIEF_ITERATIONS):
         reach2 = np.abs(a * src) ** 2
