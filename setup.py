@@ -11,7 +11,8 @@ setup(
         Extension(
             "mapdb.match._kernel",
             # One module from several files, a concept each (see _kernel.h).
-            sources=["mapdb/match/_kernel.c", "mapdb/match/_kernel_buffers.c", "mapdb/match/_kernel_numpy.c"],
+            sources=["mapdb/match/_kernel.c", "mapdb/match/_kernel_buffers.c", "mapdb/match/_kernel_numpy.c",
+                     "mapdb/match/_kernel_quads.c"],
             depends=["mapdb/match/_kernel.h"],
             # No fused multiply-adds: the kernel's sums and products round as numpy's do.
             extra_compile_args=["-O2", "-ffp-contract=off"],

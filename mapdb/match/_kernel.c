@@ -624,5 +624,13 @@ static struct PyModuleDef module = {
 
 PyMODINIT_FUNC PyInit__kernel(void)
 {
-    return PyModule_Create(&module);
+    PyObject *m = PyModule_Create(&module);
+    if (m == NULL) {
+        return NULL;
+    }
+    if (PyModule_AddFunctions(m, quads_methods) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    return m;
 }

@@ -41,6 +41,9 @@ int np_less(double a, double b);
 void sort_keyed(Keyed *k, Py_ssize_t n);
 void sort_values(double *x, Py_ssize_t n);
 
+/* Quad lookups (_kernel_quads.c). */
+extern PyMethodDef quads_methods[];
+
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)
 #define Q(a) ((int64_t *)(a).view.buf)

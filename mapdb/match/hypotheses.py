@@ -20,7 +20,7 @@ import numpy as np
 
 from .geometry import fit_similarity_complex
 from .options import FastOptions
-from .quads import PAIRS, QuadIndex, first_rows, neighbour_quads, quad_frames
+from .quads import PAIRS, QuadIndex, first_rows, lookup_parts, neighbour_quads, quad_frames
 
 __all__ = [
     "Hypotheses", "allowed_poses", "anchor_batches", "lookup_hypotheses", "pose_votes", "prioritise",
@@ -143,12 +143,28 @@ def lookup_hypotheses(
     row, order, inv, radius = keys
     img_ids = quads[row[:, None], order]
     labels = img_label[img_ids]  # one array for every index: a prior's tiles share their query points
+    parts = _quad_parts(indexes)
+    if parts is not None:  # in-memory indexes (a prior's tiles): one kernel call for all of them
+        q_row, map_z = lookup_parts(parts, inv, labels, radius, opts.max_hits_per_quad)
+        return img_ids[q_row], map_z
     found_img, found_map = [], []
     for index in indexes:
         q_row, map_z = index.lookup(inv, labels, radius, opts.max_hits_per_quad)
         found_img.append(img_ids[q_row])
         found_map.append(map_z)
     return np.concatenate(found_img), np.concatenate(found_map)
+
+
+def _quad_parts(indexes: Sequence) -> list[tuple[QuadIndex, tuple[complex, float] | None]] | None:
+    """Each index as an in-memory :class:`QuadIndex` and the ``near`` it is looked up with (an index that says so by
+    its ``quad_part()``, as the localizer's tiles do); None when one is of another kind (a stored index)."""
+    parts = []
+    for index in indexes:
+        part = (index, None) if isinstance(index, QuadIndex) else getattr(index, "quad_part", lambda: None)()
+        if part is None:
+            return None
+        parts.append(part)
+    return parts
 
 
 def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) -> tuple[np.ndarray, ...] | None:

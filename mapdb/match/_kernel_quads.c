@@ -1,0 +1,479 @@
+/* Quad lookups: a k-d tree over a quad index's tree points, looked up for image quads in one call (issue 30).
+ *
+ * The points are what quads.QuadIndex made them: four invariants, the label key (LABEL_GAP apart) and, for an
+ * index with positions, the weighted centroid.  A lookup answers what scipy's cKDTree.query(query, k,
+ * distance_upper_bound=bound) followed by QuadIndex.lookup's filters answered: per query the k nearest points
+ * with squared distance below bound^2, the squared distance summed dimension by dimension in order (as scipy's
+ * sqeuclidean_distance_double does: its four partial sums start at zero, so they add to the same bits), the
+ * distance its square root; then, without positions, the hits within the query's radius; with positions, the
+ * distance split into the invariants' part (within the radius) and the position's (within the reach).  Hits come
+ * query by query, nearest first; equal distances in point order (scipy's order among ties depends on its tree:
+ * the one difference, see tests/test_kernel_quads.py).  Several trees (a prior's tiles) are looked up in one call,
+ * their hits tree by tree, as successive lookups gave them.
+ *
+ * The tree: median splits on the widest dimension (the label key first, its gap dwarfs the invariants'), leaves of
+ * at most QUADS_LEAF points, the points copied in tree order so that a leaf is read in one stretch.  A subtree is
+ * skipped when its lower bound (the squared gaps to its cell, summed in dimension order like a distance, so never
+ * above a point's computed distance) exceeds the k-th distance so far or reaches the bound.
+ */
+#include "_kernel.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define QUADS_LEAF 8
+#define QUADS_MAX_DIM 16
+#define QUADS_CAPSULE "mapdb.match._kernel.quads_tree"
+
+typedef struct {
+    Py_ssize_t lo, hi;   /* the node's points, tree order [lo, hi) */
+    Py_ssize_t left;     /* children (left + 1 is not the right one); -1 for a leaf */
+    Py_ssize_t right;
+} QuadsNode;
+
+typedef struct {
+    Py_ssize_t n, d, n_nodes;
+    double *pts;         /* n * d, tree order */
+    int64_t *idx;        /* tree order -> row of the points given */
+    QuadsNode *nodes;
+    double *box;         /* per node, the least then the greatest coordinate per dimension (2 d) */
+} QuadsTree;
+
+/* ------------------------------------------------------------------ build */
+
+static void quads_swap(QuadsTree *t, Py_ssize_t i, Py_ssize_t j)
+{
+    double tmp[QUADS_MAX_DIM];
+    Py_ssize_t d = t->d;
+    memcpy(tmp, t->pts + i * d, sizeof(double) * d);
+    memcpy(t->pts + i * d, t->pts + j * d, sizeof(double) * d);
+    memcpy(t->pts + j * d, tmp, sizeof(double) * d);
+    int64_t k = t->idx[i];
+    t->idx[i] = t->idx[j];
+    t->idx[j] = k;
+}
+
+/* Split [lo, hi) at the middle of its box's widest dimension (sliding midpoint: at least one point each side):
+ * returns the first point of the right part, or -1 when every point is the same (a leaf). */
+static Py_ssize_t quads_split(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, const double *box)
+{
+    Py_ssize_t d = t->d;
+    int best = -1;
+    double widest = 0.0;
+    for (int j = 0; j < d; j++) {
+        if (box[d + j] - box[j] > widest) {
+            widest = box[d + j] - box[j];
+            best = j;
+        }
+    }
+    if (best < 0) {
+        return -1;
+    }
+    double split = box[best] + 0.5 * widest;
+    Py_ssize_t i = lo, j = hi - 1;
+    while (i <= j) {  /* left: coordinate < split */
+        if (t->pts[i * d + best] < split) {
+            i++;
+        } else {
+            quads_swap(t, i, j--);
+        }
+    }
+    if (i == lo || i == hi) {  /* all on one side: slide the split to the nearest point */
+        Py_ssize_t at = lo;
+        for (Py_ssize_t r = lo + 1; r < hi; r++) {
+            double v = t->pts[r * d + best], w = t->pts[at * d + best];
+            at = (i == lo ? v < w : v > w) ? r : at;
+        }
+        quads_swap(t, at, i == lo ? lo : hi - 1);
+        i = i == lo ? lo + 1 : hi - 1;
+    }
+    return i;
+}
+
+/* The node over [lo, hi) with its box: returns its number, or -1 when out of memory. */
+static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, Py_ssize_t cap)
+{
+    if (t->n_nodes >= cap) {
+        return -1;
+    }
+    Py_ssize_t me = t->n_nodes++, d = t->d;
+    double *box = t->box + 2 * d * me;
+    memcpy(box, t->pts + lo * d, sizeof(double) * d);
+    memcpy(box + d, t->pts + lo * d, sizeof(double) * d);
+    for (Py_ssize_t r = lo + 1; r < hi; r++) {
+        const double *p = t->pts + r * d;
+        for (Py_ssize_t j = 0; j < d; j++) {
+            box[j] = p[j] < box[j] ? p[j] : box[j];
+            box[d + j] = p[j] > box[d + j] ? p[j] : box[d + j];
+        }
+    }
+    t->nodes[me] = (QuadsNode){lo, hi, -1, -1};
+    Py_ssize_t mid = hi - lo <= QUADS_LEAF ? -1 : quads_split(t, lo, hi, box);
+    if (mid < 0) {
+        return me;
+    }
+    Py_ssize_t left = quads_build_node(t, lo, mid, cap);
+    Py_ssize_t right = left < 0 ? -1 : quads_build_node(t, mid, hi, cap);
+    if (right < 0) {
+        return -1;
+    }
+    t->nodes[me].left = left;
+    t->nodes[me].right = right;
+    return me;
+}
+
+static void quads_free(QuadsTree *t)
+{
+    if (t) {
+        free(t->pts);
+        free(t->idx);
+        free(t->nodes);
+        free(t->box);
+        free(t);
+    }
+}
+
+static void quads_capsule_free(PyObject *capsule)
+{
+    quads_free((QuadsTree *)PyCapsule_GetPointer(capsule, QUADS_CAPSULE));
+}
+
+static PyObject *quads_build(PyObject *self, PyObject *args)
+{
+    PyObject *opts;
+    Arr a[1] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "O:quads_build", &opts) || arr_take(opts, &a[0], "points", 'd', 2, 0, 0)) {
+        return NULL;
+    }
+    Py_ssize_t n = arr_dim(&a[0], 0), d = arr_dim(&a[0], 1);
+    const double *pts = D(a[0]);
+    if (n < 1 || d < 1 || d > QUADS_MAX_DIM) {
+        arr_release(a, 1);
+        return PyErr_Format(PyExc_ValueError, "points must have at least one row and 1 to %d columns",
+                            QUADS_MAX_DIM);
+    }
+    for (Py_ssize_t i = 0; i < n * d; i++) {
+        if (!isfinite(pts[i])) {
+            arr_release(a, 1);
+            return PyErr_Format(PyExc_ValueError, "points must be finite");
+        }
+    }
+    QuadsTree *t = calloc(1, sizeof(QuadsTree));
+    Py_ssize_t cap = 2 * n;  /* every split leaves points on both sides: under 2n nodes */
+    if (t) {
+        t->n = n;
+        t->d = d;
+        t->pts = malloc(sizeof(double) * n * d);
+        t->idx = malloc(sizeof(int64_t) * n);
+        t->nodes = malloc(sizeof(QuadsNode) * cap);
+        t->box = malloc(sizeof(double) * 2 * d * cap);
+    }
+    if (!t || !t->pts || !t->idx || !t->nodes || !t->box) {
+        quads_free(t);
+        arr_release(a, 1);
+        return PyErr_NoMemory();
+    }
+    memcpy(t->pts, pts, sizeof(double) * n * d);
+    arr_release(a, 1);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        t->idx[i] = i;
+    }
+    Py_ssize_t root;
+    Py_BEGIN_ALLOW_THREADS
+    root = quads_build_node(t, 0, n, cap);
+    Py_END_ALLOW_THREADS
+    if (root < 0) {
+        quads_free(t);
+        return PyErr_NoMemory();
+    }
+    PyObject *capsule = PyCapsule_New(t, QUADS_CAPSULE, quads_capsule_free);
+    if (!capsule) {
+        quads_free(t);
+    }
+    return capsule;
+}
+
+/* ------------------------------------------------------------------ lookup */
+
+typedef struct {
+    double d2;
+    int64_t i;          /* the point's row */
+    Py_ssize_t at;      /* its place in tree order */
+} QuadsHit;
+
+/* (d2, i) ordering: nearer first, equal distances by point row. */
+static int quads_before(const QuadsHit *x, const QuadsHit *y)
+{
+    return x->d2 < y->d2 || (x->d2 == y->d2 && x->i < y->i);
+}
+
+/* The k best so far, a max-heap (its worst at 0). */
+typedef struct {
+    QuadsHit *h;
+    Py_ssize_t n, k;
+    double bound2;
+} QuadsBest;
+
+static void quads_offer(QuadsBest *b, double d2, int64_t i, Py_ssize_t at_tree)
+{
+    QuadsHit x = {d2, i, at_tree};
+    Py_ssize_t at;
+    if (b->n < b->k) {
+        if (!(d2 < b->bound2)) {
+            return;
+        }
+        at = b->n++;
+        while (at > 0 && quads_before(&b->h[(at - 1) / 2], &x)) {
+            b->h[at] = b->h[(at - 1) / 2];
+            at = (at - 1) / 2;
+        }
+        b->h[at] = x;
+        return;
+    }
+    if (!quads_before(&x, &b->h[0])) {
+        return;
+    }
+    at = 0;
+    for (;;) {
+        Py_ssize_t c = 2 * at + 1;
+        if (c >= b->n) {
+            break;
+        }
+        if (c + 1 < b->n && quads_before(&b->h[c], &b->h[c + 1])) {
+            c++;
+        }
+        if (!quads_before(&x, &b->h[c])) {
+            break;
+        }
+        b->h[at] = b->h[c];
+        at = c;
+    }
+    b->h[at] = x;
+}
+
+/* The least squared distance from ``q`` to a node's box, summed in dimension order with each gap the difference a
+ * point's distance takes (p - q): never above the computed distance of a point in the box. */
+static double quads_low(const double *box, const double *q, Py_ssize_t d)
+{
+    double low = 0.0;
+    for (Py_ssize_t j = 0; j < d; j++) {
+        double g = box[j] > q[j] ? box[j] - q[j] : q[j] > box[d + j] ? box[d + j] - q[j] : 0.0;
+        low += g * g;
+    }
+    return low;
+}
+
+/* The limit a distance must stay within (below the bound, or at most the k-th so far). */
+static int quads_within(const QuadsBest *b, double s)
+{
+    return b->n < b->k ? s < b->bound2 : s <= b->h[0].d2;
+}
+
+static void quads_search(const QuadsTree *t, Py_ssize_t node, const double *q, QuadsBest *b)
+{
+    const QuadsNode *nd = &t->nodes[node];
+    Py_ssize_t d = t->d;
+    if (nd->left < 0) {
+        for (Py_ssize_t i = nd->lo; i < nd->hi; i++) {
+            const double *p = t->pts + i * d;
+            double s = 0.0;
+            Py_ssize_t j = 0;
+            for (; j < d && quads_within(b, s); j++) {  /* partial sums only grow: stop once beyond */
+                double e = p[j] - q[j];
+                s += e * e;
+            }
+            if (j == d) {
+                quads_offer(b, s, t->idx[i], i);
+            }
+        }
+        return;
+    }
+    double l = quads_low(t->box + 2 * d * nd->left, q, d), r = quads_low(t->box + 2 * d * nd->right, q, d);
+    Py_ssize_t first = l <= r ? nd->left : nd->right, second = l <= r ? nd->right : nd->left;
+    double lf = l <= r ? l : r, ls = l <= r ? r : l;
+    if (quads_within(b, lf)) {
+        quads_search(t, first, q, b);
+    }
+    if (quads_within(b, ls)) {
+        quads_search(t, second, q, b);
+    }
+}
+
+static int qhit_cmp(const void *x, const void *y)
+{
+    const QuadsHit *u = x, *v = y;
+    return quads_before(u, v) ? -1 : quads_before(v, u) ? 1 : 0;
+}
+
+/* Growing outputs: query rows and map points (4 complex a hit). */
+typedef struct {
+    int64_t *rows;
+    double *z;
+    Py_ssize_t n, cap;
+} QuadsOut;
+
+static int quads_push(QuadsOut *o, int64_t row, const double *z4)
+{
+    if (o->n == o->cap) {
+        Py_ssize_t cap = o->cap ? 2 * o->cap : 256;
+        int64_t *rows = realloc(o->rows, sizeof(int64_t) * cap);
+        if (rows) {
+            o->rows = rows;
+        }
+        double *z = rows ? realloc(o->z, sizeof(double) * 8 * cap) : NULL;
+        if (!z) {
+            return -1;
+        }
+        o->z = z;
+        o->cap = cap;
+    }
+    o->rows[o->n] = row;
+    memcpy(o->z + 8 * o->n, z4, sizeof(double) * 8);
+    o->n++;
+    return 0;
+}
+
+/* What a lookup is asked: the queries' invariants, label keys and radii, k, the prior's place and reach (tree
+ * units; positions only) and the bound of the tree's distance. */
+typedef struct {
+    const double *inv, *key, *radius;
+    Py_ssize_t m, k;
+    double px, py, reach, bound;
+} QuadsAsk;
+
+/* One tree's hits for every query, filtered as QuadIndex.lookup did, appended to ``o``; -1 out of memory. */
+static int quads_lookup_tree(const QuadsTree *t, const double *quad_z, const QuadsAsk *ask, QuadsHit *heap,
+                             QuadsOut *o)
+{
+    double q[QUADS_MAX_DIM];
+    int positions = t->d == 7;
+    QuadsBest b = {heap, 0, ask->k < t->n ? ask->k : t->n, ask->bound * ask->bound};
+    for (Py_ssize_t r = 0; r < ask->m; r++) {
+        memcpy(q, ask->inv + 4 * r, sizeof(double) * 4);
+        q[4] = ask->key[r];
+        q[5] = ask->px;
+        q[6] = ask->py;
+        b.n = 0;
+        if (quads_within(&b, quads_low(t->box, q, t->d))) {
+            quads_search(t, 0, q, &b);
+        }
+        qsort(heap, (size_t)b.n, sizeof(QuadsHit), qhit_cmp);
+        double rad = ask->radius[r];
+        for (Py_ssize_t c = 0; c < b.n; c++) {
+            double dist = sqrt(heap[c].d2);
+            int keep = dist <= (positions ? ask->bound : rad);
+            if (keep && positions) {
+                /* The tree's distance mixes the invariants' with the position's: split them (as lookup() did). */
+                const double *p = t->pts + heap[c].at * t->d;
+                double ex = p[5] - ask->px, ey = p[6] - ask->py;
+                double off2 = ex * ex + ey * ey;
+                keep = dist * dist - off2 <= rad * rad && off2 <= ask->reach * ask->reach;
+            }
+            if (keep && quads_push(o, r, quad_z + 8 * heap[c].i) < 0) {
+                return -1;
+            }
+        }
+    }
+    return 0;
+}
+
+/* The trees and their map points, checked: 0, or -1 with an error set. */
+static int quads_take_trees(PyObject *trees, PyObject *zs, Arr *za, QuadsTree **tt, Py_ssize_t nt)
+{
+    for (Py_ssize_t i = 0; i < nt; i++) {
+        PyObject *cap = PyTuple_GET_ITEM(trees, i);
+        tt[i] = PyCapsule_IsValid(cap, QUADS_CAPSULE) ? PyCapsule_GetPointer(cap, QUADS_CAPSULE) : NULL;
+        if (!tt[i]) {
+            PyErr_SetString(PyExc_TypeError, "trees must hold quads_build's trees");
+            return -1;
+        }
+        if (arr_take(PyTuple_GET_ITEM(zs, i), &za[i], "quad_z", 'Z', 2, 0, 0)
+            || arr_check_shape(&za[i], "quad_z", tt[i]->n, 4)) {
+            return -1;
+        }
+        if (tt[i]->d != 5 && tt[i]->d != 7) {
+            PyErr_SetString(PyExc_ValueError, "a quad tree has 5 columns (7 with positions)");
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static PyObject *quads_result(QuadsOut *o)
+{
+    PyObject *rows = PyByteArray_FromStringAndSize((const char *)o->rows, (Py_ssize_t)sizeof(int64_t) * o->n);
+    PyObject *z = rows ? PyByteArray_FromStringAndSize((const char *)o->z, (Py_ssize_t)sizeof(double) * 8 * o->n)
+                       : NULL;
+    PyObject *out = z ? PyTuple_Pack(2, rows, z) : NULL;
+    Py_XDECREF(rows);
+    Py_XDECREF(z);
+    return out;
+}
+
+static PyObject *quads_lookup(PyObject *self, PyObject *args)
+{
+    PyObject *trees, *zs, *oinv, *okey, *orad;
+    QuadsAsk ask;
+    Arr a[3] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "O!O!OOOndddd:quads_lookup", &PyTuple_Type, &trees, &PyTuple_Type, &zs, &oinv, &okey,
+                          &orad, &ask.k, &ask.px, &ask.py, &ask.reach, &ask.bound)) {
+        return NULL;
+    }
+    Py_ssize_t nt = PyTuple_GET_SIZE(trees);
+    if (PyTuple_GET_SIZE(zs) != nt || nt > 256 || ask.k < 1) {
+        return PyErr_Format(PyExc_ValueError, "need as many quad_z as trees (at most 256) and k >= 1");
+    }
+    if (arr_take(oinv, &a[0], "invariants", 'd', 2, 0, 0) || arr_take(okey, &a[1], "key", 'd', 1, 0, 0)
+        || arr_take(orad, &a[2], "radius", 'd', 1, 0, 0)) {
+        arr_release(a, 3);
+        return NULL;
+    }
+    ask.m = arr_dim(&a[0], 0);
+    if (arr_check_shape(&a[0], "invariants", ask.m, 4) || arr_check_shape(&a[1], "key", ask.m, 0)
+        || arr_check_shape(&a[2], "radius", ask.m, 0)) {
+        arr_release(a, 3);
+        return NULL;
+    }
+    ask.inv = D(a[0]);
+    ask.key = D(a[1]);
+    ask.radius = D(a[2]);
+    Arr za[256];
+    QuadsTree *tt[256];
+    memset(za, 0, sizeof(Arr) * (size_t)nt);
+    QuadsOut o = {NULL, NULL, 0, 0};
+    QuadsHit *heap = NULL;
+    int failed = quads_take_trees(trees, zs, za, tt, nt);
+    Py_ssize_t most = 1;
+    for (Py_ssize_t i = 0; i < nt && !failed; i++) {
+        most = tt[i]->n > most ? tt[i]->n : most;
+    }
+    most = ask.k < most ? ask.k : most;
+    if (!failed) {
+        heap = malloc(sizeof(QuadsHit) * (size_t)most);
+        failed = heap ? 0 : (PyErr_NoMemory(), -1);
+    }
+    for (Py_ssize_t i = 0; i < nt && !failed; i++) {
+        int bad;
+        Py_BEGIN_ALLOW_THREADS
+        bad = quads_lookup_tree(tt[i], D(za[i]), &ask, heap, &o);
+        Py_END_ALLOW_THREADS
+        failed = bad ? (PyErr_NoMemory(), -1) : 0;
+    }
+    PyObject *out = failed ? NULL : quads_result(&o);
+    free(heap);
+    free(o.rows);
+    free(o.z);
+    arr_release(za, (int)nt);
+    arr_release(a, 3);
+    return out;
+}
+
+PyMethodDef quads_methods[] = {
+    {"quads_build", quads_build, METH_VARARGS,
+     "quads_build(points): a k-d tree over a quad index's tree points (n, 5 or 7), float64."},
+    {"quads_lookup", quads_lookup, METH_VARARGS,
+     "quads_lookup(trees, quad_zs, invariants, key, radius, k, px, py, reach, bound): the hits of image quads in "
+     "each tree, tree by tree: (query rows, map points) as bytearrays of int64 and of complex128 (h, 4)."},
+    {NULL, NULL, 0, NULL},
+};
