@@ -22,8 +22,9 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define QUADS_LEAF 8
+#define QUADS_LEAF 4
 #define QUADS_MAX_DIM 16
+#define QUADS_KEY 4  /* the label key's column */
 #define QUADS_CAPSULE "mapdb.match._kernel.quads_tree"
 
 typedef struct {
@@ -33,93 +34,228 @@ typedef struct {
 } QuadsNode;
 
 typedef struct {
-    Py_ssize_t n, d, n_nodes;
+    Py_ssize_t n, d, n_nodes, cap;
     double *pts;         /* n * d, tree order */
     int64_t *idx;        /* tree order -> row of the points given */
     QuadsNode *nodes;
+    const double *src;   /* the points given, during the build */
     double *box;         /* per node, the least then the greatest coordinate per dimension (2 d) */
 } QuadsTree;
 
 /* ------------------------------------------------------------------ build */
 
+/* During the build, points are reordered through ``idx`` alone (cheaper than moving rows); copied in tree order
+ * after. */
+#define QUADS_AT(t, r, j) ((t)->src[(t)->idx[r] * (t)->d + (j)])
+
 static void quads_swap(QuadsTree *t, Py_ssize_t i, Py_ssize_t j)
 {
-    double tmp[QUADS_MAX_DIM];
-    Py_ssize_t d = t->d;
-    memcpy(tmp, t->pts + i * d, sizeof(double) * d);
-    memcpy(t->pts + i * d, t->pts + j * d, sizeof(double) * d);
-    memcpy(t->pts + j * d, tmp, sizeof(double) * d);
     int64_t k = t->idx[i];
     t->idx[i] = t->idx[j];
     t->idx[j] = k;
 }
 
-/* Split [lo, hi) at the middle of its box's widest dimension (sliding midpoint: at least one point each side):
- * returns the first point of the right part, or -1 when every point is the same (a leaf). */
-static Py_ssize_t quads_split(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, const double *box)
+/* Partition [lo, hi) by ``split`` along ``dim``: returns the first point not below it. */
+static Py_ssize_t quads_partition(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, int dim, double split)
 {
-    Py_ssize_t d = t->d;
-    int best = -1;
-    double widest = 0.0;
-    for (int j = 0; j < d; j++) {
-        if (box[d + j] - box[j] > widest) {
-            widest = box[d + j] - box[j];
-            best = j;
-        }
-    }
-    if (best < 0) {
-        return -1;
-    }
-    double split = box[best] + 0.5 * widest;
-    Py_ssize_t i = lo, j = hi - 1;
-    while (i <= j) {  /* left: coordinate < split */
-        if (t->pts[i * d + best] < split) {
+    const double *src = t->src + dim;  /* locals: the swaps cannot then be taken to change them */
+    int64_t *idx = t->idx;
+    Py_ssize_t d = t->d, i = lo, j = hi - 1;
+    for (;;) {
+        while (i <= j && src[idx[i] * d] < split) {
             i++;
-        } else {
-            quads_swap(t, i, j--);
         }
-    }
-    if (i == lo || i == hi) {  /* all on one side: slide the split to the nearest point */
-        Py_ssize_t at = lo;
-        for (Py_ssize_t r = lo + 1; r < hi; r++) {
-            double v = t->pts[r * d + best], w = t->pts[at * d + best];
-            at = (i == lo ? v < w : v > w) ? r : at;
+        while (i <= j && !(src[idx[j] * d] < split)) {
+            j--;
         }
-        quads_swap(t, at, i == lo ? lo : hi - 1);
-        i = i == lo ? lo + 1 : hi - 1;
+        if (i >= j) {
+            return i;
+        }
+        int64_t k = idx[i];
+        idx[i++] = idx[j];
+        idx[j--] = k;
     }
-    return i;
 }
 
-/* The node over [lo, hi) with its box: returns its number, or -1 when out of memory. */
-static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, Py_ssize_t cap)
+/* Split [lo, hi) at the middle of the widest dimension of its ``cell`` (the box its parents' splits leave it: no pass
+ * over the points to find their box, as scipy's cKDTree builds by default).  When a side would be empty the cell is
+ * narrowed to the points' range in that dimension and the split tried again (the extreme point alone on one side
+ * when rounding leaves no middle).  Returns the first point of the right part, setting ``*dim`` and ``*split``;
+ * -1 when every point is the same. */
+static Py_ssize_t quads_split(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, double *cell, int *dim, double *split)
 {
-    if (t->n_nodes >= cap) {
-        return -1;
+    Py_ssize_t d = t->d;
+    for (;;) {
+        int best = -1;
+        double widest = 0.0;
+        for (int j = 0; j < d; j++) {
+            if (cell[d + j] - cell[j] > widest) {
+                widest = cell[d + j] - cell[j];
+                best = j;
+            }
+        }
+        if (best < 0) {
+            return -1;
+        }
+        *dim = best;
+        *split = cell[best] + 0.5 * widest;
+        Py_ssize_t i = quads_partition(t, lo, hi, best, *split);
+        if (i > lo && i < hi) {
+            return i;
+        }
+        double mn = QUADS_AT(t, lo, best), mx = mn;
+        Py_ssize_t at_mn = lo, at_mx = lo;
+        for (Py_ssize_t r = lo + 1; r < hi; r++) {
+            double v = QUADS_AT(t, r, best);
+            at_mn = v < mn ? r : at_mn;
+            mn = v < mn ? v : mn;
+            at_mx = v > mx ? r : at_mx;
+            mx = v > mx ? v : mx;
+        }
+        if (mn < cell[best] || mx > cell[d + best]) {
+            return -1;  /* not the points' cell (cannot happen): one leaf rather than a wrong bound */
+        }
+        cell[best] = mn;
+        cell[d + best] = mx;
+        if (mx > mn && !(mn + 0.5 * (mx - mn) > mn)) {  /* adjacent values: the least alone on the left */
+            quads_swap(t, at_mn, lo);
+            *split = mx;
+            return quads_partition(t, lo + 1, hi, best, mx);
+        }
+        (void)at_mx;
     }
-    Py_ssize_t me = t->n_nodes++, d = t->d;
-    double *box = t->box + 2 * d * me;
-    memcpy(box, t->pts + lo * d, sizeof(double) * d);
-    memcpy(box + d, t->pts + lo * d, sizeof(double) * d);
+}
+
+/* A new node's number (its box not yet set), the arrays grown as needed; -1 when out of memory. */
+static Py_ssize_t quads_new_node(QuadsTree *t)
+{
+    if (t->n_nodes == t->cap) {
+        Py_ssize_t cap = 2 * t->cap;
+        QuadsNode *nodes = realloc(t->nodes, sizeof(QuadsNode) * cap);
+        if (nodes) {
+            t->nodes = nodes;
+        }
+        double *box = nodes ? realloc(t->box, sizeof(double) * 2 * t->d * cap) : NULL;
+        if (!box) {
+            return -1;
+        }
+        t->box = box;
+        t->cap = cap;
+    }
+    return t->n_nodes++;
+}
+
+/* The tight box of [lo, hi) into ``box`` (each row's coordinates share a cache line: one pass). */
+static void quads_points_box(const QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, double *box)
+{
+    Py_ssize_t d = t->d;
+    memcpy(box, t->src + t->idx[lo] * d, sizeof(double) * d);
+    memcpy(box + d, t->src + t->idx[lo] * d, sizeof(double) * d);
     for (Py_ssize_t r = lo + 1; r < hi; r++) {
-        const double *p = t->pts + r * d;
+        const double *p = t->src + t->idx[r] * d;
         for (Py_ssize_t j = 0; j < d; j++) {
             box[j] = p[j] < box[j] ? p[j] : box[j];
             box[d + j] = p[j] > box[d + j] ? p[j] : box[d + j];
         }
     }
+}
+
+/* The node over [lo, hi) in ``cell`` (its parents' splits): returns its number, or -1 when out of memory.  Its stored
+ * box is tight: a leaf's from its points, a parent's the union of its children's. */
+static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, const double *cell)
+{
+    Py_ssize_t me = quads_new_node(t), d = t->d;
+    if (me < 0) {
+        return -1;
+    }
     t->nodes[me] = (QuadsNode){lo, hi, -1, -1};
-    Py_ssize_t mid = hi - lo <= QUADS_LEAF ? -1 : quads_split(t, lo, hi, box);
-    if (mid < 0) {
+    double sub[2 * QUADS_MAX_DIM];
+    memcpy(sub, cell, sizeof(double) * 2 * d);
+    int dim = 0;
+    double split = 0.0;
+    Py_ssize_t mid = hi - lo <= QUADS_LEAF ? -1 : quads_split(t, lo, hi, sub, &dim, &split);
+    if (mid < 0) {  /* a leaf: its points are where they stay, copied in tree order and boxed in one pass */
+        double *box = t->box + 2 * d * me;
+        for (Py_ssize_t r = lo; r < hi; r++) {
+            memcpy(t->pts + r * d, t->src + t->idx[r] * d, sizeof(double) * d);
+        }
+        memcpy(box, t->pts + lo * d, sizeof(double) * d);
+        memcpy(box + d, t->pts + lo * d, sizeof(double) * d);
+        for (Py_ssize_t r = lo + 1; r < hi; r++) {
+            const double *p = t->pts + r * d;
+            for (Py_ssize_t j = 0; j < d; j++) {
+                box[j] = p[j] < box[j] ? p[j] : box[j];
+                box[d + j] = p[j] > box[d + j] ? p[j] : box[d + j];
+            }
+        }
         return me;
     }
-    Py_ssize_t left = quads_build_node(t, lo, mid, cap);
-    Py_ssize_t right = left < 0 ? -1 : quads_build_node(t, mid, hi, cap);
+    double keep = sub[d + dim];
+    sub[d + dim] = split;
+    Py_ssize_t left = quads_build_node(t, lo, mid, sub);
+    sub[d + dim] = keep;
+    sub[dim] = split;
+    Py_ssize_t right = left < 0 ? -1 : quads_build_node(t, mid, hi, sub);
     if (right < 0) {
         return -1;
     }
+    double *box = t->box + 2 * d * me;
+    const double *bl = t->box + 2 * d * left, *br = t->box + 2 * d * right;
+    for (Py_ssize_t j = 0; j < d; j++) {
+        box[j] = bl[j] < br[j] ? bl[j] : br[j];
+        box[d + j] = bl[d + j] > br[d + j] ? bl[d + j] : br[d + j];
+    }
     t->nodes[me].left = left;
     t->nodes[me].right = right;
+    return me;
+}
+
+/* A node over [lo, hi) whose label keys (column QUADS_KEY) differ: split three ways around the key of its middle point
+ * (less, equal, greater; a quicksort's partition), so that each key's quads form one subtree of their own before
+ * any other split, in a pass over the points a level (a key's quads leave the partitions once their key is the
+ * pivot).  Boxes are the union of the children's.  Returns the node's number, or -1 out of memory. */
+static Py_ssize_t quads_build_keys(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi)
+{
+    Py_ssize_t d = t->d;
+    double pivot = QUADS_AT(t, lo + (hi - lo) / 2, QUADS_KEY);
+    int mixed = 0;
+    for (Py_ssize_t r = lo; r < hi && !mixed; r++) {
+        mixed = QUADS_AT(t, r, QUADS_KEY) != pivot;
+    }
+    if (!mixed) {
+        double box[2 * QUADS_MAX_DIM];
+        quads_points_box(t, lo, hi, box);
+        return quads_build_node(t, lo, hi, box);
+    }
+    Py_ssize_t a = lo, i = lo, b = hi;  /* [lo, a) less, [a, i) equal, [b, hi) greater */
+    while (i < b) {
+        double v = QUADS_AT(t, i, QUADS_KEY);
+        if (v < pivot) {
+            quads_swap(t, a++, i++);
+        } else if (v > pivot) {
+            quads_swap(t, i, --b);
+        } else {
+            i++;
+        }
+    }
+    Py_ssize_t me = quads_new_node(t);
+    if (me < 0) {
+        return -1;
+    }
+    /* less | (equal | greater), or equal | greater when nothing is less */
+    Py_ssize_t cut = a > lo ? a : b;
+    Py_ssize_t left = a > lo ? quads_build_keys(t, lo, a) : quads_build_keys(t, a, b);
+    Py_ssize_t right = left < 0 ? -1 : quads_build_keys(t, cut, hi);
+    if (right < 0) {
+        return -1;
+    }
+    double *box = t->box + 2 * d * me;
+    const double *bl = t->box + 2 * d * left, *br = t->box + 2 * d * right;
+    for (Py_ssize_t j = 0; j < d; j++) {
+        box[j] = bl[j] < br[j] ? bl[j] : br[j];
+        box[d + j] = bl[d + j] > br[d + j] ? bl[d + j] : br[d + j];
+    }
+    t->nodes[me] = (QuadsNode){lo, hi, left, right};
     return me;
 }
 
@@ -148,10 +284,9 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
     }
     Py_ssize_t n = arr_dim(&a[0], 0), d = arr_dim(&a[0], 1);
     const double *pts = D(a[0]);
-    if (n < 1 || d < 1 || d > QUADS_MAX_DIM) {
+    if (n < 1 || (d != 5 && d != 7)) {
         arr_release(a, 1);
-        return PyErr_Format(PyExc_ValueError, "points must have at least one row and 1 to %d columns",
-                            QUADS_MAX_DIM);
+        return PyErr_Format(PyExc_ValueError, "points must have at least one row and 5 or 7 columns");
     }
     for (Py_ssize_t i = 0; i < n * d; i++) {
         if (!isfinite(pts[i])) {
@@ -160,29 +295,30 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
         }
     }
     QuadsTree *t = calloc(1, sizeof(QuadsTree));
-    Py_ssize_t cap = 2 * n;  /* every split leaves points on both sides: under 2n nodes */
     if (t) {
+        t->cap = 4 * (n / QUADS_LEAF) + 16;  /* grown when splits peel off small parts */
         t->n = n;
         t->d = d;
         t->pts = malloc(sizeof(double) * n * d);
         t->idx = malloc(sizeof(int64_t) * n);
-        t->nodes = malloc(sizeof(QuadsNode) * cap);
-        t->box = malloc(sizeof(double) * 2 * d * cap);
+        t->nodes = malloc(sizeof(QuadsNode) * t->cap);
+        t->box = malloc(sizeof(double) * 2 * d * t->cap);
     }
     if (!t || !t->pts || !t->idx || !t->nodes || !t->box) {
         quads_free(t);
         arr_release(a, 1);
         return PyErr_NoMemory();
     }
-    memcpy(t->pts, pts, sizeof(double) * n * d);
-    arr_release(a, 1);
+    t->src = pts;
     for (Py_ssize_t i = 0; i < n; i++) {
         t->idx[i] = i;
     }
     Py_ssize_t root;
     Py_BEGIN_ALLOW_THREADS
-    root = quads_build_node(t, 0, n, cap);
+    root = quads_build_keys(t, 0, n);
     Py_END_ALLOW_THREADS
+    t->src = NULL;
+    arr_release(a, 1);
     if (root < 0) {
         quads_free(t);
         return PyErr_NoMemory();
