@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from itertools import combinations
+from typing import Protocol
 
 import numpy as np
 
@@ -189,6 +190,13 @@ def label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
     return key
 
 
+class TreePoints(Protocol):
+    """What every quad index's ``tree`` holds: its tree points (a :class:`QuadTree`, or only the points, as the parts
+    of :func:`~mapdb.match.mapobjects.blocks_view.block_quads` before they are merged)."""
+
+    data: np.ndarray
+
+
 class QuadTree:
     """A quad index's tree points ``data`` (:class:`QuadIndex`) and the kernel's k-d tree over them
     (``_kernel_quads.c``), which answers its lookups; pickled as its points (the tree is built again)."""
@@ -259,7 +267,7 @@ class QuadIndex:
                 centroid = zq.mean(axis=1)
                 np.multiply(POSITION_WEIGHT, centroid.real, out=points[:, 5])
                 np.multiply(POSITION_WEIGHT, centroid.imag, out=points[:, 6])
-            self.tree: QuadTree | None = QuadTree(points)
+            self.tree: TreePoints | None = QuadTree(points)
         else:
             self.tree = None
         self.quad_z = zq
@@ -379,8 +387,8 @@ def lookup_parts(
         tuple(trees), tuple(np.ascontiguousarray(ix.quad_z, np.complex128) for ix, _ in parts),
         np.ascontiguousarray(invariants, np.float64), key, np.ascontiguousarray(radius, np.float64), int(k),
         place.real, place.imag, reach, bound)
-    found = np.frombuffer(rows, np.int64), np.frombuffer(flat, np.complex128).reshape(-1, 4)
-    return found if first.positions else near_only(*found, near)
+    hit_rows, map_z = np.frombuffer(rows, np.int64), np.frombuffer(flat, np.complex128).reshape(-1, 4)
+    return (hit_rows, map_z) if first.positions else near_only(hit_rows, map_z, near)
 
 
 def _kernel_tree(index: QuadIndex) -> object:
