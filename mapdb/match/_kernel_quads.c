@@ -605,11 +605,367 @@ static PyObject *quads_lookup(PyObject *self, PyObject *args)
     return out;
 }
 
+/* ------------------------------------------------------------------ the image's quads and their keys */
+
+/* The six point pairs of a quad and, for each, the two other points (quads.PAIRS, quads.OTHERS). */
+static const int QUADS_PAIRS[6][4] = {{0, 1, 2, 3}, {0, 2, 1, 3}, {0, 3, 1, 2}, {1, 2, 0, 3}, {1, 3, 0, 2}, {2, 3, 0, 1}};
+
+/* One frame of a quad looked up: vertex order, t_C and t_D (re, im), the radius. */
+typedef struct {
+    int64_t row;
+    int order[4];
+    double t[4];
+    double radius;
+} QuadsFrame;
+
+/* The frame of quad ``z`` (4 complex) by pair ``pair``: its order and invariants (numpy's arithmetic). */
+static void quads_frame(const double *z, int pair, QuadsFrame *f)
+{
+    memcpy(f->order, QUADS_PAIRS[pair], sizeof(f->order));
+    const double *a = z + 2 * f->order[0], *b = z + 2 * f->order[1];
+    double br = b[0] - a[0], bi = b[1] - a[1];
+    for (int c = 0; c < 2; c++) {
+        const double *p = z + 2 * f->order[2 + c];
+        cdiv(p[0] - a[0], p[1] - a[1], br, bi, &f->t[2 * c], &f->t[2 * c + 1]);
+    }
+}
+
+/* The lookup radius of a frame (hypotheses._quad_keys): per point P of C, D sigma_P^2 + sigma_A^2 |1 - t|^2 +
+ * sigma_B^2 |t|^2, summed, its root times ``factor`` over |AB|. */
+static double quads_radius(const QuadsFrame *f, const double *s, double factor, double length)
+{
+    double spread = 0.0;
+    for (int c = 0; c < 2; c++) {
+        double re = f->t[2 * c], im = f->t[2 * c + 1];
+        double u = cabs_np(1.0 - re, 0.0 - im), v = cabs_np(re, im);
+        double sp = s[f->order[2 + c]] * s[f->order[2 + c]], sa = s[f->order[0]] * s[f->order[0]];
+        double sb = s[f->order[1]] * s[f->order[1]];
+        double e = sp + sa * (u * u) + sb * (v * v);
+        spread = c ? spread + e : e;
+    }
+    return factor * sqrt(spread) / length;
+}
+
+/* The frames of ``m`` quads (``zq`` m x 4 complex, ``sigma`` m x 4 or NULL for ``one``): every quad's longest pair's,
+ * then, where the second longest is within ``tie_factor`` sigma of it, the second's (the lengths' order a stable
+ * one).  Returns how many, written to ``frames`` (room for 2 m); ``*block``, how many are first frames. */
+static Py_ssize_t quads_frames(const double *zq, const double *sigma, Py_ssize_t m, double one, double tie_factor,
+                               double factor, QuadsFrame *frames, Py_ssize_t *block)
+{
+    Py_ssize_t h = 0;
+    for (int rank = 0; rank < 2; rank++) {
+        if (rank == 1) {
+            *block = h;
+        }
+        for (Py_ssize_t i = 0; i < m; i++) {
+            const double *z = zq + 8 * i;
+            double d[6];
+            int by[6];
+            for (int j = 0; j < 6; j++) {
+                const double *p = z + 2 * QUADS_PAIRS[j][0], *q = z + 2 * QUADS_PAIRS[j][1];
+                d[j] = cabs_np(p[0] - q[0], p[1] - q[1]);
+                int at = j;  /* insertion by -d, ties in pair order */
+                while (at > 0 && np_less(-d[j], -d[by[at - 1]])) {
+                    by[at] = by[at - 1];
+                    at--;
+                }
+                by[at] = j;
+            }
+            double s[4] = {one, one, one, one};
+            if (sigma) {
+                memcpy(s, sigma + 4 * i, sizeof(s));
+            }
+            double smax = s[0];
+            for (int j = 1; j < 4; j++) {
+                smax = (s[j] > smax || isnan(s[j])) && !isnan(smax) ? s[j] : smax;
+            }
+            double len = d[by[rank]];
+            int use = rank == 0 ? len > 0.0 : (d[by[0]] - d[by[1]] < tie_factor * smax) && len > 0.0;
+            if (use) {
+                frames[h].row = i;
+                quads_frame(z, by[rank], &frames[h]);
+                frames[h].radius = quads_radius(&frames[h], s, factor, len);
+                h++;
+            }
+        }
+    }
+    return h;
+}
+
+/* Ordering ``w`` (A, B swapped or not, C, D swapped or not) of a frame. */
+static void quads_ordering(const QuadsFrame *f, int w, int *order, double *t)
+{
+    int c = (w & 1) ? 1 : 0, ab = w >= 2;
+    order[0] = f->order[ab ? 1 : 0];
+    order[1] = f->order[ab ? 0 : 1];
+    order[2] = f->order[2 + c];
+    order[3] = f->order[3 - c];
+    for (int k = 0; k < 2; k++) {
+        const double *src = f->t + 2 * (k ^ c);
+        t[2 * k] = ab ? 1.0 - src[0] : src[0];
+        t[2 * k + 1] = ab ? 0.0 - src[1] : src[1];
+    }
+}
+
+static PyObject *quads_keys(PyObject *self, PyObject *args)
+{
+    PyObject *ozq, *osigma;
+    double one, tie_factor, factor, max_radius;
+    Arr a[2] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOdddd:quads_keys", &ozq, &osigma, &one, &tie_factor, &factor, &max_radius)) {
+        return NULL;
+    }
+    if (arr_take(ozq, &a[0], "zq", 'Z', 2, 0, 0) || arr_take(osigma, &a[1], "sigma", 'd', 2, 0, 1)
+        || arr_check_shape(&a[0], "zq", arr_dim(&a[0], 0), 4) || arr_check_shape(&a[1], "sigma", arr_dim(&a[0], 0), 4)) {
+        arr_release(a, 2);
+        return NULL;
+    }
+    Py_ssize_t m = arr_dim(&a[0], 0);
+    QuadsFrame *frames = malloc(sizeof(QuadsFrame) * (size_t)(2 * m + 1));
+    PyObject *rows = NULL, *orders = NULL, *inv = NULL, *radius = NULL, *out = NULL;
+    if (!frames) {
+        arr_release(a, 2);
+        return PyErr_NoMemory();
+    }
+    Py_ssize_t block = 0;
+    Py_ssize_t h = quads_frames(D(a[0]), a[1].held ? D(a[1]) : NULL, m, one, tie_factor, factor, frames, &block);
+    rows = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * h);
+    orders = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 16 * h);
+    inv = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 16 * h);
+    radius = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 4 * h);
+    if (rows && orders && inv && radius) {
+        int64_t *r = (int64_t *)PyByteArray_AS_STRING(rows), *o = (int64_t *)PyByteArray_AS_STRING(orders);
+        double *t = (double *)PyByteArray_AS_STRING(inv), *rad = (double *)PyByteArray_AS_STRING(radius);
+        Py_ssize_t n = 0;
+        for (int part = 0; part < 2; part++) {  /* frame block, then ordering, then quad */
+            Py_ssize_t lo = part ? block : 0, hi = part ? h : block;
+            for (int w = 0; w < 4; w++) {
+                for (Py_ssize_t i = lo; i < hi; i++) {
+                    int order[4];
+                    double tt[4], slack = frames[i].radius * 1.4142135623730951;
+                    quads_ordering(&frames[i], w, order, tt);
+                    if (!(tt[0] + tt[2] - 1.0 <= slack && tt[0] - tt[2] <= slack && frames[i].radius <= max_radius)) {
+                        continue;
+                    }
+                    r[n] = frames[i].row;
+                    for (int j = 0; j < 4; j++) {
+                        o[4 * n + j] = order[j];
+                        t[4 * n + j] = tt[j];
+                    }
+                    rad[n++] = frames[i].radius;
+                }
+            }
+        }
+        if (PyByteArray_Resize(rows, sizeof(int64_t) * n) == 0 && PyByteArray_Resize(orders, sizeof(int64_t) * 4 * n) == 0
+            && PyByteArray_Resize(inv, sizeof(double) * 4 * n) == 0 && PyByteArray_Resize(radius, sizeof(double) * n) == 0) {
+            out = PyTuple_Pack(4, rows, orders, inv, radius);
+        }
+    }
+    Py_XDECREF(rows);
+    Py_XDECREF(orders);
+    Py_XDECREF(inv);
+    Py_XDECREF(radius);
+    free(frames);
+    arr_release(a, 2);
+    return out;
+}
+
+/* ------------------------------------------------------------------ the image's quads in rounds */
+
+/* The ``k`` nearest other points of each of ``n`` points ``xy`` (n x 2) into ``nn`` (n x k): the k + 1 nearest
+ * (squared distances as a KD-tree sums them, equal ones in point order), the point itself dropped (the last of them
+ * when another point sits on it and it is not among them: quads.nearest_others). */
+static int quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, int64_t *nn)
+{
+    Keyed near[65];  /* the k + 1 nearest so far, in order (k <= 64) */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        Py_ssize_t have = 0;
+        for (Py_ssize_t j = 0; j < n; j++) {
+            double dx = xy[2 * j] - xy[2 * i], dy = xy[2 * j + 1] - xy[2 * i + 1];
+            Keyed x = {dx * dx + dy * dy, j};
+            if (have == k + 1 && !np_less(x.v, near[k].v)) {
+                continue;  /* not nearer than the (k+1)-th: equal ones come later in point order */
+            }
+            Py_ssize_t at = have < k + 1 ? have++ : k;
+            while (at > 0 && np_less(x.v, near[at - 1].v)) {
+                near[at] = near[at - 1];
+                at--;
+            }
+            near[at] = x;
+        }
+        Py_ssize_t out = 0, own = -1;
+        for (Py_ssize_t c = 0; c <= k && own < 0; c++) {
+            own = near[c].i == i ? c : -1;
+        }
+        for (Py_ssize_t c = 0; c <= k; c++) {
+            if (c != (own < 0 ? k : own)) {
+                nn[i * k + out++] = near[c].i;
+            }
+        }
+    }
+    return 0;
+}
+
+/* A quad of the image and where it comes in the rounds. */
+typedef struct {
+    int64_t id[4];
+    int64_t batch, at;
+} QuadsRow;
+
+static int quads_row_cmp(const void *x, const void *y)
+{
+    const QuadsRow *u = x, *v = y;
+    for (int j = 0; j < 4; j++) {
+        if (u->id[j] != v->id[j]) {
+            return u->id[j] < v->id[j] ? -1 : 1;
+        }
+    }
+    return (u->at > v->at) - (u->at < v->at);
+}
+
+static int quads_at_cmp(const void *x, const void *y)
+{
+    const QuadsRow *u = x, *v = y;
+    return (u->at > v->at) - (u->at < v->at);
+}
+
+/* Each anchor's quads (the anchor with every triple of its ``k`` nearest, sorted ids), ordered by the anchor's round
+ * (``rank`` // per_batch; stable), each quad kept where it first comes: returns how many, in ``rows``;
+ * ``*last_batch``, the last round of any quad (kept or not). */
+static Py_ssize_t quads_rounds(const int64_t *nn, const int64_t *members, const int64_t *rank, Py_ssize_t p,
+                               Py_ssize_t k, Py_ssize_t per_batch, QuadsRow *rows, int64_t *last_batch)
+{
+    Py_ssize_t q = 0;
+    for (Py_ssize_t i = 0; i < p; i++) {
+        for (Py_ssize_t a = 0; a < k; a++) {
+            for (Py_ssize_t b = a + 1; b < k; b++) {
+                for (Py_ssize_t c = b + 1; c < k; c++) {
+                    int64_t v[4] = {i, nn[i * k + a], nn[i * k + b], nn[i * k + c]};
+                    for (int x = 1; x < 4; x++) {  /* sorted ids (positions among members, then object ids) */
+                        for (int y = x; y > 0 && v[y] < v[y - 1]; y--) {
+                            int64_t tmp = v[y];
+                            v[y] = v[y - 1];
+                            v[y - 1] = tmp;
+                        }
+                    }
+                    for (int x = 0; x < 4; x++) {
+                        rows[q].id[x] = members[v[x]];
+                    }
+                    rows[q].batch = rank[members[i]] / per_batch;
+                    rows[q].at = q;
+                    q++;
+                }
+            }
+        }
+    }
+    *last_batch = -1;
+    for (Py_ssize_t i = 0; i < q; i++) {  /* round by round, quad order within: the order of coming */
+        rows[i].at = rows[i].batch * q + rows[i].at;
+        *last_batch = rows[i].batch > *last_batch ? rows[i].batch : *last_batch;
+    }
+    qsort(rows, (size_t)q, sizeof(QuadsRow), quads_row_cmp);
+    Py_ssize_t kept = 0;
+    for (Py_ssize_t i = 0; i < q; i++) {
+        if (i == 0 || memcmp(rows[i].id, rows[i - 1].id, sizeof(rows[i].id)) != 0) {
+            rows[kept++] = rows[i];
+        }
+    }
+    qsort(rows, (size_t)kept, sizeof(QuadsRow), quads_at_cmp);
+    return kept;
+}
+
+static PyObject *quads_batches(PyObject *self, PyObject *args)
+{
+    PyObject *oz, *omembers;
+    Py_ssize_t neighbours, per_batch, max_batches;
+    Arr a[2] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOnnn:quads_batches", &oz, &omembers, &neighbours, &per_batch, &max_batches)) {
+        return NULL;
+    }
+    if (arr_take(oz, &a[0], "z", 'Z', 1, 0, 0) || arr_take(omembers, &a[1], "members", 'q', 1, 0, 0)) {
+        arr_release(a, 2);
+        return NULL;
+    }
+    Py_ssize_t n = arr_dim(&a[0], 0), p = arr_dim(&a[1], 0), k = neighbours < p - 1 ? neighbours : p - 1;
+    const double *z = D(a[0]);
+    const int64_t *members = Q(a[1]);
+    int bad = per_batch < 1 || max_batches < 0 || neighbours > 64;
+    for (Py_ssize_t i = 0; i < p && !bad; i++) {
+        bad = members[i] < 0 || members[i] >= n || (i > 0 && members[i] <= members[i - 1]);
+    }
+    if (bad) {
+        arr_release(a, 2);
+        return PyErr_Format(PyExc_ValueError, "need ascending members in [0, len(z)), per_batch >= 1, max_batches >= 0 "
+                            "and at most 64 neighbours");
+    }
+    Py_ssize_t triples = k < 3 ? 0 : k * (k - 1) * (k - 2) / 6, q = p * triples;
+    double *xy = malloc(sizeof(double) * (size_t)(2 * p + 1));
+    int64_t *nn = malloc(sizeof(int64_t) * (size_t)(p * (k > 0 ? k : 0) + 1));
+    int64_t *rank = malloc(sizeof(int64_t) * (size_t)(n + 1));
+    Keyed *by = malloc(sizeof(Keyed) * (size_t)(n + 1));
+    QuadsRow *rows = malloc(sizeof(QuadsRow) * (size_t)(q + 1));
+    int64_t *counts = calloc((size_t)max_batches + 1, sizeof(int64_t));
+    PyObject *out = NULL;
+    if (!xy || !nn || !rank || !by || !rows || !counts) {
+        PyErr_NoMemory();
+    } else {
+        for (Py_ssize_t i = 0; i < p; i++) {
+            xy[2 * i] = z[2 * members[i]];
+            xy[2 * i + 1] = z[2 * members[i] + 1];
+        }
+        for (Py_ssize_t i = 0; i < n; i++) {  /* nearest the image centre first (a stable order) */
+            by[i].v = cabs_np(z[2 * i], z[2 * i + 1]);
+            by[i].i = i;
+        }
+        sort_keyed(by, n);
+        for (Py_ssize_t i = 0; i < n; i++) {
+            rank[by[i].i] = i;
+        }
+        Py_ssize_t kept = 0, n_batches = 0;
+        int64_t last = -1;
+        if (q > 0) {
+            quads_nearest(xy, p, k, nn);
+            kept = quads_rounds(nn, members, rank, p, k, per_batch, rows, &last);
+            n_batches = last + 1 < max_batches ? last + 1 : max_batches;
+        }
+        Py_ssize_t used = 0;
+        while (used < kept && rows[used].batch < n_batches) {
+            counts[rows[used++].batch]++;
+        }
+        PyObject *ids = PyErr_Occurred() ? NULL : PyByteArray_FromStringAndSize(NULL, sizeof(int64_t) * 4 * used);
+        PyObject *ends = ids ? PyByteArray_FromStringAndSize((const char *)counts, sizeof(int64_t) * n_batches)
+                             : NULL;
+        if (ends) {
+            int64_t *dst = (int64_t *)PyByteArray_AS_STRING(ids);
+            for (Py_ssize_t i = 0; i < used; i++) {
+                memcpy(dst + 4 * i, rows[i].id, sizeof(rows[i].id));
+            }
+            out = PyTuple_Pack(2, ids, ends);
+        }
+        Py_XDECREF(ids);
+        Py_XDECREF(ends);
+    }
+    free(xy);
+    free(nn);
+    free(rank);
+    free(by);
+    free(rows);
+    free(counts);
+    arr_release(a, 2);
+    return out;
+}
+
 PyMethodDef quads_methods[] = {
     {"quads_build", quads_build, METH_VARARGS,
      "quads_build(points): a k-d tree over a quad index's tree points (n, 5 or 7), float64."},
     {"quads_lookup", quads_lookup, METH_VARARGS,
      "quads_lookup(trees, quad_zs, invariants, key, radius, k, px, py, reach, bound): the hits of image quads in "
      "each tree, tree by tree: (query rows, map points) as bytearrays of int64 and of complex128 (h, 4)."},
+    {"quads_keys", quads_keys, METH_VARARGS,
+     "quads_keys(zq, sigma, one, tie_factor, factor, max_radius): every frame and ordering of image quads worth "
+     "looking up (hypotheses._quad_keys): quad rows, orders (h, 4), invariants (h, 4), radii, as bytearrays."},
+    {"quads_batches", quads_batches, METH_VARARGS,
+     "quads_batches(z, members, neighbours, per_batch, max_batches): the image's quads in rounds "
+     "(hypotheses.anchor_batches): sorted object ids (q, 4) and each round's count, as bytearrays of int64."},
     {NULL, NULL, 0, NULL},
 };

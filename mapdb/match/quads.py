@@ -19,7 +19,7 @@ from ..objects import Objects
 from . import _kernel
 
 __all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "first_rows", "label_keys",
-           "lookup_parts", "near_only", "nearest_others", "neighbour_quads", "quad_frames"]
+           "lookup_parts", "near_only", "nearest_others", "neighbour_quads"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -135,15 +135,6 @@ def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, worke
     own = nn == ids[:, None]
     own[~own.any(axis=1), -1] = True
     return nn[~own].reshape(ids.size, k)
-
-
-def quad_frames(zq: np.ndarray, pair: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex order ``(A, B, C, D)`` per quad for the chosen pair index, and ``t_C``, ``t_D``."""
-    rows = np.arange(len(zq))
-    order = np.concatenate([PAIRS[pair], OTHERS[pair]], axis=1)
-    a, b = zq[rows, order[:, 0]], zq[rows, order[:, 1]]
-    t = (zq[rows[:, None], order[:, 2:]] - a[:, None]) / (b - a)[:, None]
-    return order, t
 
 
 def canonical_quads(zq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
