@@ -774,20 +774,28 @@ static PyObject *quads_keys(PyObject *self, PyObject *args)
 
 /* The ``k`` nearest other points of each of ``n`` points ``xy`` (n x 2) into ``nn`` (n x k): the k + 1 nearest
  * (squared distances as a KD-tree sums them, equal ones in point order), the point itself dropped (the last of them
- * when another point sits on it and it is not among them: quads.nearest_others). */
-static int quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, int64_t *nn)
+ * when another point sits on it and it is not among them: quads.nearest_others); only for the points whose ``wanted`` is not negative. */
+static inline int quads_less(double a, double b)  /* np_less, inlined: NaN last */
+{
+    return isnan(b) ? !isnan(a) : a < b;
+}
+
+static void quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, const int64_t *wanted, int64_t *nn)
 {
     Keyed near[65];  /* the k + 1 nearest so far, in order (k <= 64) */
     for (Py_ssize_t i = 0; i < n; i++) {
+        if (wanted[i] < 0) {
+            continue;
+        }
         Py_ssize_t have = 0;
         for (Py_ssize_t j = 0; j < n; j++) {
             double dx = xy[2 * j] - xy[2 * i], dy = xy[2 * j + 1] - xy[2 * i + 1];
             Keyed x = {dx * dx + dy * dy, j};
-            if (have == k + 1 && !np_less(x.v, near[k].v)) {
+            if (have == k + 1 && !quads_less(x.v, near[k].v)) {
                 continue;  /* not nearer than the (k+1)-th: equal ones come later in point order */
             }
             Py_ssize_t at = have < k + 1 ? have++ : k;
-            while (at > 0 && np_less(x.v, near[at - 1].v)) {
+            while (at > 0 && quads_less(x.v, near[at - 1].v)) {
                 near[at] = near[at - 1];
                 at--;
             }
@@ -803,75 +811,77 @@ static int quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, int64_t *
             }
         }
     }
-    return 0;
 }
 
-/* A quad of the image and where it comes in the rounds. */
-typedef struct {
-    int64_t id[4];
-    int64_t batch, at;
-} QuadsRow;
-
-static int quads_row_cmp(const void *x, const void *y)
+/* The sorted object ids of anchor ``i``'s quad of its neighbours ``a < b < c`` (positions in ``nn``'s row). */
+static void quads_sorted(const int64_t *nn, const int64_t *members, Py_ssize_t k, Py_ssize_t i, Py_ssize_t a,
+                         Py_ssize_t b, Py_ssize_t c, int64_t *id)
 {
-    const QuadsRow *u = x, *v = y;
-    for (int j = 0; j < 4; j++) {
-        if (u->id[j] != v->id[j]) {
-            return u->id[j] < v->id[j] ? -1 : 1;
+    int64_t v[4] = {i, nn[i * k + a], nn[i * k + b], nn[i * k + c]};
+    for (int x = 1; x < 4; x++) {
+        for (int y = x; y > 0 && v[y] < v[y - 1]; y--) {
+            int64_t tmp = v[y];
+            v[y] = v[y - 1];
+            v[y - 1] = tmp;
         }
     }
-    return (u->at > v->at) - (u->at < v->at);
+    for (int x = 0; x < 4; x++) {
+        id[x] = members[v[x]];  /* members ascend: the ids stay sorted */
+    }
 }
 
-static int quads_at_cmp(const void *x, const void *y)
+/* Whether quad ``id`` is new to the set ``seen`` (open addressing, ``mask + 1`` slots of 4 ids, -1 empty); adds it. */
+static int quads_first(int64_t *seen, uint64_t mask, const int64_t *id)
 {
-    const QuadsRow *u = x, *v = y;
-    return (u->at > v->at) - (u->at < v->at);
+    uint64_t h = 1469598103934665603ULL;
+    for (int x = 0; x < 4; x++) {
+        h = (h ^ (uint64_t)id[x]) * 1099511628211ULL;
+    }
+    for (uint64_t at = h & mask;; at = (at + 1) & mask) {
+        int64_t *slot = seen + 4 * at;
+        if (slot[0] < 0) {
+            memcpy(slot, id, sizeof(int64_t) * 4);
+            return 1;
+        }
+        if (memcmp(slot, id, sizeof(int64_t) * 4) == 0) {
+            return 0;
+        }
+    }
 }
 
-/* Each anchor's quads (the anchor with every triple of its ``k`` nearest, sorted ids), ordered by the anchor's round
- * (``rank`` // per_batch; stable), each quad kept where it first comes: returns how many, in ``rows``;
- * ``*last_batch``, the last round of any quad (kept or not). */
-static Py_ssize_t quads_rounds(const int64_t *nn, const int64_t *members, const int64_t *rank, Py_ssize_t p,
-                               Py_ssize_t k, Py_ssize_t per_batch, QuadsRow *rows, int64_t *last_batch)
+/* The quads in rounds: anchors by round (``batch``, ascending; member order within), each anchor's quads in triple
+ * order, each quad where it first comes, rounds below ``n_batches``: written to ``out`` (4 ids a quad) with each
+ * round's count in ``counts``.  Returns how many, or -1 out of memory. */
+static Py_ssize_t quads_rounds(const int64_t *nn, const int64_t *members, const int64_t *batch, Py_ssize_t p,
+                               Py_ssize_t k, Py_ssize_t n_batches, int64_t *out, int64_t *counts)
 {
-    Py_ssize_t q = 0;
-    for (Py_ssize_t i = 0; i < p; i++) {
-        for (Py_ssize_t a = 0; a < k; a++) {
-            for (Py_ssize_t b = a + 1; b < k; b++) {
-                for (Py_ssize_t c = b + 1; c < k; c++) {
-                    int64_t v[4] = {i, nn[i * k + a], nn[i * k + b], nn[i * k + c]};
-                    for (int x = 1; x < 4; x++) {  /* sorted ids (positions among members, then object ids) */
-                        for (int y = x; y > 0 && v[y] < v[y - 1]; y--) {
-                            int64_t tmp = v[y];
-                            v[y] = v[y - 1];
-                            v[y - 1] = tmp;
+    Py_ssize_t q = p * (k * (k - 1) * (k - 2) / 6), used = 0;
+    uint64_t slots = 16;
+    while (slots < 2 * (uint64_t)q) {
+        slots *= 2;
+    }
+    int64_t *seen = malloc(sizeof(int64_t) * 4 * slots);
+    if (!seen) {
+        return -1;
+    }
+    memset(seen, 0xff, sizeof(int64_t) * 4 * slots);
+    for (Py_ssize_t b = 0; b < n_batches; b++) {
+        for (Py_ssize_t i = 0; i < p; i++) {
+            for (Py_ssize_t x = 0; x < k && batch[i] == b; x++) {
+                for (Py_ssize_t y = x + 1; y < k; y++) {
+                    for (Py_ssize_t z = y + 1; z < k; z++) {
+                        quads_sorted(nn, members, k, i, x, y, z, out + 4 * used);
+                        if (quads_first(seen, slots - 1, out + 4 * used)) {
+                            counts[b]++;
+                            used++;
                         }
                     }
-                    for (int x = 0; x < 4; x++) {
-                        rows[q].id[x] = members[v[x]];
-                    }
-                    rows[q].batch = rank[members[i]] / per_batch;
-                    rows[q].at = q;
-                    q++;
                 }
             }
         }
     }
-    *last_batch = -1;
-    for (Py_ssize_t i = 0; i < q; i++) {  /* round by round, quad order within: the order of coming */
-        rows[i].at = rows[i].batch * q + rows[i].at;
-        *last_batch = rows[i].batch > *last_batch ? rows[i].batch : *last_batch;
-    }
-    qsort(rows, (size_t)q, sizeof(QuadsRow), quads_row_cmp);
-    Py_ssize_t kept = 0;
-    for (Py_ssize_t i = 0; i < q; i++) {
-        if (i == 0 || memcmp(rows[i].id, rows[i - 1].id, sizeof(rows[i].id)) != 0) {
-            rows[kept++] = rows[i];
-        }
-    }
-    qsort(rows, (size_t)kept, sizeof(QuadsRow), quads_at_cmp);
-    return kept;
+    free(seen);
+    return used;
 }
 
 static PyObject *quads_batches(PyObject *self, PyObject *args)
@@ -902,18 +912,16 @@ static PyObject *quads_batches(PyObject *self, PyObject *args)
     double *xy = malloc(sizeof(double) * (size_t)(2 * p + 1));
     int64_t *nn = malloc(sizeof(int64_t) * (size_t)(p * (k > 0 ? k : 0) + 1));
     int64_t *rank = malloc(sizeof(int64_t) * (size_t)(n + 1));
+    int64_t *batch = malloc(sizeof(int64_t) * (size_t)(p + 1));
     Keyed *by = malloc(sizeof(Keyed) * (size_t)(n + 1));
-    QuadsRow *rows = malloc(sizeof(QuadsRow) * (size_t)(q + 1));
+    int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
     int64_t *counts = calloc((size_t)max_batches + 1, sizeof(int64_t));
     PyObject *out = NULL;
-    if (!xy || !nn || !rank || !by || !rows || !counts) {
+    Py_ssize_t used = 0, n_batches = 0;
+    if (!xy || !nn || !rank || !batch || !by || !ids || !counts) {
         PyErr_NoMemory();
-    } else {
-        for (Py_ssize_t i = 0; i < p; i++) {
-            xy[2 * i] = z[2 * members[i]];
-            xy[2 * i + 1] = z[2 * members[i] + 1];
-        }
-        for (Py_ssize_t i = 0; i < n; i++) {  /* nearest the image centre first (a stable order) */
+    } else if (q > 0) {
+        for (Py_ssize_t i = 0; i < n; i++) {  /* anchors nearest the image centre first (a stable order) */
             by[i].v = cabs_np(z[2 * i], z[2 * i + 1]);
             by[i].i = i;
         }
@@ -921,35 +929,37 @@ static PyObject *quads_batches(PyObject *self, PyObject *args)
         for (Py_ssize_t i = 0; i < n; i++) {
             rank[by[i].i] = i;
         }
-        Py_ssize_t kept = 0, n_batches = 0;
-        int64_t last = -1;
-        if (q > 0) {
-            quads_nearest(xy, p, k, nn);
-            kept = quads_rounds(nn, members, rank, p, k, per_batch, rows, &last);
-            n_batches = last + 1 < max_batches ? last + 1 : max_batches;
+        int64_t last = 0;
+        for (Py_ssize_t i = 0; i < p; i++) {
+            xy[2 * i] = z[2 * members[i]];
+            xy[2 * i + 1] = z[2 * members[i] + 1];
+            batch[i] = rank[members[i]] / per_batch;
+            last = batch[i] > last ? batch[i] : last;
         }
-        Py_ssize_t used = 0;
-        while (used < kept && rows[used].batch < n_batches) {
-            counts[rows[used++].batch]++;
+        n_batches = last + 1 < max_batches ? last + 1 : max_batches;
+        for (Py_ssize_t i = 0; i < p; i++) {  /* later rounds' anchors are never read */
+            batch[i] = batch[i] < n_batches ? batch[i] : -1;
         }
-        PyObject *ids = PyErr_Occurred() ? NULL : PyByteArray_FromStringAndSize(NULL, sizeof(int64_t) * 4 * used);
-        PyObject *ends = ids ? PyByteArray_FromStringAndSize((const char *)counts, sizeof(int64_t) * n_batches)
-                             : NULL;
-        if (ends) {
-            int64_t *dst = (int64_t *)PyByteArray_AS_STRING(ids);
-            for (Py_ssize_t i = 0; i < used; i++) {
-                memcpy(dst + 4 * i, rows[i].id, sizeof(rows[i].id));
-            }
-            out = PyTuple_Pack(2, ids, ends);
+        quads_nearest(xy, p, k, batch, nn);
+        used = quads_rounds(nn, members, batch, p, k, n_batches, ids, counts);
+        if (used < 0) {
+            PyErr_NoMemory();
         }
-        Py_XDECREF(ids);
+    }
+    if (!PyErr_Occurred()) {
+        PyObject *quads = PyByteArray_FromStringAndSize((const char *)ids, sizeof(int64_t) * 4 * used);
+        PyObject *ends = quads ? PyByteArray_FromStringAndSize((const char *)counts, sizeof(int64_t) * n_batches)
+                               : NULL;
+        out = ends ? PyTuple_Pack(2, quads, ends) : NULL;
+        Py_XDECREF(quads);
         Py_XDECREF(ends);
     }
+    free(batch);
+    free(ids);
     free(xy);
     free(nn);
     free(rank);
     free(by);
-    free(rows);
     free(counts);
     arr_release(a, 2);
     return out;
