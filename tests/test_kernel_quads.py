@@ -4,6 +4,7 @@ raise TypeError / ValueError."""
 
 from __future__ import annotations
 
+import math
 import pickle
 
 import numpy as np
@@ -11,7 +12,20 @@ import pytest
 
 from mapdb._scipy import quick_tree
 from mapdb.match import _kernel
-from mapdb.match.quads import LABEL_GAP, POSITION_WEIGHT, QuadIndex, label_keys, lookup_parts, near_only
+from mapdb.match.hypotheses import FRAME_TIE_SIGMAS, _quad_keys, anchor_batches
+from mapdb.match.options import FastOptions
+from mapdb.match.quads import (
+    LABEL_GAP,
+    OTHERS,
+    PAIRS,
+    POSITION_WEIGHT,
+    QuadIndex,
+    first_rows,
+    label_keys,
+    lookup_parts,
+    near_only,
+    neighbour_quads,
+)
 from mapdb.objects import Objects
 
 
@@ -48,6 +62,101 @@ def ref_lookup(self, invariants, labels, radius, k, near=None):
     off2 = (where[:, 0] - place.real) ** 2 + (where[:, 1] - place.imag) ** 2
     keep = (dist[rows, cols] ** 2 - off2 <= radius[rows] ** 2) & (off2 <= reach**2)
     return rows[keep], self.quad_z[hit[keep]]
+
+
+# The numpy code the kernel's image side replaced (c0735fc's hypotheses.py and quads.quad_frames), verbatim.
+
+def ref_quad_frames(zq: np.ndarray, pair: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex order ``(A, B, C, D)`` per quad for the chosen pair index, and ``t_C``, ``t_D``."""
+    rows = np.arange(len(zq))
+    order = np.concatenate([PAIRS[pair], OTHERS[pair]], axis=1)
+    a, b = zq[rows, order[:, 0]], zq[rows, order[:, 1]]
+    t = (zq[rows[:, None], order[:, 2:]] - a[:, None]) / (b - a)[:, None]
+    return order, t
+
+
+def ref_quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """Every frame and ordering of the quads ``zq`` (m, 4) worth looking up: quad rows, orderings (k, 4),
+    invariants (k, 4) and lookup radii (k,); None when there is none.
+
+    ``sigma_px`` is one pixel error for every point, or one per point ``(m, 4)`` (a cut blob's is wider).
+    Rows come frame by frame (the longest pair's, then the second longest's), each ordering in turn
+    (A, B swapped or not, C, D swapped or not), in quad order within: all of it in a few array operations,
+    since an image has a few hundred quads and per-block calls would cost more than the arithmetic.
+    """
+    m = len(zq)
+    # One pixel error for every point (the usual round): scalars where arrays of one value would do, the same
+    # arithmetic element by element.
+    one = float(sigma_px) if np.ndim(sigma_px) == 0 else None
+    sigma = np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape)
+    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
+    by_length = np.argsort(-d, axis=1)
+    length = d[np.arange(m)[:, None], by_length[:, :2]]  # (m, 2): longest, second longest
+    # The longest pair decides the frame; when the second longest is within noise of it, a noisy image can
+    # pick either, so both frames are looked up.
+    tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * (sigma.max(axis=1) if one is None else one)
+    use = np.column_stack([np.ones(m, bool), length[:, 0] - length[:, 1] < tie]) & (length > 0.0)
+    rank, sel = np.nonzero(use.T)  # frame-major: every quad's first frame, then the ties' second
+    if not sel.size:
+        return None
+    order0, t0 = ref_quad_frames(zq[sel], by_length[sel, rank])
+    # Predicted standard error of the four invariants (see the module docs of decision): per point P of C, D
+    # sigma_P^2 + sigma_A^2 |1 - t|^2 + sigma_B^2 |t|^2, over |AB|^2, per axis.
+    s2 = sigma[sel[:, None], order0] ** 2 if one is None else np.full((1, 4), one * one)
+    spread = (s2[:, 2:] + s2[:, :1] * np.abs(1.0 - t0) ** 2 + s2[:, 1:2] * np.abs(t0) ** 2).sum(axis=1)
+    radius = opts.tolerance_factor * np.sqrt(spread) / length[sel, rank]
+    order, t, ok = ref_orderings(order0, t0, radius, opts.max_invariant_radius)  # (4, k, ...)
+    # Output order: frame, then ordering, then quad.
+    block = int(np.searchsorted(rank, 1))
+    which, row = np.nonzero(ok[:, :block])
+    which2, row2 = np.nonzero(ok[:, block:])
+    which = np.concatenate([which, which2])
+    row = np.concatenate([row, row2 + block])
+    if not row.size:
+        return None
+    inv = t[which, row].view(np.float64).reshape(-1, 4)  # Re t_C, Im t_C, Re t_D, Im t_D
+    return sel[row], order[which, row], inv, radius[row]
+
+
+def ref_orderings(order0: np.ndarray, t0: np.ndarray, radius: np.ndarray, max_radius: float):
+    """The quads' four orderings (A, B swapped or not, C, D swapped or not) stacked: orders ``(4, k, 4)``,
+    invariants ``(4, k, 2)`` and ``ok`` ``(4, k)``, marking the quads for which that ordering could be the
+    canonical one within the lookup radius (and whose radius is at most ``max_radius``)."""
+    swapped_ab = np.concatenate([order0[:, 1::-1], order0[:, 2:]], axis=1)
+    order = np.stack([order0, order0[:, [0, 1, 3, 2]], swapped_ab, swapped_ab[:, [0, 1, 3, 2]]])
+    t_ab = 1.0 - t0
+    t = np.stack([t0, t0[:, ::-1], t_ab, t_ab[:, ::-1]])
+    slack = radius * math.sqrt(2.0)
+    ok = (t.real.sum(axis=2) - 1.0 <= slack) & (t[:, :, 0].real - t[:, :, 1].real <= slack)
+    ok &= radius <= max_radius
+    return order, t, ok
+
+
+def ref_anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | None = None) -> list[np.ndarray]:
+    """Image quads ``(m, 4)`` in rounds: anchors nearest the image centre first, each quad in its earliest
+    round, at most ``opts.max_batches`` rounds.
+
+    ``anchorable`` (bool, ``(n,)``) limits quads to those objects: a region cut by the image border has its
+    centroid pulled inward, by up to half the hidden part, so a quad holding one predicts the others badly
+    and its invariants miss the map's.  Such objects still count as evidence in verification.
+    """
+    n = z.size
+    members = np.arange(n) if anchorable is None else np.flatnonzero(anchorable)
+    img_quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag])[members], opts.image_neighbours,
+                                        with_anchor=True)
+    if not len(img_quads):
+        return []
+    img_quads, anchor = members[img_quads], members[anchor]
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(np.abs(z), kind="stable")] = np.arange(n)
+    batch_of = rank[anchor] // opts.anchors_per_batch
+    by_batch = np.argsort(batch_of, kind="stable")
+    in_order = img_quads[by_batch]  # batch by batch, each in quad order
+    first = np.sort(first_rows(in_order, n))
+    n_batches = min(int(batch_of[by_batch[-1]]) + 1, opts.max_batches)
+    # Cut where each batch ends: a few calls, not a few per batch.
+    ends = np.searchsorted(batch_of[by_batch[first]], np.arange(1, n_batches + 1))
+    return np.split(in_order[first], ends)[:n_batches]
 
 
 def _town(seed: int, n: int = 400, size: float = 1500.0, x0: float = 0.0) -> Objects:
@@ -191,3 +300,115 @@ def test_wrong_calls_raise_type_or_value_errors() -> None:
             _kernel.quads_lookup(*args)
     rows, found = _kernel.quads_lookup((tree,), (z,), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1)
     assert isinstance(rows, bytearray) and isinstance(found, bytearray) and len(rows) * 8 == len(found)
+
+
+def _same_keys(got, want) -> None:
+    assert (got is None) == (want is None)
+    if got is not None:
+        assert len(got) == len(want) == 4
+        for x, y in zip(got, want, strict=True):
+            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y)
+
+
+def test_quad_keys_are_numpy_s_on_random_and_edge_quads() -> None:
+    rng = np.random.default_rng(20)
+    opts = FastOptions()
+    found = 0
+    for trial in range(200):
+        m = int(rng.integers(1, 50))
+        zq = rng.uniform(0, 640, (m, 4)) + 1j * rng.uniform(0, 480, (m, 4))
+        if trial % 4 == 1:
+            zq[: m // 2, 1] = zq[: m // 2, 0]  # two points on one spot
+        if trial % 4 == 2:
+            zq[:, :] = zq[:, :1]  # every quad on one spot: no frame
+        sigma = rng.uniform(0.5, 12.0, (m, 4)) if trial % 3 == 0 else float(rng.uniform(0.2, 20.0))
+        got, want = _quad_keys(zq, opts, sigma), ref_quad_keys(zq, opts, sigma)
+        _same_keys(got, want)
+        found += 0 if got is None else len(got[0])
+    assert found > 1000
+    _same_keys(_quad_keys(np.zeros((0, 4), complex), opts, 1.0), ref_quad_keys(np.zeros((0, 4), complex), opts, 1.0))
+    zq = rng.uniform(0, 640, (5, 4)) + 1j * rng.uniform(0, 480, (5, 4))
+    for sigma in (np.inf, np.nan, 0.0):  # no radius, or none that is finite: what numpy made of them
+        with np.errstate(invalid="ignore"):
+            _same_keys(_quad_keys(zq, opts, sigma), ref_quad_keys(zq, opts, sigma))
+    assert FRAME_TIE_SIGMAS > 0 and math.isfinite(FRAME_TIE_SIGMAS)
+
+
+def test_quad_keys_rank_equal_lengths_in_pair_order() -> None:
+    # A square of integer pixels: its two diagonals (pairs 0-3 and 1-2) and its sides tie exactly.  numpy's default
+    # argsort leaves the order of ties to the machine (AVX-512 sorts differ from the stable order); the kernel takes
+    # pair order, numpy's stable sort's.
+    zq = np.array([[0, 100, 100j, 100 + 100j]], complex)
+    got = _quad_keys(zq, FastOptions(), 1.0)
+    assert got is not None
+    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
+    by_length = np.argsort(-d, axis=1, kind="stable")[0]
+    assert by_length[:2].tolist() == [2, 3]  # the diagonals 0-3 and 1-2, in pair order
+    assert sorted(got[1][0, :2].tolist()) == sorted(PAIRS[2].tolist())  # the first frame: the first diagonal
+    assert sorted(OTHERS[2].tolist()) == sorted(got[1][0, 2:].tolist())
+    frames = {tuple(sorted(order[:2].tolist())) for order in got[1]}
+    assert frames == {(0, 3), (1, 2)}  # both diagonals' frames looked up (tied within noise)
+    assert got[1][-1, :2].tolist() in ([1, 2], [2, 1])  # the second diagonal's last
+
+
+def test_anchor_batches_are_numpy_s() -> None:
+    rng = np.random.default_rng(21)
+    total = 0
+    for trial in range(300):
+        n = int(rng.integers(0, 60))
+        z = rng.uniform(-320, 320, n) + 1j * rng.uniform(-240, 240, n)
+        opts = FastOptions(image_neighbours=int(rng.integers(3, 8)), anchors_per_batch=int(rng.integers(1, 8)),
+                           max_batches=int(rng.integers(0, 10)))
+        anchorable = rng.uniform(size=n) < 0.8 if trial % 2 else None
+        got, want = anchor_batches(z, opts, anchorable), ref_anchor_batches(z, opts, anchorable)
+        assert len(got) == len(want)
+        for x, y in zip(got, want, strict=True):
+            assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y)
+        total += sum(len(x) for x in got)
+    assert total > 10_000
+
+
+def test_anchor_batches_on_a_grid_of_ties_are_sorted_distinct_quads_of_near_objects() -> None:
+    # Integer pixels in a lattice: neighbours at equal distances, taken in object order (the tree's order among
+    # them is its own); the quads are still each anchor's with three of its nearest, sorted, each once.
+    g = np.arange(6) * 50.0 - 125.0
+    z = (g[:, None] + 1j * g[None, :]).ravel()
+    batches = anchor_batches(z, FastOptions())
+    quads = np.concatenate(batches)
+    assert np.all(np.diff(quads, axis=1) > 0)
+    assert len(np.unique(quads, axis=0)) == len(quads)
+    assert np.max(np.abs(z[quads] - z[quads].mean(axis=1, keepdims=True))) <= 2 * 50.0 * math.sqrt(2)
+    assert [b.tolist() for b in anchor_batches(z, FastOptions())] == [b.tolist() for b in batches]  # deterministic
+
+
+def test_wrong_image_side_calls_raise_type_or_value_errors() -> None:
+    zq = np.zeros((3, 4), complex)
+    for args, error in [
+        ((zq.real.copy(), None, 1.0, 4.2, 2.0, 0.3), TypeError),
+        ((zq[:, :3].copy(), None, 1.0, 4.2, 2.0, 0.3), ValueError),
+        ((zq, np.zeros((2, 4)), 1.0, 4.2, 2.0, 0.3), ValueError),
+        ((zq, np.zeros((3, 4), np.float32), 1.0, 4.2, 2.0, 0.3), TypeError),
+    ]:
+        with pytest.raises(error):
+            _kernel.quads_keys(*args)
+    z = np.arange(6) * (1 + 1j)
+    for args, error in [
+        ((z.real.copy(), np.arange(6), 5, 6, 8), TypeError),
+        ((z, np.arange(6, dtype=np.int32), 5, 6, 8), TypeError),
+        ((z, np.array([0, 7]), 5, 6, 8), ValueError),  # not an object
+        ((z, np.array([3, 1, 2]), 5, 6, 8), ValueError),  # not ascending
+        ((z, np.arange(6), 5, 0, 8), ValueError),
+        ((z, np.arange(6), 65, 6, 8), ValueError),
+    ]:
+        with pytest.raises(error):
+            _kernel.quads_batches(*args)
+
+
+def test_neighbour_quads_of_a_map_stay_the_tree_s() -> None:
+    # The map side keeps its tree (tens of thousands of points): its quads, the image side's rule for a few dozen.
+    rng = np.random.default_rng(22)
+    z = rng.uniform(0, 640, 40) + 1j * rng.uniform(0, 480, 40)
+    quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag]), 5, with_anchor=True)
+    in_order = quads[np.argsort(anchor // 100, kind="stable")]
+    kept = np.concatenate(anchor_batches(z, FastOptions(anchors_per_batch=100, max_batches=1)))
+    assert np.array_equal(kept, in_order[np.sort(first_rows(in_order, 40))])

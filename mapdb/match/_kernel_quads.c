@@ -1,4 +1,6 @@
-/* Quad lookups: a k-d tree over a quad index's tree points, looked up for image quads in one call (issue 30).
+/* Quads in the kernel (issue 30): the map's quad lookups, and the image's quads and their keys.
+ *
+ * Lookups: a k-d tree over a quad index's tree points, looked up for image quads in one call.
  *
  * The points are what quads.QuadIndex made them: four invariants, the label key (LABEL_GAP apart) and, for an
  * index with positions, the weighted centroid.  A lookup answers what scipy's cKDTree.query(query, k,
@@ -11,10 +13,17 @@
  * the one difference, see tests/test_kernel_quads.py).  Several trees (a prior's tiles) are looked up in one call,
  * their hits tree by tree, as successive lookups gave them.
  *
- * The tree: median splits on the widest dimension (the label key first, its gap dwarfs the invariants'), leaves of
- * at most QUADS_LEAF points, the points copied in tree order so that a leaf is read in one stretch.  A subtree is
- * skipped when its lower bound (the squared gaps to its cell, summed in dimension order like a distance, so never
- * above a point's computed distance) exceeds the k-th distance so far or reaches the bound.
+ * The tree: the points of each label key first gathered under one subtree (three-way partitions around a key), then
+ * sliding-midpoint splits of the widest side of the cell the parents' splits leave (scipy's cKDTree's default
+ * rule, with no pass over the points to measure them), leaves of at most QUADS_LEAF points copied in tree order so
+ * that a leaf is read in one stretch, each node's tight box made from its children's.  A subtree is skipped when its
+ * lower bound (the squared gaps to its box, summed in dimension order like a distance, so never above the computed
+ * distance of a point in it) is beyond the k-th distance so far or reaches the bound.
+ *
+ * The image side (hypotheses.anchor_batches, hypotheses._quad_keys): each anchor's nearest objects, its quads in
+ * rounds, each quad once; the frames of each quad, their lookup radii and orderings; numpy's arithmetic (cabs_np,
+ * cdiv) so that the same inputs give the same bits.  Equal lengths and equal distances are ranked in pair and
+ * object order (numpy's default argsort and the KD-tree leave the order of ties to the machine and the tree).
  */
 #include "_kernel.h"
 
@@ -22,7 +31,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define QUADS_LEAF 4
+#define QUADS_LEAF 16
 #define QUADS_MAX_DIM 16
 #define QUADS_KEY 4  /* the label key's column */
 #define QUADS_CAPSULE "mapdb.match._kernel.quads_tree"
@@ -104,12 +113,11 @@ static Py_ssize_t quads_split(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, double
             return i;
         }
         double mn = QUADS_AT(t, lo, best), mx = mn;
-        Py_ssize_t at_mn = lo, at_mx = lo;
+        Py_ssize_t at_mn = lo;
         for (Py_ssize_t r = lo + 1; r < hi; r++) {
             double v = QUADS_AT(t, r, best);
             at_mn = v < mn ? r : at_mn;
             mn = v < mn ? v : mn;
-            at_mx = v > mx ? r : at_mx;
             mx = v > mx ? v : mx;
         }
         if (mn < cell[best] || mx > cell[d + best]) {
@@ -122,7 +130,6 @@ static Py_ssize_t quads_split(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, double
             *split = mx;
             return quads_partition(t, lo + 1, hi, best, mx);
         }
-        (void)at_mx;
     }
 }
 
