@@ -27,6 +27,7 @@
  */
 #include "_kernel.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdlib.h>
 #include <string.h>
@@ -485,6 +486,18 @@ typedef struct {
     double px, py, reach, bound;
 } QuadsAsk;
 
+/* The squared distance a query's search stays below: the lookup's bound, or less where the query's own filter
+ * (its radius, and with positions the reach) keeps no point beyond: a hit kept has dist^2 <= radius^2 + reach^2
+ * (dist^2 - off^2 <= radius^2 with off^2 <= reach^2), so the search below that (widened far beyond rounding) finds
+ * every point the filter keeps, and when k of them are nearer than it, the same k nearest.  The whole lookup's
+ * bound is its largest radius plus the reach: a query of a small radius searched a ball as wide as the widest's. */
+static double quads_query_bound(const QuadsAsk *ask, double radius, int positions)
+{
+    double bound2 = ask->bound * ask->bound;
+    double mine = (radius * radius + (positions ? ask->reach * ask->reach : 0.0)) * (1.0 + 1e-9) + DBL_MIN;
+    return mine <= bound2 ? mine : bound2;
+}
+
 /* One tree's hits for every query, filtered as QuadIndex.lookup did, appended to ``o``; -1 out of memory. */
 static int quads_lookup_tree(const QuadsTree *t, const double *quad_z, const QuadsAsk *ask, QuadsHit *heap,
                              QuadsOut *o)
@@ -498,6 +511,7 @@ static int quads_lookup_tree(const QuadsTree *t, const double *quad_z, const Qua
         q[5] = ask->px;
         q[6] = ask->py;
         b.n = 0;
+        b.bound2 = quads_query_bound(ask, ask->radius[r], positions);
         if (quads_within(&b, quads_low(t->box, q, t->d))) {
             quads_search(t, 0, q, &b);
         }
