@@ -12,7 +12,7 @@ import pytest
 
 from mapdb._scipy import quick_tree
 from mapdb.match import _kernel
-from mapdb.match.hypotheses import FRAME_TIE_SIGMAS, _quad_keys, anchor_batches
+from mapdb.match.hypotheses import FRAME_TIE_SIGMAS, PRIOR_SLACK, _quad_keys, allowed_poses, anchor_batches
 from mapdb.match.options import FastOptions
 from mapdb.match.quads import (
     LABEL_GAP,
@@ -412,3 +412,29 @@ def test_neighbour_quads_of_a_map_stay_the_tree_s() -> None:
     in_order = quads[np.argsort(anchor // 100, kind="stable")]
     kept = np.concatenate(anchor_batches(z, FastOptions(anchors_per_batch=100, max_batches=1)))
     assert np.array_equal(kept, in_order[np.sort(first_rows(in_order, 40))])
+
+
+def ref_allowed_poses(a, b, prior, scale_range):
+    """hypotheses.allowed_poses as it was (c0735fc), verbatim."""
+    ok = np.isfinite(a) & (np.abs(a) > 0)
+    if prior is not None:
+        ok &= np.abs(b - complex(prior[0], prior[1])) <= PRIOR_SLACK * prior[2]
+    if scale_range is not None:
+        ok &= (np.abs(a) >= scale_range[0]) & (np.abs(a) <= scale_range[1])
+    return ok
+
+
+def test_allowed_poses_are_numpy_s() -> None:
+    rng = np.random.default_rng(23)
+    a = rng.normal(0, 1, 400) + 1j * rng.normal(0, 1, 400)
+    b = rng.normal(1000, 300, 400) + 1j * rng.normal(5000, 300, 400)
+    a[:8] = [0, np.nan, np.inf, complex(np.nan, 1), complex(1, np.inf), 1e-300, 0.5, 2.0]
+    b[8:12] = [np.nan, np.inf, 1000 + 5000j, complex(1000 + 330, 5000)]
+    kinds = 0
+    for prior in (None, (1000.0, 5000.0, 300.0), (np.float64(1100.0), 4900.0, 0.0)):
+        for scale_range in (None, (0.5, 2.0), (1.0, 1.0)):
+            got = allowed_poses(a, b, prior, scale_range)
+            assert got.dtype == bool and np.array_equal(got, ref_allowed_poses(a, b, prior, scale_range))
+            kinds += int(got.any()) + int((~got).any())
+    assert kinds >= 12  # both answers met in most cases
+    assert allowed_poses(a[:0], b[:0], (0.0, 0.0, 1.0), (0.5, 2.0)).shape == (0,)

@@ -986,6 +986,42 @@ static PyObject *quads_batches(PyObject *self, PyObject *args)
     return out;
 }
 
+/* ------------------------------------------------------------------ the poses a search may answer */
+
+/* hypotheses.allowed_poses: finite a != 0; with a prior, |b - centre| <= reach; with a scale range, lo <= |a| <= hi. */
+static PyObject *quads_allowed(PyObject *self, PyObject *args)
+{
+    PyObject *oa, *ob, *oout;
+    int with_prior, with_scale;
+    double cx, cy, reach, lo, hi;
+    Arr a[3] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOpdddpddO:quads_allowed", &oa, &ob, &with_prior, &cx, &cy, &reach, &with_scale, &lo,
+                          &hi, &oout)) {
+        return NULL;
+    }
+    if (arr_take(oa, &a[0], "a", 'Z', 1, 0, 0) || arr_take(ob, &a[1], "b", 'Z', 1, 0, 0)
+        || arr_take(oout, &a[2], "out", '?', 1, 1, 0) || arr_check_shape(&a[1], "b", arr_dim(&a[0], 0), 0)
+        || arr_check_shape(&a[2], "out", arr_dim(&a[0], 0), 0)) {
+        arr_release(a, 3);
+        return NULL;
+    }
+    const double *av = D(a[0]), *bv = D(a[1]);
+    unsigned char *ok = B(a[2]);
+    for (Py_ssize_t i = 0; i < arr_dim(&a[0], 0); i++) {
+        double scale = cabs_np(av[2 * i], av[2 * i + 1]);
+        int yes = isfinite(av[2 * i]) && isfinite(av[2 * i + 1]) && scale > 0.0;
+        if (with_prior) {
+            yes = yes && cabs_np(bv[2 * i] - cx, bv[2 * i + 1] - cy) <= reach;
+        }
+        if (with_scale) {
+            yes = yes && scale >= lo && scale <= hi;
+        }
+        ok[i] = (unsigned char)yes;
+    }
+    arr_release(a, 3);
+    Py_RETURN_NONE;
+}
+
 PyMethodDef quads_methods[] = {
     {"quads_build", quads_build, METH_VARARGS,
      "quads_build(points): a k-d tree over a quad index's tree points (n, 5 or 7), float64."},
@@ -998,5 +1034,7 @@ PyMethodDef quads_methods[] = {
     {"quads_batches", quads_batches, METH_VARARGS,
      "quads_batches(z, members, neighbours, per_batch, max_batches): the image's quads in rounds "
      "(hypotheses.anchor_batches): sorted object ids (q, 4) and each round's count, as bytearrays of int64."},
+    {"quads_allowed", quads_allowed, METH_VARARGS,
+     "quads_allowed(a, b, with_prior, cx, cy, reach, with_scale, lo, hi, out): hypotheses.allowed_poses into out."},
     {NULL, NULL, 0, NULL},
 };

@@ -98,12 +98,12 @@ def round_hypotheses(
 def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,
                   scale_range: tuple[float, float] | None) -> np.ndarray:
     """Which similarities ``z -> a z + b`` the search may answer: finite, the image centre ``b`` within
-    ``PRIOR_SLACK`` prior radii of the prior's centre, the scale ``|a|`` within ``scale_range``."""
-    ok = np.isfinite(a) & (np.abs(a) > 0)
-    if prior is not None:
-        ok &= np.abs(b - complex(prior[0], prior[1])) <= PRIOR_SLACK * prior[2]
-    if scale_range is not None:
-        ok &= (np.abs(a) >= scale_range[0]) & (np.abs(a) <= scale_range[1])
+    ``PRIOR_SLACK`` prior radii of the prior's centre, the scale ``|a|`` within ``scale_range`` (one kernel call)."""
+    ok = np.empty(len(a), bool)
+    centre = (0.0, 0.0, 0.0) if prior is None else (float(prior[0]), float(prior[1]), PRIOR_SLACK * prior[2])
+    lo, hi = (0.0, 0.0) if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
+    _kernel.quads_allowed(np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128),
+                          prior is not None, *centre, scale_range is not None, lo, hi, ok)
     return ok
 
 
