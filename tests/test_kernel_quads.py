@@ -239,6 +239,15 @@ def test_ties_come_in_quad_order_and_the_k_nearest_are_the_same_distances() -> N
         same_query_and_distance = (got[0][1:] == got[0][:-1]) & (np.diff(dist) == 0)
         assert np.all(np.diff(rows)[same_query_and_distance] > 0)
     assert len(got[0]) > 40
+    # Looked up near a place, equal distances come nearest it first: the k kept are the copies near_only keeps.
+    place = complex(objects.x.mean(), objects.y.mean())
+    rows, found = index.lookup(invariants, labels, radius, 8, near=(place, 1e9))
+    dist = np.array([np.sqrt(((data[tuple(z)] - np.r_[invariants[r], key[r]]) ** 2).sum())
+                     for r, z in zip(rows, found, strict=True)])
+    off = np.abs(found.mean(axis=1) - place)
+    tied = (rows[1:] == rows[:-1]) & (dist[1:] == dist[:-1])
+    assert tied.sum() > 50 and np.all(np.diff(off)[tied] >= -1e-9)
+    assert len(index.lookup(invariants, labels, radius, 8, near=(place, 30.0))[0]) > 0
 
 
 def test_edge_inputs_answer_without_crashing() -> None:
@@ -287,18 +296,18 @@ def test_wrong_calls_raise_type_or_value_errors() -> None:
         with pytest.raises(error):
             _kernel.quads_build(bad)
     for args, error in [
-        (((good,), (z,), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1), TypeError),  # not a tree
-        (((tree,), (), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1), ValueError),  # no map points for it
-        (((tree,), (z[:5],), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1), ValueError),  # map points of another size
-        (((tree,), (z.real.copy(),), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1), TypeError),
-        (((tree,), (z,), inv[:, :3].copy(), key, rad, 16, 0.0, 0.0, 0.0, 0.1), ValueError),
-        (((tree,), (z,), inv, key[:1], rad, 16, 0.0, 0.0, 0.0, 0.1), ValueError),
-        (((tree,), (z,), inv, key, rad, 0, 0.0, 0.0, 0.0, 0.1), ValueError),
-        (([tree], [z], inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1), TypeError),
+        (((good,), (z,), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1, False), TypeError),  # not a tree
+        (((tree,), (), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1, False), ValueError),  # no map points for it
+        (((tree,), (z[:5],), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1, False), ValueError),  # map points of another size
+        (((tree,), (z.real.copy(),), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1, False), TypeError),
+        (((tree,), (z,), inv[:, :3].copy(), key, rad, 16, 0.0, 0.0, 0.0, 0.1, False), ValueError),
+        (((tree,), (z,), inv, key[:1], rad, 16, 0.0, 0.0, 0.0, 0.1, False), ValueError),
+        (((tree,), (z,), inv, key, rad, 0, 0.0, 0.0, 0.0, 0.1, False), ValueError),
+        (([tree], [z], inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1, False), TypeError),
     ]:
         with pytest.raises(error):
             _kernel.quads_lookup(*args)
-    rows, found = _kernel.quads_lookup((tree,), (z,), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1)
+    rows, found = _kernel.quads_lookup((tree,), (z,), inv, key, rad, 16, 0.0, 0.0, 0.0, 0.1, False)
     assert isinstance(rows, bytearray) and isinstance(found, bytearray) and len(rows) * 8 == len(found)
 
 

@@ -9,8 +9,10 @@
  * sqeuclidean_distance_double does: its four partial sums start at zero, so they add to the same bits), the
  * distance its square root; then, without positions, the hits within the query's radius; with positions, the
  * distance split into the invariants' part (within the radius) and the position's (within the reach).  Hits come
- * query by query, nearest first; equal distances in point order (scipy's order among ties depends on its tree:
- * the one difference, see tests/test_kernel_quads.py).  Several trees (a prior's tiles) are looked up in one call,
+ * query by query, nearest first; equal distances in point order, or, for an index without positions looked up near a
+ * place, nearest that place first (scipy's order among ties depends on its tree: the one difference, see
+ * tests/test_kernel_quads.py; on a perfect lattice, where thousands of quads tie, the k nearest taken in point order
+ * all lay outside the prior's disc).  Several trees (a prior's tiles) are looked up in one call,
  * their hits tree by tree, as successive lookups gave them.
  *
  * The tree: the points of each label key first gathered under one subtree (three-way partitions around a key), then
@@ -342,14 +344,19 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
 
 typedef struct {
     double d2;
+    double tie;         /* among equal distances, the nearer to the prior's place first (0 without) */
     int64_t i;          /* the point's row */
     Py_ssize_t at;      /* its place in tree order */
 } QuadsHit;
 
-/* (d2, i) ordering: nearer first, equal distances by point row. */
+/* (d2, tie, i) ordering: nearer first; equal distances nearer the prior's place (an index without positions looked
+ * up near one), then by point row. */
 static int quads_before(const QuadsHit *x, const QuadsHit *y)
 {
-    return x->d2 < y->d2 || (x->d2 == y->d2 && x->i < y->i);
+    if (x->d2 != y->d2) {
+        return x->d2 < y->d2;
+    }
+    return x->tie < y->tie || (x->tie == y->tie && x->i < y->i);
 }
 
 /* The k best so far, a max-heap (its worst at 0). */
@@ -357,11 +364,19 @@ typedef struct {
     QuadsHit *h;
     Py_ssize_t n, k;
     double bound2;
+    const double *quad_z;  /* with ``by_place``: equal distances ranked by the squared distance of the quad's */
+    double cx, cy;         /* centroid to (cx, cy) */
+    int by_place;
 } QuadsBest;
 
 static void quads_offer(QuadsBest *b, double d2, int64_t i, Py_ssize_t at_tree)
 {
-    QuadsHit x = {d2, i, at_tree};
+    QuadsHit x = {d2, 0.0, i, at_tree};
+    if (b->by_place) {
+        const double *z = b->quad_z + 8 * i;
+        double ex = 0.25 * (z[0] + z[2] + z[4] + z[6]) - b->cx, ey = 0.25 * (z[1] + z[3] + z[5] + z[7]) - b->cy;
+        x.tie = ex * ex + ey * ey;
+    }
     Py_ssize_t at;
     if (b->n < b->k) {
         if (!(d2 < b->bound2)) {
@@ -484,6 +499,7 @@ typedef struct {
     const double *inv, *key, *radius;
     Py_ssize_t m, k;
     double px, py, reach, bound;
+    int by_place;  /* an index without positions looked up near (px, py) metres: ties broken by the place */
 } QuadsAsk;
 
 /* The squared distance a query's search stays below: the lookup's bound, or less where the query's own filter
@@ -504,7 +520,8 @@ static int quads_lookup_tree(const QuadsTree *t, const double *quad_z, const Qua
 {
     double q[QUADS_MAX_DIM];
     int positions = t->d == 7;
-    QuadsBest b = {heap, 0, ask->k < t->n ? ask->k : t->n, ask->bound * ask->bound};
+    QuadsBest b = {heap, 0, ask->k < t->n ? ask->k : t->n, ask->bound * ask->bound, quad_z, ask->px, ask->py,
+                   ask->by_place && !positions};
     for (Py_ssize_t r = 0; r < ask->m; r++) {
         memcpy(q, ask->inv + 4 * r, sizeof(double) * 4);
         q[4] = ask->key[r];
@@ -573,8 +590,8 @@ static PyObject *quads_lookup(PyObject *self, PyObject *args)
     PyObject *trees, *zs, *oinv, *okey, *orad;
     QuadsAsk ask;
     Arr a[3] = {{{0}}};
-    if (!PyArg_ParseTuple(args, "O!O!OOOndddd:quads_lookup", &PyTuple_Type, &trees, &PyTuple_Type, &zs, &oinv, &okey,
-                          &orad, &ask.k, &ask.px, &ask.py, &ask.reach, &ask.bound)) {
+    if (!PyArg_ParseTuple(args, "O!O!OOOnddddp:quads_lookup", &PyTuple_Type, &trees, &PyTuple_Type, &zs, &oinv,
+                          &okey, &orad, &ask.k, &ask.px, &ask.py, &ask.reach, &ask.bound, &ask.by_place)) {
         return NULL;
     }
     Py_ssize_t nt = PyTuple_GET_SIZE(trees);
@@ -1026,7 +1043,7 @@ PyMethodDef quads_methods[] = {
     {"quads_build", quads_build, METH_VARARGS,
      "quads_build(points): a k-d tree over a quad index's tree points (n, 5 or 7), float64."},
     {"quads_lookup", quads_lookup, METH_VARARGS,
-     "quads_lookup(trees, quad_zs, invariants, key, radius, k, px, py, reach, bound): the hits of image quads in "
+     "quads_lookup(trees, quad_zs, invariants, key, radius, k, px, py, reach, bound, by_place): the hits of image quads in "
      "each tree, tree by tree: (query rows, map points) as bytearrays of int64 and of complex128 (h, 4)."},
     {"quads_keys", quads_keys, METH_VARARGS,
      "quads_keys(zq, sigma, one, tie_factor, factor, max_radius): every frame and ordering of image quads worth "

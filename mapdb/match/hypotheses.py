@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import _kernel
+from ._kernel import quads_allowed, quads_batches, quads_keys
 from .geometry import fit_similarity_complex
 from .options import FastOptions
 from .quads import QuadIndex, lookup_parts
@@ -62,7 +62,7 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     and its invariants miss the map's.  Such objects still count as evidence in verification.
     """
     members = np.arange(z.size) if anchorable is None else np.flatnonzero(anchorable)
-    quads, counts = _kernel.quads_batches(np.ascontiguousarray(z, np.complex128), members.astype(np.int64),
+    quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members.astype(np.int64),
                                           int(opts.image_neighbours), int(opts.anchors_per_batch),
                                           int(opts.max_batches))
     ends = np.cumsum(np.frombuffer(counts, np.int64))
@@ -102,7 +102,7 @@ def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float
     ok = np.empty(len(a), bool)
     centre = (0.0, 0.0, 0.0) if prior is None else (float(prior[0]), float(prior[1]), PRIOR_SLACK * prior[2])
     lo, hi = (0.0, 0.0) if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
-    _kernel.quads_allowed(np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128),
+    quads_allowed(np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128),
                           prior is not None, *centre, scale_range is not None, lo, hi, ok)
     return ok
 
@@ -183,7 +183,7 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
         one, sigma = float(sigma_px), None
     else:
         one, sigma = 0.0, np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape))
-    rows, orders, inv, radius = _kernel.quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0),
+    rows, orders, inv, radius = quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0),
                                                    float(opts.tolerance_factor), float(opts.max_invariant_radius))
     if not rows:
         return None

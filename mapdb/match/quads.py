@@ -16,7 +16,7 @@ import numpy as np
 
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
-from . import _kernel
+from ._kernel import quads_build, quads_lookup
 
 __all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "first_rows", "label_keys",
            "lookup_parts", "near_only", "nearest_others", "neighbour_quads"]
@@ -194,7 +194,7 @@ class QuadTree:
 
     def __init__(self, data: np.ndarray) -> None:
         self.data = data
-        self.handle = _kernel.quads_build(np.ascontiguousarray(data, np.float64))
+        self.handle = quads_build(np.ascontiguousarray(data, np.float64))
 
     def __reduce__(self) -> tuple:
         return (QuadTree, (self.data,))
@@ -374,10 +374,14 @@ def lookup_parts(
     trees = [_kernel_tree(ix) for ix, _ in parts]
     key = label_keys(labels, len(first.labels))
     np.multiply(key, LABEL_GAP, out=key)
-    rows, flat = _kernel.quads_lookup(
+    if not first.positions and near is not None:
+        # Equal distances (a regular pattern's copies) ranked nearest the prior's place, so that the k nearest kept
+        # before near_only are those it keeps where the map repeats itself.
+        place = complex(near[0])
+    rows, flat = quads_lookup(
         tuple(trees), tuple(np.ascontiguousarray(ix.quad_z, np.complex128) for ix, _ in parts),
         np.ascontiguousarray(invariants, np.float64), key, np.ascontiguousarray(radius, np.float64), int(k),
-        place.real, place.imag, reach, bound)
+        place.real, place.imag, reach, bound, not first.positions and near is not None)
     hit_rows, map_z = np.frombuffer(rows, np.int64), np.frombuffer(flat, np.complex128).reshape(-1, 4)
     return (hit_rows, map_z) if first.positions else near_only(hit_rows, map_z, near)
 
