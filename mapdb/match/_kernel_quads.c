@@ -326,6 +326,12 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
     Py_ssize_t root;
     Py_BEGIN_ALLOW_THREADS
     root = quads_build_keys(t, 0, n);
+    if (root >= 0 && t->n_nodes < t->cap) {  /* give back what the nodes did not use */
+        QuadsNode *nodes = realloc(t->nodes, sizeof(QuadsNode) * t->n_nodes);
+        double *box = realloc(t->box, sizeof(double) * 2 * d * t->n_nodes);
+        t->nodes = nodes ? nodes : t->nodes;
+        t->box = box ? box : t->box;
+    }
     Py_END_ALLOW_THREADS
     t->src = NULL;
     arr_release(a, 1);
