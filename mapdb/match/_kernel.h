@@ -43,6 +43,8 @@ void sort_values(double *x, Py_ssize_t n);
 
 /* Quad lookups (_kernel_quads.c). */
 extern PyMethodDef quads_methods[];
+extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */
+extern PyMethodDef image_quads_methods[];  /* _kernel_image_quads.c */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)
