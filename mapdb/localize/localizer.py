@@ -133,6 +133,11 @@ class NearQuads:
                k: int) -> tuple[np.ndarray, np.ndarray]:
         return self.index.lookup(invariants, labels, radius, k, near=self.near)
 
+    def quad_part(self) -> tuple[QuadIndex, tuple[complex, float]] | None:
+        """The in-memory index and the disc it is looked up in, for one kernel call over a prior's tiles
+        (:func:`~mapdb.match.quads.lookup_parts`); None for a stored index."""
+        return (self.index, self.near) if isinstance(self.index, QuadIndex) else None
+
 
 class Localizer:
     """A map with the matcher's indexes and options: answers images one after another.

@@ -636,5 +636,17 @@ PyMODINIT_FUNC PyInit__kernel(void)
         Py_DECREF(m);
         return NULL;
     }
+    if (PyModule_AddFunctions(m, quads_methods) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    if (PyModule_AddFunctions(m, quad_tree_methods) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
+    if (PyModule_AddFunctions(m, image_quads_methods) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
     return m;
 }

@@ -44,6 +44,10 @@ void sort_values(double *x, Py_ssize_t n);
 /* Each concept's method table, added to the module by PyInit__kernel. */
 extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD-trees per label */
 extern PyMethodDef verify_methods[];
+/* Quad lookups (_kernel_quads.c). */
+extern PyMethodDef quads_methods[];
+extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */
+extern PyMethodDef image_quads_methods[];  /* _kernel_image_quads.c */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._kernel import quads_allowed, quads_batches, quads_keys
 from .geometry import fit_similarity_complex
 from .options import FastOptions
-from .quads import PAIRS, QuadIndex, first_rows, neighbour_quads, quad_frames
+from .quads import QuadIndex, lookup_parts
 
 __all__ = [
     "Hypotheses", "allowed_poses", "anchor_batches", "lookup_hypotheses", "pose_votes", "prioritise",
@@ -51,27 +52,23 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     """Image quads ``(m, 4)`` in rounds: anchors nearest the image centre first, each quad in its earliest
     round, at most ``opts.max_batches`` rounds.
 
+    Each (anchorable) object anchors the quads of itself and every triple of its ``opts.image_neighbours`` nearest
+    (:func:`~mapdb.match.quads.neighbour_quads` with its anchors; equal distances in object order), rows of sorted
+    object ids; anchors ranked by ``|z|`` (a stable order), ``opts.anchors_per_batch`` a round.  One kernel call
+    (``_kernel_quads.c``): an image has a few dozen objects, whose arithmetic costs less than numpy's calls.
+
     ``anchorable`` (bool, ``(n,)``) limits quads to those objects: a region cut by the image border has its
     centroid pulled inward, by up to half the hidden part, so a quad holding one predicts the others badly
     and its invariants miss the map's.  Such objects still count as evidence in verification.
     """
-    n = z.size
-    members = np.arange(n) if anchorable is None else np.flatnonzero(anchorable)
-    img_quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag])[members], opts.image_neighbours,
-                                        with_anchor=True)
-    if not len(img_quads):
+    members = np.arange(z.size) if anchorable is None else np.flatnonzero(anchorable)
+    quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members.astype(np.int64),
+                                          int(opts.image_neighbours), int(opts.anchors_per_batch),
+                                          int(opts.max_batches))
+    ends = np.cumsum(np.frombuffer(counts, np.int64))
+    if not ends.size:
         return []
-    img_quads, anchor = members[img_quads], members[anchor]
-    rank = np.empty(n, np.int64)
-    rank[np.argsort(np.abs(z), kind="stable")] = np.arange(n)
-    batch_of = rank[anchor] // opts.anchors_per_batch
-    by_batch = np.argsort(batch_of, kind="stable")
-    in_order = img_quads[by_batch]  # batch by batch, each in quad order
-    first = np.sort(first_rows(in_order, n))
-    n_batches = min(int(batch_of[by_batch[-1]]) + 1, opts.max_batches)
-    # Cut where each batch ends: a few calls, not a few per batch.
-    ends = np.searchsorted(batch_of[by_batch[first]], np.arange(1, n_batches + 1))
-    return np.split(in_order[first], ends)[:n_batches]
+    return np.split(np.frombuffer(quads, np.int64).reshape(-1, 4), ends[:-1])
 
 
 def round_hypotheses(
@@ -101,12 +98,12 @@ def round_hypotheses(
 def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,
                   scale_range: tuple[float, float] | None) -> np.ndarray:
     """Which similarities ``z -> a z + b`` the search may answer: finite, the image centre ``b`` within
-    ``PRIOR_SLACK`` prior radii of the prior's centre, the scale ``|a|`` within ``scale_range``."""
-    ok = np.isfinite(a) & (np.abs(a) > 0)
-    if prior is not None:
-        ok &= np.abs(b - complex(prior[0], prior[1])) <= PRIOR_SLACK * prior[2]
-    if scale_range is not None:
-        ok &= (np.abs(a) >= scale_range[0]) & (np.abs(a) <= scale_range[1])
+    ``PRIOR_SLACK`` prior radii of the prior's centre, the scale ``|a|`` within ``scale_range`` (one kernel call)."""
+    ok = np.empty(len(a), bool)
+    centre = (0.0, 0.0, 0.0) if prior is None else (float(prior[0]), float(prior[1]), PRIOR_SLACK * prior[2])
+    lo, hi = (0.0, 0.0) if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
+    quads_allowed(np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128),
+                          prior is not None, *centre, scale_range is not None, lo, hi, ok)
     return ok
 
 
@@ -143,6 +140,10 @@ def lookup_hypotheses(
     row, order, inv, radius = keys
     img_ids = quads[row[:, None], order]
     labels = img_label[img_ids]  # one array for every index: a prior's tiles share their query points
+    parts = _quad_parts(indexes)
+    if parts is not None:  # in-memory indexes (a prior's tiles): one kernel call for all of them
+        q_row, map_z = lookup_parts(parts, inv, labels, radius, opts.max_hits_per_quad)
+        return img_ids[q_row], map_z
     found_img, found_map = [], []
     for index in indexes:
         q_row, map_z = index.lookup(inv, labels, radius, opts.max_hits_per_quad)
@@ -151,61 +152,43 @@ def lookup_hypotheses(
     return np.concatenate(found_img), np.concatenate(found_map)
 
 
+def _quad_parts(indexes: Sequence) -> list[tuple[QuadIndex, tuple[complex, float] | None]] | None:
+    """Each index as an in-memory :class:`QuadIndex` and the ``near`` it is looked up with (an index that says so by
+    its ``quad_part()``, as the localizer's tiles do); None when one is of another kind (a stored index)."""
+    parts = []
+    for index in indexes:
+        part = (index, None) if isinstance(index, QuadIndex) else getattr(index, "quad_part", lambda: None)()
+        if part is None:
+            return None
+        parts.append(part)
+    return parts
+
+
 def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) -> tuple[np.ndarray, ...] | None:
     """Every frame and ordering of the quads ``zq`` (m, 4) worth looking up: quad rows, orderings (k, 4),
     invariants (k, 4) and lookup radii (k,); None when there is none.
 
     ``sigma_px`` is one pixel error for every point, or one per point ``(m, 4)`` (a cut blob's is wider).
-    Rows come frame by frame (the longest pair's, then the second longest's), each ordering in turn
-    (A, B swapped or not, C, D swapped or not), in quad order within: all of it in a few array operations,
-    since an image has a few hundred quads and per-block calls would cost more than the arithmetic.
+    The longest pair decides a quad's frame; when the second longest is within ``FRAME_TIE_SIGMAS`` standard errors
+    of it, a noisy image can pick either, so both frames are looked up.  Each frame's invariants have a predicted
+    standard error (see the module docs of decision: per point P of C, D sigma_P^2 + sigma_A^2 |1 - t|^2 +
+    sigma_B^2 |t|^2, over |AB|^2, per axis), the radius ``tolerance_factor`` of them; near the canonical-order
+    boundaries (within the radius) each ordering (A, B swapped or not, C, D swapped or not) is looked up too, while
+    the radius is at most ``max_invariant_radius``.  Rows come frame by frame (the longest pair's, then the second
+    longest's), each ordering in turn, in quad order within: one kernel call (``_kernel_quads.c``), the lengths
+    ranked by a stable order (ties in pair order).
     """
-    m = len(zq)
-    # One pixel error for every point (the usual round): scalars where arrays of one value would do, the same
-    # arithmetic element by element.
-    one = float(sigma_px) if np.ndim(sigma_px) == 0 else None
-    sigma = np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape)
-    d = np.abs(zq[:, PAIRS[:, 0]] - zq[:, PAIRS[:, 1]])
-    by_length = np.argsort(-d, axis=1)
-    length = d[np.arange(m)[:, None], by_length[:, :2]]  # (m, 2): longest, second longest
-    # The longest pair decides the frame; when the second longest is within noise of it, a noisy image can
-    # pick either, so both frames are looked up.
-    tie = FRAME_TIE_SIGMAS * math.sqrt(2.0) * (sigma.max(axis=1) if one is None else one)
-    use = np.column_stack([np.ones(m, bool), length[:, 0] - length[:, 1] < tie]) & (length > 0.0)
-    rank, sel = np.nonzero(use.T)  # frame-major: every quad's first frame, then the ties' second
-    if not sel.size:
+    zq = np.ascontiguousarray(zq, np.complex128)
+    if np.ndim(sigma_px) == 0:
+        one, sigma = float(sigma_px), None
+    else:
+        one, sigma = 0.0, np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape))
+    rows, orders, inv, radius = quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0),
+                                                   float(opts.tolerance_factor), float(opts.max_invariant_radius))
+    if not rows:
         return None
-    order0, t0 = quad_frames(zq[sel], by_length[sel, rank])
-    # Predicted standard error of the four invariants (see the module docs of decision): per point P of C, D
-    # sigma_P^2 + sigma_A^2 |1 - t|^2 + sigma_B^2 |t|^2, over |AB|^2, per axis.
-    s2 = sigma[sel[:, None], order0] ** 2 if one is None else np.full((1, 4), one * one)
-    spread = (s2[:, 2:] + s2[:, :1] * np.abs(1.0 - t0) ** 2 + s2[:, 1:2] * np.abs(t0) ** 2).sum(axis=1)
-    radius = opts.tolerance_factor * np.sqrt(spread) / length[sel, rank]
-    order, t, ok = _orderings(order0, t0, radius, opts.max_invariant_radius)  # (4, k, ...)
-    # Output order: frame, then ordering, then quad.
-    block = int(np.searchsorted(rank, 1))
-    which, row = np.nonzero(ok[:, :block])
-    which2, row2 = np.nonzero(ok[:, block:])
-    which = np.concatenate([which, which2])
-    row = np.concatenate([row, row2 + block])
-    if not row.size:
-        return None
-    inv = t[which, row].view(np.float64).reshape(-1, 4)  # Re t_C, Im t_C, Re t_D, Im t_D
-    return sel[row], order[which, row], inv, radius[row]
-
-
-def _orderings(order0: np.ndarray, t0: np.ndarray, radius: np.ndarray, max_radius: float):
-    """The quads' four orderings (A, B swapped or not, C, D swapped or not) stacked: orders ``(4, k, 4)``,
-    invariants ``(4, k, 2)`` and ``ok`` ``(4, k)``, marking the quads for which that ordering could be the
-    canonical one within the lookup radius (and whose radius is at most ``max_radius``)."""
-    swapped_ab = np.concatenate([order0[:, 1::-1], order0[:, 2:]], axis=1)
-    order = np.stack([order0, order0[:, [0, 1, 3, 2]], swapped_ab, swapped_ab[:, [0, 1, 3, 2]]])
-    t_ab = 1.0 - t0
-    t = np.stack([t0, t0[:, ::-1], t_ab, t_ab[:, ::-1]])
-    slack = radius * math.sqrt(2.0)
-    ok = (t.real.sum(axis=2) - 1.0 <= slack) & (t[:, :, 0].real - t[:, :, 1].real <= slack)
-    ok &= radius <= max_radius
-    return order, t, ok
+    return (np.frombuffer(rows, np.int64), np.frombuffer(orders, np.int64).reshape(-1, 4),
+            np.frombuffer(inv, np.float64).reshape(-1, 4), np.frombuffer(radius, np.float64))
 
 
 def pose_votes(a: np.ndarray, b: np.ndarray, diag_px: float) -> np.ndarray:

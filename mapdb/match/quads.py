@@ -10,14 +10,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from itertools import combinations
+from typing import Protocol
 
 import numpy as np
 
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
+from ._kernel import quads_build, quads_lookup
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "canonical_quads", "first_rows", "label_keys", "near_only",
-           "nearest_others", "neighbour_quads", "quad_frames"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "first_rows", "label_keys",
+           "lookup_parts", "near_only", "nearest_others", "neighbour_quads"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -135,15 +137,6 @@ def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, worke
     return nn[~own].reshape(ids.size, k)
 
 
-def quad_frames(zq: np.ndarray, pair: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex order ``(A, B, C, D)`` per quad for the chosen pair index, and ``t_C``, ``t_D``."""
-    rows = np.arange(len(zq))
-    order = np.concatenate([PAIRS[pair], OTHERS[pair]], axis=1)
-    a, b = zq[rows, order[:, 0]], zq[rows, order[:, 1]]
-    t = (zq[rows[:, None], order[:, 2:]] - a[:, None]) / (b - a)[:, None]
-    return order, t
-
-
 def canonical_quads(zq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Canonical vertex order and invariants of quads given as complex points ``(m, 4)``.
 
@@ -188,31 +181,27 @@ def label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
     return key
 
 
-# The last lookup's query points, with the arrays they were made from (held, so that identity means equality): a
-# prior's tiles are looked up one after another with the same image quads.
-_last_query: tuple = ()
+class TreePoints(Protocol):
+    """What every quad index's ``tree`` holds: its tree points (a :class:`QuadTree`, or only the points, as the parts
+    of :func:`~mapdb.match.mapobjects.blocks_view.block_quads` before they are merged)."""
+
+    data: np.ndarray
 
 
-def _query_points(invariants: np.ndarray, labels: np.ndarray, n_labels: int, place: complex | None) -> np.ndarray:
-    """The tree points of image quads: invariants, label key and, for an index with positions, the prior's
-    centre ``place`` (tree units); the last ones again when asked again for the same arrays."""
-    global _last_query
-    last = _last_query
-    if last and last[0] is invariants and last[1] is labels and last[2] == n_labels and last[3] == place:
-        return last[4]
-    m = len(invariants)
-    query = np.empty((m, 5 if place is None else 7))
-    query[:, :4] = invariants
-    np.multiply(label_keys(labels, n_labels), LABEL_GAP, out=query[:, 4])
-    if place is not None:
-        query[:, 5] = place.real
-        query[:, 6] = place.imag
-    _last_query = (invariants, labels, n_labels, place, query)
-    return query
+class QuadTree:
+    """A quad index's tree points ``data`` (:class:`QuadIndex`) and the kernel's k-d tree over them
+    (``_kernel_quads.c``), which answers its lookups; pickled as its points (the tree is built again)."""
+
+    def __init__(self, data: np.ndarray) -> None:
+        self.data = data
+        self.handle = quads_build(np.ascontiguousarray(data, np.float64))
+
+    def __reduce__(self) -> tuple:
+        return (QuadTree, (self.data,))
 
 
 class QuadIndex:
-    """Quad invariants of map objects in a cKDTree: where image quads are looked up.
+    """Quad invariants of map objects in a k-d tree (:class:`QuadTree`): where image quads are looked up.
 
     A quad index keeps the map coordinates of its quads' points (not indices into a map), so that
     indexes of separate tiles of a map can be built, cached and searched independently.
@@ -269,7 +258,7 @@ class QuadIndex:
                 centroid = zq.mean(axis=1)
                 np.multiply(POSITION_WEIGHT, centroid.real, out=points[:, 5])
                 np.multiply(POSITION_WEIGHT, centroid.imag, out=points[:, 6])
-            self.tree: cKDTree | None = quick_tree(points)
+            self.tree: TreePoints | None = QuadTree(points)
         else:
             self.tree = None
         self.quad_z = zq
@@ -305,32 +294,7 @@ class QuadIndex:
         map_z : (h, 4) complex
             The hit's map points ``A, B, C, D`` (projected metres).
         """
-        if self.tree is None or not len(invariants):
-            return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
-        bound = float(radius.max())
-        place, reach = 0j, 0.0  # the prior's disc in tree units
-        if self.positions:
-            if near is None:
-                raise ValueError("an index with positions is looked up near a place")
-            place, reach = complex(near[0]) * POSITION_WEIGHT, POSITION_WEIGHT * float(near[1])
-            if self._out_of_reach(place, reach):
-                return np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
-            bound += reach
-        k = min(k, self.n_quads)
-        query = _query_points(invariants, labels, len(self.labels), place if self.positions else None)
-        dist, hit = self.tree.query(query, k=k, distance_upper_bound=bound)
-        dist, hit = dist.reshape(len(invariants), k), hit.reshape(len(invariants), k)
-        if not self.positions:
-            rows, cols = np.nonzero(dist <= radius[:, None])
-            return near_only(rows, self.quad_z[hit[rows, cols]], near)
-        rows, cols = np.nonzero(dist <= bound)
-        hit = hit[rows, cols]
-        # The tree's distance mixes the invariants' with the position's: split them to hold the radius
-        # for the invariants alone and the reach for the position.
-        where = self.tree.data[hit, 5:7]
-        off2 = (where[:, 0] - place.real) ** 2 + (where[:, 1] - place.imag) ** 2
-        keep = (dist[rows, cols] ** 2 - off2 <= radius[rows] ** 2) & (off2 <= reach**2)
-        return rows[keep], self.quad_z[hit[keep]]
+        return lookup_parts([(self, near)], invariants, labels, radius, k)
 
     def _out_of_reach(self, place: complex, reach: float) -> bool:
         """No quad's position (tree units) within ``reach`` of ``place``, by the box of the positions (per axis no
@@ -367,6 +331,65 @@ class QuadIndex:
             merged.tree = None
             merged.quad_z = np.zeros((0, 4), np.complex128)
             return merged
-        merged.tree = quick_tree(np.concatenate([q.tree.data for q in parts if q.tree is not None]))
+        merged.tree = QuadTree(np.concatenate([q.tree.data for q in parts if q.tree is not None]))
         merged.quad_z = np.concatenate([q.quad_z for q in parts])
         return merged
+
+
+def lookup_parts(
+    parts: Sequence[tuple[QuadIndex, tuple[complex, float] | None]], invariants: np.ndarray, labels: np.ndarray,
+    radius: np.ndarray, k: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`QuadIndex.lookup` of several indexes, each with its ``near``: their hits index by index, as
+    successive lookups give them, in one kernel call where the indexes share their labels, positions and ``near``
+    (a prior's tiles).
+
+    Examples
+    --------
+    >>> rng = np.random.default_rng(0)
+    >>> idx = QuadIndex(Objects.from_names(rng.uniform(0, 100, 30), rng.uniform(0, 100, 30), ["b"] * 30))
+    >>> inv = idx.tree.data[:3, :4]
+    >>> rows, _ = lookup_parts([(idx, None), (idx, None)], inv, np.zeros((3, 4), np.int64), np.full(3, 1e-9), 1)
+    >>> rows.tolist()
+    [0, 1, 2, 0, 1, 2]
+    """
+    empty = np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
+    parts = [(ix, near) for ix, near in parts if ix.tree is not None]
+    if not parts or not len(invariants):
+        return empty
+    first, near = parts[0]
+    if any((ix.positions, len(ix.labels), nr) != (first.positions, len(first.labels), near) for ix, nr in parts):
+        found = [lookup_parts([part], invariants, labels, radius, k) for part in parts]
+        return np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
+    bound = float(radius.max())
+    place, reach = 0j, 0.0  # the prior's disc in tree units
+    if first.positions:
+        if near is None:
+            raise ValueError("an index with positions is looked up near a place")
+        place, reach = complex(near[0]) * POSITION_WEIGHT, POSITION_WEIGHT * float(near[1])
+        parts = [(ix, nr) for ix, nr in parts if not ix._out_of_reach(place, reach)]
+        if not parts:
+            return empty
+        bound += reach
+    trees = [_kernel_tree(ix) for ix, _ in parts]
+    key = label_keys(labels, len(first.labels))
+    np.multiply(key, LABEL_GAP, out=key)
+    if not first.positions and near is not None:
+        # Equal distances (a regular pattern's copies) ranked nearest the prior's place, so that the k nearest kept
+        # before near_only are those it keeps where the map repeats itself.
+        place = complex(near[0])
+    rows, flat = quads_lookup(
+        tuple(trees), tuple(np.ascontiguousarray(ix.quad_z, np.complex128) for ix, _ in parts),
+        np.ascontiguousarray(invariants, np.float64), key, np.ascontiguousarray(radius, np.float64), int(k),
+        place.real, place.imag, reach, bound, not first.positions and near is not None)
+    hit_rows, map_z = np.frombuffer(rows, np.int64), np.frombuffer(flat, np.complex128).reshape(-1, 4)
+    return (hit_rows, map_z) if first.positions else near_only(hit_rows, map_z, near)
+
+
+def _kernel_tree(index: QuadIndex) -> object:
+    """The kernel's tree of an index (made now for one holding only its points, as a view's parts do)."""
+    tree = index.tree
+    if not isinstance(tree, QuadTree):
+        assert tree is not None
+        tree = index.tree = QuadTree(tree.data)
+    return tree.handle

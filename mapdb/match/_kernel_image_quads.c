@@ -1,0 +1,420 @@
+/* The image's quads in the kernel (hypotheses.anchor_batches, _quad_keys, allowed_poses): each anchor's nearest
+ * objects, its quads in rounds, each quad once; the frames of each quad, their lookup radii and orderings; numpy's
+ * arithmetic (cabs_np, cdiv) so that the same inputs give the same bits.  Equal lengths and equal distances are
+ * ranked in pair and object order (numpy's default argsort and the KD-tree leave the order of ties to the machine
+ * and the tree).
+ */
+#include "_kernel.h"
+
+#include <float.h>
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* ------------------------------------------------------------------ the image's quads and their keys */
+
+/* The six point pairs of a quad and, for each, the two other points (quads.PAIRS, quads.OTHERS). */
+static const int QUADS_PAIRS[6][4] = {{0, 1, 2, 3}, {0, 2, 1, 3}, {0, 3, 1, 2}, {1, 2, 0, 3}, {1, 3, 0, 2}, {2, 3, 0, 1}};
+
+/* One frame of a quad looked up: vertex order, t_C and t_D (re, im), the radius. */
+typedef struct {
+    int64_t row;
+    int order[4];
+    double t[4];
+    double radius;
+} QuadsFrame;
+
+/* The frame of quad ``z`` (4 complex) by pair ``pair``: its order and invariants (numpy's arithmetic). */
+static void quads_frame(const double *z, int pair, QuadsFrame *f)
+{
+    memcpy(f->order, QUADS_PAIRS[pair], sizeof(f->order));
+    const double *a = z + 2 * f->order[0], *b = z + 2 * f->order[1];
+    double br = b[0] - a[0], bi = b[1] - a[1];
+    for (int c = 0; c < 2; c++) {
+        const double *p = z + 2 * f->order[2 + c];
+        cdiv(p[0] - a[0], p[1] - a[1], br, bi, &f->t[2 * c], &f->t[2 * c + 1]);
+    }
+}
+
+/* The lookup radius of a frame (hypotheses._quad_keys): per point P of C, D sigma_P^2 + sigma_A^2 |1 - t|^2 +
+ * sigma_B^2 |t|^2, summed, its root times ``factor`` over |AB|. */
+static double quads_radius(const QuadsFrame *f, const double *s, double factor, double length)
+{
+    double spread = 0.0;
+    for (int c = 0; c < 2; c++) {
+        double re = f->t[2 * c], im = f->t[2 * c + 1];
+        double u = cabs_np(1.0 - re, 0.0 - im), v = cabs_np(re, im);
+        double sp = s[f->order[2 + c]] * s[f->order[2 + c]], sa = s[f->order[0]] * s[f->order[0]];
+        double sb = s[f->order[1]] * s[f->order[1]];
+        double e = sp + sa * (u * u) + sb * (v * v);
+        spread = c ? spread + e : e;
+    }
+    return factor * sqrt(spread) / length;
+}
+
+/* The frames of ``m`` quads (``zq`` m x 4 complex, ``sigma`` m x 4 or NULL for ``one``): every quad's longest pair's,
+ * then, where the second longest is within ``tie_factor`` sigma of it, the second's (the lengths' order a stable
+ * one).  Returns how many, written to ``frames`` (room for 2 m); ``*block``, how many are first frames. */
+static Py_ssize_t quads_frames(const double *zq, const double *sigma, Py_ssize_t m, double one, double tie_factor,
+                               double factor, QuadsFrame *frames, Py_ssize_t *block)
+{
+    Py_ssize_t h = 0;
+    for (int rank = 0; rank < 2; rank++) {
+        if (rank == 1) {
+            *block = h;
+        }
+        for (Py_ssize_t i = 0; i < m; i++) {
+            const double *z = zq + 8 * i;
+            double d[6];
+            int by[6];
+            for (int j = 0; j < 6; j++) {
+                const double *p = z + 2 * QUADS_PAIRS[j][0], *q = z + 2 * QUADS_PAIRS[j][1];
+                d[j] = cabs_np(p[0] - q[0], p[1] - q[1]);
+                int at = j;  /* insertion by -d, ties in pair order */
+                while (at > 0 && np_less(-d[j], -d[by[at - 1]])) {
+                    by[at] = by[at - 1];
+                    at--;
+                }
+                by[at] = j;
+            }
+            double s[4] = {one, one, one, one};
+            if (sigma) {
+                memcpy(s, sigma + 4 * i, sizeof(s));
+            }
+            double smax = s[0];
+            for (int j = 1; j < 4; j++) {
+                smax = (s[j] > smax || isnan(s[j])) && !isnan(smax) ? s[j] : smax;
+            }
+            double len = d[by[rank]];
+            int use = rank == 0 ? len > 0.0 : (d[by[0]] - d[by[1]] < tie_factor * smax) && len > 0.0;
+            if (use) {
+                frames[h].row = i;
+                quads_frame(z, by[rank], &frames[h]);
+                frames[h].radius = quads_radius(&frames[h], s, factor, len);
+                h++;
+            }
+        }
+    }
+    return h;
+}
+
+/* Ordering ``w`` (A, B swapped or not, C, D swapped or not) of a frame. */
+static void quads_ordering(const QuadsFrame *f, int w, int *order, double *t)
+{
+    int c = (w & 1) ? 1 : 0, ab = w >= 2;
+    order[0] = f->order[ab ? 1 : 0];
+    order[1] = f->order[ab ? 0 : 1];
+    order[2] = f->order[2 + c];
+    order[3] = f->order[3 - c];
+    for (int k = 0; k < 2; k++) {
+        const double *src = f->t + 2 * (k ^ c);
+        t[2 * k] = ab ? 1.0 - src[0] : src[0];
+        t[2 * k + 1] = ab ? 0.0 - src[1] : src[1];
+    }
+}
+
+static PyObject *quads_keys(PyObject *self, PyObject *args)
+{
+    PyObject *ozq, *osigma;
+    double one, tie_factor, factor, max_radius;
+    Arr a[2] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOdddd:quads_keys", &ozq, &osigma, &one, &tie_factor, &factor, &max_radius)) {
+        return NULL;
+    }
+    if (arr_take(ozq, &a[0], "zq", 'Z', 2, 0, 0) || arr_take(osigma, &a[1], "sigma", 'd', 2, 0, 1)
+        || arr_check_shape(&a[0], "zq", arr_dim(&a[0], 0), 4) || arr_check_shape(&a[1], "sigma", arr_dim(&a[0], 0), 4)) {
+        arr_release(a, 2);
+        return NULL;
+    }
+    Py_ssize_t m = arr_dim(&a[0], 0);
+    QuadsFrame *frames = malloc(sizeof(QuadsFrame) * (size_t)(2 * m + 1));
+    PyObject *rows = NULL, *orders = NULL, *inv = NULL, *radius = NULL, *out = NULL;
+    if (!frames) {
+        arr_release(a, 2);
+        return PyErr_NoMemory();
+    }
+    Py_ssize_t block = 0;
+    Py_ssize_t h = quads_frames(D(a[0]), a[1].held ? D(a[1]) : NULL, m, one, tie_factor, factor, frames, &block);
+    rows = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * h);
+    orders = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 16 * h);
+    inv = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 16 * h);
+    radius = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 4 * h);
+    if (rows && orders && inv && radius) {
+        int64_t *r = (int64_t *)PyByteArray_AS_STRING(rows), *o = (int64_t *)PyByteArray_AS_STRING(orders);
+        double *t = (double *)PyByteArray_AS_STRING(inv), *rad = (double *)PyByteArray_AS_STRING(radius);
+        Py_ssize_t n = 0;
+        for (int part = 0; part < 2; part++) {  /* frame block, then ordering, then quad */
+            Py_ssize_t lo = part ? block : 0, hi = part ? h : block;
+            for (int w = 0; w < 4; w++) {
+                for (Py_ssize_t i = lo; i < hi; i++) {
+                    int order[4];
+                    double tt[4], slack = frames[i].radius * 1.4142135623730951;
+                    quads_ordering(&frames[i], w, order, tt);
+                    if (!(tt[0] + tt[2] - 1.0 <= slack && tt[0] - tt[2] <= slack && frames[i].radius <= max_radius)) {
+                        continue;
+                    }
+                    r[n] = frames[i].row;
+                    for (int j = 0; j < 4; j++) {
+                        o[4 * n + j] = order[j];
+                        t[4 * n + j] = tt[j];
+                    }
+                    rad[n++] = frames[i].radius;
+                }
+            }
+        }
+        if (PyByteArray_Resize(rows, sizeof(int64_t) * n) == 0 && PyByteArray_Resize(orders, sizeof(int64_t) * 4 * n) == 0
+            && PyByteArray_Resize(inv, sizeof(double) * 4 * n) == 0 && PyByteArray_Resize(radius, sizeof(double) * n) == 0) {
+            out = PyTuple_Pack(4, rows, orders, inv, radius);
+        }
+    }
+    Py_XDECREF(rows);
+    Py_XDECREF(orders);
+    Py_XDECREF(inv);
+    Py_XDECREF(radius);
+    free(frames);
+    arr_release(a, 2);
+    return out;
+}
+
+/* ------------------------------------------------------------------ the image's quads in rounds */
+
+/* The ``k`` nearest other points of each of ``n`` points ``xy`` (n x 2) into ``nn`` (n x k): the k + 1 nearest
+ * (squared distances as a KD-tree sums them, equal ones in point order), the point itself dropped (the last of them
+ * when another point sits on it and it is not among them: quads.nearest_others); only for the points whose ``wanted`` is not negative. */
+static inline int quads_less(double a, double b)  /* np_less, inlined: NaN last */
+{
+    return isnan(b) ? !isnan(a) : a < b;
+}
+
+static void quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, const int64_t *wanted, int64_t *nn)
+{
+    Keyed near[65];  /* the k + 1 nearest so far, in order (k <= 64) */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (wanted[i] < 0) {
+            continue;
+        }
+        Py_ssize_t have = 0;
+        for (Py_ssize_t j = 0; j < n; j++) {
+            double dx = xy[2 * j] - xy[2 * i], dy = xy[2 * j + 1] - xy[2 * i + 1];
+            Keyed x = {dx * dx + dy * dy, j};
+            if (have == k + 1 && !quads_less(x.v, near[k].v)) {
+                continue;  /* not nearer than the (k+1)-th: equal ones come later in point order */
+            }
+            Py_ssize_t at = have < k + 1 ? have++ : k;
+            while (at > 0 && quads_less(x.v, near[at - 1].v)) {
+                near[at] = near[at - 1];
+                at--;
+            }
+            near[at] = x;
+        }
+        Py_ssize_t out = 0, own = -1;
+        for (Py_ssize_t c = 0; c <= k && own < 0; c++) {
+            own = near[c].i == i ? c : -1;
+        }
+        for (Py_ssize_t c = 0; c <= k; c++) {
+            if (c != (own < 0 ? k : own)) {
+                nn[i * k + out++] = near[c].i;
+            }
+        }
+    }
+}
+
+/* The sorted object ids of anchor ``i``'s quad of its neighbours ``a < b < c`` (positions in ``nn``'s row). */
+static void quads_sorted(const int64_t *nn, const int64_t *members, Py_ssize_t k, Py_ssize_t i, Py_ssize_t a,
+                         Py_ssize_t b, Py_ssize_t c, int64_t *id)
+{
+    int64_t v[4] = {i, nn[i * k + a], nn[i * k + b], nn[i * k + c]};
+    for (int x = 1; x < 4; x++) {
+        for (int y = x; y > 0 && v[y] < v[y - 1]; y--) {
+            int64_t tmp = v[y];
+            v[y] = v[y - 1];
+            v[y - 1] = tmp;
+        }
+    }
+    for (int x = 0; x < 4; x++) {
+        id[x] = members[v[x]];  /* members ascend: the ids stay sorted */
+    }
+}
+
+/* Whether quad ``id`` is new to the set ``seen`` (open addressing, ``mask + 1`` slots of 4 ids, -1 empty); adds it. */
+static int quads_first(int64_t *seen, uint64_t mask, const int64_t *id)
+{
+    uint64_t h = 1469598103934665603ULL;
+    for (int x = 0; x < 4; x++) {
+        h = (h ^ (uint64_t)id[x]) * 1099511628211ULL;
+    }
+    for (uint64_t at = h & mask;; at = (at + 1) & mask) {
+        int64_t *slot = seen + 4 * at;
+        if (slot[0] < 0) {
+            memcpy(slot, id, sizeof(int64_t) * 4);
+            return 1;
+        }
+        if (memcmp(slot, id, sizeof(int64_t) * 4) == 0) {
+            return 0;
+        }
+    }
+}
+
+/* The quads in rounds: anchors by round (``batch``, ascending; member order within), each anchor's quads in triple
+ * order, each quad where it first comes, rounds below ``n_batches``: written to ``out`` (4 ids a quad) with each
+ * round's count in ``counts``.  Returns how many, or -1 out of memory. */
+static Py_ssize_t quads_rounds(const int64_t *nn, const int64_t *members, const int64_t *batch, Py_ssize_t p,
+                               Py_ssize_t k, Py_ssize_t n_batches, int64_t *out, int64_t *counts)
+{
+    Py_ssize_t q = p * (k * (k - 1) * (k - 2) / 6), used = 0;
+    uint64_t slots = 16;
+    while (slots < 2 * (uint64_t)q) {
+        slots *= 2;
+    }
+    int64_t *seen = malloc(sizeof(int64_t) * 4 * slots);
+    if (!seen) {
+        return -1;
+    }
+    memset(seen, 0xff, sizeof(int64_t) * 4 * slots);
+    for (Py_ssize_t b = 0; b < n_batches; b++) {
+        for (Py_ssize_t i = 0; i < p; i++) {
+            for (Py_ssize_t x = 0; x < k && batch[i] == b; x++) {
+                for (Py_ssize_t y = x + 1; y < k; y++) {
+                    for (Py_ssize_t z = y + 1; z < k; z++) {
+                        quads_sorted(nn, members, k, i, x, y, z, out + 4 * used);
+                        if (quads_first(seen, slots - 1, out + 4 * used)) {
+                            counts[b]++;
+                            used++;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    free(seen);
+    return used;
+}
+
+static PyObject *quads_batches(PyObject *self, PyObject *args)
+{
+    PyObject *oz, *omembers;
+    Py_ssize_t neighbours, per_batch, max_batches;
+    Arr a[2] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOnnn:quads_batches", &oz, &omembers, &neighbours, &per_batch, &max_batches)) {
+        return NULL;
+    }
+    if (arr_take(oz, &a[0], "z", 'Z', 1, 0, 0) || arr_take(omembers, &a[1], "members", 'q', 1, 0, 0)) {
+        arr_release(a, 2);
+        return NULL;
+    }
+    Py_ssize_t n = arr_dim(&a[0], 0), p = arr_dim(&a[1], 0), k = neighbours < p - 1 ? neighbours : p - 1;
+    const double *z = D(a[0]);
+    const int64_t *members = Q(a[1]);
+    int bad = per_batch < 1 || max_batches < 0 || neighbours > 64;
+    for (Py_ssize_t i = 0; i < p && !bad; i++) {
+        bad = members[i] < 0 || members[i] >= n || (i > 0 && members[i] <= members[i - 1]);
+    }
+    if (bad) {
+        arr_release(a, 2);
+        return PyErr_Format(PyExc_ValueError, "need ascending members in [0, len(z)), per_batch >= 1, max_batches >= 0 "
+                            "and at most 64 neighbours");
+    }
+    Py_ssize_t triples = k < 3 ? 0 : k * (k - 1) * (k - 2) / 6, q = p * triples;
+    double *xy = malloc(sizeof(double) * (size_t)(2 * p + 1));
+    int64_t *nn = malloc(sizeof(int64_t) * (size_t)(p * (k > 0 ? k : 0) + 1));
+    int64_t *rank = malloc(sizeof(int64_t) * (size_t)(n + 1));
+    int64_t *batch = malloc(sizeof(int64_t) * (size_t)(p + 1));
+    Keyed *by = malloc(sizeof(Keyed) * (size_t)(n + 1));
+    int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
+    int64_t *counts = calloc((size_t)max_batches + 1, sizeof(int64_t));
+    PyObject *out = NULL;
+    Py_ssize_t used = 0, n_batches = 0;
+    if (!xy || !nn || !rank || !batch || !by || !ids || !counts) {
+        PyErr_NoMemory();
+    } else if (q > 0) {
+        for (Py_ssize_t i = 0; i < n; i++) {  /* anchors nearest the image centre first (a stable order) */
+            by[i].v = cabs_np(z[2 * i], z[2 * i + 1]);
+            by[i].i = i;
+        }
+        sort_keyed(by, n);
+        for (Py_ssize_t i = 0; i < n; i++) {
+            rank[by[i].i] = i;
+        }
+        int64_t last = 0;
+        for (Py_ssize_t i = 0; i < p; i++) {
+            xy[2 * i] = z[2 * members[i]];
+            xy[2 * i + 1] = z[2 * members[i] + 1];
+            batch[i] = rank[members[i]] / per_batch;
+            last = batch[i] > last ? batch[i] : last;
+        }
+        n_batches = last + 1 < max_batches ? last + 1 : max_batches;
+        for (Py_ssize_t i = 0; i < p; i++) {  /* later rounds' anchors are never read */
+            batch[i] = batch[i] < n_batches ? batch[i] : -1;
+        }
+        quads_nearest(xy, p, k, batch, nn);
+        used = quads_rounds(nn, members, batch, p, k, n_batches, ids, counts);
+        if (used < 0) {
+            PyErr_NoMemory();
+        }
+    }
+    if (!PyErr_Occurred()) {
+        PyObject *quads = PyByteArray_FromStringAndSize((const char *)ids, sizeof(int64_t) * 4 * used);
+        PyObject *ends = quads ? PyByteArray_FromStringAndSize((const char *)counts, sizeof(int64_t) * n_batches)
+                               : NULL;
+        out = ends ? PyTuple_Pack(2, quads, ends) : NULL;
+        Py_XDECREF(quads);
+        Py_XDECREF(ends);
+    }
+    free(batch);
+    free(ids);
+    free(xy);
+    free(nn);
+    free(rank);
+    free(by);
+    free(counts);
+    arr_release(a, 2);
+    return out;
+}
+
+/* ------------------------------------------------------------------ the poses a search may answer */
+
+/* hypotheses.allowed_poses: finite a != 0; with a prior, |b - centre| <= reach; with a scale range, lo <= |a| <= hi. */
+static PyObject *quads_allowed(PyObject *self, PyObject *args)
+{
+    PyObject *oa, *ob, *oout;
+    int with_prior, with_scale;
+    double cx, cy, reach, lo, hi;
+    Arr a[3] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOpdddpddO:quads_allowed", &oa, &ob, &with_prior, &cx, &cy, &reach, &with_scale, &lo,
+                          &hi, &oout)) {
+        return NULL;
+    }
+    if (arr_take(oa, &a[0], "a", 'Z', 1, 0, 0) || arr_take(ob, &a[1], "b", 'Z', 1, 0, 0)
+        || arr_take(oout, &a[2], "out", '?', 1, 1, 0) || arr_check_shape(&a[1], "b", arr_dim(&a[0], 0), 0)
+        || arr_check_shape(&a[2], "out", arr_dim(&a[0], 0), 0)) {
+        arr_release(a, 3);
+        return NULL;
+    }
+    const double *av = D(a[0]), *bv = D(a[1]);
+    unsigned char *ok = B(a[2]);
+    for (Py_ssize_t i = 0; i < arr_dim(&a[0], 0); i++) {
+        double scale = cabs_np(av[2 * i], av[2 * i + 1]);
+        int yes = isfinite(av[2 * i]) && isfinite(av[2 * i + 1]) && scale > 0.0;
+        if (with_prior) {
+            yes = yes && cabs_np(bv[2 * i] - cx, bv[2 * i + 1] - cy) <= reach;
+        }
+        if (with_scale) {
+            yes = yes && scale >= lo && scale <= hi;
+        }
+        ok[i] = (unsigned char)yes;
+    }
+    arr_release(a, 3);
+    Py_RETURN_NONE;
+}
+
+PyMethodDef image_quads_methods[] = {
+    {"quads_keys", quads_keys, METH_VARARGS,
+     "quads_keys(zq, sigma, one, tie_factor, factor, max_radius): every frame and ordering of image quads worth "
+     "looking up (hypotheses._quad_keys): quad rows, orders (h, 4), invariants (h, 4), radii, as bytearrays."},
+    {"quads_batches", quads_batches, METH_VARARGS,
+     "quads_batches(z, members, neighbours, per_batch, max_batches): the image's quads in rounds "
+     "(hypotheses.anchor_batches): sorted object ids (q, 4) and each round's count, as bytearrays of int64."},
+    {"quads_allowed", quads_allowed, METH_VARARGS,
+     "quads_allowed(a, b, with_prior, cx, cy, reach, with_scale, lo, hi, out): hypotheses.allowed_poses into out."},
+    {NULL, NULL, 0, NULL},
+};

@@ -1,0 +1,50 @@
+/* The map's quad trees (_kernel_quad_tree.c builds them, _kernel_quads.c looks image quads up in them).
+ *
+ * Lookups: a k-d tree over a quad index's tree points, looked up for image quads in one call.
+ *
+ * The points are what quads.QuadIndex made them: four invariants, the label key (LABEL_GAP apart) and, for an
+ * index with positions, the weighted centroid.  A lookup answers what scipy's cKDTree.query(query, k,
+ * distance_upper_bound=bound) followed by QuadIndex.lookup's filters answered: per query the k nearest points
+ * with squared distance below bound^2, the squared distance summed dimension by dimension in order (as scipy's
+ * sqeuclidean_distance_double does: its four partial sums start at zero, so they add to the same bits), the
+ * distance its square root; then, without positions, the hits within the query's radius; with positions, the
+ * distance split into the invariants' part (within the radius) and the position's (within the reach).  Hits come
+ * query by query, nearest first; equal distances in point order, or, for an index without positions looked up near a
+ * place, nearest that place first (scipy's order among ties depends on its tree: the one difference, see
+ * tests/test_kernel_quads.py; on a perfect lattice, where thousands of quads tie, the k nearest taken in point order
+ * all lay outside the prior's disc).  Several trees (a prior's tiles) are looked up in one call,
+ * their hits tree by tree, as successive lookups gave them.
+ *
+ * The tree: the points of each label key first gathered under one subtree (three-way partitions around a key), then
+ * sliding-midpoint splits of the widest side of the cell the parents' splits leave (scipy's cKDTree's default
+ * rule, with no pass over the points to measure them), leaves of at most QUADS_LEAF points copied in tree order so
+ * that a leaf is read in one stretch, each node's tight box made from its children's.  A subtree is skipped when its
+ * lower bound (the squared gaps to its box, summed in dimension order like a distance, so never above the computed
+ * distance of a point in it) is beyond the k-th distance so far or reaches the bound.
+ */
+#ifndef MAPDB_KERNEL_QUADS_H
+#define MAPDB_KERNEL_QUADS_H
+
+#include "_kernel.h"
+
+#define QUADS_LEAF 16
+#define QUADS_MAX_DIM 16
+#define QUADS_KEY 4  /* the label key's column */
+#define QUADS_CAPSULE "mapdb.match._kernel.quads_tree"
+
+typedef struct {
+    Py_ssize_t lo, hi;   /* the node's points, tree order [lo, hi) */
+    Py_ssize_t left;     /* children (left + 1 is not the right one); -1 for a leaf */
+    Py_ssize_t right;
+} QuadsNode;
+
+typedef struct {
+    Py_ssize_t n, d, n_nodes, cap;
+    double *pts;         /* n * d, tree order */
+    int64_t *idx;        /* tree order -> row of the points given */
+    QuadsNode *nodes;
+    const double *src;   /* the points given, during the build */
+    double *box;         /* per node, the least then the greatest coordinate per dimension (2 d) */
+} QuadsTree;
+
+#endif
