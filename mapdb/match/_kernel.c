@@ -498,7 +498,7 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
         arr_release(a, 5);
         return NULL;
     }
-    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1), t = n - ns;
+    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1);
     if (ns < 0 || ns >= n) {
         PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", n - 1, ns);
     } else if (!arr_check_shape(&a[1], "shape", h, n) && !arr_check_shape(&a[2], "sample", h, n)
@@ -509,26 +509,38 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
         arr_release(a, 5);
         return NULL;
     }
+    int failed = nfa_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, offset, floor_,
+                          D(a[3]), Q(a[4]));
+    arr_release(a, 5);
+    if (failed) {
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+int nfa_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h, Py_ssize_t n,
+             Py_ssize_t ns, double offset, double floor_, double *nfa, int64_t *best)
+{
+    Py_ssize_t t = n - ns;
     Keyed *k = PyMem_Malloc(sizeof(Keyed) * (size_t)(n + 1));
     double *x = PyMem_Malloc(sizeof(double) * (size_t)(2 * n + 2 + t + 1 + h * t));
     if (k == NULL || x == NULL) {
         PyMem_Free(k);
         PyMem_Free(x);
-        arr_release(a, 5);
-        return PyErr_NoMemory();
+        PyErr_NoMemory();
+        return -1;
     }
     double *lf = x + 2 * n + 2, *p = lf + t + 1;
     for (Py_ssize_t i = 0; i <= t; i++) {
         lf[i] = lgamma((double)i + 1.0);
     }
     Py_BEGIN_ALLOW_THREADS
-    chances_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, k, x, x + n + 1, p);
-    curve_rows(p, h, t, offset, floor_, lf, D(a[3]), Q(a[4]));
+    chances_rows(u, shape, sample, h, n, ns, k, x, x + n + 1, p);
+    curve_rows(p, h, t, offset, floor_, lf, nfa, best);
     Py_END_ALLOW_THREADS
     PyMem_Free(k);
     PyMem_Free(x);
-    arr_release(a, 5);
-    Py_RETURN_NONE;
+    return 0;
 }
 
 /* ------------------------------------------------------------------ the decision's tolerance shapes */

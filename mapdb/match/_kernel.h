@@ -41,6 +41,26 @@ int np_less(double a, double b);
 void sort_keyed(Keyed *k, Py_ssize_t n);
 void sort_values(double *x, Py_ssize_t n);
 
+/* A map objects' KD-tree per label as the kernel reads it (_kernel_objects.c describes the arrays). */
+typedef struct {
+    const double *pts;
+    const int64_t *pid;
+    const double *box;
+    const int64_t *node;
+    const int64_t *root;
+    Py_ssize_t n, m, n_labels;
+    int bad;  /* set when a node read names a position or child outside the arrays (arrays changed by hand) */
+} ObjectsTree;
+/* The tree's five arrays from Python objects o[0 .. 5) into a[0 .. 5); 0, or -1 with an error set. */
+int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t);
+/* None, or NULL with ValueError when a walk met a node outside the arrays. */
+PyObject *objects_checked(const ObjectsTree *t);
+/* The nearest object of label l within squared distance bound2 (strictly; ties: lower index), -1 if none. */
+int64_t objects_nearest1(ObjectsTree *t, int64_t l, double qx, double qy, double bound2, double *d2);
+/* log10_nfa_curve's minimum over k and its index for h rows of n (_kernel.c); 0, or -1 with MemoryError set. */
+int nfa_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h, Py_ssize_t n,
+             Py_ssize_t ns, double offset, double floor_, double *nfa, int64_t *best);
+
 /* Each concept's method table, added to the module by PyInit__kernel. */
 extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD-trees per label */
 extern PyMethodDef verify_methods[];

@@ -31,16 +31,6 @@
 
 /* ------------------------------------------------------------------ the tree */
 
-typedef struct {
-    const double *pts;
-    const int64_t *pid;
-    const double *box;
-    const int64_t *node;
-    const int64_t *root;
-    Py_ssize_t n, m, n_labels;
-    int bad;  /* set when a node read names a position or child outside the arrays (arrays changed by hand) */
-} ObjectsTree;
-
 /* Whether node ``nd`` lies in the arrays with its positions, and its children after it (so a walk ends); checked
  * as each node is read, since the arrays come from Python at every call and a whole check costs a walk of all. */
 static inline int objects_node_ok(ObjectsTree *t, int64_t nd)
@@ -268,7 +258,7 @@ static PyObject *objects_build(PyObject *self, PyObject *args)
 /* ------------------------------------------------------------------ taking a tree and queries */
 
 /* The tree's five arrays (a[0 .. 5)) checked against each other; 0, or -1 with an error set. */
-static int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t)
+int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t)
 {
     if (arr_take(o[0], &a[0], "pts", 'd', 2, 0, 0) || arr_take(o[1], &a[1], "pid", 'q', 1, 0, 0)
         || arr_take(o[2], &a[2], "box", 'd', 2, 0, 0) || arr_take(o[3], &a[3], "node", 'q', 2, 0, 0)
@@ -302,7 +292,7 @@ static inline int64_t objects_root(ObjectsTree *t, int64_t l)
 }
 
 /* None, or NULL with ValueError when a walk met a node outside the arrays. */
-static PyObject *objects_checked(const ObjectsTree *t)
+PyObject *objects_checked(const ObjectsTree *t)
 {
     if (t->bad) {
         PyErr_SetString(PyExc_ValueError, "node or root holds a position or child outside the tree");
@@ -370,6 +360,22 @@ static void objects_knn_node(ObjectsTree *t, int64_t nd, double qx, double qy, O
             objects_knn_node(t, c[which], qx, qy, b);
         }
     }
+}
+
+/* The nearest object of label ``l`` to (qx, qy) with a squared distance below ``bound2`` (ties: the lower index):
+ * its index, its squared distance in ``*d2``; -1 when there is none.  A k = 1 query of objects_knn, for the fused
+ * queries of other files (_kernel_verify.c: verify_screen). */
+int64_t objects_nearest1(ObjectsTree *t, int64_t l, double qx, double qy, double bound2, double *d2)
+{
+    double bd = INFINITY;
+    int64_t bi = -1;
+    ObjectsBest b = {&bd, &bi, 1, 0, bound2};
+    int64_t r = isfinite(qx) && isfinite(qy) ? objects_root(t, l) : -1;
+    if (r >= 0 && objects_may_hold(&b, objects_box_near2(t, r, qx, qy))) {
+        objects_knn_node(t, r, qx, qy, &b);
+    }
+    *d2 = bd;
+    return b.count ? bi : -1;
 }
 
 static PyObject *objects_knn(PyObject *self, PyObject *args)

@@ -165,6 +165,104 @@ static PyObject *verify_shifted(PyObject *self, PyObject *args)
     return PyLong_FromSsize_t(count);
 }
 
+/* ------------------------------------------------------------------ the screen, fused */
+
+/* u of every screened object: each hypothesis's projection a z + b of its objects (numpy's complex product and
+ * sum), the nearest map object of the object's label, kept when within reach (ObjectIndex.nearest under the
+ * region's densities), and u = (density pi) (d d) (inf when none).  The search is bounded per point by its own
+ * label's reach (a hair over it, r^2 (1 + 1e-9): every distance whose square root is within the reach lies below),
+ * and an answer kept when it passes the tests ObjectIndex.nearest made with one bound for all (the largest
+ * reach asked, at most half the label gap): the nearest below the smaller bound is the nearest below the larger
+ * one whenever either passes, so the answers are the same with less of the tree walked. */
+static void verify_screen_u(ObjectsTree *t, const double *a, const double *b, const double *z, const int64_t *obj,
+                            const int64_t *lab, const double *reach, const double *density, double half_gap,
+                            Py_ssize_t h, Py_ssize_t k, double *u)
+{
+    double rmax = -INFINITY;
+    for (Py_ssize_t j = 0; j < h * k; j++) {
+        double r = reach[lab[obj[j]]];
+        rmax = r > rmax ? r : rmax;
+    }
+    double bound = half_gap < rmax ? half_gap : rmax, bound2 = bound * bound;
+    for (Py_ssize_t r = 0; r < h; r++) {
+        for (Py_ssize_t c = 0; c < k; c++) {
+            int64_t o = obj[r * k + c], l = lab[o];
+            double wr, wi, d2, reach_l = reach[l], prune2 = reach_l * reach_l * (1.0 + 1e-9);
+            cmul(a[2 * r], a[2 * r + 1], z[2 * o], z[2 * o + 1], &wr, &wi);
+            wr += b[2 * r];
+            wi += b[2 * r + 1];
+            int64_t i = objects_nearest1(t, l, wr, wi, prune2 < bound2 ? prune2 : bound2, &d2);
+            double d = i >= 0 && d2 < bound2 ? sqrt(d2) : INFINITY;
+            d = d <= reach_l ? d : INFINITY;
+            u[r * k + c] = (density[l] * M_PI) * (d * d);
+        }
+    }
+}
+
+/* The arrays' indices in range: 0, or -1 with ValueError set. */
+static int verify_screen_check(const int64_t *obj, Py_ssize_t hk, Py_ssize_t n, const int64_t *lab, Py_ssize_t nl)
+{
+    for (Py_ssize_t j = 0; j < hk; j++) {
+        if (obj[j] < 0 || obj[j] >= n) {
+            PyErr_Format(PyExc_ValueError, "objects holds %lld, outside 0..%zd", (long long)obj[j], n - 1);
+            return -1;
+        }
+    }
+    for (Py_ssize_t j = 0; j < n; j++) {
+        if (lab[j] < 0 || lab[j] >= nl) {
+            PyErr_Format(PyExc_ValueError, "img_label holds %lld, outside 0..%zd", (long long)lab[j], nl - 1);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static PyObject *verify_screen(PyObject *self, PyObject *args)
+{
+    PyObject *o[5], *oa, *ob, *oz, *oobj, *olab, *oreach, *odens, *onfa;
+    double half_gap, offset, floor_;
+    Py_ssize_t ns;
+    Arr a[13] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOdnddO:verify_screen", &o[0], &o[1], &o[2], &o[3], &o[4], &oa, &ob, &oz,
+                          &oobj, &olab, &oreach, &odens, &half_gap, &ns, &offset, &floor_, &onfa)) {
+        return NULL;
+    }
+    ObjectsTree t;
+    if (objects_take_tree(o, a, &t) < 0 || arr_take(oa, &a[5], "a", 'Z', 1, 0, 0) || arr_take(ob, &a[6], "b", 'Z', 1, 0, 0)
+        || arr_take(oz, &a[7], "z", 'Z', 1, 0, 0) || arr_take(oobj, &a[8], "objects", 'q', 2, 0, 0)
+        || arr_take(olab, &a[9], "img_label", 'q', 1, 0, 0) || arr_take(oreach, &a[10], "reach", 'd', 1, 0, 0)
+        || arr_take(odens, &a[11], "density", 'd', 1, 0, 0) || arr_take(onfa, &a[12], "nfa", 'd', 1, 1, 0)) {
+        arr_release(a, 13);
+        return NULL;
+    }
+    Py_ssize_t h = arr_dim(&a[5], 0), k = arr_dim(&a[8], 1), n = arr_dim(&a[7], 0), nl = arr_dim(&a[10], 0);
+    if (arr_check_shape(&a[6], "b", h, 0) || arr_check_shape(&a[8], "objects", h, k)
+        || arr_check_shape(&a[9], "img_label", n, 0) || arr_check_shape(&a[11], "density", nl, 0)
+        || arr_check_shape(&a[12], "nfa", h, 0) || verify_screen_check(Q(a[8]), h * k, n, Q(a[9]), nl)) {
+        arr_release(a, 13);
+        return NULL;
+    }
+    if (ns < 0 || ns >= k) {
+        arr_release(a, 13);
+        PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", k - 1, ns);
+        return NULL;
+    }
+    double *u = PyMem_Malloc(sizeof(double) * (size_t)(h * k + 1));
+    int64_t *best = PyMem_Malloc(sizeof(int64_t) * (size_t)(h + 1));
+    if (u == NULL || best == NULL) {
+        PyMem_Free(u);
+        PyMem_Free(best);
+        arr_release(a, 13);
+        return PyErr_NoMemory();
+    }
+    verify_screen_u(&t, D(a[5]), D(a[6]), D(a[7]), Q(a[8]), Q(a[9]), D(a[10]), D(a[11]), half_gap, h, k, u);
+    int failed = t.bad ? 0 : nfa_rows(u, NULL, NULL, h, k, ns, offset, floor_, D(a[12]), best);
+    PyMem_Free(u);
+    PyMem_Free(best);
+    arr_release(a, 13);
+    return failed ? NULL : objects_checked(&t);
+}
+
 PyMethodDef verify_methods[] = {
     {"verify_errors", verify_errors, METH_VARARGS,
      "verify_errors(z, dist, inlier, sigma, variance): each row's residual sigma and prediction variance factor "
@@ -172,5 +270,8 @@ PyMethodDef verify_methods[] = {
     {"verify_shifted", verify_shifted, METH_VARARGS,
      "verify_shifted(p, lab, a0, b0, tolerance, hit_a, hit_b): the winner's pose moved by the map's repeats among "
      "its inliers' points; returns how many were written."},
+    {"verify_screen", verify_screen, METH_VARARGS,
+     "verify_screen(pts, pid, box, node, root, a, b, z, objects, img_label, reach, density, half_gap, n_sample, "
+     "offset, floor, nfa): the screen's log10 NFA a hypothesis, projections, nearest objects and curve fused."},
     {NULL, NULL, 0, NULL},
 };

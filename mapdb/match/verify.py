@@ -49,11 +49,7 @@ def screen(
     was withheld, but the saving had shrunk to 3 % (0.97x the CPU time an image on the 5M world, ``python
     benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2 --baseline 2731d67``) and
     Monaco's rendered sim-000073 (300 m, heights) moved from 0.08 to 1.66 m off: left out."""
-    objects = screen_of[img_ids[:, 0]]
-    labels = img_label[objects]
-    dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], labels, index.density)
-    u = index.density[labels] * math.pi * dist**2
-    nfa, _ = log10_nfa_curve(u, 4, log10_tests)
+    nfa = index.screen_nfa(a, b, z, screen_of[img_ids[:, 0]], img_label, log10_tests)
     return np.argsort(nfa, kind="stable")[:keep]
 
 

@@ -13,9 +13,10 @@ import math
 import numpy as np
 
 from ...objects import Objects
-from .._kernel import first_allowed
+from .._kernel import first_allowed, verify_screen
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
+from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
 from .kd_forest import Forest
 from .label_trees import LabelTrees
 
@@ -243,10 +244,38 @@ class ObjectIndex:
         if np.ndim(density) > 1:
             return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))[labels]
         if density is self.density:  # the region's: the same reaches for every image, computed once
-            if self._global_reach is None or self._global_reach[0] is not density:
-                self._global_reach = density, np.minimum(np.sqrt(U_MAX / (math.pi * density)), GLOBAL_REACH_M)
-            return self._global_reach[1][labels]
+            return self._label_reach()[labels]
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
+
+    def _label_reach(self) -> np.ndarray:
+        """Each label's reach under the region's densities (``_reach``), made once."""
+        if self._global_reach is None or self._global_reach[0] is not self.density:
+            self._global_reach = self.density, np.minimum(np.sqrt(U_MAX / (math.pi * self.density)), GLOBAL_REACH_M)
+        return self._global_reach[1]
+
+    def screen_nfa(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, objects: np.ndarray, img_label: np.ndarray,
+                   log10_tests: float) -> np.ndarray:
+        """The screen's log10 NFA of each hypothesis ``z -> a z + b`` (``a``, ``b``: ``(H,)``) over its image objects
+        ``objects`` (``(H, k)`` indices into ``z`` and ``img_label``): the curve of
+        :func:`~mapdb.match.nfa.log10_nfa_curve` (4 samples) over ``u = density pi d^2``, ``d`` the distance to the
+        nearest map object of the object's label under the region's densities (:meth:`nearest`).
+
+        One call of the compiled kernel (``verify_screen``: projection, queries and curve), each query bounded by
+        its own label's reach; an index whose ``nearest`` reads pages as queries need them answers through it."""
+        h, k = objects.shape
+        if h == 0 or k <= 4:
+            return np.full(h, np.inf)
+        offset = log10_tests + log10_trials(k - 4)
+        if not isinstance(self.tree, LabelTrees) or type(self).nearest is not ObjectIndex.nearest:
+            labels = img_label[objects]
+            dist, _ = self.nearest(a[:, None] * z[objects] + b[:, None], labels, self.density)
+            return log10_nfa_curve(self.density[labels] * math.pi * dist**2, 4, log10_tests)[0]
+        nfa = np.empty(h)
+        verify_screen(*self.tree._tree(), np.ascontiguousarray(a, np.complex128),
+                      np.ascontiguousarray(b, np.complex128), np.ascontiguousarray(z, np.complex128),
+                      np.ascontiguousarray(objects, np.int64), np.ascontiguousarray(img_label, np.int64),
+                      self._label_reach(), self.density, 0.5 * self.gap, 4, offset, LOG10_FLOOR, nfa)
+        return nfa
 
     def _first_allowed(self, d: np.ndarray, i: np.ndarray, reach: np.ndarray, exclude: np.ndarray | None,
                        allowed: np.ndarray | None = None, repeat: int = 1) -> tuple[np.ndarray, np.ndarray]:

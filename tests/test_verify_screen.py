@@ -1,0 +1,131 @@
+"""The screen's fused kernel call (``verify_screen`` in mapdb/match/_kernel_verify.c, through
+:meth:`ObjectIndex.screen_nfa`) against the numpy code it replaced in :func:`mapdb.match.verify.screen`, kept here
+verbatim as the reference: projection, nearest map object within reach, normalised residuals, the NFA curve.
+
+Random maps and hypotheses and the edges (duplicate objects, ties at the reach, labels absent from the map, points
+far outside the map, NaN, one row, too few objects); the answers must be identical, bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mapdb.match import _kernel
+from mapdb.match.mapobjects.object_index import ObjectIndex
+from mapdb.match.nfa import log10_nfa_curve
+from mapdb.match.verify import screen
+from mapdb.objects import Objects
+
+LABELS = ["building", "tree", "pole", "absent"]
+
+
+def ref_screen(a, b, img_ids, screen_of, z, img_label, index, log10_tests, keep):
+    # main at 28ca4ba, mapdb/match/verify.py: screen
+    objects = screen_of[img_ids[:, 0]]
+    labels = img_label[objects]
+    dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], labels, index.density)
+    u = index.density[labels] * math.pi * dist**2
+    nfa, _ = log10_nfa_curve(u, 4, log10_tests)
+    return np.argsort(nfa, kind="stable")[:keep], nfa
+
+
+def _index(rng, m, duplicates=0):
+    """A clustered map of ``m`` objects of the first three labels (the fourth has none), some duplicated."""
+    centres = rng.uniform(0, 3000, (6, 2))
+    xy = centres[rng.integers(0, 6, m)] + rng.normal(0, 150, (m, 2))
+    label = rng.choice(3, m, p=[0.6, 0.3, 0.1])
+    if duplicates:
+        xy[-duplicates:], label[-duplicates:] = xy[:duplicates], label[:duplicates]
+    return ObjectIndex(Objects(xy[:, 0], xy[:, 1], label, np.full(m, np.nan), LABELS, "EPSG:32631"))
+
+
+def _hypotheses(rng, index, h, n, k):
+    """``h`` hypotheses over ``n`` image objects, ``k`` screened a quad: half near map objects, half anywhere."""
+    z = rng.normal(0, 200, n) + 1j * rng.normal(0, 200, n)
+    img_label = rng.choice(4, n, p=[0.5, 0.3, 0.15, 0.05]).astype(np.int64)
+    a = rng.uniform(0.05, 0.5, h) * np.exp(1j * rng.uniform(-np.pi, np.pi, h))
+    b = index.z[rng.integers(0, len(index), h)] + rng.normal(0, 20, h) + 1j * rng.normal(0, 20, h)
+    b[::2] = rng.uniform(-5000, 8000, b[::2].size) + 1j * rng.uniform(-5000, 8000, b[::2].size)
+    screen_of = np.stack([rng.permutation(n)[:k] for _ in range(n)]).astype(np.int64)
+    img_ids = rng.integers(0, n, (h, 4)).astype(np.int64)
+    return a, b, z, img_label, screen_of, img_ids
+
+
+def _same(got, want):
+    assert got.dtype == want.dtype and got.shape == want.shape
+    assert np.array_equal(got, want, equal_nan=True), np.flatnonzero(got != want)[:10]
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_screen_matches_the_reference(seed):
+    rng = np.random.default_rng(seed)
+    index = _index(rng, int(rng.integers(50, 3000)), duplicates=int(rng.integers(0, 20)))
+    h, n = int(rng.integers(1, 300)), int(rng.integers(5, 40))
+    a, b, z, img_label, screen_of, img_ids = _hypotheses(rng, index, h, n, min(12, n))
+    want_order, want = ref_screen(a, b, img_ids, screen_of, z, img_label, index, 3.2, 24)
+    got = index.screen_nfa(a, b, z, screen_of[img_ids[:, 0]], img_label, 3.2)
+    _same(got, want)
+    assert np.isfinite(want).any()  # some hypotheses found objects: the comparison tested the queries
+    _same(screen(a, b, img_ids, screen_of, z, img_label, index, 3.2, 24), want_order)
+
+
+def test_screen_edges():
+    rng = np.random.default_rng(1)
+    # Duplicates and a lattice (ties of distance), an object exactly at the capped reach (300 m) of a sparse label.
+    xy = np.array([[0.0, 0.0], [0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [300.0, 0.0], [5.0, 5.0]])
+    index = ObjectIndex(Objects(xy[:, 0], xy[:, 1], np.array([0, 0, 0, 0, 0, 2, 1]), np.full(7, np.nan), LABELS,
+                                "EPSG:32631"), bounds=(-1e5, -1e5, 1e5, 1e5))
+    z = np.array([0, 5, 5j, 5 + 5j, 0, 1, 2, np.nan, 3j])
+    img_label = np.array([0, 0, 0, 0, 2, 1, 3, 0, 0])
+    screen_of = np.stack([np.roll(np.arange(9), -i) for i in range(9)])
+    a = np.array([1.0, 1j, 2.0, 1.0 + 0j])
+    b = np.array([0j, 5 + 5j, -1e9, np.inf])
+    img_ids = np.array([[0, 1, 2, 3], [4, 1, 2, 3], [5, 1, 2, 3], [8, 1, 2, 3]])
+    want = ref_screen(a, b, img_ids, screen_of, z, img_label, index, 1.0, 2)[1]
+    _same(index.screen_nfa(a, b, z, screen_of[img_ids[:, 0]], img_label, 1.0), want)
+    assert np.isfinite(want[:2]).all() and want[2] == want[3]  # matched rows; rows matching nothing alike
+    # One row; four or fewer objects a quad (no trials: inf); no hypotheses.
+    _same(index.screen_nfa(a[:1], b[:1], z, screen_of[:1], img_label, 1.0),
+          ref_screen(a[:1], b[:1], img_ids[:1], screen_of, z, img_label, index, 1.0, 2)[1])
+    _same(index.screen_nfa(a, b, z, screen_of[img_ids[:, 0], :4], img_label, 1.0),
+          ref_screen(a, b, img_ids, screen_of[:, :4], z, img_label, index, 1.0, 2)[1])
+    _same(index.screen_nfa(a[:0], b[:0], z, screen_of[:0], img_label, 1.0), np.zeros(0))
+    # An empty map: nothing found anywhere.
+    empty = ObjectIndex(Objects.empty(LABELS))
+    _same(empty.screen_nfa(a, b, z, screen_of[img_ids[:, 0]], img_label, 1.0),
+          ref_screen(a, b, img_ids, screen_of, z, img_label, empty, 1.0, 2)[1])
+    del rng
+
+
+def test_screen_kernel_refuses_wrong_calls():
+    index = ObjectIndex(Objects.from_names([0.0, 10.0, 20.0], [0.0, 0.0, 5.0], ["b", "b", "p"]))
+    tree = index.tree._tree()
+    a, b, z = np.ones(2, complex), np.zeros(2, complex), np.arange(6, dtype=complex)
+    objects, labels = np.zeros((2, 6), np.int64), np.zeros(6, np.int64)
+    reach, dens = index._label_reach(), index.density
+
+    def call(**kw):
+        args = dict(a=a, b=b, z=z, objects=objects, labels=labels, reach=reach, dens=dens, ns=4, nfa=np.empty(2))
+        args.update(kw)
+        _kernel.verify_screen(*tree, args["a"], args["b"], args["z"], args["objects"], args["labels"], args["reach"],
+                              args["dens"], 1e6, args["ns"], 0.0, -300.0, args["nfa"])
+        return args["nfa"]
+
+    assert np.isfinite(call()).all()
+    with pytest.raises(ValueError, match="objects holds"):
+        call(objects=np.full((2, 6), 6, np.int64))
+    with pytest.raises(ValueError, match="img_label holds"):
+        call(labels=np.full(6, 2, np.int64))
+    with pytest.raises(ValueError, match="n_sample"):
+        call(ns=6)
+    with pytest.raises(ValueError):
+        call(nfa=np.empty(3))
+    with pytest.raises(ValueError):
+        call(b=np.zeros(3, complex))
+    with pytest.raises(TypeError):
+        call(objects=objects.astype(np.int32))
+    with pytest.raises(TypeError):
+        call(a=a.real.copy())
