@@ -1,6 +1,8 @@
-"""The screen's fused kernel call (``verify_screen`` in mapdb/match/_kernel_verify.c, through
-:meth:`ObjectIndex.screen_nfa`) against the numpy code it replaced in :func:`mapdb.match.verify.screen`, kept here
-verbatim as the reference: projection, nearest map object within reach, normalised residuals, the NFA curve.
+"""The verification's fused kernel calls (mapdb/match/_kernel_verify.c) against the numpy code they replaced, kept
+here verbatim as the reference: the screen's (``verify_screen`` through :meth:`ObjectIndex.screen_nfa`: projection,
+nearest map object within reach, normalised residuals, the NFA curve) and the decision's on point residuals
+(``verify_decision`` in :func:`mapdb.match.verify.decision_nfa`: the nearest allowed neighbour, the local density,
+tolerance shapes, the curve).
 
 Random maps and hypotheses and the edges (duplicate objects, ties at the reach, labels absent from the map, points
 far outside the map, NaN, one row, too few objects); the answers must be identical, bit for bit.
@@ -14,9 +16,10 @@ import numpy as np
 import pytest
 
 from mapdb.match import _kernel
+from mapdb.match._kernel import quad_tolerance
 from mapdb.match.mapobjects.object_index import ObjectIndex
 from mapdb.match.nfa import log10_nfa_curve
-from mapdb.match.verify import screen
+from mapdb.match.verify import _POINTS, decision_nfa, screen
 from mapdb.objects import Objects
 
 LABELS = ["building", "tree", "pole", "absent"]
@@ -129,3 +132,103 @@ def test_screen_kernel_refuses_wrong_calls():
         call(objects=objects.astype(np.int32))
     with pytest.raises(TypeError):
         call(a=a.real.copy())
+
+
+# ---------------------------------------------------------------- the decision on points, fused
+
+
+def ref_decision_nfa(a, b, img_ids, map_z, z, img_label, index, density, log10_tests, local_neighbours=0,
+                     evidence=None, area_radius=None, near=None):
+    # main at 28ca4ba, mapdb/match/verify.py: decision_nfa (its body, evidence None or plain)
+    h, n = len(a), z.size
+    w = a[:, None] * z[None, :] + b[:, None] if evidence is None else evidence.project(a, b, z)
+    r2, share, from_sample = (evidence or _POINTS).residuals(w, a, b, img_ids, map_z, z, img_label, index, density,
+                                                             area_radius, near)
+    lam = density[:, img_label] if density.ndim > 1 else density[img_label][None, :]
+    if local_neighbours:
+        lam = np.maximum(lam, index.knn_density(w, img_label, local_neighbours, near=near))
+    u = (lam if isinstance(share, float) and share == 1.0 else lam * share) * math.pi * r2
+    shape = np.empty((h, n))
+    sample = np.empty((h, n), bool)
+    quad_tolerance(np.ascontiguousarray(z, np.complex128), np.ascontiguousarray(img_ids, np.int64), shape, sample)
+    nfa, _ = log10_nfa_curve(u, 4, log10_tests, shape=shape, sample=sample)
+    return nfa + from_sample
+
+
+def _quads(rng, index, h, n):
+    """``h`` hypotheses from quads of image objects: the quad's projections land on map objects (their map points)
+    for half of them, anywhere for the rest."""
+    a, b, z, img_label, _, _ = _hypotheses(rng, index, h, n, 5)
+    img_ids = np.stack([rng.permutation(n)[:4] for _ in range(h)]).astype(np.int64)
+    map_z = a[:, None] * z[img_ids] + b[:, None]
+    snap = index.z[index.nearest(map_z, img_label[img_ids], index.density)[1].clip(0)]
+    map_z[::2] = snap[::2]  # at map objects: the exclusion is exercised
+    return a, b, z, img_label, img_ids, map_z
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_decision_matches_the_reference(seed):
+    rng = np.random.default_rng(100 + seed)
+    index = _index(rng, int(rng.integers(50, 3000)), duplicates=int(rng.integers(0, 20)))
+    h, n = int(rng.integers(1, 40)), int(rng.integers(5, 40))
+    a, b, z, img_label, img_ids, map_z = _quads(rng, index, h, n)
+    near = index.neighbours(a[:, None] * z[None, :] + b[:, None], img_label, 6)
+    radius = rng.uniform(50, 800, h)
+    density = index.local_density(b, radius)
+    for dens, local in ((index.density, 0), (density, 6), (density, 0), (index.density, 6)):
+        want = ref_decision_nfa(a, b, img_ids, map_z, z, img_label, index, dens, 2.5, local, None, radius, near)
+        got = decision_nfa(a, b, img_ids, map_z, z, img_label, index, dens, 2.5, local, None, radius, near)
+        _same(got, want)
+        assert np.isfinite(want).any()
+        # The same without the neighbours: the index's own queries.
+        _same(decision_nfa(a, b, img_ids, map_z, z, img_label, index, dens, 2.5, local, None, radius), want)
+
+
+def test_decision_edges():
+    # Duplicates at a quad's map point (one excluded, its twin not), ties, NaN, too few objects, one row.
+    xy = np.array([[0.0, 0.0], [0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [300.0, 0.0], [5.0, 5.0]])
+    index = ObjectIndex(Objects(xy[:, 0], xy[:, 1], np.array([0, 0, 0, 0, 0, 2, 1]), np.full(7, np.nan), LABELS,
+                                "EPSG:32631"), bounds=(-1e5, -1e5, 1e5, 1e5))
+    z = np.array([0, 10, 10j, 10 + 10j, 5 + 5j, 300, 2, np.nan, 3j])
+    img_label = np.array([0, 0, 0, 0, 1, 2, 3, 0, 0])
+    a = np.array([1.0 + 0j, 1.0, 1j, 1e-9])
+    b = np.array([0j, 0.5, 3 + 1j, 1e9])
+    img_ids = np.array([[0, 1, 2, 3], [1, 2, 3, 4], [0, 2, 4, 6], [5, 6, 7, 8]])
+    map_z = a[:, None] * z[img_ids] + b[:, None]
+    near = index.neighbours(a[:, None] * z[None, :] + b[:, None], img_label, 6)
+    dens = index.local_density(b, np.full(4, 100.0))
+    for rows in (slice(None), slice(0, 1)):
+        args = (a[rows], b[rows], img_ids[rows], map_z[rows], z, img_label, index)
+        near_rows = near.take(np.arange(4)[rows])
+        for d, local in ((index.density, 0), (dens[rows], 6)):
+            want = ref_decision_nfa(*args, d, 1.0, local, None, None, near_rows)
+            _same(decision_nfa(*args, d, 1.0, local, near=near_rows), want)
+    short = index.neighbours(a[:, None] * z[None, :4] + b[:, None], img_label[:4], 6)
+    assert np.isinf(decision_nfa(a, b, img_ids % 4, map_z, z[:4], img_label[:4], index, index.density, 1.0,
+                                 near=short)).all()
+
+
+def test_decision_kernel_refuses_wrong_calls():
+    index = ObjectIndex(Objects.from_names([0.0, 10.0, 20.0], [0.0, 0.0, 5.0], ["b", "b", "p"]))
+    z = np.arange(6, dtype=complex)
+    lab = np.zeros(6, np.int64)
+    near = index.neighbours(z[None, :], lab, 3)
+    ids, map_z = np.array([[0, 1, 2, 3]]), np.zeros((1, 4), complex)
+
+    def call(**kw):
+        args = dict(nd=near.dist, ni=near.index, k_first=3, ids=ids, lab=lab, dens=np.atleast_2d(index.density),
+                    local=0, nfa=np.empty(1), ns=4)
+        args.update(kw)
+        _kernel.verify_decision(args["nd"], args["ni"], args["k_first"], index.z, map_z, args["ids"], z, args["lab"],
+                                index.label_reach(index.density), args["dens"], index.counts, args["local"], 1e-6,
+                                args["ns"], 0.0, -300.0, args["nfa"])
+        return args["nfa"]
+
+    assert call().shape == (1,)
+    for kw, match in ((dict(k_first=4), "k_first"), (dict(local=4), "local"), (dict(ids=ids + 3), "img_ids"),
+                      (dict(lab=lab + 2), "img_label"), (dict(ni=-near.index), "negative"), (dict(ns=6), "n_sample"),
+                      (dict(dens=np.ones((2, 2))), "density"), (dict(nfa=np.empty(2)), "nfa")):
+        with pytest.raises(ValueError, match=match):
+            call(**kw)
+    with pytest.raises(TypeError):
+        call(ni=near.index.astype(np.int32))

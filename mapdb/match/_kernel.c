@@ -327,7 +327,7 @@ static PyObject *fit_similarity(PyObject *self, PyObject *args)
 
 /* ------------------------------------------------------------------ the first allowed neighbour */
 
-static void first_allowed_rows(const double *d, const int64_t *idx, const double *reach, const double *z,
+void first_allowed_rows(const double *d, const int64_t *idx, const double *reach, const double *z,
                                Py_ssize_t nz, const double *ex, Py_ssize_t ne, Py_ssize_t repeat,
                                const unsigned char *allowed, Py_ssize_t m, Py_ssize_t k, double *od, int64_t *oi)
 {
@@ -546,7 +546,7 @@ int nfa_rows(const double *u, const double *shape, const unsigned char *sample, 
 /* ------------------------------------------------------------------ the decision's tolerance shapes */
 
 /* One hypothesis: 1.25 + |z - mean|^2 / spread of its quad's image points, and the quad's objects marked. */
-static void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
+void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
                      unsigned char *sample)
 {
     double mr, mi, sr, si;

@@ -60,6 +60,13 @@ int64_t objects_nearest1(ObjectsTree *t, int64_t l, double qx, double qy, double
 /* log10_nfa_curve's minimum over k and its index for h rows of n (_kernel.c); 0, or -1 with MemoryError set. */
 int nfa_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h, Py_ssize_t n,
              Py_ssize_t ns, double offset, double floor_, double *nfa, int64_t *best);
+/* The nearest of each query's k neighbours within its reach, not at its row's excluded points (_kernel.c). */
+void first_allowed_rows(const double *d, const int64_t *idx, const double *reach, const double *z,
+                        Py_ssize_t nz, const double *ex, Py_ssize_t ne, Py_ssize_t repeat,
+                        const unsigned char *allowed, Py_ssize_t m, Py_ssize_t k, double *od, int64_t *oi);
+/* One hypothesis's tolerance shapes and sample mask from its quad's image points (_kernel.c; buf: 2 q doubles). */
+void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
+              unsigned char *sample);
 
 /* Each concept's method table, added to the module by PyInit__kernel. */
 extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD-trees per label */

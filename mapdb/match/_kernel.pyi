@@ -28,3 +28,7 @@ def verify_screen(pts: np.ndarray, pid: np.ndarray, box: np.ndarray, node: np.nd
                   b: np.ndarray, z: np.ndarray, objects: np.ndarray, img_label: np.ndarray, reach: np.ndarray,
                   density: np.ndarray, half_gap: float, n_sample: int, offset: float, floor: float,
                   nfa: np.ndarray) -> None: ...
+def verify_decision(near_d: np.ndarray, near_i: np.ndarray, k_first: int, map_z: np.ndarray, exclude: np.ndarray,
+                    img_ids: np.ndarray, z: np.ndarray, img_label: np.ndarray, reach: np.ndarray, density: np.ndarray,
+                    counts: np.ndarray, local_neighbours: int, kd_floor: float, n_sample: int, offset: float,
+                    floor: float, nfa: np.ndarray) -> None: ...

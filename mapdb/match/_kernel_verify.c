@@ -263,6 +263,148 @@ static PyObject *verify_screen(PyObject *self, PyObject *args)
     return failed ? NULL : objects_checked(&t);
 }
 
+/* ------------------------------------------------------------------ the decision on points, fused */
+
+/* A decision's inputs, read from the neighbours of the projections (ObjectIndex.neighbours: K a point). */
+typedef struct {
+    const double *nd, *zmap, *ex, *z, *reach, *density, *kd_floor;
+    const int64_t *ni, *ids, *lab, *counts;
+    Py_ssize_t h, n, k_near, k_first, nz, ne, q, n_labels, local;
+    int per_row;  /* density holds a row a hypothesis (else one row for all) */
+} VerifyDecision;
+
+/* u of object i under hypothesis r: the first of its k_first neighbours within its label's reach and not at one of
+ * the hypothesis's own map points (ObjectIndex.nearest), its label's density (the larger of it and the
+ * local_neighbours-th neighbour's, ObjectIndex.knn_density, when local_neighbours > 0), (lam pi) (d d). */
+static double verify_decision_u(const VerifyDecision *v, Py_ssize_t r, Py_ssize_t i)
+{
+    Py_ssize_t q = r * v->n + i;
+    int64_t l = v->lab[i], oi;
+    double dist;
+    first_allowed_rows(v->nd + q * v->k_near, v->ni + q * v->k_near, &v->reach[l], v->zmap, v->nz,
+                       v->ex + 2 * r * v->ne, v->ne, 1, NULL, 1, v->k_first, &dist, &oi);
+    double lam = v->density[(v->per_row ? r : 0) * v->n_labels + l];
+    if (v->local > 0) {
+        int64_t kk = v->counts[l] < v->local ? v->counts[l] : v->local;
+        double kd = *v->kd_floor;
+        if (kk > 0) {
+            double d = v->nd[q * v->k_near + kk - 1];
+            d = (isnan(d) || d >= 1e-3) ? d : 1e-3;
+            kd = (double)(kk - 1 > 1 ? kk - 1 : 1) / (M_PI * (d * d));
+        }
+        lam = (isnan(lam) || lam >= kd) ? lam : kd;  /* numpy's maximum: NaN kept */
+    }
+    return (lam * M_PI) * (dist * dist);
+}
+
+/* Shapes of the arrays, indices in range: 0, or -1 with ValueError set. */
+static int verify_decision_check(const VerifyDecision *v, Py_ssize_t rows_density)
+{
+    if (v->k_first < 1 || v->k_first > v->k_near || v->local > v->k_near || v->local < 0 || v->nz < 1) {
+        PyErr_SetString(PyExc_ValueError, "need 1 <= k_first <= K, 0 <= local_neighbours <= K and a map object");
+        return -1;
+    }
+    if (rows_density != 1 && rows_density != v->h) {
+        PyErr_Format(PyExc_ValueError, "density must have 1 or %zd rows, got %zd", v->h, rows_density);
+        return -1;
+    }
+    for (Py_ssize_t j = 0; j < v->h * v->q; j++) {
+        if (v->ids[j] < 0 || v->ids[j] >= v->n) {
+            PyErr_Format(PyExc_ValueError, "img_ids must lie in 0..%zd", v->n - 1);
+            return -1;
+        }
+    }
+    for (Py_ssize_t j = 0; j < v->n; j++) {
+        if (v->lab[j] < 0 || v->lab[j] >= v->n_labels) {
+            PyErr_Format(PyExc_ValueError, "img_label holds %lld, outside 0..%zd", (long long)v->lab[j],
+                         v->n_labels - 1);
+            return -1;
+        }
+    }
+    for (Py_ssize_t j = 0; j < v->h * v->n * v->k_near; j++) {
+        if (v->ni[j] < 0) {
+            PyErr_SetString(PyExc_ValueError, "near_i must hold no negative index");
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* Every row's u, shapes and sample mask, then the curve: 0, or -1 with MemoryError set. */
+static int verify_decision_rows(const VerifyDecision *v, Py_ssize_t ns, double offset, double floor_, double *nfa)
+{
+    Py_ssize_t hn = v->h * v->n;
+    double *u = PyMem_Malloc(sizeof(double) * (size_t)(2 * hn + 2 * v->q + 1));
+    unsigned char *sample = PyMem_Malloc((size_t)hn + 1);
+    int64_t *best = PyMem_Malloc(sizeof(int64_t) * (size_t)(v->h + 1));
+    if (u == NULL || sample == NULL || best == NULL) {
+        PyMem_Free(u);
+        PyMem_Free(sample);
+        PyMem_Free(best);
+        PyErr_NoMemory();
+        return -1;
+    }
+    double *shape = u + hn, *buf = shape + hn;
+    for (Py_ssize_t r = 0; r < v->h; r++) {
+        for (Py_ssize_t i = 0; i < v->n; i++) {
+            u[r * v->n + i] = verify_decision_u(v, r, i);
+        }
+        quad_row(v->z, v->n, v->ids + r * v->q, v->q, buf, shape + r * v->n, sample + r * v->n);
+    }
+    int failed = nfa_rows(u, shape, sample, v->h, v->n, ns, offset, floor_, nfa, best);
+    for (Py_ssize_t r = 0; !failed && r < v->h; r++) {
+        nfa[r] = nfa[r] + 0.0;  /* decision_nfa's nfa + from_sample (zeros): -0.0 becomes 0.0 */
+    }
+    PyMem_Free(u);
+    PyMem_Free(sample);
+    PyMem_Free(best);
+    return failed;
+}
+
+static PyObject *verify_decision(PyObject *self, PyObject *args)
+{
+    static const char *names[11] = {"near_d", "near_i", "map_z", "exclude", "img_ids", "z", "img_label", "reach",
+                                    "density", "counts", "nfa"};
+    static const char kinds[11] = {'d', 'q', 'Z', 'Z', 'q', 'Z', 'q', 'd', 'd', 'q', 'd'};
+    static const int dims[11] = {2, 2, 1, 2, 2, 1, 1, 1, 2, 1, 1};
+    PyObject *o[11];
+    Py_ssize_t k_first, local, ns;
+    double kd_floor, offset, floor_;
+    Arr a[11] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOnOOOOOOOOndnddO:verify_decision", &o[0], &o[1], &k_first, &o[2], &o[3], &o[4],
+                          &o[5], &o[6], &o[7], &o[8], &o[9], &local, &kd_floor, &ns, &offset, &floor_, &o[10])) {
+        return NULL;
+    }
+    for (int j = 0; j < 11; j++) {
+        if (arr_take(o[j], &a[j], names[j], kinds[j], dims[j], j == 10, 0)) {
+            arr_release(a, 11);
+            return NULL;
+        }
+    }
+    VerifyDecision v = {D(a[0]), D(a[2]), D(a[3]), D(a[5]), D(a[7]), D(a[8]), &kd_floor, Q(a[1]), Q(a[4]), Q(a[6]),
+                        Q(a[9]), arr_dim(&a[4], 0), arr_dim(&a[5], 0), arr_dim(&a[0], 1), k_first, arr_dim(&a[2], 0),
+                        arr_dim(&a[3], 1), arr_dim(&a[4], 1), arr_dim(&a[7], 0), local, arr_dim(&a[8], 0) > 1};
+    if (arr_check_shape(&a[0], "near_d", v.h * v.n, v.k_near) || arr_check_shape(&a[1], "near_i", v.h * v.n, v.k_near)
+        || arr_check_shape(&a[3], "exclude", v.h, v.ne) || arr_check_shape(&a[6], "img_label", v.n, 0)
+        || arr_check_shape(&a[8], "density", arr_dim(&a[8], 0), v.n_labels)
+        || arr_check_shape(&a[9], "counts", v.n_labels, 0) || arr_check_shape(&a[10], "nfa", v.h, 0)
+        || verify_decision_check(&v, arr_dim(&a[8], 0))) {
+        arr_release(a, 11);
+        return NULL;
+    }
+    if (ns < 0 || ns >= v.n) {
+        arr_release(a, 11);
+        PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", v.n - 1, ns);
+        return NULL;
+    }
+    int failed = verify_decision_rows(&v, ns, offset, floor_, D(a[10]));
+    arr_release(a, 11);
+    if (failed) {
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 PyMethodDef verify_methods[] = {
     {"verify_errors", verify_errors, METH_VARARGS,
      "verify_errors(z, dist, inlier, sigma, variance): each row's residual sigma and prediction variance factor "
@@ -273,5 +415,9 @@ PyMethodDef verify_methods[] = {
     {"verify_screen", verify_screen, METH_VARARGS,
      "verify_screen(pts, pid, box, node, root, a, b, z, objects, img_label, reach, density, half_gap, n_sample, "
      "offset, floor, nfa): the screen's log10 NFA a hypothesis, projections, nearest objects and curve fused."},
+    {"verify_decision", verify_decision, METH_VARARGS,
+     "verify_decision(near_d, near_i, k_first, map_z, exclude, img_ids, z, img_label, reach, density, counts, "
+     "local_neighbours, kd_floor, n_sample, offset, floor, nfa): decision_nfa on point residuals from the "
+     "projections' neighbours, fused."},
     {NULL, NULL, 0, NULL},
 };

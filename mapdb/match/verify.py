@@ -13,12 +13,12 @@ from typing import Any
 
 import numpy as np
 
-from ._kernel import quad_tolerance
+from ._kernel import quad_tolerance, verify_decision
 from .evidence.image import ImageEvidence
 from .evidence.points import refinement_inliers
 from .geometry import fit_similarity_complex
 from .mapobjects.object_index import Neighbours, ObjectIndex
-from .nfa import log10_nfa_curve
+from .nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
 
 __all__ = ["ObjectIndex", "decision_nfa", "refine", "screen"]
 
@@ -86,6 +86,8 @@ def decision_nfa(
     ``max(5, local_neighbours)`` of them) answers the nearest-object and density queries instead of the index.
     """
     h, n = len(a), z.size
+    if near is not None and _plain(evidence, area_radius) and near.k >= max(1 + map_z.shape[1], local_neighbours):
+        return _decision_points(img_ids, map_z, z, img_label, index, density, log10_tests, local_neighbours, near)
     w = a[:, None] * z[None, :] + b[:, None] if evidence is None else evidence.project(a, b, z)
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
@@ -105,6 +107,31 @@ def decision_nfa(
     quad_tolerance(np.ascontiguousarray(z, np.complex128), np.ascontiguousarray(img_ids, np.int64), shape, sample)
     nfa, _ = log10_nfa_curve(u, 4, log10_tests, shape=shape, sample=sample)
     return nfa + from_sample
+
+
+def _plain(evidence: ImageEvidence | None, area_radius: np.ndarray | None) -> bool:
+    """Whether the decision's residuals are plain point residuals measured from the projections themselves."""
+    return evidence is None or (evidence.errors is None and evidence.terrain is None
+                                and (evidence.areas is None or area_radius is None))
+
+
+def _decision_points(img_ids: np.ndarray, map_z: np.ndarray, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex,
+                     density: np.ndarray, log10_tests: float, local_neighbours: int, near: Neighbours) -> np.ndarray:
+    """:func:`decision_nfa` on point residuals, read from ``near`` (the projections' neighbours, at least
+    ``max(1 + m, local_neighbours)`` of them for ``m`` map points a hypothesis): one call of the compiled kernel
+    (``verify_decision``) for :meth:`~ObjectIndex.nearest` with the quad's own map points excluded,
+    :meth:`~ObjectIndex.knn_density`, ``u``, :func:`quad_tolerance` and the NFA curve."""
+    h, n = near.shape
+    if h == 0 or n <= 4:
+        return np.full(h, np.inf)
+    nfa = np.empty(h)
+    verify_decision(near.dist, near.index, 1 + map_z.shape[1], np.ascontiguousarray(index.z, np.complex128),
+                    np.ascontiguousarray(map_z, np.complex128), np.ascontiguousarray(img_ids, np.int64),
+                    np.ascontiguousarray(z, np.complex128), np.ascontiguousarray(img_label, np.int64),
+                    index.label_reach(density), np.ascontiguousarray(np.atleast_2d(density), np.float64),
+                    np.ascontiguousarray(index.counts, np.int64), local_neighbours, 1.0 / index.area, 4,
+                    log10_tests + log10_trials(n - 4), LOG10_FLOOR, nfa)
+    return nfa
 
 
 def refine(

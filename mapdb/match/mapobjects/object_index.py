@@ -247,6 +247,12 @@ class ObjectIndex:
             return self._label_reach()[labels]
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
 
+    def label_reach(self, density: np.ndarray) -> np.ndarray:
+        """Each label's search reach under ``density`` (``(L,)`` or ``(H, L)``): :meth:`_reach` of every label."""
+        if density is self.density:
+            return self._label_reach()
+        return self._reach(density, np.arange(len(self.labels)))
+
     def _label_reach(self) -> np.ndarray:
         """Each label's reach under the region's densities (``_reach``), made once."""
         if self._global_reach is None or self._global_reach[0] is not self.density:
