@@ -17,7 +17,8 @@ import pytest
 
 from mapdb.match import _kernel
 from mapdb.match._kernel import quad_tolerance
-from mapdb.match.mapobjects.object_index import ObjectIndex
+from mapdb.match.mapobjects.kd_forest import Forest
+from mapdb.match.mapobjects.object_index import _DISC, ObjectIndex
 from mapdb.match.nfa import log10_nfa_curve
 from mapdb.match.verify import _POINTS, decision_nfa, screen
 from mapdb.objects import Objects
@@ -232,3 +233,74 @@ def test_decision_kernel_refuses_wrong_calls():
             call(**kw)
     with pytest.raises(TypeError):
         call(ni=near.index.astype(np.int32))
+
+
+# ---------------------------------------------------------------- label densities in discs, fused
+
+
+def ref_local_density(self, centres, radius):
+    # main at 28ca4ba, mapdb/match/mapobjects/object_index.py: ObjectIndex.local_density
+    centres = np.atleast_1d(np.asarray(centres, np.complex128))
+    radius = np.broadcast_to(np.asarray(radius, np.float64), centres.shape)
+    h, n_labels = centres.size, len(self.labels)
+    minx, miny, maxx, maxy = self.bounds
+    disc = centres[:, None] + radius[:, None] * _DISC[None, :]
+    inside = (disc.real >= minx) & (disc.real <= maxx) & (disc.imag >= miny) & (disc.imag <= maxy)
+    share = np.add.reduce(inside, axis=1, dtype=np.float64) / _DISC.size  # inside.mean(axis=1), one call
+    area = math.pi * radius**2 * np.maximum(share, 1.0 / _DISC.size)
+    count = np.ones((h, n_labels))
+    present = np.flatnonzero(self.counts)
+    if self.tree is not None and present.size:
+        w = np.repeat(centres, present.size)
+        codes = present[None, :].repeat(h, axis=0).ravel()  # np.tile's numbers in one call
+        r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
+        found = self.tree.count(w, codes, r)
+        count[:, present] = np.maximum(found.reshape(h, present.size), 1)
+    return count / area[:, None]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_local_density_matches_the_reference(seed):
+    rng = np.random.default_rng(200 + seed)
+    index = _index(rng, int(rng.integers(20, 3000)), duplicates=int(rng.integers(0, 20)))
+    h = int(rng.integers(1, 60))
+    centres = index.z[rng.integers(0, len(index), h)] + rng.normal(0, 100, h) + 1j * rng.normal(0, 100, h)
+    centres[::3] = rng.uniform(-3000, 6000, centres[::3].size) + 1j * rng.uniform(-3000, 6000, centres[::3].size)
+    radius = rng.uniform(0, 2000, h)
+    _same(index.local_density(centres, radius), ref_local_density(index, centres, radius))
+    # A forest of runs (a paged index's trees) counts as one tree over them all.
+    forest = Forest(len(LABELS))
+    cut = np.sort(rng.integers(0, len(index), 3))
+    for lo, hi in zip([0, *cut], [*cut, len(index)], strict=True):
+        forest.add(index.z[lo:hi], index.label[lo:hi])
+    index.tree = forest
+    assert len(forest.trees) > 1
+    _same(index.local_density(centres, radius), ref_local_density(index, centres, radius))
+
+
+def test_local_density_edges():
+    xy = np.array([[0.0, 0.0], [0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    index = ObjectIndex(Objects(xy[:, 0], xy[:, 1], np.array([0, 0, 0, 2]), np.full(4, np.nan), LABELS, "EPSG:32631"))
+    # On the disc's edge (at most the radius counts), zero and NaN and huge radii, centres far off and not finite.
+    centres = np.array([0j, 0j, 5 + 5j, 1e7 + 0j, np.nan + 0j, 0j, 0j])
+    radius = np.array([10.0, 0.0, 7.0, 50.0, 10.0, np.nan, 1e300])
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        want = ref_local_density(index, centres, radius)
+    _same(index.local_density(centres, radius), want)
+    _same(index.local_density(0j, 10.0), ref_local_density(index, 0j, 10.0))
+    empty = ObjectIndex(Objects.empty(LABELS))
+    _same(empty.local_density(centres[2:4], radius[2:4]), ref_local_density(empty, centres[2:4], radius[2:4]))
+    tree = index.tree._tree()
+    out = np.empty((1, 4))
+    args = (np.array([0j]), np.array([1.0]), _DISC, np.array(index.bounds), np.array([0, 2]), 1e6, out)
+    _kernel.objects_density([tree], *args)
+    with pytest.raises(TypeError):
+        _kernel.objects_density([tree[:4]], *args)
+    with pytest.raises(TypeError):
+        _kernel.objects_density(5, *args)
+    with pytest.raises(ValueError, match="present"):
+        _kernel.objects_density([tree], *args[:4], np.array([4]), *args[5:])
+    with pytest.raises(ValueError):
+        _kernel.objects_density([tree], *args[:6], np.empty((2, 4)))
+    with pytest.raises(ValueError, match="disc"):
+        _kernel.objects_density([tree], args[0], args[1], _DISC[:0], *args[3:])

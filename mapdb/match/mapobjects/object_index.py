@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ...objects import Objects
-from .._kernel import first_allowed, verify_screen
+from .._kernel import first_allowed, objects_density, verify_screen
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
@@ -120,6 +120,7 @@ class ObjectIndex:
                 else (0.0, 0.0, 0.0, 0.0)
             )
         self.bounds = tuple(float(v) for v in bounds)
+        self._bounds = np.array(self.bounds)
         self.area = max((self.bounds[2] - self.bounds[0]) * (self.bounds[3] - self.bounds[1]), 1.0)
         self.counts = np.bincount(self.label, minlength=len(self.labels)) if n else np.zeros(len(self.labels), int)
         # Densities over the whole region only rank hypotheses; the decision uses local ones.
@@ -148,23 +149,20 @@ class ObjectIndex:
         ``centres`` (complex) and ``radius`` have shape ``(H,)``; the result ``(H, L)``.  A label with no
         object in a disc counts one, so that no density is zero.
         """
-        centres = np.atleast_1d(np.asarray(centres, np.complex128))
-        radius = np.broadcast_to(np.asarray(radius, np.float64), centres.shape)
-        h, n_labels = centres.size, len(self.labels)
-        minx, miny, maxx, maxy = self.bounds
-        disc = centres[:, None] + radius[:, None] * _DISC[None, :]
-        inside = (disc.real >= minx) & (disc.real <= maxx) & (disc.imag >= miny) & (disc.imag <= maxy)
-        share = np.add.reduce(inside, axis=1, dtype=np.float64) / _DISC.size  # inside.mean(axis=1), one call
-        area = math.pi * radius**2 * np.maximum(share, 1.0 / _DISC.size)
-        count = np.ones((h, n_labels))
-        present = np.flatnonzero(self.counts)
-        if self.tree is not None and present.size:
-            w = np.repeat(centres, present.size)
-            codes = present[None, :].repeat(h, axis=0).ravel()  # np.tile's numbers in one call
-            r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
-            found = self.tree.count(w, codes, r)
-            count[:, present] = np.maximum(found.reshape(h, present.size), 1)
-        return count / area[:, None]
+        centres = np.ascontiguousarray(np.atleast_1d(np.asarray(centres, np.complex128)).ravel())
+        radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.float64), centres.shape))
+        # The disc's share inside the bounds, its area, each present label's count over the trees: one kernel call.
+        out = np.empty((centres.size, len(self.labels)))
+        objects_density(self._trees(), centres, radius, _DISC, self._bounds, np.flatnonzero(self.counts),
+                        0.5 * self.gap, out)
+        return out
+
+    def _trees(self) -> list[tuple[np.ndarray, ...]]:
+        """The arrays of each :class:`LabelTrees` holding the objects (none without objects)."""
+        tree = self.tree
+        if tree is None:
+            return []
+        return [tree._tree()] if isinstance(tree, LabelTrees) else [t._tree() for t in tree.trees]
 
     def neighbours(self, w: np.ndarray, img_label: np.ndarray, k: int) -> Neighbours | None:
         """The ``k`` nearest map objects of each projected image object's label (``w``: ``(H, n)`` complex,
