@@ -17,10 +17,12 @@ import pytest
 
 from mapdb.match import _kernel
 from mapdb.match._kernel import quad_tolerance
+from mapdb.match.evidence.points import refinement_inliers
+from mapdb.match.geometry import fit_similarity_complex
 from mapdb.match.mapobjects.kd_forest import Forest
 from mapdb.match.mapobjects.object_index import _DISC, ObjectIndex
 from mapdb.match.nfa import log10_nfa_curve
-from mapdb.match.verify import _POINTS, decision_nfa, screen
+from mapdb.match.verify import _POINTS, decision_nfa, refine, screen
 from mapdb.objects import Objects
 
 LABELS = ["building", "tree", "pole", "absent"]
@@ -304,3 +306,106 @@ def test_local_density_edges():
         _kernel.objects_density([tree], *args[:6], np.empty((2, 4)))
     with pytest.raises(ValueError, match="disc"):
         _kernel.objects_density([tree], args[0], args[1], _DISC[:0], *args[3:])
+
+
+# ---------------------------------------------------------------- the refinement, fused
+
+
+def ref_refine(a, b, z, img_label, index, density, log10_tests, iterations, evidence=None, map_z=None, near=None):
+    # main at 28ca4ba, mapdb/match/verify.py: refine (flat ground: its terrain branches never taken here)
+    previous = None
+    terrain = None if evidence is None else evidence.terrain
+    lam = (density[:, img_label] if density.ndim > 1 else density[img_label][None, :]) * math.pi
+    for it in range(iterations + 1):
+        w = a[:, None] * z[None, :] + b[:, None]
+        dist, mid = index.nearest(w, img_label, density, near=near if it == 0 and terrain is None else None)
+        u = lam * dist**2
+        nfa, k_best = log10_nfa_curve(u, 4, log10_tests)
+        inlier = refinement_inliers(u, dist, mid, k_best)
+        if it == iterations:
+            break
+        if previous is not None and (previous[0] == inlier).all() and (previous[1] == mid).all():
+            break
+        previous = inlier, mid
+        target = index.z[np.maximum(mid, 0)]
+        a_new, b_new = fit_similarity_complex(z[None, :], target, inlier)
+        ok = np.isfinite(a_new) & (inlier.sum(axis=1) >= 3)
+        a = np.where(ok, a_new, a)
+        b = np.where(ok, b_new, b)
+    return a, b, nfa, inlier, mid, dist
+
+
+def _near_truth(rng, index, h, n):
+    """Image objects that are a similarity of map objects (with noise and a few strays), and hypotheses near it."""
+    picks = rng.choice(len(index), n, replace=False) if n <= len(index) else rng.integers(0, len(index), n)
+    a0 = 0.3 * np.exp(1j * rng.uniform(-np.pi, np.pi))
+    b0 = index.z[picks].mean()
+    z = (index.z[picks] - b0) / a0 + rng.normal(0, 1.0, n) + 1j * rng.normal(0, 1.0, n)
+    z[: n // 5] += rng.normal(0, 300, n // 5)
+    img_label = index.label[picks].copy()
+    a = a0 * (1 + rng.normal(0, 0.01, h)) * np.exp(1j * rng.normal(0, 0.01, h))
+    b = b0 + rng.normal(0, 5, h) + 1j * rng.normal(0, 5, h)
+    b[::3] = index.z[rng.integers(0, len(index), b[::3].size)]  # elsewhere
+    return a, b, z, img_label
+
+
+def _same_all(got, want):
+    for g, w in zip(got, want, strict=True):
+        _same(np.asarray(g), np.asarray(w))
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_refine_matches_the_reference(seed):
+    rng = np.random.default_rng(300 + seed)
+    index = _index(rng, int(rng.integers(200, 3000)), duplicates=int(rng.integers(0, 20)))
+    h, n = int(rng.integers(1, 12)), int(rng.integers(5, 30))
+    a, b, z, img_label = _near_truth(rng, index, h, n)
+    near = index.neighbours(a[:, None] * z[None, :] + b[:, None], img_label, 6)
+    local = index.local_density(b, np.full(h, 600.0))
+    for density in (index.density, local):
+        for iterations in (0, 1, 2, 4):
+            want = ref_refine(a, b, z, img_label, index, density, 2.0, iterations, near=near)
+            _same_all(refine(a, b, z, img_label, index, density, 2.0, iterations, near=near), want)
+            want = ref_refine(a, b, z, img_label, index, density, 2.0, iterations)
+            _same_all(refine(a, b, z, img_label, index, density, 2.0, iterations), want)
+            assert want[3].any()  # some inliers: the fits ran
+
+
+def test_refine_edges():
+    # Duplicates (ties), a lattice, NaN and far-off hypotheses, one row, too few objects for a curve (n <= 4).
+    xy = np.array([[0.0, 0.0], [0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [20.0, 0.0], [5.0, 5.0]])
+    index = ObjectIndex(Objects(xy[:, 0], xy[:, 1], np.array([0, 0, 0, 0, 0, 0, 1]), np.full(7, np.nan), LABELS,
+                                "EPSG:32631"), bounds=(-1e4, -1e4, 1e4, 1e4))
+    z = np.array([0, 10, 10j, 10 + 10j, 20, 5 + 5j, 3])
+    img_label = np.array([0, 0, 0, 0, 0, 1, 3])
+    a = np.array([1.0 + 0j, 1.0, np.nan, 1j])
+    b = np.array([0j, 0.3 + 0.2j, 0j, 1e8])
+    for rows in (slice(None), slice(0, 1)):
+        for zz, lab in ((z, img_label), (z[:4], img_label[:4]), (z[:1], img_label[:1])):
+            want = ref_refine(a[rows], b[rows], zz, lab, index, index.density, 1.0, 2)
+            _same_all(refine(a[rows], b[rows], zz, lab, index, index.density, 1.0, 2), want)
+
+
+def test_refine_kernel_refuses_wrong_calls():
+    index = ObjectIndex(Objects.from_names([0.0, 10.0, 20.0], [0.0, 0.0, 5.0], ["b", "b", "p"]))
+    tree = index.tree._tree()
+    z, lab = np.arange(6, dtype=complex), np.zeros(6, np.int64)
+
+    def call(**kw):
+        args = dict(a=np.ones(2, complex), lab=lab, dens=np.atleast_2d(index.density), nd=None, ni=None,
+                    inlier=np.empty((2, 6), bool), it=2)
+        args.update(kw)
+        _kernel.verify_refine(*tree, args["a"], np.zeros(2, complex), z, args["lab"], index.z,
+                              index.label_reach(index.density), args["dens"], 1e6, args["it"], args["nd"], args["ni"],
+                              0.0, -300.0, 3.5, np.empty(2), args["inlier"], np.empty((2, 6), np.int64),
+                              np.empty((2, 6)))
+
+    call()
+    near = index.neighbours(z[None, :].repeat(2, axis=0), lab, 2)
+    call(nd=near.dist, ni=near.index)
+    for kw in (dict(lab=lab + 2), dict(dens=np.ones((3, 2))), dict(nd=near.dist), dict(ni=-near.index, nd=near.dist),
+               dict(inlier=np.empty((2, 5), bool)), dict(it=-1), dict(a=np.ones(3, complex))):
+        with pytest.raises(ValueError):
+            call(**kw)
+    with pytest.raises(TypeError):
+        call(a=np.ones(2))

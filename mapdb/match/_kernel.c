@@ -134,7 +134,7 @@ static void row_first_per_map_object(const int64_t *mid, const double *dist, con
     }
 }
 
-static void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_t k_best, double gate,
+void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_t k_best, double gate,
                         Py_ssize_t n, double *x, unsigned char *keep, unsigned char *inlier)
 {
     memcpy(x, u, sizeof(double) * (size_t)n);
@@ -256,7 +256,7 @@ static PyObject *first_per_map_object(PyObject *self, PyObject *args)
 /* ------------------------------------------------------------------ similarity fit */
 
 /* One set: numpy's fit_similarity_complex step by step (w is real, cast to w + 0j where numpy casts it). */
-static void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out)
+void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out)
 {
     double *c = buf;          /* k complex */
     double *re = buf + 2 * k; /* k real */

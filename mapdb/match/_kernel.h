@@ -67,6 +67,11 @@ void first_allowed_rows(const double *d, const int64_t *idx, const double *reach
 /* One hypothesis's tolerance shapes and sample mask from its quad's image points (_kernel.c; buf: 2 q doubles). */
 void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
               unsigned char *sample);
+/* One row's refinement inliers (x: n doubles, keep: n bytes of room) and one weighted similarity fit (buf: 3 k
+ * doubles; out: a, b as re, im pairs), numpy's arithmetic (_kernel.c). */
+void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_t k_best, double gate,
+                 Py_ssize_t n, double *x, unsigned char *keep, unsigned char *inlier);
+void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out);
 
 /* Each concept's method table, added to the module by PyInit__kernel. */
 extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD-trees per label */

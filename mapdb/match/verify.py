@@ -13,10 +13,11 @@ from typing import Any
 
 import numpy as np
 
-from ._kernel import quad_tolerance, verify_decision
+from ._kernel import quad_tolerance, verify_decision, verify_refine
 from .evidence.image import ImageEvidence
-from .evidence.points import refinement_inliers
+from .evidence.points import GATE_SIGMAS, refinement_inliers
 from .geometry import fit_similarity_complex
+from .mapobjects.label_trees import LabelTrees
 from .mapobjects.object_index import Neighbours, ObjectIndex
 from .nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
 
@@ -155,6 +156,9 @@ def refine(
     association's (on flat ground) instead of a query."""
     previous: tuple[np.ndarray, np.ndarray] | None = None
     terrain = None if evidence is None else evidence.terrain
+    tree = index.fused_tree()
+    if terrain is None and tree is not None and z.size:
+        return _refine_flat(tree, a, b, z, img_label, index, density, log10_tests, iterations, near)
     # Each object's density and its share of u, the same every iteration.
     lam = (density[:, img_label] if density.ndim > 1 else density[img_label][None, :]) * math.pi
     for it in range(iterations + 1):
@@ -178,6 +182,26 @@ def refine(
         ok = np.isfinite(a_new) & (inlier.sum(axis=1) >= 3)
         a = np.where(ok, a_new, a)
         b = np.where(ok, b_new, b)
+    return a, b, nfa, inlier, mid, dist
+
+
+def _refine_flat(tree: LabelTrees, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,
+                 index: ObjectIndex, density: np.ndarray, log10_tests: float, iterations: int,
+                 near: Neighbours | None) -> tuple[np.ndarray, ...]:
+    """:func:`refine` on flat ground against an in-memory index's ``tree``: one call of the compiled kernel
+    (``verify_refine``) that runs each hypothesis's rounds (association, curve, inliers, refit) until the last or
+    until its association repeats (each row's rounds are its own: a row whose association repeats would refit to
+    the same bits)."""
+    h, n = len(a), z.size
+    a, b = np.array(a, np.complex128), np.array(b, np.complex128)
+    nfa, inlier = np.empty(h), np.empty((h, n), bool)
+    mid, dist = np.empty((h, n), np.int64), np.empty((h, n))
+    verify_refine(*tree._tree(), a, b, np.ascontiguousarray(z, np.complex128),
+                  np.ascontiguousarray(img_label, np.int64), np.ascontiguousarray(index.z, np.complex128),
+                  index.label_reach(density), np.ascontiguousarray(np.atleast_2d(density), np.float64),
+                  0.5 * index.gap, iterations, None if near is None else near.dist,
+                  None if near is None else near.index, log10_tests + log10_trials(n - 4) if n > 4 else 0.0,
+                  LOG10_FLOOR, GATE_SIGMAS, nfa, inlier, mid, dist)
     return a, b, nfa, inlier, mid, dist
 
 

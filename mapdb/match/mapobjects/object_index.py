@@ -157,6 +157,13 @@ class ObjectIndex:
                         0.5 * self.gap, out)
         return out
 
+    def fused_tree(self) -> LabelTrees | None:
+        """The tree the compiled kernel's fused queries read: the index's :class:`LabelTrees` when it holds its
+        objects in one and answers :meth:`nearest` itself, else None (an index reading pages as queries need them
+        answers through its own methods)."""
+        tree = self.tree
+        return tree if isinstance(tree, LabelTrees) and type(self).nearest is ObjectIndex.nearest else None
+
     def _trees(self) -> list[tuple[np.ndarray, ...]]:
         """The arrays of each :class:`LabelTrees` holding the objects (none without objects)."""
         tree = self.tree
@@ -270,12 +277,13 @@ class ObjectIndex:
         if h == 0 or k <= 4:
             return np.full(h, np.inf)
         offset = log10_tests + log10_trials(k - 4)
-        if not isinstance(self.tree, LabelTrees) or type(self).nearest is not ObjectIndex.nearest:
+        tree = self.fused_tree()
+        if tree is None:
             labels = img_label[objects]
             dist, _ = self.nearest(a[:, None] * z[objects] + b[:, None], labels, self.density)
             return log10_nfa_curve(self.density[labels] * math.pi * dist**2, 4, log10_tests)[0]
         nfa = np.empty(h)
-        verify_screen(*self.tree._tree(), np.ascontiguousarray(a, np.complex128),
+        verify_screen(*tree._tree(), np.ascontiguousarray(a, np.complex128),
                       np.ascontiguousarray(b, np.complex128), np.ascontiguousarray(z, np.complex128),
                       np.ascontiguousarray(objects, np.int64), np.ascontiguousarray(img_label, np.int64),
                       self._label_reach(), self.density, 0.5 * self.gap, 4, offset, LOG10_FLOOR, nfa)
