@@ -573,6 +573,28 @@ static void objects_density_row(ObjectsTree *t, Py_ssize_t n_trees, double cx, d
     }
 }
 
+/* The trees of a sequence of (pts, pid, box, node, root) tuples into t[0 .. n) (their buffers into ta, five a tree;
+ * both allocated by the caller, NULL when that failed): 0, or -1 with an error set. */
+static int objects_take_trees(PyObject *seq, Py_ssize_t n_trees, ObjectsTree *t, Arr *ta)
+{
+    if (t == NULL || ta == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    for (Py_ssize_t k = 0; k < n_trees; k++) {
+        PyObject *item = PySequence_Fast_GET_ITEM(seq, k), *o[5];
+        if (!PyTuple_Check(item) || !PyArg_ParseTuple(item, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])
+            || objects_take_tree(o, ta + 5 * k, &t[k])) {
+            if (!PyErr_Occurred() || PyErr_ExceptionMatches(PyExc_TypeError)) {
+                PyErr_Clear();
+                PyErr_SetString(PyExc_TypeError, "each tree must be a tuple (pts, pid, box, node, root)");
+            }
+            return -1;
+        }
+    }
+    return 0;
+}
+
 static PyObject *objects_density(PyObject *self, PyObject *args)
 {
     PyObject *otrees, *oc, *or, *odisc, *obounds, *opresent, *oout;
@@ -589,18 +611,7 @@ static PyObject *objects_density(PyObject *self, PyObject *args)
     Py_ssize_t n_trees = PySequence_Fast_GET_SIZE(seq);
     ObjectsTree *t = PyMem_Calloc((size_t)n_trees + 1, sizeof(ObjectsTree));
     Arr *ta = PyMem_Calloc(5 * (size_t)n_trees + 1, sizeof(Arr));
-    int failed = t == NULL || ta == NULL;
-    if (failed) {
-        PyErr_NoMemory();
-    }
-    for (Py_ssize_t k = 0; !failed && k < n_trees; k++) {
-        PyObject *item = PySequence_Fast_GET_ITEM(seq, k), *o[5];
-        failed = !PyTuple_Check(item) || !PyArg_ParseTuple(item, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])
-                 || objects_take_tree(o, ta + 5 * k, &t[k]);
-        if (failed && !PyErr_Occurred()) {
-            PyErr_SetString(PyExc_TypeError, "each tree must be a tuple (pts, pid, box, node, root)");
-        }
-    }
+    int failed = objects_take_trees(seq, n_trees, t, ta);
     if (!failed && (arr_take(oc, &a[0], "centres", 'Z', 1, 0, 0) || arr_take(or, &a[1], "radius", 'd', 1, 0, 0)
                     || arr_take(odisc, &a[2], "disc", 'Z', 1, 0, 0) || arr_take(obounds, &a[3], "bounds", 'd', 1, 0, 0)
                     || arr_take(opresent, &a[4], "present", 'q', 1, 0, 0)
