@@ -134,7 +134,7 @@ static void row_first_per_map_object(const int64_t *mid, const double *dist, con
     }
 }
 
-static void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_t k_best, double gate,
+void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_t k_best, double gate,
                         Py_ssize_t n, double *x, unsigned char *keep, unsigned char *inlier)
 {
     memcpy(x, u, sizeof(double) * (size_t)n);
@@ -256,7 +256,7 @@ static PyObject *first_per_map_object(PyObject *self, PyObject *args)
 /* ------------------------------------------------------------------ similarity fit */
 
 /* One set: numpy's fit_similarity_complex step by step (w is real, cast to w + 0j where numpy casts it). */
-static void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out)
+void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out)
 {
     double *c = buf;          /* k complex */
     double *re = buf + 2 * k; /* k real */
@@ -327,7 +327,7 @@ static PyObject *fit_similarity(PyObject *self, PyObject *args)
 
 /* ------------------------------------------------------------------ the first allowed neighbour */
 
-static void first_allowed_rows(const double *d, const int64_t *idx, const double *reach, const double *z,
+void first_allowed_rows(const double *d, const int64_t *idx, const double *reach, const double *z,
                                Py_ssize_t nz, const double *ex, Py_ssize_t ne, Py_ssize_t repeat,
                                const unsigned char *allowed, Py_ssize_t m, Py_ssize_t k, double *od, int64_t *oi)
 {
@@ -498,7 +498,7 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
         arr_release(a, 5);
         return NULL;
     }
-    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1), t = n - ns;
+    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[0], 1);
     if (ns < 0 || ns >= n) {
         PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", n - 1, ns);
     } else if (!arr_check_shape(&a[1], "shape", h, n) && !arr_check_shape(&a[2], "sample", h, n)
@@ -509,32 +509,44 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
         arr_release(a, 5);
         return NULL;
     }
+    int failed = nfa_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, offset, floor_,
+                          D(a[3]), Q(a[4]));
+    arr_release(a, 5);
+    if (failed) {
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+int nfa_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h, Py_ssize_t n,
+             Py_ssize_t ns, double offset, double floor_, double *nfa, int64_t *best)
+{
+    Py_ssize_t t = n - ns;
     Keyed *k = PyMem_Malloc(sizeof(Keyed) * (size_t)(n + 1));
     double *x = PyMem_Malloc(sizeof(double) * (size_t)(2 * n + 2 + t + 1 + h * t));
     if (k == NULL || x == NULL) {
         PyMem_Free(k);
         PyMem_Free(x);
-        arr_release(a, 5);
-        return PyErr_NoMemory();
+        PyErr_NoMemory();
+        return -1;
     }
     double *lf = x + 2 * n + 2, *p = lf + t + 1;
     for (Py_ssize_t i = 0; i <= t; i++) {
         lf[i] = lgamma((double)i + 1.0);
     }
     Py_BEGIN_ALLOW_THREADS
-    chances_rows(D(a[0]), a[1].held ? D(a[1]) : NULL, a[2].held ? B(a[2]) : NULL, h, n, ns, k, x, x + n + 1, p);
-    curve_rows(p, h, t, offset, floor_, lf, D(a[3]), Q(a[4]));
+    chances_rows(u, shape, sample, h, n, ns, k, x, x + n + 1, p);
+    curve_rows(p, h, t, offset, floor_, lf, nfa, best);
     Py_END_ALLOW_THREADS
     PyMem_Free(k);
     PyMem_Free(x);
-    arr_release(a, 5);
-    Py_RETURN_NONE;
+    return 0;
 }
 
 /* ------------------------------------------------------------------ the decision's tolerance shapes */
 
 /* One hypothesis: 1.25 + |z - mean|^2 / spread of its quad's image points, and the quad's objects marked. */
-static void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
+void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
                      unsigned char *sample)
 {
     double mr, mi, sr, si;

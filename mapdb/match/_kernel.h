@@ -41,6 +41,38 @@ int np_less(double a, double b);
 void sort_keyed(Keyed *k, Py_ssize_t n);
 void sort_values(double *x, Py_ssize_t n);
 
+/* A map objects' KD-tree per label as the kernel reads it (_kernel_objects.c describes the arrays). */
+typedef struct {
+    const double *pts;
+    const int64_t *pid;
+    const double *box;
+    const int64_t *node;
+    const int64_t *root;
+    Py_ssize_t n, m, n_labels;
+    int bad;  /* set when a node read names a position or child outside the arrays (arrays changed by hand) */
+} ObjectsTree;
+/* The tree's five arrays from Python objects o[0 .. 5) into a[0 .. 5); 0, or -1 with an error set. */
+int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t);
+/* None, or NULL with ValueError when a walk met a node outside the arrays. */
+PyObject *objects_checked(const ObjectsTree *t);
+/* The nearest object of label l within squared distance bound2 (strictly; ties: lower index), -1 if none. */
+int64_t objects_nearest1(ObjectsTree *t, int64_t l, double qx, double qy, double bound2, double *d2);
+/* log10_nfa_curve's minimum over k and its index for h rows of n (_kernel.c); 0, or -1 with MemoryError set. */
+int nfa_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h, Py_ssize_t n,
+             Py_ssize_t ns, double offset, double floor_, double *nfa, int64_t *best);
+/* The nearest of each query's k neighbours within its reach, not at its row's excluded points (_kernel.c). */
+void first_allowed_rows(const double *d, const int64_t *idx, const double *reach, const double *z,
+                        Py_ssize_t nz, const double *ex, Py_ssize_t ne, Py_ssize_t repeat,
+                        const unsigned char *allowed, Py_ssize_t m, Py_ssize_t k, double *od, int64_t *oi);
+/* One hypothesis's tolerance shapes and sample mask from its quad's image points (_kernel.c; buf: 2 q doubles). */
+void quad_row(const double *z, Py_ssize_t n, const int64_t *ids, Py_ssize_t q, double *buf, double *shape,
+              unsigned char *sample);
+/* One row's refinement inliers (x: n doubles, keep: n bytes of room) and one weighted similarity fit (buf: 3 k
+ * doubles; out: a, b as re, im pairs), numpy's arithmetic (_kernel.c). */
+void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_t k_best, double gate,
+                 Py_ssize_t n, double *x, unsigned char *keep, unsigned char *inlier);
+void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out);
+
 /* Each concept's method table, added to the module by PyInit__kernel. */
 extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD-trees per label */
 extern PyMethodDef verify_methods[];

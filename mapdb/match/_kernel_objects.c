@@ -31,16 +31,6 @@
 
 /* ------------------------------------------------------------------ the tree */
 
-typedef struct {
-    const double *pts;
-    const int64_t *pid;
-    const double *box;
-    const int64_t *node;
-    const int64_t *root;
-    Py_ssize_t n, m, n_labels;
-    int bad;  /* set when a node read names a position or child outside the arrays (arrays changed by hand) */
-} ObjectsTree;
-
 /* Whether node ``nd`` lies in the arrays with its positions, and its children after it (so a walk ends); checked
  * as each node is read, since the arrays come from Python at every call and a whole check costs a walk of all. */
 static inline int objects_node_ok(ObjectsTree *t, int64_t nd)
@@ -268,7 +258,7 @@ static PyObject *objects_build(PyObject *self, PyObject *args)
 /* ------------------------------------------------------------------ taking a tree and queries */
 
 /* The tree's five arrays (a[0 .. 5)) checked against each other; 0, or -1 with an error set. */
-static int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t)
+int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t)
 {
     if (arr_take(o[0], &a[0], "pts", 'd', 2, 0, 0) || arr_take(o[1], &a[1], "pid", 'q', 1, 0, 0)
         || arr_take(o[2], &a[2], "box", 'd', 2, 0, 0) || arr_take(o[3], &a[3], "node", 'q', 2, 0, 0)
@@ -302,7 +292,7 @@ static inline int64_t objects_root(ObjectsTree *t, int64_t l)
 }
 
 /* None, or NULL with ValueError when a walk met a node outside the arrays. */
-static PyObject *objects_checked(const ObjectsTree *t)
+PyObject *objects_checked(const ObjectsTree *t)
 {
     if (t->bad) {
         PyErr_SetString(PyExc_ValueError, "node or root holds a position or child outside the tree");
@@ -370,6 +360,22 @@ static void objects_knn_node(ObjectsTree *t, int64_t nd, double qx, double qy, O
             objects_knn_node(t, c[which], qx, qy, b);
         }
     }
+}
+
+/* The nearest object of label ``l`` to (qx, qy) with a squared distance below ``bound2`` (ties: the lower index):
+ * its index, its squared distance in ``*d2``; -1 when there is none.  A k = 1 query of objects_knn, for the fused
+ * queries of other files (_kernel_verify.c: verify_screen). */
+int64_t objects_nearest1(ObjectsTree *t, int64_t l, double qx, double qy, double bound2, double *d2)
+{
+    double bd = INFINITY;
+    int64_t bi = -1;
+    ObjectsBest b = {&bd, &bi, 1, 0, bound2};
+    int64_t r = isfinite(qx) && isfinite(qy) ? objects_root(t, l) : -1;
+    if (r >= 0 && objects_may_hold(&b, objects_box_near2(t, r, qx, qy))) {
+        objects_knn_node(t, r, qx, qy, &b);
+    }
+    *d2 = bd;
+    return b.count ? bi : -1;
 }
 
 static PyObject *objects_knn(PyObject *self, PyObject *args)
@@ -534,6 +540,124 @@ static PyObject *objects_disc_query(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ label densities in discs */
+
+/* ObjectIndex.local_density of one disc (centre cx + i cy, radius r): the share of the fixed disc sample inside
+ * the bounds (numpy's complex product r (1 + 0i) * disc and sum, as local_density computed it), the disc's area,
+ * and each present label's count over all the trees (at least 1; within min(r, half_gap)), per square metre; the
+ * labels not present count 1. */
+static void objects_density_row(ObjectsTree *t, Py_ssize_t n_trees, double cx, double cy, double r, const double *disc,
+                                Py_ssize_t nd, const double *bounds, const int64_t *present, Py_ssize_t np_,
+                                double half_gap, Py_ssize_t n_labels, double *out)
+{
+    Py_ssize_t inside = 0;
+    for (Py_ssize_t j = 0; j < nd; j++) {
+        double pr, pi;
+        cmul(r, 0.0, disc[2 * j], disc[2 * j + 1], &pr, &pi);
+        double x = cx + pr, y = cy + pi;
+        inside += x >= bounds[0] && x <= bounds[2] && y >= bounds[1] && y <= bounds[3];
+    }
+    double share = (double)inside / (double)nd, least = 1.0 / (double)nd;
+    double area = (M_PI * (r * r)) * (share >= least ? share : least);
+    double rr = half_gap < r ? half_gap : r;  /* numpy's minimum(r, half_gap): NaN kept */
+    rr = isnan(r) ? r : rr;
+    for (Py_ssize_t l = 0; l < n_labels; l++) {
+        out[l] = 1.0 / area;
+    }
+    for (Py_ssize_t j = 0; j < np_ && n_trees > 0; j++) {
+        Py_ssize_t found = 0;
+        for (Py_ssize_t k = 0; k < n_trees; k++) {
+            found += objects_disc(&t[k], present[j], cx, cy, rr, NULL, 0);
+        }
+        out[present[j]] = (double)(found > 1 ? found : 1) / area;
+    }
+}
+
+/* The trees of a sequence of (pts, pid, box, node, root) tuples into t[0 .. n) (their buffers into ta, five a tree;
+ * both allocated by the caller, NULL when that failed): 0, or -1 with an error set. */
+static int objects_take_trees(PyObject *seq, Py_ssize_t n_trees, ObjectsTree *t, Arr *ta)
+{
+    if (t == NULL || ta == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    for (Py_ssize_t k = 0; k < n_trees; k++) {
+        PyObject *item = PySequence_Fast_GET_ITEM(seq, k), *o[5];
+        if (!PyTuple_Check(item) || !PyArg_ParseTuple(item, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])
+            || objects_take_tree(o, ta + 5 * k, &t[k])) {
+            if (!PyErr_Occurred() || PyErr_ExceptionMatches(PyExc_TypeError)) {
+                PyErr_Clear();
+                PyErr_SetString(PyExc_TypeError, "each tree must be a tuple (pts, pid, box, node, root)");
+            }
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static PyObject *objects_density(PyObject *self, PyObject *args)
+{
+    PyObject *otrees, *oc, *or, *odisc, *obounds, *opresent, *oout;
+    double half_gap;
+    Arr a[6] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOOOdO:objects_density", &otrees, &oc, &or, &odisc, &obounds, &opresent, &half_gap,
+                          &oout)) {
+        return NULL;
+    }
+    PyObject *seq = PySequence_Fast(otrees, "trees must be a sequence of (pts, pid, box, node, root)");
+    if (seq == NULL) {
+        return NULL;
+    }
+    Py_ssize_t n_trees = PySequence_Fast_GET_SIZE(seq);
+    ObjectsTree *t = PyMem_Calloc((size_t)n_trees + 1, sizeof(ObjectsTree));
+    Arr *ta = PyMem_Calloc(5 * (size_t)n_trees + 1, sizeof(Arr));
+    int failed = objects_take_trees(seq, n_trees, t, ta);
+    if (!failed && (arr_take(oc, &a[0], "centres", 'Z', 1, 0, 0) || arr_take(or, &a[1], "radius", 'd', 1, 0, 0)
+                    || arr_take(odisc, &a[2], "disc", 'Z', 1, 0, 0) || arr_take(obounds, &a[3], "bounds", 'd', 1, 0, 0)
+                    || arr_take(opresent, &a[4], "present", 'q', 1, 0, 0)
+                    || arr_take(oout, &a[5], "out", 'd', 2, 1, 0))) {
+        failed = 1;
+    }
+    Py_ssize_t h = arr_dim(&a[0], 0), nl = arr_dim(&a[5], 1), nd = arr_dim(&a[2], 0), np_ = arr_dim(&a[4], 0);
+    if (!failed && (arr_check_shape(&a[1], "radius", h, 0) || arr_check_shape(&a[3], "bounds", 4, 0)
+                    || arr_check_shape(&a[5], "out", h, nl))) {
+        failed = 1;
+    }
+    for (Py_ssize_t j = 0; !failed && j < np_; j++) {
+        if (Q(a[4])[j] < 0 || Q(a[4])[j] >= nl) {
+            PyErr_Format(PyExc_ValueError, "present holds %lld, outside 0..%zd", (long long)Q(a[4])[j], nl - 1);
+            failed = 1;
+        }
+    }
+    if (!failed && nd < 1) {
+        PyErr_SetString(PyExc_ValueError, "disc must hold a point at least");
+        failed = 1;
+    }
+    for (Py_ssize_t r = 0; !failed && r < h; r++) {
+        objects_density_row(t, n_trees, D(a[0])[2 * r], D(a[0])[2 * r + 1], D(a[1])[r], D(a[2]), nd, D(a[3]), Q(a[4]),
+                            np_, half_gap, nl, D(a[5]) + r * nl);
+    }
+    int bad = 0;
+    for (Py_ssize_t k = 0; t != NULL && k < n_trees; k++) {
+        bad |= t[k].bad;
+    }
+    if (ta != NULL) {
+        arr_release(ta, 5 * (int)n_trees);
+    }
+    PyMem_Free(ta);
+    PyMem_Free(t);
+    arr_release(a, 6);
+    Py_DECREF(seq);
+    if (failed) {
+        return NULL;
+    }
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, "node or root holds a position or child outside the tree");
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
 /* ------------------------------------------------------------------ method table */
 
 PyMethodDef objects_methods[] = {
@@ -546,5 +670,8 @@ PyMethodDef objects_methods[] = {
     {"objects_disc", objects_disc_query, METH_VARARGS,
      "objects_disc(pts, pid, box, node, root, w, labels, r, offsets, out): objects of each point's label within "
      "r: counts (offsets None) or sorted members."},
+    {"objects_density", objects_density, METH_VARARGS,
+     "objects_density(trees, centres, radius, disc, bounds, present, half_gap, out): objects per square metre of "
+     "each label in each disc (inside the bounds), over all the trees given."},
     {NULL, NULL, 0, NULL},
 };

@@ -165,6 +165,425 @@ static PyObject *verify_shifted(PyObject *self, PyObject *args)
     return PyLong_FromSsize_t(count);
 }
 
+/* ------------------------------------------------------------------ the screen, fused */
+
+/* u of every screened object: each hypothesis's projection a z + b of its objects (numpy's complex product and
+ * sum), the nearest map object of the object's label, kept when within reach (ObjectIndex.nearest under the
+ * region's densities), and u = (density pi) (d d) (inf when none).  The search is bounded per point by its own
+ * label's reach (a hair over it, r^2 (1 + 1e-9): every distance whose square root is within the reach lies below),
+ * and an answer kept when it passes the tests ObjectIndex.nearest made with one bound for all (the largest
+ * reach asked, at most half the label gap): the nearest below the smaller bound is the nearest below the larger
+ * one whenever either passes, so the answers are the same with less of the tree walked. */
+static void verify_screen_u(ObjectsTree *t, const double *a, const double *b, const double *z, const int64_t *obj,
+                            const int64_t *lab, const double *reach, const double *density, double half_gap,
+                            Py_ssize_t h, Py_ssize_t k, double *u)
+{
+    double rmax = -INFINITY;
+    for (Py_ssize_t j = 0; j < h * k; j++) {
+        double r = reach[lab[obj[j]]];
+        rmax = r > rmax ? r : rmax;
+    }
+    double bound = half_gap < rmax ? half_gap : rmax, bound2 = bound * bound;
+    for (Py_ssize_t r = 0; r < h; r++) {
+        for (Py_ssize_t c = 0; c < k; c++) {
+            int64_t o = obj[r * k + c], l = lab[o];
+            double wr, wi, d2, reach_l = reach[l], prune2 = reach_l * reach_l * (1.0 + 1e-9);
+            cmul(a[2 * r], a[2 * r + 1], z[2 * o], z[2 * o + 1], &wr, &wi);
+            wr += b[2 * r];
+            wi += b[2 * r + 1];
+            int64_t i = objects_nearest1(t, l, wr, wi, prune2 < bound2 ? prune2 : bound2, &d2);
+            double d = i >= 0 && d2 < bound2 ? sqrt(d2) : INFINITY;
+            d = d <= reach_l ? d : INFINITY;
+            u[r * k + c] = (density[l] * M_PI) * (d * d);
+        }
+    }
+}
+
+/* The arrays' indices in range: 0, or -1 with ValueError set. */
+static int verify_screen_check(const int64_t *obj, Py_ssize_t hk, Py_ssize_t n, const int64_t *lab, Py_ssize_t nl)
+{
+    for (Py_ssize_t j = 0; j < hk; j++) {
+        if (obj[j] < 0 || obj[j] >= n) {
+            PyErr_Format(PyExc_ValueError, "objects holds %lld, outside 0..%zd", (long long)obj[j], n - 1);
+            return -1;
+        }
+    }
+    for (Py_ssize_t j = 0; j < n; j++) {
+        if (lab[j] < 0 || lab[j] >= nl) {
+            PyErr_Format(PyExc_ValueError, "img_label holds %lld, outside 0..%zd", (long long)lab[j], nl - 1);
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static PyObject *verify_screen(PyObject *self, PyObject *args)
+{
+    PyObject *o[5], *oa, *ob, *oz, *oobj, *olab, *oreach, *odens, *onfa;
+    double half_gap, offset, floor_;
+    Py_ssize_t ns;
+    Arr a[13] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOdnddO:verify_screen", &o[0], &o[1], &o[2], &o[3], &o[4], &oa, &ob, &oz,
+                          &oobj, &olab, &oreach, &odens, &half_gap, &ns, &offset, &floor_, &onfa)) {
+        return NULL;
+    }
+    ObjectsTree t;
+    if (objects_take_tree(o, a, &t) < 0 || arr_take(oa, &a[5], "a", 'Z', 1, 0, 0) || arr_take(ob, &a[6], "b", 'Z', 1, 0, 0)
+        || arr_take(oz, &a[7], "z", 'Z', 1, 0, 0) || arr_take(oobj, &a[8], "objects", 'q', 2, 0, 0)
+        || arr_take(olab, &a[9], "img_label", 'q', 1, 0, 0) || arr_take(oreach, &a[10], "reach", 'd', 1, 0, 0)
+        || arr_take(odens, &a[11], "density", 'd', 1, 0, 0) || arr_take(onfa, &a[12], "nfa", 'd', 1, 1, 0)) {
+        arr_release(a, 13);
+        return NULL;
+    }
+    Py_ssize_t h = arr_dim(&a[5], 0), k = arr_dim(&a[8], 1), n = arr_dim(&a[7], 0), nl = arr_dim(&a[10], 0);
+    if (arr_check_shape(&a[6], "b", h, 0) || arr_check_shape(&a[8], "objects", h, k)
+        || arr_check_shape(&a[9], "img_label", n, 0) || arr_check_shape(&a[11], "density", nl, 0)
+        || arr_check_shape(&a[12], "nfa", h, 0) || verify_screen_check(Q(a[8]), h * k, n, Q(a[9]), nl)) {
+        arr_release(a, 13);
+        return NULL;
+    }
+    if (ns < 0 || ns >= k) {
+        arr_release(a, 13);
+        PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", k - 1, ns);
+        return NULL;
+    }
+    double *u = PyMem_Malloc(sizeof(double) * (size_t)(h * k + 1));
+    int64_t *best = PyMem_Malloc(sizeof(int64_t) * (size_t)(h + 1));
+    if (u == NULL || best == NULL) {
+        PyMem_Free(u);
+        PyMem_Free(best);
+        arr_release(a, 13);
+        return PyErr_NoMemory();
+    }
+    verify_screen_u(&t, D(a[5]), D(a[6]), D(a[7]), Q(a[8]), Q(a[9]), D(a[10]), D(a[11]), half_gap, h, k, u);
+    int failed = t.bad ? 0 : nfa_rows(u, NULL, NULL, h, k, ns, offset, floor_, D(a[12]), best);
+    PyMem_Free(u);
+    PyMem_Free(best);
+    arr_release(a, 13);
+    return failed ? NULL : objects_checked(&t);
+}
+
+/* ------------------------------------------------------------------ the decision on points, fused */
+
+/* A decision's inputs, read from the neighbours of the projections (ObjectIndex.neighbours: K a point). */
+typedef struct {
+    const double *nd, *zmap, *ex, *z, *reach, *density, *kd_floor;
+    const int64_t *ni, *ids, *lab, *counts;
+    Py_ssize_t h, n, k_near, k_first, nz, ne, q, n_labels, local;
+    int per_row;  /* density holds a row a hypothesis (else one row for all) */
+} VerifyDecision;
+
+/* u of object i under hypothesis r: the first of its k_first neighbours within its label's reach and not at one of
+ * the hypothesis's own map points (ObjectIndex.nearest), its label's density (the larger of it and the
+ * local_neighbours-th neighbour's, ObjectIndex.knn_density, when local_neighbours > 0), (lam pi) (d d). */
+static double verify_decision_u(const VerifyDecision *v, Py_ssize_t r, Py_ssize_t i)
+{
+    Py_ssize_t q = r * v->n + i;
+    int64_t l = v->lab[i], oi;
+    double dist;
+    first_allowed_rows(v->nd + q * v->k_near, v->ni + q * v->k_near, &v->reach[l], v->zmap, v->nz,
+                       v->ex + 2 * r * v->ne, v->ne, 1, NULL, 1, v->k_first, &dist, &oi);
+    double lam = v->density[(v->per_row ? r : 0) * v->n_labels + l];
+    if (v->local > 0) {
+        int64_t kk = v->counts[l] < v->local ? v->counts[l] : v->local;
+        double kd = *v->kd_floor;
+        if (kk > 0) {
+            double d = v->nd[q * v->k_near + kk - 1];
+            d = (isnan(d) || d >= 1e-3) ? d : 1e-3;
+            kd = (double)(kk - 1 > 1 ? kk - 1 : 1) / (M_PI * (d * d));
+        }
+        lam = (isnan(lam) || lam >= kd) ? lam : kd;  /* numpy's maximum: NaN kept */
+    }
+    return (lam * M_PI) * (dist * dist);
+}
+
+/* Shapes of the arrays, indices in range: 0, or -1 with ValueError set. */
+static int verify_decision_check(const VerifyDecision *v, Py_ssize_t rows_density)
+{
+    if (v->k_first < 1 || v->k_first > v->k_near || v->local > v->k_near || v->local < 0 || v->nz < 1) {
+        PyErr_SetString(PyExc_ValueError, "need 1 <= k_first <= K, 0 <= local_neighbours <= K and a map object");
+        return -1;
+    }
+    if (rows_density != 1 && rows_density != v->h) {
+        PyErr_Format(PyExc_ValueError, "density must have 1 or %zd rows, got %zd", v->h, rows_density);
+        return -1;
+    }
+    for (Py_ssize_t j = 0; j < v->h * v->q; j++) {
+        if (v->ids[j] < 0 || v->ids[j] >= v->n) {
+            PyErr_Format(PyExc_ValueError, "img_ids must lie in 0..%zd", v->n - 1);
+            return -1;
+        }
+    }
+    for (Py_ssize_t j = 0; j < v->n; j++) {
+        if (v->lab[j] < 0 || v->lab[j] >= v->n_labels) {
+            PyErr_Format(PyExc_ValueError, "img_label holds %lld, outside 0..%zd", (long long)v->lab[j],
+                         v->n_labels - 1);
+            return -1;
+        }
+    }
+    for (Py_ssize_t j = 0; j < v->h * v->n * v->k_near; j++) {
+        if (v->ni[j] < 0) {
+            PyErr_SetString(PyExc_ValueError, "near_i must hold no negative index");
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* Every row's u, shapes and sample mask, then the curve: 0, or -1 with MemoryError set. */
+static int verify_decision_rows(const VerifyDecision *v, Py_ssize_t ns, double offset, double floor_, double *nfa)
+{
+    Py_ssize_t hn = v->h * v->n;
+    double *u = PyMem_Malloc(sizeof(double) * (size_t)(2 * hn + 2 * v->q + 1));
+    unsigned char *sample = PyMem_Malloc((size_t)hn + 1);
+    int64_t *best = PyMem_Malloc(sizeof(int64_t) * (size_t)(v->h + 1));
+    if (u == NULL || sample == NULL || best == NULL) {
+        PyMem_Free(u);
+        PyMem_Free(sample);
+        PyMem_Free(best);
+        PyErr_NoMemory();
+        return -1;
+    }
+    double *shape = u + hn, *buf = shape + hn;
+    for (Py_ssize_t r = 0; r < v->h; r++) {
+        for (Py_ssize_t i = 0; i < v->n; i++) {
+            u[r * v->n + i] = verify_decision_u(v, r, i);
+        }
+        quad_row(v->z, v->n, v->ids + r * v->q, v->q, buf, shape + r * v->n, sample + r * v->n);
+    }
+    int failed = nfa_rows(u, shape, sample, v->h, v->n, ns, offset, floor_, nfa, best);
+    for (Py_ssize_t r = 0; !failed && r < v->h; r++) {
+        nfa[r] = nfa[r] + 0.0;  /* decision_nfa's nfa + from_sample (zeros): -0.0 becomes 0.0 */
+    }
+    PyMem_Free(u);
+    PyMem_Free(sample);
+    PyMem_Free(best);
+    return failed;
+}
+
+static PyObject *verify_decision(PyObject *self, PyObject *args)
+{
+    static const char *names[11] = {"near_d", "near_i", "map_z", "exclude", "img_ids", "z", "img_label", "reach",
+                                    "density", "counts", "nfa"};
+    static const char kinds[11] = {'d', 'q', 'Z', 'Z', 'q', 'Z', 'q', 'd', 'd', 'q', 'd'};
+    static const int dims[11] = {2, 2, 1, 2, 2, 1, 1, 1, 2, 1, 1};
+    PyObject *o[11];
+    Py_ssize_t k_first, local, ns;
+    double kd_floor, offset, floor_;
+    Arr a[11] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOnOOOOOOOOndnddO:verify_decision", &o[0], &o[1], &k_first, &o[2], &o[3], &o[4],
+                          &o[5], &o[6], &o[7], &o[8], &o[9], &local, &kd_floor, &ns, &offset, &floor_, &o[10])) {
+        return NULL;
+    }
+    for (int j = 0; j < 11; j++) {
+        if (arr_take(o[j], &a[j], names[j], kinds[j], dims[j], j == 10, 0)) {
+            arr_release(a, 11);
+            return NULL;
+        }
+    }
+    VerifyDecision v = {D(a[0]), D(a[2]), D(a[3]), D(a[5]), D(a[7]), D(a[8]), &kd_floor, Q(a[1]), Q(a[4]), Q(a[6]),
+                        Q(a[9]), arr_dim(&a[4], 0), arr_dim(&a[5], 0), arr_dim(&a[0], 1), k_first, arr_dim(&a[2], 0),
+                        arr_dim(&a[3], 1), arr_dim(&a[4], 1), arr_dim(&a[7], 0), local, arr_dim(&a[8], 0) > 1};
+    if (arr_check_shape(&a[0], "near_d", v.h * v.n, v.k_near) || arr_check_shape(&a[1], "near_i", v.h * v.n, v.k_near)
+        || arr_check_shape(&a[3], "exclude", v.h, v.ne) || arr_check_shape(&a[6], "img_label", v.n, 0)
+        || arr_check_shape(&a[8], "density", arr_dim(&a[8], 0), v.n_labels)
+        || arr_check_shape(&a[9], "counts", v.n_labels, 0) || arr_check_shape(&a[10], "nfa", v.h, 0)
+        || verify_decision_check(&v, arr_dim(&a[8], 0))) {
+        arr_release(a, 11);
+        return NULL;
+    }
+    if (ns < 0 || ns >= v.n) {
+        arr_release(a, 11);
+        PyErr_Format(PyExc_ValueError, "n_sample must be in 0..%zd, got %zd", v.n - 1, ns);
+        return NULL;
+    }
+    int failed = verify_decision_rows(&v, ns, offset, floor_, D(a[10]));
+    arr_release(a, 11);
+    if (failed) {
+        return NULL;
+    }
+    Py_RETURN_NONE;
+}
+
+/* ------------------------------------------------------------------ the refinement, fused */
+
+/* One refinement's inputs (verify.refine on flat ground, an in-memory index). */
+typedef struct {
+    ObjectsTree *t;
+    const double *z, *zmap, *reach, *density, *near_d;
+    const int64_t *lab, *near_i;
+    Py_ssize_t n, nz, n_labels, k_near, iterations;
+    int per_row;
+    double bound2, offset, floor_, gate;
+} VerifyRefine;
+
+/* Row r's association under z -> (ar + i ai) z + (br + i bi): each object's nearest map object of its label within
+ * its reach (ObjectIndex.nearest: from the neighbours of the first projections when ``first`` and given, else the
+ * tree bounded per point as verify_screen_u is), and u = (lam pi) (d d). */
+static void verify_refine_associate(const VerifyRefine *v, Py_ssize_t r, int first, const double *ab, double *dist,
+                                    int64_t *mid, double *u)
+{
+    for (Py_ssize_t i = 0; i < v->n; i++) {
+        int64_t l = v->lab[i], idx;
+        double reach_l = v->reach[l], d;
+        if (first && v->near_d != NULL) {
+            d = v->near_d[(r * v->n + i) * v->k_near];
+            idx = v->near_i[(r * v->n + i) * v->k_near];
+        } else {
+            double wr, wi, d2, prune2 = reach_l * reach_l * (1.0 + 1e-9);
+            cmul(ab[0], ab[1], v->z[2 * i], v->z[2 * i + 1], &wr, &wi);
+            idx = objects_nearest1(v->t, l, wr + ab[2], wi + ab[3], prune2 < v->bound2 ? prune2 : v->bound2, &d2);
+            d = idx >= 0 && d2 < v->bound2 ? sqrt(d2) : INFINITY;
+        }
+        int ok = d <= reach_l;
+        dist[i] = ok ? d : INFINITY;
+        mid[i] = ok ? idx : -1;
+        u[i] = (v->density[(v->per_row ? r : 0) * v->n_labels + l] * M_PI) * (dist[i] * dist[i]);
+    }
+}
+
+/* Work room of a row: 9 n + 1 doubles and 3 n + 1 bytes. */
+typedef struct {
+    double *u, *x, *wts, *target, *buf;
+    int64_t *prev_mid;
+    unsigned char *keep, *prev_in;
+} VerifyRefineWork;
+
+/* verify.refine of row r: associate, decide (the curve's k), the inliers, refit (kept when finite over 3 inliers
+ * at least), until the last iteration or an association equal to the previous one (the fit that gave (a, b) was
+ * then made from it: every further round would repeat it bit for bit).  ab: a, b as re, im pairs, updated. */
+static int verify_refine_row(const VerifyRefine *v, Py_ssize_t r, double *ab, double *nfa, unsigned char *inlier,
+                             int64_t *mid, double *dist, VerifyRefineWork *w)
+{
+    Py_ssize_t n = v->n;
+    for (Py_ssize_t it = 0; it <= v->iterations; it++) {
+        verify_refine_associate(v, r, it == 0, ab, dist, mid, w->u);
+        int64_t best = -5;  /* k_best 0 when there are no trials (log10_nfa_curve's) */
+        *nfa = INFINITY;
+        if (n > 4 && nfa_rows(w->u, NULL, NULL, 1, n, 4, v->offset, v->floor_, nfa, &best)) {
+            return -1;
+        }
+        row_inliers(w->u, dist, mid, best + 5, v->gate, n, w->x, w->keep, inlier);
+        if (it == v->iterations) {
+            break;
+        }
+        if (it > 0 && !memcmp(w->prev_in, inlier, (size_t)n) && !memcmp(w->prev_mid, mid, sizeof(int64_t) * (size_t)n)) {
+            break;
+        }
+        memcpy(w->prev_in, inlier, (size_t)n);
+        memcpy(w->prev_mid, mid, sizeof(int64_t) * (size_t)n);
+        Py_ssize_t count = 0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            int64_t j = mid[i] > 0 ? (mid[i] < v->nz ? mid[i] : v->nz - 1) : 0;  /* indices off the map read its last */
+            w->target[2 * i] = v->zmap[2 * j];
+            w->target[2 * i + 1] = v->zmap[2 * j + 1];
+            w->wts[i] = inlier[i] ? 1.0 : 0.0;
+            count += inlier[i] != 0;
+        }
+        double out[4];
+        fit_row(v->z, w->target, w->wts, n, w->buf, out);
+        if (isfinite(out[0]) && isfinite(out[1]) && count >= 3) {
+            memcpy(ab, out, sizeof(out));
+        }
+    }
+    return 0;
+}
+
+static int verify_refine_rows(VerifyRefine *v, Py_ssize_t h, double *a, double *b, double *nfa, unsigned char *inlier,
+                              int64_t *mid, double *dist)
+{
+    Py_ssize_t n = v->n;
+    double *room = PyMem_Malloc(sizeof(double) * (size_t)(9 * n + 1));
+    unsigned char *bytes = PyMem_Malloc((size_t)(2 * n + 1));
+    int64_t *prev_mid = PyMem_Malloc(sizeof(int64_t) * (size_t)(n + 1));
+    if (room == NULL || bytes == NULL || prev_mid == NULL) {
+        PyMem_Free(room);
+        PyMem_Free(bytes);
+        PyMem_Free(prev_mid);
+        PyErr_NoMemory();
+        return -1;
+    }
+    VerifyRefineWork w = {room, room + n, room + 2 * n, room + 3 * n, room + 5 * n, prev_mid, bytes, bytes + n};
+    double rmax = -INFINITY;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        rmax = v->reach[v->lab[i]] > rmax ? v->reach[v->lab[i]] : rmax;
+    }
+    double bound = v->bound2 < rmax ? v->bound2 : rmax;  /* bound2 holds half the gap until here */
+    v->bound2 = bound * bound;
+    int failed = 0;
+    for (Py_ssize_t r = 0; r < h && !failed; r++) {
+        double ab[4] = {a[2 * r], a[2 * r + 1], b[2 * r], b[2 * r + 1]};
+        failed = verify_refine_row(v, r, ab, nfa + r, inlier + r * n, mid + r * n, dist + r * n, &w);
+        a[2 * r] = ab[0];
+        a[2 * r + 1] = ab[1];
+        b[2 * r] = ab[2];
+        b[2 * r + 1] = ab[3];
+    }
+    PyMem_Free(room);
+    PyMem_Free(bytes);
+    PyMem_Free(prev_mid);
+    return failed;
+}
+
+static PyObject *verify_refine(PyObject *self, PyObject *args)
+{
+    static const char *names[14] = {"a", "b", "z", "img_label", "map_z", "reach", "density", "near_d", "near_i", "nfa",
+                                    "inlier", "mid", "dist", ""};
+    static const char kinds[13] = {'Z', 'Z', 'Z', 'q', 'Z', 'd', 'd', 'd', 'q', 'd', '?', 'q', 'd'};
+    static const int dims[13] = {1, 1, 1, 1, 1, 1, 2, 2, 2, 1, 2, 2, 2};
+    PyObject *o[18];
+    double half_gap, offset, floor_, gate;
+    Py_ssize_t iterations;
+    Arr a[18] = {{{0}}};
+    ObjectsTree t;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOdnOOdddOOOO:verify_refine", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5],
+                          &o[6], &o[7], &o[8], &o[9], &o[10], &o[11], &half_gap, &iterations, &o[12], &o[13], &offset,
+                          &floor_, &gate, &o[14], &o[15], &o[16], &o[17])) {
+        return NULL;
+    }
+    int failed = objects_take_tree(o, a, &t) < 0;
+    for (int j = 0; j < 13 && !failed; j++) {
+        failed = arr_take(o[5 + j], &a[5 + j], names[j], kinds[j], dims[j], j < 2 || j > 8, j == 7 || j == 8) < 0;
+    }
+    Py_ssize_t h = arr_dim(&a[5], 0), n = arr_dim(&a[7], 0), nl = arr_dim(&a[10], 0), k_near = arr_dim(&a[12], 1);
+    if (!failed && (arr_check_shape(&a[6], "b", h, 0) || arr_check_shape(&a[8], "img_label", n, 0)
+                    || arr_check_shape(&a[11], "density", arr_dim(&a[11], 0), nl)
+                    || arr_check_shape(&a[12], "near_d", h * n, k_near) || arr_check_shape(&a[13], "near_i", h * n, k_near)
+                    || arr_check_shape(&a[14], "nfa", h, 0) || arr_check_shape(&a[15], "inlier", h, n)
+                    || arr_check_shape(&a[16], "mid", h, n) || arr_check_shape(&a[17], "dist", h, n))) {
+        failed = 1;
+    }
+    if (!failed && (n < 1 || iterations < 0 || arr_dim(&a[9], 0) < 1 || a[12].held != a[13].held
+                    || (arr_dim(&a[11], 0) != 1 && arr_dim(&a[11], 0) != h) || (a[12].held && k_near < 1))) {
+        PyErr_SetString(PyExc_ValueError, "need an object, iterations >= 0, a map object, near_d and near_i alike, "
+                                          "and density of one row or a row a hypothesis");
+        failed = 1;
+    }
+    for (Py_ssize_t i = 0; !failed && i < n; i++) {
+        if (Q(a[8])[i] < 0 || Q(a[8])[i] >= nl) {
+            PyErr_Format(PyExc_ValueError, "img_label holds %lld, outside 0..%zd", (long long)Q(a[8])[i], nl - 1);
+            failed = 1;
+        }
+    }
+    for (Py_ssize_t j = 0; !failed && a[13].held && j < h * n * k_near; j++) {
+        if (Q(a[13])[j] < 0 || Q(a[13])[j] > arr_dim(&a[9], 0)) {
+            PyErr_SetString(PyExc_ValueError, "near_i must hold indices of map objects (or their count: none)");
+            failed = 1;
+        }
+    }
+    if (!failed) {
+        VerifyRefine v = {&t, D(a[7]), D(a[9]), D(a[10]), D(a[11]), a[12].held ? D(a[12]) : NULL, Q(a[8]),
+                          a[13].held ? Q(a[13]) : NULL, n, arr_dim(&a[9], 0), nl, k_near, iterations,
+                          arr_dim(&a[11], 0) > 1, half_gap, offset, floor_, gate};
+        failed = verify_refine_rows(&v, h, D(a[5]), D(a[6]), D(a[14]), B(a[15]), Q(a[16]), D(a[17]));
+    }
+    arr_release(a, 18);
+    if (failed) {
+        return NULL;
+    }
+    return objects_checked(&t);
+}
+
 PyMethodDef verify_methods[] = {
     {"verify_errors", verify_errors, METH_VARARGS,
      "verify_errors(z, dist, inlier, sigma, variance): each row's residual sigma and prediction variance factor "
@@ -172,5 +591,16 @@ PyMethodDef verify_methods[] = {
     {"verify_shifted", verify_shifted, METH_VARARGS,
      "verify_shifted(p, lab, a0, b0, tolerance, hit_a, hit_b): the winner's pose moved by the map's repeats among "
      "its inliers' points; returns how many were written."},
+    {"verify_screen", verify_screen, METH_VARARGS,
+     "verify_screen(pts, pid, box, node, root, a, b, z, objects, img_label, reach, density, half_gap, n_sample, "
+     "offset, floor, nfa): the screen's log10 NFA a hypothesis, projections, nearest objects and curve fused."},
+    {"verify_decision", verify_decision, METH_VARARGS,
+     "verify_decision(near_d, near_i, k_first, map_z, exclude, img_ids, z, img_label, reach, density, counts, "
+     "local_neighbours, kd_floor, n_sample, offset, floor, nfa): decision_nfa on point residuals from the "
+     "projections' neighbours, fused."},
+    {"verify_refine", verify_refine, METH_VARARGS,
+     "verify_refine(pts, pid, box, node, root, a, b, z, img_label, map_z, reach, density, half_gap, iterations, "
+     "near_d, near_i, offset, floor, gate, nfa, inlier, mid, dist): verify.refine on flat ground, fused (a, b "
+     "updated in place)."},
     {NULL, NULL, 0, NULL},
 };

@@ -31,10 +31,10 @@ import numpy as np
 from .._scipy import betainc
 from ._kernel import nfa_curve
 
-__all__ = ["log10_binomial_tail", "log10_nfa_curve"]
+__all__ = ["LOG10_FLOOR", "log10_binomial_tail", "log10_nfa_curve", "log10_trials"]
 
 # Probabilities below this are reported as this: they are far beyond any threshold we use.
-_LOG10_FLOOR = -300.0
+LOG10_FLOOR = -300.0
 
 
 def log10_binomial_tail(
@@ -62,7 +62,7 @@ def log10_binomial_tail(
     if np.any(inner):
         tail = betainc(k[inner], n[inner] - k[inner] + 1.0, p[inner])
         with np.errstate(divide="ignore"):
-            out[inner] = np.maximum(np.log10(tail), _LOG10_FLOOR)
+            out[inner] = np.maximum(np.log10(tail), LOG10_FLOOR)
     return out
 
 
@@ -127,7 +127,7 @@ def log10_nfa_curve(
     # read as the floor, for a tail of 1e-299.07; tests/test_kernel.py).
     nfa = np.empty(h)
     best = np.empty(h, dtype=np.int64)
-    nfa_curve(u, shape, sample, n_sample, log10_tests + _log10_trials(trials), _LOG10_FLOOR, nfa, best)
+    nfa_curve(u, shape, sample, n_sample, log10_tests + log10_trials(trials), LOG10_FLOOR, nfa, best)
     return nfa, best + 1 + n_sample
 
 
@@ -139,7 +139,7 @@ def _full(v: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
 _LOG10_TRIALS: dict[int, float] = {}
 
 
-def _log10_trials(trials: int) -> float:
+def log10_trials(trials: int) -> float:
     """``log10(trials)``, the count of choices of ``k`` in the curve: the same few dozen values for every image,
     made once."""
     found = _LOG10_TRIALS.get(trials)

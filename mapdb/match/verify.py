@@ -13,12 +13,13 @@ from typing import Any
 
 import numpy as np
 
-from ._kernel import quad_tolerance
+from ._kernel import quad_tolerance, verify_decision, verify_refine
 from .evidence.image import ImageEvidence
-from .evidence.points import refinement_inliers
+from .evidence.points import GATE_SIGMAS, refinement_inliers
 from .geometry import fit_similarity_complex
+from .mapobjects.label_trees import LabelTrees
 from .mapobjects.object_index import Neighbours, ObjectIndex
-from .nfa import log10_nfa_curve
+from .nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
 
 __all__ = ["ObjectIndex", "decision_nfa", "refine", "screen"]
 
@@ -49,11 +50,7 @@ def screen(
     was withheld, but the saving had shrunk to 3 % (0.97x the CPU time an image on the 5M world, ``python
     benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2 --baseline 2731d67``) and
     Monaco's rendered sim-000073 (300 m, heights) moved from 0.08 to 1.66 m off: left out."""
-    objects = screen_of[img_ids[:, 0]]
-    labels = img_label[objects]
-    dist, _ = index.nearest(a[:, None] * z[objects] + b[:, None], labels, index.density)
-    u = index.density[labels] * math.pi * dist**2
-    nfa, _ = log10_nfa_curve(u, 4, log10_tests)
+    nfa = index.screen_nfa(a, b, z, screen_of[img_ids[:, 0]], img_label, log10_tests)
     return np.argsort(nfa, kind="stable")[:keep]
 
 
@@ -90,6 +87,8 @@ def decision_nfa(
     ``max(5, local_neighbours)`` of them) answers the nearest-object and density queries instead of the index.
     """
     h, n = len(a), z.size
+    if near is not None and _plain(evidence, area_radius) and near.k >= max(1 + map_z.shape[1], local_neighbours):
+        return _decision_points(img_ids, map_z, z, img_label, index, density, log10_tests, local_neighbours, near)
     w = a[:, None] * z[None, :] + b[:, None] if evidence is None else evidence.project(a, b, z)
     # The hypothesis's own map points are not evidence: an image object next to one of its quad's points
     # would find that point next to its projection by construction, not by chance.
@@ -109,6 +108,31 @@ def decision_nfa(
     quad_tolerance(np.ascontiguousarray(z, np.complex128), np.ascontiguousarray(img_ids, np.int64), shape, sample)
     nfa, _ = log10_nfa_curve(u, 4, log10_tests, shape=shape, sample=sample)
     return nfa + from_sample
+
+
+def _plain(evidence: ImageEvidence | None, area_radius: np.ndarray | None) -> bool:
+    """Whether the decision's residuals are plain point residuals measured from the projections themselves."""
+    return evidence is None or (evidence.errors is None and evidence.terrain is None
+                                and (evidence.areas is None or area_radius is None))
+
+
+def _decision_points(img_ids: np.ndarray, map_z: np.ndarray, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex,
+                     density: np.ndarray, log10_tests: float, local_neighbours: int, near: Neighbours) -> np.ndarray:
+    """:func:`decision_nfa` on point residuals, read from ``near`` (the projections' neighbours, at least
+    ``max(1 + m, local_neighbours)`` of them for ``m`` map points a hypothesis): one call of the compiled kernel
+    (``verify_decision``) for :meth:`~ObjectIndex.nearest` with the quad's own map points excluded,
+    :meth:`~ObjectIndex.knn_density`, ``u``, :func:`quad_tolerance` and the NFA curve."""
+    h, n = near.shape
+    if h == 0 or n <= 4:
+        return np.full(h, np.inf)
+    nfa = np.empty(h)
+    verify_decision(near.dist, near.index, 1 + map_z.shape[1], np.ascontiguousarray(index.z, np.complex128),
+                    np.ascontiguousarray(map_z, np.complex128), np.ascontiguousarray(img_ids, np.int64),
+                    np.ascontiguousarray(z, np.complex128), np.ascontiguousarray(img_label, np.int64),
+                    index.label_reach(density), np.ascontiguousarray(np.atleast_2d(density), np.float64),
+                    np.ascontiguousarray(index.counts, np.int64), local_neighbours, 1.0 / index.area, 4,
+                    log10_tests + log10_trials(n - 4), LOG10_FLOOR, nfa)
+    return nfa
 
 
 def refine(
@@ -132,6 +156,9 @@ def refine(
     association's (on flat ground) instead of a query."""
     previous: tuple[np.ndarray, np.ndarray] | None = None
     terrain = None if evidence is None else evidence.terrain
+    tree = index.fused_tree()
+    if terrain is None and tree is not None and z.size:
+        return _refine_flat(tree, a, b, z, img_label, index, density, log10_tests, iterations, near)
     # Each object's density and its share of u, the same every iteration.
     lam = (density[:, img_label] if density.ndim > 1 else density[img_label][None, :]) * math.pi
     for it in range(iterations + 1):
@@ -155,6 +182,26 @@ def refine(
         ok = np.isfinite(a_new) & (inlier.sum(axis=1) >= 3)
         a = np.where(ok, a_new, a)
         b = np.where(ok, b_new, b)
+    return a, b, nfa, inlier, mid, dist
+
+
+def _refine_flat(tree: LabelTrees, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,
+                 index: ObjectIndex, density: np.ndarray, log10_tests: float, iterations: int,
+                 near: Neighbours | None) -> tuple[np.ndarray, ...]:
+    """:func:`refine` on flat ground against an in-memory index's ``tree``: one call of the compiled kernel
+    (``verify_refine``) that runs each hypothesis's rounds (association, curve, inliers, refit) until the last or
+    until its association repeats (each row's rounds are its own: a row whose association repeats would refit to
+    the same bits)."""
+    h, n = len(a), z.size
+    a, b = np.array(a, np.complex128), np.array(b, np.complex128)
+    nfa, inlier = np.empty(h), np.empty((h, n), bool)
+    mid, dist = np.empty((h, n), np.int64), np.empty((h, n))
+    verify_refine(*tree._tree(), a, b, np.ascontiguousarray(z, np.complex128),
+                  np.ascontiguousarray(img_label, np.int64), np.ascontiguousarray(index.z, np.complex128),
+                  index.label_reach(density), np.ascontiguousarray(np.atleast_2d(density), np.float64),
+                  0.5 * index.gap, iterations, None if near is None else near.dist,
+                  None if near is None else near.index, log10_tests + log10_trials(n - 4) if n > 4 else 0.0,
+                  LOG10_FLOOR, GATE_SIGMAS, nfa, inlier, mid, dist)
     return a, b, nfa, inlier, mid, dist
 
 

@@ -13,9 +13,10 @@ import math
 import numpy as np
 
 from ...objects import Objects
-from .._kernel import first_allowed
+from .._kernel import first_allowed, objects_density, verify_screen
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
+from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
 from .kd_forest import Forest
 from .label_trees import LabelTrees
 
@@ -119,6 +120,7 @@ class ObjectIndex:
                 else (0.0, 0.0, 0.0, 0.0)
             )
         self.bounds = tuple(float(v) for v in bounds)
+        self._bounds = np.array(self.bounds)
         self.area = max((self.bounds[2] - self.bounds[0]) * (self.bounds[3] - self.bounds[1]), 1.0)
         self.counts = np.bincount(self.label, minlength=len(self.labels)) if n else np.zeros(len(self.labels), int)
         # Densities over the whole region only rank hypotheses; the decision uses local ones.
@@ -147,23 +149,27 @@ class ObjectIndex:
         ``centres`` (complex) and ``radius`` have shape ``(H,)``; the result ``(H, L)``.  A label with no
         object in a disc counts one, so that no density is zero.
         """
-        centres = np.atleast_1d(np.asarray(centres, np.complex128))
-        radius = np.broadcast_to(np.asarray(radius, np.float64), centres.shape)
-        h, n_labels = centres.size, len(self.labels)
-        minx, miny, maxx, maxy = self.bounds
-        disc = centres[:, None] + radius[:, None] * _DISC[None, :]
-        inside = (disc.real >= minx) & (disc.real <= maxx) & (disc.imag >= miny) & (disc.imag <= maxy)
-        share = np.add.reduce(inside, axis=1, dtype=np.float64) / _DISC.size  # inside.mean(axis=1), one call
-        area = math.pi * radius**2 * np.maximum(share, 1.0 / _DISC.size)
-        count = np.ones((h, n_labels))
-        present = np.flatnonzero(self.counts)
-        if self.tree is not None and present.size:
-            w = np.repeat(centres, present.size)
-            codes = present[None, :].repeat(h, axis=0).ravel()  # np.tile's numbers in one call
-            r = np.minimum(np.repeat(radius, present.size), 0.5 * self.gap)
-            found = self.tree.count(w, codes, r)
-            count[:, present] = np.maximum(found.reshape(h, present.size), 1)
-        return count / area[:, None]
+        centres = np.ascontiguousarray(np.atleast_1d(np.asarray(centres, np.complex128)).ravel())
+        radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.float64), centres.shape))
+        # The disc's share inside the bounds, its area, each present label's count over the trees: one kernel call.
+        out = np.empty((centres.size, len(self.labels)))
+        objects_density(self._trees(), centres, radius, _DISC, self._bounds, np.flatnonzero(self.counts),
+                        0.5 * self.gap, out)
+        return out
+
+    def fused_tree(self) -> LabelTrees | None:
+        """The tree the compiled kernel's fused queries read: the index's :class:`LabelTrees` when it holds its
+        objects in one and answers :meth:`nearest` itself, else None (an index reading pages as queries need them
+        answers through its own methods)."""
+        tree = self.tree
+        return tree if isinstance(tree, LabelTrees) and type(self).nearest is ObjectIndex.nearest else None
+
+    def _trees(self) -> list[tuple[np.ndarray, ...]]:
+        """The arrays of each :class:`LabelTrees` holding the objects (none without objects)."""
+        tree = self.tree
+        if tree is None:
+            return []
+        return [tree._tree()] if isinstance(tree, LabelTrees) else [t._tree() for t in tree.trees]
 
     def neighbours(self, w: np.ndarray, img_label: np.ndarray, k: int) -> Neighbours | None:
         """The ``k`` nearest map objects of each projected image object's label (``w``: ``(H, n)`` complex,
@@ -243,10 +249,45 @@ class ObjectIndex:
         if np.ndim(density) > 1:
             return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))[labels]
         if density is self.density:  # the region's: the same reaches for every image, computed once
-            if self._global_reach is None or self._global_reach[0] is not density:
-                self._global_reach = density, np.minimum(np.sqrt(U_MAX / (math.pi * density)), GLOBAL_REACH_M)
-            return self._global_reach[1][labels]
+            return self._label_reach()[labels]
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
+
+    def label_reach(self, density: np.ndarray) -> np.ndarray:
+        """Each label's search reach under ``density`` (``(L,)`` or ``(H, L)``): :meth:`_reach` of every label."""
+        if density is self.density:
+            return self._label_reach()
+        return self._reach(density, np.arange(len(self.labels)))
+
+    def _label_reach(self) -> np.ndarray:
+        """Each label's reach under the region's densities (``_reach``), made once."""
+        if self._global_reach is None or self._global_reach[0] is not self.density:
+            self._global_reach = self.density, np.minimum(np.sqrt(U_MAX / (math.pi * self.density)), GLOBAL_REACH_M)
+        return self._global_reach[1]
+
+    def screen_nfa(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, objects: np.ndarray, img_label: np.ndarray,
+                   log10_tests: float) -> np.ndarray:
+        """The screen's log10 NFA of each hypothesis ``z -> a z + b`` (``a``, ``b``: ``(H,)``) over its image objects
+        ``objects`` (``(H, k)`` indices into ``z`` and ``img_label``): the curve of
+        :func:`~mapdb.match.nfa.log10_nfa_curve` (4 samples) over ``u = density pi d^2``, ``d`` the distance to the
+        nearest map object of the object's label under the region's densities (:meth:`nearest`).
+
+        One call of the compiled kernel (``verify_screen``: projection, queries and curve), each query bounded by
+        its own label's reach; an index whose ``nearest`` reads pages as queries need them answers through it."""
+        h, k = objects.shape
+        if h == 0 or k <= 4:
+            return np.full(h, np.inf)
+        offset = log10_tests + log10_trials(k - 4)
+        tree = self.fused_tree()
+        if tree is None:
+            labels = img_label[objects]
+            dist, _ = self.nearest(a[:, None] * z[objects] + b[:, None], labels, self.density)
+            return log10_nfa_curve(self.density[labels] * math.pi * dist**2, 4, log10_tests)[0]
+        nfa = np.empty(h)
+        verify_screen(*tree._tree(), np.ascontiguousarray(a, np.complex128),
+                      np.ascontiguousarray(b, np.complex128), np.ascontiguousarray(z, np.complex128),
+                      np.ascontiguousarray(objects, np.int64), np.ascontiguousarray(img_label, np.int64),
+                      self._label_reach(), self.density, 0.5 * self.gap, 4, offset, LOG10_FLOOR, nfa)
+        return nfa
 
     def _first_allowed(self, d: np.ndarray, i: np.ndarray, reach: np.ndarray, exclude: np.ndarray | None,
                        allowed: np.ndarray | None = None, repeat: int = 1) -> tuple[np.ndarray, np.ndarray]:
