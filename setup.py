@@ -12,12 +12,15 @@ setup(
             "mapdb.match._kernel",
             # One module from several files, a concept each (see _kernel.h).
             sources=["mapdb/match/_kernel.c", "mapdb/match/_kernel_buffers.c", "mapdb/match/_kernel_numpy.c",
+                     "mapdb/match/_kernel_nfa.c",
                      "mapdb/match/_kernel_objects.c",
+                     "mapdb/match/_kernel_object_discs.c",
                      "mapdb/match/_kernel_verify.c",
+                     "mapdb/match/_kernel_verify_refine.c",
                      "mapdb/match/_kernel_quads.c",
                      "mapdb/match/_kernel_quad_tree.c",
                      "mapdb/match/_kernel_image_quads.c"],
-            depends=["mapdb/match/_kernel.h", "mapdb/match/_kernel_quads.h"],
+            depends=["mapdb/match/_kernel.h", "mapdb/match/_kernel_objects.h", "mapdb/match/_kernel_quads.h"],
             # No fused multiply-adds: the kernel's sums and products round as numpy's do.
             extra_compile_args=["-O2", "-ffp-contract=off"],
         )

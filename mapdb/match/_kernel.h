@@ -57,7 +57,7 @@ int objects_take_tree(PyObject **o, Arr *a, ObjectsTree *t);
 PyObject *objects_checked(const ObjectsTree *t);
 /* The nearest object of label l within squared distance bound2 (strictly; ties: lower index), -1 if none. */
 int64_t objects_nearest1(ObjectsTree *t, int64_t l, double qx, double qy, double bound2, double *d2);
-/* log10_nfa_curve's minimum over k and its index for h rows of n (_kernel.c); 0, or -1 with MemoryError set. */
+/* log10_nfa_curve's minimum over k and its index for h rows of n (_kernel_nfa.c); 0, or -1 with MemoryError set. */
 int nfa_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h, Py_ssize_t n,
              Py_ssize_t ns, double offset, double floor_, double *nfa, int64_t *best);
 /* The nearest of each query's k neighbours within its reach, not at its row's excluded points (_kernel.c). */
@@ -74,8 +74,11 @@ void row_inliers(const double *u, const double *dist, const int64_t *mid, int64_
 void fit_row(const double *src, const double *dst, const double *w, Py_ssize_t k, double *buf, double *out);
 
 /* Each concept's method table, added to the module by PyInit__kernel. */
+extern PyMethodDef nfa_methods[];  /* _kernel_nfa.c: the NFA curve and the binomial tail */
 extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD-trees per label */
-extern PyMethodDef verify_methods[];
+extern PyMethodDef object_discs_methods[];  /* _kernel_object_discs.c: their discs and densities */
+extern PyMethodDef verify_methods[];  /* _kernel_verify.c: the verification's fused chains */
+extern PyMethodDef verify_refine_methods[];  /* _kernel_verify_refine.c: the refinement, fused */
 /* Quad lookups (_kernel_quads.c). */
 extern PyMethodDef quads_methods[];
 extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */
