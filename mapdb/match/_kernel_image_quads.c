@@ -4,7 +4,7 @@
  * ranked in pair and object order (numpy's default argsort and the KD-tree leave the order of ties to the machine
  * and the tree).
  */
-#include "_kernel.h"
+#include "_kernel_quads.h"
 
 #include <float.h>
 #include <math.h>
@@ -12,29 +12,6 @@
 #include <string.h>
 
 /* ------------------------------------------------------------------ the image's quads and their keys */
-
-/* The six point pairs of a quad and, for each, the two other points (quads.PAIRS, quads.OTHERS). */
-static const int QUADS_PAIRS[6][4] = {{0, 1, 2, 3}, {0, 2, 1, 3}, {0, 3, 1, 2}, {1, 2, 0, 3}, {1, 3, 0, 2}, {2, 3, 0, 1}};
-
-/* One frame of a quad looked up: vertex order, t_C and t_D (re, im), the radius. */
-typedef struct {
-    int64_t row;
-    int order[4];
-    double t[4];
-    double radius;
-} QuadsFrame;
-
-/* The frame of quad ``z`` (4 complex) by pair ``pair``: its order and invariants (numpy's arithmetic). */
-static void quads_frame(const double *z, int pair, QuadsFrame *f)
-{
-    memcpy(f->order, QUADS_PAIRS[pair], sizeof(f->order));
-    const double *a = z + 2 * f->order[0], *b = z + 2 * f->order[1];
-    double br = b[0] - a[0], bi = b[1] - a[1];
-    for (int c = 0; c < 2; c++) {
-        const double *p = z + 2 * f->order[2 + c];
-        cdiv(p[0] - a[0], p[1] - a[1], br, bi, &f->t[2 * c], &f->t[2 * c + 1]);
-    }
-}
 
 /* The lookup radius of a frame (hypotheses._quad_keys): per point P of C, D sigma_P^2 + sigma_A^2 |1 - t|^2 +
  * sigma_B^2 |t|^2, summed, its root times ``factor`` over |AB|. */
@@ -68,7 +45,7 @@ static Py_ssize_t quads_frames(const double *zq, const double *sigma, Py_ssize_t
             double d[6];
             int by[6];
             for (int j = 0; j < 6; j++) {
-                const double *p = z + 2 * QUADS_PAIRS[j][0], *q = z + 2 * QUADS_PAIRS[j][1];
+                const double *p = z + 2 * quads_pair(j)[0], *q = z + 2 * quads_pair(j)[1];
                 d[j] = cabs_np(p[0] - q[0], p[1] - q[1]);
                 int at = j;  /* insertion by -d, ties in pair order */
                 while (at > 0 && np_less(-d[j], -d[by[at - 1]])) {
@@ -233,25 +210,6 @@ static void quads_sorted(const int64_t *nn, const int64_t *members, Py_ssize_t k
     }
     for (int x = 0; x < 4; x++) {
         id[x] = members[v[x]];  /* members ascend: the ids stay sorted */
-    }
-}
-
-/* Whether quad ``id`` is new to the set ``seen`` (open addressing, ``mask + 1`` slots of 4 ids, -1 empty); adds it. */
-static int quads_first(int64_t *seen, uint64_t mask, const int64_t *id)
-{
-    uint64_t h = 1469598103934665603ULL;
-    for (int x = 0; x < 4; x++) {
-        h = (h ^ (uint64_t)id[x]) * 1099511628211ULL;
-    }
-    for (uint64_t at = h & mask;; at = (at + 1) & mask) {
-        int64_t *slot = seen + 4 * at;
-        if (slot[0] < 0) {
-            memcpy(slot, id, sizeof(int64_t) * 4);
-            return 1;
-        }
-        if (memcmp(slot, id, sizeof(int64_t) * 4) == 0) {
-            return 0;
-        }
     }
 }
 

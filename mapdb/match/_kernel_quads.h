@@ -27,6 +27,8 @@
 
 #include "_kernel.h"
 
+#include <string.h>
+
 #define QUADS_LEAF 16
 #define QUADS_MAX_DIM 16
 #define QUADS_KEY 4  /* the label key's column */
@@ -46,5 +48,54 @@ typedef struct {
     const double *src;   /* the points given, during the build */
     double *box;         /* per node, the least then the greatest coordinate per dimension (2 d) */
 } QuadsTree;
+
+/* ------------------------------------------------------------------ a quad's frames, shared by the image's quads
+ * (_kernel_image_quads.c) and the map's (_kernel_map_quads.c) so that both sides make the same bits. */
+
+/* The six point pairs of a quad and, for each, the two other points (quads.PAIRS, quads.OTHERS). */
+static inline const int *quads_pair(int pair)
+{
+    static const int pairs[6][4] = {{0, 1, 2, 3}, {0, 2, 1, 3}, {0, 3, 1, 2}, {1, 2, 0, 3}, {1, 3, 0, 2}, {2, 3, 0, 1}};
+    return pairs[pair];
+}
+
+/* One frame of a quad: vertex order, t_C and t_D (re, im), the radius (an image quad's lookup). */
+typedef struct {
+    int64_t row;
+    int order[4];
+    double t[4];
+    double radius;
+} QuadsFrame;
+
+/* The frame of quad ``z`` (4 complex) by pair ``pair``: its order and invariants (numpy's arithmetic). */
+static inline void quads_frame(const double *z, int pair, QuadsFrame *f)
+{
+    memcpy(f->order, quads_pair(pair), sizeof(f->order));
+    const double *a = z + 2 * f->order[0], *b = z + 2 * f->order[1];
+    double br = b[0] - a[0], bi = b[1] - a[1];
+    for (int c = 0; c < 2; c++) {
+        const double *p = z + 2 * f->order[2 + c];
+        cdiv(p[0] - a[0], p[1] - a[1], br, bi, &f->t[2 * c], &f->t[2 * c + 1]);
+    }
+}
+
+/* Whether quad ``id`` is new to the set ``seen`` (open addressing, ``mask + 1`` slots of 4 ids, -1 empty); adds it. */
+static inline int quads_first(int64_t *seen, uint64_t mask, const int64_t *id)
+{
+    uint64_t h = 1469598103934665603ULL;
+    for (int x = 0; x < 4; x++) {
+        h = (h ^ (uint64_t)id[x]) * 1099511628211ULL;
+    }
+    for (uint64_t at = h & mask;; at = (at + 1) & mask) {
+        int64_t *slot = seen + 4 * at;
+        if (slot[0] < 0) {
+            memcpy(slot, id, sizeof(int64_t) * 4);
+            return 1;
+        }
+        if (memcmp(slot, id, sizeof(int64_t) * 4) == 0) {
+            return 0;
+        }
+    }
+}
 
 #endif

@@ -16,7 +16,7 @@ import numpy as np
 
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
-from ._kernel import quads_build, quads_lookup
+from ._kernel import map_canonical, map_quads, quads_build, quads_lookup
 
 __all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "first_rows", "label_keys",
            "lookup_parts", "near_only", "nearest_others", "neighbour_quads"]
@@ -29,8 +29,6 @@ LABEL_GAP = 100.0
 PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 
 OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
-# Per pair, the vertex order (A, B, C, D) it gives: the pair, then the two others.
-_ORDERS = np.concatenate([PAIRS, OTHERS], axis=1)
 
 _SORT4 = ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2))  # a sorting network of four
 # Quads of fewer points than this are packed into one int64 key (n**4 < 2**63).
@@ -58,25 +56,36 @@ def neighbour_quads(
     >>> q.shape[1], len(q) > 0, bool(np.all(np.diff(q, axis=1) > 0))
     (4, True, True)
     """
+    found = _anchor_neighbours(xy, neighbours, anchors)
+    if found is None:
+        empty = np.zeros((0, 4), dtype=np.int64)
+        return (empty, np.zeros(0, np.int64)) if with_anchor else empty
+    nn, anchor_ids = found
+    if with_anchor:
+        triples = np.array(list(combinations(range(nn.shape[1]), 3)))
+        anchor = np.repeat(anchor_ids, len(triples))
+        cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
+        for i, j in _SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
+            cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
+        return np.column_stack(cols), anchor
+    # The kernel keeps each quad where it first comes (first_rows' rows in row order), or from _PACKABLE points
+    # on sorts them (np.unique's).
+    quads = map_quads(nn, anchor_ids, len(xy), len(xy) >= _PACKABLE, None, None, 0, False, LABEL_GAP,
+                      POSITION_WEIGHT)[0]
+    return np.frombuffer(quads, np.int64).reshape(-1, 4)
+
+
+def _anchor_neighbours(xy: np.ndarray, neighbours: int, anchors: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each anchor's ``neighbours`` nearest others (cKDTree's, whose order among equal distances decides which quads
+    exist) and the anchors' ids, as int64; None when there are no quads (fewer than three neighbours, no anchor)."""
     n = len(xy)
     k = min(neighbours, n - 1)
     anchor_ids = np.arange(n) if anchors is None else np.flatnonzero(anchors)
     if k < 3 or not anchor_ids.size:
-        empty = np.zeros((0, 4), dtype=np.int64)
-        return (empty, np.zeros(0, np.int64)) if with_anchor else empty
+        return None
     nn = nearest_others(quick_tree(xy), xy, anchor_ids, k)
-    triples = np.array(list(combinations(range(k), 3)))
-    anchor = np.repeat(anchor_ids, len(triples))
-    cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
-    for i, j in _SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
-        cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
-    quads = np.column_stack(cols)
-    if with_anchor:
-        return quads, anchor
-    if n < _PACKABLE:
-        return quads[np.sort(first_rows(quads, n))]
-    return np.unique(quads, axis=0)
-
+    return np.ascontiguousarray(nn, np.int64), np.ascontiguousarray(anchor_ids, np.int64)
 
 def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] | None
               ) -> tuple[np.ndarray, np.ndarray]:
@@ -152,25 +161,11 @@ def canonical_quads(zq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     ab : (m,) float
         Length of ``AB``.
     """
+    # The kernel's row by row (_kernel_map_quads.c): numpy's arithmetic, the same bits.
     m = len(zq)
-    # Column by column and into one array, the same numbers as a fancy-indexed (m, 6) difference: an index of
-    # a map tile's ten thousand quads spends a third of its time here.
-    d = np.empty((m, 6))
-    for j, (p, q) in enumerate(PAIRS.tolist()):
-        np.abs(zq[:, p] - zq[:, q], out=d[:, j])
-    pair = d.argmax(axis=1)
-    order = _ORDERS[pair]
-    ordered = zq.ravel()[order + 4 * np.arange(m)[:, None]]  # A, B, C, D of each quad
-    a = ordered[:, 0]
-    t = (ordered[:, 2:] - a[:, None]) / (ordered[:, 1] - a)[:, None]
-    swap_ab = t.real.sum(axis=1) > 1.0
-    order[swap_ab, :2] = order[swap_ab, 1::-1]
-    t[swap_ab] = 1.0 - t[swap_ab]
-    swap_cd = t[:, 0].real > t[:, 1].real
-    order[swap_cd, 2:] = order[swap_cd, :1:-1]
-    t[swap_cd] = t[swap_cd, ::-1]
-    return order, t.view(np.float64).reshape(m, 4), d[np.arange(m), pair]
-
+    order, inv, ab = np.empty((m, 4), np.int64), np.empty((m, 4)), np.empty(m)
+    map_canonical(np.ascontiguousarray(zq, np.complex128), order, inv, ab)
+    return order, inv, ab
 
 def label_keys(labels: np.ndarray, n_labels: int) -> np.ndarray:
     """One number per ordered label 4-tuple ``(m, 4)``."""
@@ -236,31 +231,20 @@ class QuadIndex:
                  positions: bool = False) -> None:
         self.labels = tuple(objects.labels)
         self.positions = positions
-        z = objects.x + 1j * objects.y
-        label = objects.label.astype(np.int64)
-        if len(objects) >= 4:
-            quads = neighbour_quads(np.column_stack([objects.x, objects.y]), neighbours, anchors=anchors)
-        else:
-            quads = np.zeros((0, 4), np.int64)
-        zq = z[quads]
-        if len(quads):
-            # Four objects on one spot (duplicates in the sources) have no frame.
-            frame = (zq[:, 1:] != zq[:, :1]).any(axis=1)
-            quads, zq = quads[frame], zq[frame]
-        if len(quads):
-            order, inv, _ = canonical_quads(zq)
-            flat = order + 4 * np.arange(len(quads))[:, None]  # each row in its canonical order, gathered flat
-            quads, zq = quads.ravel()[flat], zq.ravel()[flat]
-            points = np.empty((len(quads), 7 if positions else 5))
-            points[:, :4] = inv
-            np.multiply(label_keys(label[quads], len(self.labels)), LABEL_GAP, out=points[:, 4])
-            if positions:
-                centroid = zq.mean(axis=1)
-                np.multiply(POSITION_WEIGHT, centroid.real, out=points[:, 5])
-                np.multiply(POSITION_WEIGHT, centroid.imag, out=points[:, 6])
-            self.tree: TreePoints | None = QuadTree(points)
-        else:
-            self.tree = None
+        found = _anchor_neighbours(np.column_stack([objects.x, objects.y]), neighbours, anchors) \
+            if len(objects) >= 4 else None
+        self.tree: TreePoints | None = None
+        zq = np.zeros((0, 4), np.complex128)
+        if found is not None:
+            # One kernel call: the distinct quads, those with a frame (four objects on one spot, duplicates in the
+            # sources, have none) in canonical order, and their tree points.
+            z = np.ascontiguousarray(objects.x + 1j * objects.y, np.complex128)
+            label = np.ascontiguousarray(objects.label, np.int64)
+            _, points, flat = map_quads(*found, len(objects), len(objects) >= _PACKABLE, z, label, len(self.labels),
+                                        positions, LABEL_GAP, POSITION_WEIGHT)
+            zq = np.frombuffer(flat, np.complex128).reshape(-1, 4)
+            if len(zq):
+                self.tree = QuadTree(np.frombuffer(points, np.float64).reshape(len(zq), 7 if positions else 5))
         self.quad_z = zq
 
     @property

@@ -1,0 +1,258 @@
+/* The map's quads in the kernel (quads.neighbour_quads, canonical_quads and QuadIndex's points): a map tile's quad
+ * index in one call after its anchors' nearest neighbours are found (by cKDTree, whose order among equal distances
+ * decides which quads exist).
+ *
+ * Each anchor's quads come in triple order (itertools.combinations), each row's ids sorted, each quad kept where it
+ * first comes (a hash set, as the image's quads are kept): the rows and order of neighbour_quads' first_rows, or,
+ * from _PACKABLE points on, np.unique's (the kept rows sorted).  Then, as QuadIndex did with numpy: the quads whose
+ * four points lie on one spot dropped (no frame); each quad's frame by its most distant pair (numpy's abs of the
+ * complex difference, the first maximum on ties or the first NaN), ordered so that Re t_C + Re t_D <= 1 and
+ * Re t_C <= Re t_D (numpy's complex division, quads_frame shared with the image's quads); the tree points: the
+ * invariants, the label key (label_keys' float arithmetic) times the gap and, with positions, the centroid (numpy's
+ * mean of four complex numbers: (a + b) + (c + d), over 4) times the weight.
+ */
+#include "_kernel_quads.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* Canonical order (positions 0..3), invariants and |AB| of quad ``z`` (4 complex): canonical_quads' row. */
+static void map_canonical_row(const double *z, int *order, double *t, double *ab)
+{
+    double d[6];
+    int pair = 0;
+    for (int j = 0; j < 6; j++) {
+        const double *p = z + 2 * quads_pair(j)[0], *q = z + 2 * quads_pair(j)[1];
+        d[j] = cabs_np(p[0] - q[0], p[1] - q[1]);
+        /* numpy's argmax: the first maximum, a NaN the greatest (its first) */
+        if (!isnan(d[pair]) && (isnan(d[j]) || d[j] > d[pair])) {
+            pair = j;
+        }
+    }
+    QuadsFrame f;
+    quads_frame(z, pair, &f);
+    memcpy(order, f.order, sizeof(f.order));
+    memcpy(t, f.t, sizeof(f.t));
+    if (t[0] + t[2] > 1.0) {  /* t.real.sum(axis=1) > 1.0 */
+        int o = order[0];
+        order[0] = order[1];
+        order[1] = o;
+        for (int c = 0; c < 2; c++) {
+            t[2 * c] = 1.0 - t[2 * c];
+            t[2 * c + 1] = 0.0 - t[2 * c + 1];
+        }
+    }
+    if (t[0] > t[2]) {
+        int o = order[2];
+        order[2] = order[3];
+        order[3] = o;
+        double re = t[0], im = t[1];
+        t[0] = t[2];
+        t[1] = t[3];
+        t[2] = re;
+        t[3] = im;
+    }
+    *ab = d[pair];
+}
+
+static int map_row_cmp(const void *pa, const void *pb)
+{
+    const int64_t *a = pa, *b = pb;
+    for (int x = 0; x < 4; x++) {
+        if (a[x] != b[x]) {
+            return a[x] < b[x] ? -1 : 1;
+        }
+    }
+    return 0;
+}
+
+/* The distinct quads of anchors ``anchor`` (p) with their ``k`` nearest ``nn`` (p x k): rows of sorted ids into
+ * ``out`` (room for p C(k, 3) rows), where they first come, or sorted when ``sorted``.  Returns how many, -1 out of
+ * memory. */
+static Py_ssize_t map_combine(const int64_t *nn, const int64_t *anchor, Py_ssize_t p, Py_ssize_t k, int sorted,
+                              int64_t *out)
+{
+    Py_ssize_t q = p * (k * (k - 1) * (k - 2) / 6), used = 0;
+    uint64_t slots = 16;
+    while (slots < 2 * (uint64_t)q) {
+        slots *= 2;
+    }
+    int64_t *seen = malloc(sizeof(int64_t) * 4 * slots);
+    if (!seen) {
+        return -1;
+    }
+    memset(seen, 0xff, sizeof(int64_t) * 4 * slots);
+    for (Py_ssize_t i = 0; i < p; i++) {
+        const int64_t *row = nn + i * k;
+        for (Py_ssize_t x = 0; x < k; x++) {
+            for (Py_ssize_t y = x + 1; y < k; y++) {
+                for (Py_ssize_t z = y + 1; z < k; z++) {
+                    int64_t *v = out + 4 * used;
+                    v[0] = anchor[i];
+                    v[1] = row[x];
+                    v[2] = row[y];
+                    v[3] = row[z];
+                    for (int a = 1; a < 4; a++) {
+                        for (int b = a; b > 0 && v[b] < v[b - 1]; b--) {
+                            int64_t tmp = v[b];
+                            v[b] = v[b - 1];
+                            v[b - 1] = tmp;
+                        }
+                    }
+                    used += quads_first(seen, slots - 1, v);
+                }
+            }
+        }
+    }
+    free(seen);
+    if (sorted) {
+        qsort(out, (size_t)used, sizeof(int64_t) * 4, map_row_cmp);
+    }
+    return used;
+}
+
+/* QuadIndex's quads and tree points from the distinct quads ``ids`` (q x 4, overwritten with the kept ones in
+ * canonical order): returns how many kept, their points in ``pts`` (q x dim) and complex points in ``zq``. */
+static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const int64_t *label, Py_ssize_t n_labels,
+                             double gap, double weight, int dim, double *pts, double *zq)
+{
+    Py_ssize_t m = 0;
+    double base = (double)(n_labels > 1 ? n_labels : 1);
+    for (Py_ssize_t i = 0; i < q; i++) {
+        const int64_t *id = ids + 4 * i;
+        double w[8], inv[4], ab;
+        int frame = 0, order[4];
+        for (int x = 0; x < 4; x++) {
+            w[2 * x] = z[2 * id[x]];
+            w[2 * x + 1] = z[2 * id[x] + 1];
+            frame = frame || (x > 0 && (w[2 * x] != w[0] || w[2 * x + 1] != w[1]));
+        }
+        if (!frame) {  /* four objects on one spot (duplicates in the sources) */
+            continue;
+        }
+        map_canonical_row(w, order, inv, &ab);
+        int64_t kept[4];
+        double key = 0.0, *out = zq + 8 * m, *pt = pts + (Py_ssize_t)dim * m;
+        for (int x = 0; x < 4; x++) {
+            kept[x] = id[order[x]];
+            out[2 * x] = w[2 * order[x]];
+            out[2 * x + 1] = w[2 * order[x] + 1];
+            key = key * base + (double)label[kept[x]];
+            pt[x] = inv[x];
+        }
+        memcpy(ids + 4 * m, kept, sizeof(kept));
+        pt[4] = key * gap;
+        if (dim == 7) {
+            double re = (out[0] + out[2]) + (out[4] + out[6]), im = (out[1] + out[3]) + (out[5] + out[7]);
+            double cr, ci;
+            cdiv(re, im, 4.0, 0.0, &cr, &ci);
+            pt[5] = weight * cr;
+            pt[6] = weight * ci;
+        }
+        m++;
+    }
+    return m;
+}
+
+static PyObject *map_bytes(const void *data, Py_ssize_t size)
+{
+    return PyByteArray_FromStringAndSize((const char *)data, size);
+}
+
+static PyObject *map_quads(PyObject *self, PyObject *args)
+{
+    PyObject *onn, *oanchor, *oz, *olabel;
+    Py_ssize_t n, n_labels;
+    int sorted, positions;
+    double gap, weight;
+    Arr a[4] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOnpOOnpdd:map_quads", &onn, &oanchor, &n, &sorted, &oz, &olabel, &n_labels,
+                          &positions, &gap, &weight)) {
+        return NULL;
+    }
+    if (arr_take(onn, &a[0], "nn", 'q', 2, 0, 0) || arr_take(oanchor, &a[1], "anchors", 'q', 1, 0, 0)
+        || arr_take(oz, &a[2], "z", 'Z', 1, 0, 1) || arr_take(olabel, &a[3], "label", 'q', 1, 0, 1)
+        || arr_check_shape(&a[1], "anchors", arr_dim(&a[0], 0), 0) || arr_check_shape(&a[2], "z", n, 0)
+        || arr_check_shape(&a[3], "label", n, 0)) {
+        arr_release(a, 4);
+        return NULL;
+    }
+    Py_ssize_t p = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1), total = p * k;
+    int bad = a[2].held != a[3].held || k > 64 || n < 0;
+    for (Py_ssize_t i = 0; i < total && !bad; i++) {
+        bad = Q(a[0])[i] < 0 || Q(a[0])[i] >= n;
+    }
+    for (Py_ssize_t i = 0; i < p && !bad; i++) {
+        bad = Q(a[1])[i] < 0 || Q(a[1])[i] >= n;
+    }
+    for (Py_ssize_t i = 0; a[3].held && i < n && !bad; i++) {
+        bad = Q(a[3])[i] < 0;
+    }
+    if (bad) {
+        arr_release(a, 4);
+        return PyErr_Format(PyExc_ValueError, "need ids in [0, n), at most 64 neighbours, labels >= 0, and z with label");
+    }
+    Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = positions ? 7 : 5;
+    int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
+    double *pts = a[2].held ? malloc(sizeof(double) * (size_t)(dim * q + 1)) : NULL;
+    double *zq = a[2].held ? malloc(sizeof(double) * (size_t)(8 * q + 1)) : NULL;
+    PyObject *out = NULL;
+    if (!ids || (a[2].held && (!pts || !zq)) || (m = q ? map_combine(Q(a[0]), Q(a[1]), p, k, sorted, ids) : 0) < 0) {
+        PyErr_NoMemory();
+    } else {
+        if (a[2].held) {
+            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim, pts, zq);
+        }
+        PyObject *o[3] = {map_bytes(ids, (Py_ssize_t)sizeof(int64_t) * 4 * m),
+                          map_bytes(pts, pts ? (Py_ssize_t)sizeof(double) * dim * m : 0),
+                          map_bytes(zq, zq ? (Py_ssize_t)sizeof(double) * 8 * m : 0)};
+        if (o[0] && o[1] && o[2]) {
+            out = PyTuple_Pack(3, o[0], o[1], o[2]);
+        }
+        for (int x = 0; x < 3; x++) {
+            Py_XDECREF(o[x]);
+        }
+    }
+    free(ids);
+    free(pts);
+    free(zq);
+    arr_release(a, 4);
+    return out;
+}
+
+static PyObject *map_canonical(PyObject *self, PyObject *args)
+{
+    PyObject *ozq, *oorder, *oinv, *oab;
+    Arr a[4] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOO:map_canonical", &ozq, &oorder, &oinv, &oab)) {
+        return NULL;
+    }
+    if (arr_take(ozq, &a[0], "zq", 'Z', 2, 0, 0) || arr_take(oorder, &a[1], "order", 'q', 2, 1, 0)
+        || arr_take(oinv, &a[2], "invariants", 'd', 2, 1, 0) || arr_take(oab, &a[3], "ab", 'd', 1, 1, 0)
+        || arr_check_shape(&a[0], "zq", arr_dim(&a[0], 0), 4) || arr_check_shape(&a[1], "order", arr_dim(&a[0], 0), 4)
+        || arr_check_shape(&a[2], "invariants", arr_dim(&a[0], 0), 4)
+        || arr_check_shape(&a[3], "ab", arr_dim(&a[0], 0), 0)) {
+        arr_release(a, 4);
+        return NULL;
+    }
+    for (Py_ssize_t i = 0; i < arr_dim(&a[0], 0); i++) {
+        int order[4];
+        map_canonical_row(D(a[0]) + 8 * i, order, D(a[2]) + 4 * i, D(a[3]) + i);
+        for (int x = 0; x < 4; x++) {
+            Q(a[1])[4 * i + x] = order[x];
+        }
+    }
+    arr_release(a, 4);
+    Py_RETURN_NONE;
+}
+
+PyMethodDef map_quads_methods[] = {
+    {"map_quads", map_quads, METH_VARARGS,
+     "map_quads(nn, anchors, n, sorted, z, label, n_labels, positions, gap, weight): the distinct quads of anchors "
+     "with their k nearest (neighbour_quads), and, given z and label, QuadIndex's: the quads with a frame in "
+     "canonical order, their tree points and complex points; three bytearrays."},
+    {"map_canonical", map_canonical, METH_VARARGS,
+     "map_canonical(zq, order, invariants, ab): canonical_quads into the arrays given."},
+    {NULL, NULL, 0, NULL},
+};
