@@ -200,3 +200,22 @@ def test_wrong_calls_raise():
     with pytest.raises((TypeError, ValueError)):
         _kernel.map_canonical(np.zeros((2, 3), np.complex128), np.zeros((2, 4), np.int64), np.zeros((2, 4)),
                               np.zeros(2))
+
+
+def test_neighbours_must_be_distinct_and_anchors_ascending():
+    """The kernel keeps a quad unless an earlier anchor among its points made it: that needs distinct neighbours other
+    than the anchor, and anchors in ascending order (as nearest_others and neighbour_quads give them)."""
+    z = np.arange(6, dtype=np.complex128)
+    label = np.zeros(6, np.int64)
+    calls = [
+        (np.array([[1, 2, 2]], np.int64), np.array([0])),  # a repeated neighbour
+        (np.array([[0, 2, 3]], np.int64), np.array([0])),  # the anchor among its neighbours
+        (np.array([[2, 3, 4], [2, 3, 4]], np.int64), np.array([1, 0])),  # anchors descending
+        (np.array([[2, 3, 4], [2, 3, 4]], np.int64), np.array([1, 1])),  # an anchor twice
+    ]
+    for nn, anchors in calls:
+        with pytest.raises(ValueError):
+            _kernel.map_quads(nn, anchors, 6, False, z, label, 1, False, LABEL_GAP, POSITION_WEIGHT)
+    good = _kernel.map_quads(np.array([[2, 3, 4], [2, 3, 4]], np.int64), np.array([0, 1]), 6, False, None, None, 0,
+                             False, LABEL_GAP, POSITION_WEIGHT)[0]
+    assert np.frombuffer(good, np.int64).reshape(-1, 4).tolist() == [[0, 2, 3, 4], [1, 2, 3, 4]]

@@ -17,19 +17,49 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Canonical order (positions 0..3), invariants and |AB| of quad ``z`` (4 complex): canonical_quads' row. */
-static void map_canonical_row(const double *z, int *order, double *t, double *ab)
+/* The most distant pair of quad ``z`` (4 complex) as numpy's argmax of np.abs of the six differences finds it: the
+ * first maximum, a NaN the greatest (its first).  Squared lengths decide when the longest is longer than the second
+ * by far more than their rounding (relative 1e-9, against a few 1e-16, in a range with no underflow or overflow):
+ * np.abs' values, within a few units in the last place of the true lengths, rank the same; otherwise (ties, near
+ * ties, extreme or non-finite values) np.abs' values themselves (cabs_np), which cost five times more.  With ``ab``,
+ * that pair's np.abs. */
+static int map_longest_pair(const double *z, double *ab)
 {
-    double d[6];
-    int pair = 0;
+    double s[6];
+    int pair = 0, ok = 1;
     for (int j = 0; j < 6; j++) {
         const double *p = z + 2 * quads_pair(j)[0], *q = z + 2 * quads_pair(j)[1];
-        d[j] = cabs_np(p[0] - q[0], p[1] - q[1]);
-        /* numpy's argmax: the first maximum, a NaN the greatest (its first) */
-        if (!isnan(d[pair]) && (isnan(d[j]) || d[j] > d[pair])) {
-            pair = j;
+        double dx = p[0] - q[0], dy = p[1] - q[1];
+        s[j] = dx * dx + dy * dy;
+        ok = ok && s[j] >= 1e-250 && s[j] <= 1e250;
+        pair = s[j] > s[pair] ? j : pair;
+    }
+    for (int j = 0; j < 6 && ok; j++) {
+        ok = j == pair || s[pair] > s[j] * (1.0 + 1e-9);
+    }
+    if (!ok) {
+        double d[6];
+        pair = 0;
+        for (int j = 0; j < 6; j++) {
+            const double *p = z + 2 * quads_pair(j)[0], *q = z + 2 * quads_pair(j)[1];
+            d[j] = cabs_np(p[0] - q[0], p[1] - q[1]);
+            if (!isnan(d[pair]) && (isnan(d[j]) || d[j] > d[pair])) {
+                pair = j;
+            }
         }
     }
+    if (ab) {
+        const double *p = z + 2 * quads_pair(pair)[0], *q = z + 2 * quads_pair(pair)[1];
+        *ab = cabs_np(p[0] - q[0], p[1] - q[1]);
+    }
+    return pair;
+}
+
+/* Canonical order (positions 0..3), invariants and, with ``ab``, |AB| of quad ``z`` (4 complex): canonical_quads'
+ * row. */
+static void map_canonical_row(const double *z, int *order, double *t, double *ab)
+{
+    int pair = map_longest_pair(z, ab);
     QuadsFrame f;
     quads_frame(z, pair, &f);
     memcpy(order, f.order, sizeof(f.order));
@@ -53,7 +83,6 @@ static void map_canonical_row(const double *z, int *order, double *t, double *ab
         t[2] = re;
         t[3] = im;
     }
-    *ab = d[pair];
 }
 
 static int map_row_cmp(const void *pa, const void *pb)
@@ -67,49 +96,108 @@ static int map_row_cmp(const void *pa, const void *pb)
     return 0;
 }
 
-/* The distinct quads of anchors ``anchor`` (p) with their ``k`` nearest ``nn`` (p x k): rows of sorted ids into
- * ``out`` (room for p C(k, 3) rows), where they first come, or sorted when ``sorted``.  Returns how many, -1 out of
- * memory. */
-static Py_ssize_t map_combine(const int64_t *nn, const int64_t *anchor, Py_ssize_t p, Py_ssize_t k, int sorted,
-                              int64_t *out)
+/* Sort four ids by five compare-exchanges (quads._SORT4). */
+static inline void map_sort4(int64_t *v)
 {
-    Py_ssize_t q = p * (k * (k - 1) * (k - 2) / 6), used = 0;
-    uint64_t slots = 16;
-    while (slots < 2 * (uint64_t)q) {
-        slots *= 2;
+    static const int net[5][2] = {{0, 1}, {2, 3}, {0, 2}, {1, 3}, {1, 2}};
+    for (int c = 0; c < 5; c++) {
+        int64_t a = v[net[c][0]], b = v[net[c][1]];
+        v[net[c][0]] = a < b ? a : b;
+        v[net[c][1]] = a < b ? b : a;
     }
-    int64_t *seen = malloc(sizeof(int64_t) * 4 * slots);
-    if (!seen) {
-        return -1;
+}
+
+/* For anchor row ``r`` (id ``i``) and each neighbour x that is an earlier anchor (a lower id: rows ascend), which of
+ * the row's neighbours (bit y) that anchor's own neighbours hold, when they hold ``i`` (else 0): a quad of i's
+ * neighbours x, y, z came first from x when x's mask holds the other two. */
+static void map_earlier(const int64_t *nn, const int64_t *row_of, Py_ssize_t r, int64_t i, Py_ssize_t k,
+                        uint64_t *mask)
+{
+    const int64_t *row = nn + r * k;
+    for (Py_ssize_t x = 0; x < k; x++) {
+        mask[x] = 0;
+        int64_t j = row[x];
+        if (j >= i || row_of[j] < 0) {
+            continue;
+        }
+        const int64_t *other = nn + row_of[j] * k;
+        int holds_i = 0;
+        for (Py_ssize_t c = 0; c < k; c++) {
+            holds_i = holds_i || other[c] == i;
+        }
+        for (Py_ssize_t y = 0; y < k && holds_i; y++) {
+            for (Py_ssize_t c = 0; c < k; c++) {
+                mask[x] |= (uint64_t)(other[c] == row[y]) << y;
+            }
+        }
     }
-    memset(seen, 0xff, sizeof(int64_t) * 4 * slots);
-    for (Py_ssize_t i = 0; i < p; i++) {
-        const int64_t *row = nn + i * k;
+}
+
+/* The distinct quads of anchors ``anchor`` (p, ascending) with their ``k`` nearest ``nn`` (p x k, distinct, not the
+ * anchor): rows of sorted ids into ``out`` (room for p C(k, 3) rows), where they first come (anchor by anchor, in
+ * triple order: a quad is new unless an earlier anchor among its points reached the other three), or sorted when
+ * ``sorted``.  ``row_of`` (n): each id's anchor row, -1 for none.  Returns how many. */
+static Py_ssize_t map_combine(const int64_t *nn, const int64_t *anchor, const int64_t *row_of, Py_ssize_t p,
+                              Py_ssize_t k, int sorted, int64_t *out)
+{
+    Py_ssize_t used = 0;
+    uint64_t mask[64];
+    for (Py_ssize_t r = 0; r < p; r++) {
+        const int64_t *row = nn + r * k;
+        map_earlier(nn, row_of, r, anchor[r], k, mask);
         for (Py_ssize_t x = 0; x < k; x++) {
             for (Py_ssize_t y = x + 1; y < k; y++) {
                 for (Py_ssize_t z = y + 1; z < k; z++) {
-                    int64_t *v = out + 4 * used;
-                    v[0] = anchor[i];
+                    uint64_t bx = (uint64_t)1 << x, by = (uint64_t)1 << y, bz = (uint64_t)1 << z;
+                    if ((mask[x] & (by | bz)) == (by | bz) || (mask[y] & (bx | bz)) == (bx | bz)
+                        || (mask[z] & (bx | by)) == (bx | by)) {
+                        continue;  /* an earlier anchor made it */
+                    }
+                    int64_t *v = out + 4 * used++;
+                    v[0] = anchor[r];
                     v[1] = row[x];
                     v[2] = row[y];
                     v[3] = row[z];
-                    for (int a = 1; a < 4; a++) {
-                        for (int b = a; b > 0 && v[b] < v[b - 1]; b--) {
-                            int64_t tmp = v[b];
-                            v[b] = v[b - 1];
-                            v[b - 1] = tmp;
-                        }
-                    }
-                    used += quads_first(seen, slots - 1, v);
+                    map_sort4(v);
                 }
             }
         }
     }
-    free(seen);
     if (sorted) {
         qsort(out, (size_t)used, sizeof(int64_t) * 4, map_row_cmp);
     }
     return used;
+}
+
+/* 0 when the anchors ascend in [0, n) and each row of neighbours holds distinct ids in [0, n) other than its anchor;
+ * ``row_of`` (n) made.  Else -1 with ValueError set. */
+static int map_check(const int64_t *nn, const int64_t *anchor, const int64_t *label, Py_ssize_t p, Py_ssize_t k,
+                     Py_ssize_t n, int64_t *row_of)
+{
+    int bad = k > 64 || n < 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        row_of[i] = -1;
+        bad = bad || (label && label[i] < 0);
+    }
+    for (Py_ssize_t r = 0; r < p && !bad; r++) {
+        bad = anchor[r] < 0 || anchor[r] >= n || (r > 0 && anchor[r] <= anchor[r - 1]);
+        for (Py_ssize_t x = 0; x < k && !bad; x++) {
+            int64_t j = nn[r * k + x];
+            bad = j < 0 || j >= n || j == anchor[r];
+            for (Py_ssize_t y = 0; y < x && !bad; y++) {
+                bad = nn[r * k + y] == j;
+            }
+        }
+        if (!bad) {
+            row_of[anchor[r]] = r;
+        }
+    }
+    if (bad) {
+        PyErr_SetString(PyExc_ValueError, "need ascending anchors and distinct neighbours in [0, n) other than their "
+                        "anchor, at most 64 neighbours, labels >= 0, and z with label");
+        return -1;
+    }
+    return 0;
 }
 
 /* QuadIndex's quads and tree points from the distinct quads ``ids`` (q x 4, overwritten with the kept ones in
@@ -121,7 +209,7 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
     double base = (double)(n_labels > 1 ? n_labels : 1);
     for (Py_ssize_t i = 0; i < q; i++) {
         const int64_t *id = ids + 4 * i;
-        double w[8], inv[4], ab;
+        double w[8], inv[4];
         int frame = 0, order[4];
         for (int x = 0; x < 4; x++) {
             w[2 * x] = z[2 * id[x]];
@@ -131,7 +219,7 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
         if (!frame) {  /* four objects on one spot (duplicates in the sources) */
             continue;
         }
-        map_canonical_row(w, order, inv, &ab);
+        map_canonical_row(w, order, inv, NULL);
         int64_t kept[4];
         double key = 0.0, *out = zq + 8 * m, *pt = pts + (Py_ssize_t)dim * m;
         for (int x = 0; x < 4; x++) {
@@ -178,29 +266,29 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
         arr_release(a, 4);
         return NULL;
     }
-    Py_ssize_t p = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1), total = p * k;
-    int bad = a[2].held != a[3].held || k > 64 || n < 0;
-    for (Py_ssize_t i = 0; i < total && !bad; i++) {
-        bad = Q(a[0])[i] < 0 || Q(a[0])[i] >= n;
-    }
-    for (Py_ssize_t i = 0; i < p && !bad; i++) {
-        bad = Q(a[1])[i] < 0 || Q(a[1])[i] >= n;
-    }
-    for (Py_ssize_t i = 0; a[3].held && i < n && !bad; i++) {
-        bad = Q(a[3])[i] < 0;
-    }
-    if (bad) {
+    Py_ssize_t p = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1);
+    int64_t *row_of = malloc(sizeof(int64_t) * (size_t)(n > 0 ? n : 1));
+    if (!row_of) {
         arr_release(a, 4);
-        return PyErr_Format(PyExc_ValueError, "need ids in [0, n), at most 64 neighbours, labels >= 0, and z with label");
+        return PyErr_NoMemory();
+    }
+    if (a[2].held != a[3].held) {
+        PyErr_SetString(PyExc_ValueError, "need z with label");
+    }
+    if (PyErr_Occurred() || map_check(Q(a[0]), Q(a[1]), a[3].held ? Q(a[3]) : NULL, p, k, n, row_of)) {
+        free(row_of);
+        arr_release(a, 4);
+        return NULL;
     }
     Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = positions ? 7 : 5;
     int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
     double *pts = a[2].held ? malloc(sizeof(double) * (size_t)(dim * q + 1)) : NULL;
     double *zq = a[2].held ? malloc(sizeof(double) * (size_t)(8 * q + 1)) : NULL;
     PyObject *out = NULL;
-    if (!ids || (a[2].held && (!pts || !zq)) || (m = q ? map_combine(Q(a[0]), Q(a[1]), p, k, sorted, ids) : 0) < 0) {
+    if (!ids || (a[2].held && (!pts || !zq))) {
         PyErr_NoMemory();
     } else {
+        m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, ids) : 0;
         if (a[2].held) {
             m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim, pts, zq);
         }
@@ -214,6 +302,7 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
             Py_XDECREF(o[x]);
         }
     }
+    free(row_of);
     free(ids);
     free(pts);
     free(zq);

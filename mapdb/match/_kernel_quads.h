@@ -79,23 +79,4 @@ static inline void quads_frame(const double *z, int pair, QuadsFrame *f)
     }
 }
 
-/* Whether quad ``id`` is new to the set ``seen`` (open addressing, ``mask + 1`` slots of 4 ids, -1 empty); adds it. */
-static inline int quads_first(int64_t *seen, uint64_t mask, const int64_t *id)
-{
-    uint64_t h = 1469598103934665603ULL;
-    for (int x = 0; x < 4; x++) {
-        h = (h ^ (uint64_t)id[x]) * 1099511628211ULL;
-    }
-    for (uint64_t at = h & mask;; at = (at + 1) & mask) {
-        int64_t *slot = seen + 4 * at;
-        if (slot[0] < 0) {
-            memcpy(slot, id, sizeof(int64_t) * 4);
-            return 1;
-        }
-        if (memcmp(slot, id, sizeof(int64_t) * 4) == 0) {
-            return 0;
-        }
-    }
-}
-
 #endif
