@@ -280,32 +280,37 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
         arr_release(a, 4);
         return NULL;
     }
-    Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = positions ? 7 : 5;
+    Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = a[2].held ? (positions ? 7 : 5) : 0;
     int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
-    double *pts = a[2].held ? malloc(sizeof(double) * (size_t)(dim * q + 1)) : NULL;
-    double *zq = a[2].held ? malloc(sizeof(double) * (size_t)(8 * q + 1)) : NULL;
-    PyObject *out = NULL;
-    if (!ids || (a[2].held && (!pts || !zq))) {
+    PyObject *out = NULL, *o[3] = {NULL, NULL, NULL};
+    if (!ids) {
         PyErr_NoMemory();
     } else {
         m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, ids) : 0;
+        /* written in place (the kept quads' ids, points and complex points), then cut to the quads with a frame:
+         * no copy of megabytes a tile */
+        o[0] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * m);
+        o[1] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * dim * m);
+        o[2] = PyByteArray_FromStringAndSize(NULL, a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0);
+    }
+    if (o[0] && o[1] && o[2]) {
+        int64_t *kept = (int64_t *)PyByteArray_AS_STRING(o[0]);
         if (a[2].held) {
-            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim, pts, zq);
+            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim,
+                           (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
         }
-        PyObject *o[3] = {map_bytes(ids, (Py_ssize_t)sizeof(int64_t) * 4 * m),
-                          map_bytes(pts, pts ? (Py_ssize_t)sizeof(double) * dim * m : 0),
-                          map_bytes(zq, zq ? (Py_ssize_t)sizeof(double) * 8 * m : 0)};
-        if (o[0] && o[1] && o[2]) {
+        memcpy(kept, ids, sizeof(int64_t) * 4 * (size_t)m);
+        if (PyByteArray_Resize(o[0], (Py_ssize_t)sizeof(int64_t) * 4 * m) == 0
+            && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
+            && PyByteArray_Resize(o[2], a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0) == 0) {
             out = PyTuple_Pack(3, o[0], o[1], o[2]);
         }
-        for (int x = 0; x < 3; x++) {
-            Py_XDECREF(o[x]);
-        }
+    }
+    for (int x = 0; x < 3; x++) {
+        Py_XDECREF(o[x]);
     }
     free(row_of);
     free(ids);
-    free(pts);
-    free(zq);
     arr_release(a, 4);
     return out;
 }
