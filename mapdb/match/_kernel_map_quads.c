@@ -243,9 +243,42 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
     return m;
 }
 
-static PyObject *map_bytes(const void *data, Py_ssize_t size)
+/* map_quads' answer from its checked arrays ``a`` (nn, anchors, z, label) and ``row_of``: the distinct quads, and
+ * with z and label those with a frame in canonical order, their tree points and complex points, as bytearrays. */
+static PyObject *map_build(Arr *a, const int64_t *row_of, Py_ssize_t p, Py_ssize_t k, int sorted, Py_ssize_t n_labels,
+                           int positions, double gap, double weight)
 {
-    return PyByteArray_FromStringAndSize((const char *)data, size);
+    Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = a[2].held ? (positions ? 7 : 5) : 0;
+    int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
+    PyObject *out = NULL, *o[3] = {NULL, NULL, NULL};
+    if (!ids) {
+        PyErr_NoMemory();
+    } else {
+        m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, ids) : 0;
+        /* written in place (the kept quads' ids, points and complex points), then cut to the quads with a frame:
+         * no copy of megabytes a tile */
+        o[0] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * m);
+        o[1] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * dim * m);
+        o[2] = PyByteArray_FromStringAndSize(NULL, a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0);
+    }
+    if (o[0] && o[1] && o[2]) {
+        int64_t *kept = (int64_t *)PyByteArray_AS_STRING(o[0]);
+        if (a[2].held) {
+            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim,
+                           (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
+        }
+        memcpy(kept, ids, sizeof(int64_t) * 4 * (size_t)m);
+        if (PyByteArray_Resize(o[0], (Py_ssize_t)sizeof(int64_t) * 4 * m) == 0
+            && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
+            && PyByteArray_Resize(o[2], a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0) == 0) {
+            out = PyTuple_Pack(3, o[0], o[1], o[2]);
+        }
+    }
+    for (int x = 0; x < 3; x++) {
+        Py_XDECREF(o[x]);
+    }
+    free(ids);
+    return out;
 }
 
 static PyObject *map_quads(PyObject *self, PyObject *args)
@@ -280,37 +313,8 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
         arr_release(a, 4);
         return NULL;
     }
-    Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = a[2].held ? (positions ? 7 : 5) : 0;
-    int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
-    PyObject *out = NULL, *o[3] = {NULL, NULL, NULL};
-    if (!ids) {
-        PyErr_NoMemory();
-    } else {
-        m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, ids) : 0;
-        /* written in place (the kept quads' ids, points and complex points), then cut to the quads with a frame:
-         * no copy of megabytes a tile */
-        o[0] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * m);
-        o[1] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * dim * m);
-        o[2] = PyByteArray_FromStringAndSize(NULL, a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0);
-    }
-    if (o[0] && o[1] && o[2]) {
-        int64_t *kept = (int64_t *)PyByteArray_AS_STRING(o[0]);
-        if (a[2].held) {
-            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim,
-                           (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
-        }
-        memcpy(kept, ids, sizeof(int64_t) * 4 * (size_t)m);
-        if (PyByteArray_Resize(o[0], (Py_ssize_t)sizeof(int64_t) * 4 * m) == 0
-            && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
-            && PyByteArray_Resize(o[2], a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0) == 0) {
-            out = PyTuple_Pack(3, o[0], o[1], o[2]);
-        }
-    }
-    for (int x = 0; x < 3; x++) {
-        Py_XDECREF(o[x]);
-    }
+    PyObject *out = map_build(a, row_of, p, k, sorted, n_labels, positions, gap, weight);
     free(row_of);
-    free(ids);
     arr_release(a, 4);
     return out;
 }
