@@ -121,6 +121,18 @@ static void quads_points_box(const QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, d
     }
 }
 
+/* Node ``me``'s box: the union of its children's. */
+static void quads_join_boxes(QuadsTree *t, Py_ssize_t me, Py_ssize_t left, Py_ssize_t right)
+{
+    Py_ssize_t d = t->d;
+    double *box = t->box + 2 * d * me;
+    const double *bl = t->box + 2 * d * left, *br = t->box + 2 * d * right;
+    for (Py_ssize_t j = 0; j < d; j++) {
+        box[j] = bl[j] < br[j] ? bl[j] : br[j];
+        box[d + j] = bl[d + j] > br[d + j] ? bl[d + j] : br[d + j];
+    }
+}
+
 /* The node over [lo, hi) in ``cell`` (its parents' splits): returns its number, or -1 when out of memory.  Its stored
  * box is tight: a leaf's from its points, a parent's the union of its children's. */
 static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, const double *cell)
@@ -160,12 +172,7 @@ static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, c
     if (right < 0) {
         return -1;
     }
-    double *box = t->box + 2 * d * me;
-    const double *bl = t->box + 2 * d * left, *br = t->box + 2 * d * right;
-    for (Py_ssize_t j = 0; j < d; j++) {
-        box[j] = bl[j] < br[j] ? bl[j] : br[j];
-        box[d + j] = bl[d + j] > br[d + j] ? bl[d + j] : br[d + j];
-    }
+    quads_join_boxes(t, me, left, right);
     t->nodes[me].left = left;
     t->nodes[me].right = right;
     return me;
@@ -177,7 +184,6 @@ static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, c
  * pivot).  Boxes are the union of the children's.  Returns the node's number, or -1 out of memory. */
 static Py_ssize_t quads_build_keys(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi)
 {
-    Py_ssize_t d = t->d;
     double pivot = QUADS_AT(t, lo + (hi - lo) / 2, QUADS_KEY);
     int mixed = 0;
     for (Py_ssize_t r = lo; r < hi && !mixed; r++) {
@@ -210,12 +216,7 @@ static Py_ssize_t quads_build_keys(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi)
     if (right < 0) {
         return -1;
     }
-    double *box = t->box + 2 * d * me;
-    const double *bl = t->box + 2 * d * left, *br = t->box + 2 * d * right;
-    for (Py_ssize_t j = 0; j < d; j++) {
-        box[j] = bl[j] < br[j] ? bl[j] : br[j];
-        box[d + j] = bl[d + j] > br[d + j] ? bl[d + j] : br[d + j];
-    }
+    quads_join_boxes(t, me, left, right);
     t->nodes[me] = (QuadsNode){lo, hi, left, right};
     return me;
 }
