@@ -82,14 +82,15 @@ def code_digest() -> str:
 
 
 def cli_tree(rev: str, root: Path) -> Path:
-    """``root`` holding revision ``rev``'s ``mapdb`` and its CLI as ``mapdb_cli`` (extracted once): first on
-    ``PYTHONPATH``, the installed ``mapdb`` script runs that revision (the editable install's finder comes after
-    the path)."""
+    """``root`` holding revision ``rev``'s ``mapdb`` (its compiled kernel built) and its CLI as ``mapdb_cli``
+    (extracted once): first on ``PYTHONPATH``, the installed ``mapdb`` script runs that revision (the editable
+    install's finder comes after the path)."""
     if not (root / "mapdb_cli").is_dir():
         root.mkdir(parents=True, exist_ok=True)
         archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "mapdb", "cli"], check=True,
                                  capture_output=True).stdout
         subprocess.run(["tar", "-x", "-C", str(root)], input=archive, check=True)
+        _build_kernel(rev, root)  # a revision with a compiled kernel runs only with it built
         (root / "cli").rename(root / "mapdb_cli")
     return root
 
