@@ -267,6 +267,44 @@ static Py_ssize_t quads_rounds(const int64_t *nn, const int64_t *members, const 
     return used;
 }
 
+/* quads_batches' work arrays (xy: 2 p, nn: p k, rank: n, batch: p, by: n, ids: 4 q, counts: max_batches). */
+typedef struct {
+    double *xy;
+    int64_t *nn, *rank, *batch;
+    Keyed *by;
+    int64_t *ids, *counts;
+} QuadsBatchesWork;
+
+/* The image's quads in rounds into ``w->ids`` (rows a round in ``w->counts``): anchors ranked by their distance
+ * from the image centre (a stable order), ``per_batch`` a round, at most ``max_batches`` rounds (``*n_batches``).
+ * Returns the number of quads, or -1 out of memory. */
+static Py_ssize_t quads_batches_fill(const double *z, Py_ssize_t n, const int64_t *members, Py_ssize_t p, Py_ssize_t k,
+                                     Py_ssize_t per_batch, Py_ssize_t max_batches, QuadsBatchesWork *w,
+                                     Py_ssize_t *n_batches)
+{
+    for (Py_ssize_t i = 0; i < n; i++) {  /* anchors nearest the image centre first (a stable order) */
+        w->by[i].v = cabs_np(z[2 * i], z[2 * i + 1]);
+        w->by[i].i = i;
+    }
+    sort_keyed(w->by, n);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        w->rank[w->by[i].i] = i;
+    }
+    int64_t last = 0;
+    for (Py_ssize_t i = 0; i < p; i++) {
+        w->xy[2 * i] = z[2 * members[i]];
+        w->xy[2 * i + 1] = z[2 * members[i] + 1];
+        w->batch[i] = w->rank[members[i]] / per_batch;
+        last = w->batch[i] > last ? w->batch[i] : last;
+    }
+    *n_batches = last + 1 < max_batches ? last + 1 : max_batches;
+    for (Py_ssize_t i = 0; i < p; i++) {  /* later rounds' anchors are never read */
+        w->batch[i] = w->batch[i] < *n_batches ? w->batch[i] : -1;
+    }
+    quads_nearest(w->xy, p, k, w->batch, w->nn);
+    return quads_rounds(w->nn, members, w->batch, p, k, *n_batches, w->ids, w->counts);
+}
+
 static PyObject *quads_batches(PyObject *self, PyObject *args)
 {
     PyObject *oz, *omembers;
@@ -304,27 +342,8 @@ static PyObject *quads_batches(PyObject *self, PyObject *args)
     if (!xy || !nn || !rank || !batch || !by || !ids || !counts) {
         PyErr_NoMemory();
     } else if (q > 0) {
-        for (Py_ssize_t i = 0; i < n; i++) {  /* anchors nearest the image centre first (a stable order) */
-            by[i].v = cabs_np(z[2 * i], z[2 * i + 1]);
-            by[i].i = i;
-        }
-        sort_keyed(by, n);
-        for (Py_ssize_t i = 0; i < n; i++) {
-            rank[by[i].i] = i;
-        }
-        int64_t last = 0;
-        for (Py_ssize_t i = 0; i < p; i++) {
-            xy[2 * i] = z[2 * members[i]];
-            xy[2 * i + 1] = z[2 * members[i] + 1];
-            batch[i] = rank[members[i]] / per_batch;
-            last = batch[i] > last ? batch[i] : last;
-        }
-        n_batches = last + 1 < max_batches ? last + 1 : max_batches;
-        for (Py_ssize_t i = 0; i < p; i++) {  /* later rounds' anchors are never read */
-            batch[i] = batch[i] < n_batches ? batch[i] : -1;
-        }
-        quads_nearest(xy, p, k, batch, nn);
-        used = quads_rounds(nn, members, batch, p, k, n_batches, ids, counts);
+        QuadsBatchesWork w = {xy, nn, rank, batch, by, ids, counts};
+        used = quads_batches_fill(z, n, members, p, k, per_batch, max_batches, &w, &n_batches);
         if (used < 0) {
             PyErr_NoMemory();
         }
