@@ -9,20 +9,19 @@ from itertools import combinations
 
 import numpy as np
 import pytest
+from quadrefs import SORT4, first_rows
 
 from mapdb._scipy import quick_tree
 from mapdb.mapfile.reader import open_map
 from mapdb.match import _kernel
 from mapdb.match.quads import (
     _PACKABLE,
-    _SORT4,
     LABEL_GAP,
     OTHERS,
     PAIRS,
     POSITION_WEIGHT,
     QuadIndex,
     canonical_quads,
-    first_rows,
     label_keys,
     nearest_others,
     neighbour_quads,
@@ -33,7 +32,7 @@ _ORDERS = np.concatenate([PAIRS, OTHERS], axis=1)
 
 
 def ref_neighbour_quads(xy, neighbours, *, anchors=None):
-    """neighbour_quads as it was (without ``with_anchor``, which is unchanged)."""
+    """neighbour_quads as it was (its quads without the anchors)."""
     n = len(xy)
     k = min(neighbours, n - 1)
     anchor_ids = np.arange(n) if anchors is None else np.flatnonzero(anchors)
@@ -43,7 +42,7 @@ def ref_neighbour_quads(xy, neighbours, *, anchors=None):
     triples = np.array(list(combinations(range(k), 3)))
     anchor = np.repeat(anchor_ids, len(triples))
     cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
-    for i, j in _SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
+    for i, j in SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
         cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
     quads = np.column_stack(cols)
     if n < _PACKABLE:

@@ -9,6 +9,7 @@ import pickle
 
 import numpy as np
 import pytest
+from quadrefs import anchored_quads, first_rows
 
 from mapdb._scipy import quick_tree
 from mapdb.match import _kernel
@@ -20,11 +21,9 @@ from mapdb.match.quads import (
     PAIRS,
     POSITION_WEIGHT,
     QuadIndex,
-    first_rows,
     label_keys,
     lookup_parts,
     near_only,
-    neighbour_quads,
 )
 from mapdb.objects import Objects
 
@@ -142,8 +141,7 @@ def ref_anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray 
     """
     n = z.size
     members = np.arange(n) if anchorable is None else np.flatnonzero(anchorable)
-    img_quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag])[members], opts.image_neighbours,
-                                        with_anchor=True)
+    img_quads, anchor = anchored_quads(np.column_stack([z.real, z.imag])[members], opts.image_neighbours)
     if not len(img_quads):
         return []
     img_quads, anchor = members[img_quads], members[anchor]
@@ -417,7 +415,7 @@ def test_neighbour_quads_of_a_map_stay_the_tree_s() -> None:
     # The map side keeps its tree (tens of thousands of points): its quads, the image side's rule for a few dozen.
     rng = np.random.default_rng(22)
     z = rng.uniform(0, 640, 40) + 1j * rng.uniform(0, 480, 40)
-    quads, anchor = neighbour_quads(np.column_stack([z.real, z.imag]), 5, with_anchor=True)
+    quads, anchor = anchored_quads(np.column_stack([z.real, z.imag]), 5)
     in_order = quads[np.argsort(anchor // 100, kind="stable")]
     kept = np.concatenate(anchor_batches(z, FastOptions(anchors_per_batch=100, max_batches=1)))
     assert np.array_equal(kept, in_order[np.sort(first_rows(in_order, 40))])

@@ -7,17 +7,18 @@ import math
 from itertools import combinations
 
 import numpy as np
+from quadrefs import anchored_quads
 
 from mapdb._scipy import cKDTree
 from mapdb.localize.lonlat import to_lonlat, to_lonlat_many
-from mapdb.match.quads import POSITION_WEIGHT, QuadIndex, neighbour_quads
+from mapdb.match.quads import POSITION_WEIGHT, QuadIndex
 from mapdb.objects import Objects
 
 
 def test_neighbour_quads_of_an_image_are_the_tree_s() -> None:
     rng = np.random.default_rng(7)
     xy = rng.uniform(0, 640, (30, 2))
-    quads, anchor = neighbour_quads(xy, 5, with_anchor=True)
+    quads, anchor = anchored_quads(xy, 5)
     nn = cKDTree(xy).query(xy, k=6)[1][:, 1:]
     triples = np.array(list(combinations(range(5), 3)))
     expected = np.sort(np.concatenate([np.repeat(np.arange(30), len(triples))[:, None],

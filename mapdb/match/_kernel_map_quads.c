@@ -3,8 +3,9 @@
  * decides which quads exist).
  *
  * Each anchor's quads come in triple order (itertools.combinations), each row's ids sorted, each quad kept where it
- * first comes (a hash set, as the image's quads are kept): the rows and order of neighbour_quads' first_rows, or,
- * from _PACKABLE points on, np.unique's (the kept rows sorted).  Then, as QuadIndex did with numpy: the quads whose
+ * first comes (a quad is new unless an earlier anchor among its points reached the other three): the rows and order
+ * the numpy code's first occurrences gave (tests/quadrefs.py's first_rows), or, from _PACKABLE points on,
+ * np.unique's (the kept rows sorted).  Then, as QuadIndex did with numpy: the quads whose
  * four points lie on one spot dropped (no frame); each quad's frame by its most distant pair (numpy's abs of the
  * complex difference, the first maximum on ties or the first NaN), ordered so that Re t_C + Re t_D <= 1 and
  * Re t_C <= Re t_D (numpy's complex division, quads_frame shared with the image's quads); the tree points: the
@@ -96,7 +97,7 @@ static int map_row_cmp(const void *pa, const void *pb)
     return 0;
 }
 
-/* Sort four ids by five compare-exchanges (quads._SORT4). */
+/* Sort four ids by five compare-exchanges (a sorting network of four). */
 static inline void map_sort4(int64_t *v)
 {
     static const int net[5][2] = {{0, 1}, {2, 3}, {0, 2}, {1, 3}, {1, 2}};

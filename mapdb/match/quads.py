@@ -9,7 +9,6 @@ reflection (images are not mirrored).  The labels of ``A, B, C, D`` are part of 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import combinations
 from typing import Protocol
 
 import numpy as np
@@ -18,8 +17,8 @@ from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
 from ._kernel import map_canonical, map_quads, quads_build, quads_lookup
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "first_rows", "label_keys",
-           "lookup_parts", "near_only", "nearest_others", "neighbour_quads"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "label_keys", "lookup_parts",
+           "near_only", "nearest_others", "neighbour_quads"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -30,8 +29,8 @@ PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
 
 OTHERS = np.array([(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)])
 
-_SORT4 = ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2))  # a sorting network of four
-# Quads of fewer points than this are packed into one int64 key (n**4 < 2**63).
+# Below this many points the kernel keeps each quad where it first comes; from it on it sorts them (np.unique's
+# order), as the numpy code did when a quad no longer packed into one int64 key (n**4 < 2**63).
 _PACKABLE = 55_000
 
 # An index built with ``positions`` also holds each quad's centroid, in tree units per metre.  Small beside
@@ -41,14 +40,11 @@ _PACKABLE = 55_000
 POSITION_WEIGHT = 1e-5
 
 
-def neighbour_quads(
-    xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | None = None, with_anchor: bool = False
-):
+def neighbour_quads(xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | None = None) -> np.ndarray:
     """Quads ``(m, 4)``: each (anchor) point with every triple of its ``neighbours`` nearest.
 
-    Rows are sorted point indices.  By default duplicates (the same four points reached from different
-    anchors) are removed; with ``with_anchor`` every anchor keeps its own quads and the anchor of each
-    row is returned too, so that an image can be searched anchor by anchor.
+    Rows are sorted point indices, each quad once (the same four points reached from different anchors), where it
+    first comes.  (An image's quads, round by round, are :func:`~mapdb.match.hypotheses.anchor_batches`'.)
 
     Examples
     --------
@@ -58,18 +54,9 @@ def neighbour_quads(
     """
     found = _anchor_neighbours(xy, neighbours, anchors)
     if found is None:
-        empty = np.zeros((0, 4), dtype=np.int64)
-        return (empty, np.zeros(0, np.int64)) if with_anchor else empty
+        return np.zeros((0, 4), dtype=np.int64)
     nn, anchor_ids = found
-    if with_anchor:
-        triples = np.array(list(combinations(range(nn.shape[1]), 3)))
-        anchor = np.repeat(anchor_ids, len(triples))
-        cols = [anchor, *(nn[:, triples[:, j]].ravel() for j in range(3))]
-        for i, j in _SORT4:  # each row sorted by five compare-exchanges of columns: faster than sorting rows
-            cols[i], cols[j] = np.minimum(cols[i], cols[j]), np.maximum(cols[i], cols[j])
-        return np.column_stack(cols), anchor
-    # The kernel keeps each quad where it first comes (first_rows' rows in row order), or from _PACKABLE points
-    # on sorts them (np.unique's).
+    # The kernel keeps each quad where it first comes, or from _PACKABLE points on sorts them (np.unique's order).
     quads = map_quads(nn, anchor_ids, len(xy), len(xy) >= _PACKABLE, None, None, 0, False, LABEL_GAP,
                       POSITION_WEIGHT)[0]
     return np.frombuffer(quads, np.int64).reshape(-1, 4)
@@ -103,31 +90,6 @@ def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] 
         return rows, quad_z
     keep = np.abs(quad_z.mean(axis=1) - near[0]) <= near[1]
     return rows[keep], quad_z[keep]
-
-
-def first_rows(quads: np.ndarray, n: int) -> np.ndarray:
-    """Index of the first occurrence of each distinct row of ``quads`` (ids below ``n``), in row order.
-
-    Below ``_PACKABLE`` points each row becomes one integer key, sorted unstably (twice as fast as the stable sort
-    of ``np.unique(..., return_index=True)``), each key's least row taken: the same rows, in the same (key) order.
-
-    Examples
-    --------
-    >>> first_rows(np.array([[0, 1, 2, 3], [1, 2, 3, 4], [0, 1, 2, 3]]), 5).tolist()
-    [0, 1]
-    >>> first_rows(np.zeros((0, 4), np.int64), 5).tolist()
-    []
-    """
-    if not len(quads):
-        return np.zeros(0, np.int64)
-    if n < _PACKABLE:
-        key = ((quads[:, 0] * n + quads[:, 1]) * n + quads[:, 2]) * n + quads[:, 3]
-        perm = np.argsort(key)
-        ordered = key[perm]
-        first = np.minimum.reduceat(perm, np.flatnonzero(np.concatenate(([True], ordered[1:] != ordered[:-1]))))
-    else:
-        _, first = np.unique(quads, axis=0, return_index=True)
-    return first
 
 
 def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, workers: int = 1) -> np.ndarray:
