@@ -4,14 +4,27 @@ numpy 2's :func:`numpy.unique` asks ``np.ma.is_masked`` when called without ``re
 ``return_inverse`` or ``return_counts``, and the first such call imports ``numpy.ma`` (0.05-0.1 s on the
 2-core development machine: a third of a one-image ``mapdb query``'s answer).  The helpers here give the
 same results for the integer arrays they are asked about (an image's labels, its objects' rows, the blocks and
-pages of the stored index a lookup reaches), with a Python set and fewer numpy calls for small ones.
+pages of the stored index a lookup reaches), with a Python set and fewer numpy calls for small ones; and
+:func:`contiguous_to`, an array as the compiled kernel reads it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["all_distinct", "sorted_unique"]
+__all__ = ["all_distinct", "contiguous_to", "sorted_unique"]
+
+
+def contiguous_to(v: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``v`` broadcast to ``shape``, C-contiguous (the compiled kernel reads it row by row): ``v`` itself when it
+    already is.
+
+    Examples
+    --------
+    >>> contiguous_to(np.arange(3.0), (2, 3)).tolist()
+    [[0.0, 1.0, 2.0], [0.0, 1.0, 2.0]]
+    """
+    return np.ascontiguousarray(v if v.shape == shape else np.broadcast_to(v, shape))
 
 
 def sorted_unique(values: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from ._kernel import fit_similarity as _fit_similarity
+from .arrays import contiguous_to
 
 # The matcher works in complex numbers: a point (x, y) is x + iy and a similarity is z -> a z + b with
 # a = scale * exp(i rotation), so that one multiplication replaces a 2x2 rotation and a batch of
@@ -166,7 +167,7 @@ def _rows(v: np.ndarray, shape: tuple[int, ...], rows: tuple[int, int]) -> np.nd
     """``v`` broadcast to ``shape`` as a contiguous ``rows``-shaped array (itself when it already is one)."""
     if v.shape == rows and v.flags.c_contiguous:
         return v
-    return np.ascontiguousarray(v if v.shape == shape else np.broadcast_to(v, shape)).reshape(rows)
+    return contiguous_to(v, shape).reshape(rows)
 
 
 def prediction_variance_factor(src: np.ndarray, at: complex = 0j, weights: np.ndarray | None = None) -> np.ndarray:

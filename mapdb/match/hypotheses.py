@@ -63,8 +63,7 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     """
     members = np.arange(z.size) if anchorable is None else np.flatnonzero(anchorable)
     quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members.astype(np.int64),
-                                          int(opts.image_neighbours), int(opts.anchors_per_batch),
-                                          int(opts.max_batches))
+                                  int(opts.image_neighbours), int(opts.anchors_per_batch), int(opts.max_batches))
     ends = np.cumsum(np.frombuffer(counts, np.int64))
     if not ends.size:
         return []
@@ -103,7 +102,7 @@ def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float
     centre = (0.0, 0.0, 0.0) if prior is None else (float(prior[0]), float(prior[1]), PRIOR_SLACK * prior[2])
     lo, hi = (0.0, 0.0) if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
     quads_allowed(np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128),
-                          prior is not None, *centre, scale_range is not None, lo, hi, ok)
+                  prior is not None, *centre, scale_range is not None, lo, hi, ok)
     return ok
 
 
@@ -184,7 +183,7 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     else:
         one, sigma = 0.0, np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape))
     rows, orders, inv, radius = quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0),
-                                                   float(opts.tolerance_factor), float(opts.max_invariant_radius))
+                                           float(opts.tolerance_factor), float(opts.max_invariant_radius))
     if not rows:
         return None
     return (np.frombuffer(rows, np.int64), np.frombuffer(orders, np.int64).reshape(-1, 4),

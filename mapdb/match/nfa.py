@@ -30,6 +30,7 @@ import numpy as np
 
 from .._scipy import betainc
 from ._kernel import nfa_curve
+from .arrays import contiguous_to
 
 __all__ = ["LOG10_FLOOR", "log10_binomial_tail", "log10_nfa_curve", "log10_trials"]
 
@@ -118,9 +119,9 @@ def log10_nfa_curve(
     if h == 0 or trials <= 0:
         return np.full(h, np.inf), np.zeros(h, dtype=np.int64)
     if shape is not None:
-        shape = _full(np.asarray(shape, dtype=np.float64), u.shape)
+        shape = contiguous_to(np.asarray(shape, dtype=np.float64), u.shape)
     if sample is not None:
-        sample = _full(np.asarray(sample, dtype=bool), u.shape)
+        sample = contiguous_to(np.asarray(sample, dtype=bool), u.shape)
     # The compiled kernel sorts each row, forms the chances, the binomial tails, the curve and its minimum.  Its
     # tail (a sum of the binomial's terms from the largest) agrees with scipy's incomplete beta function (boost's
     # ibeta) to 1.4e-13 in log10 down to tails of 1e-275 and is exact below, where betainc underflows early (to 0,
@@ -129,11 +130,6 @@ def log10_nfa_curve(
     best = np.empty(h, dtype=np.int64)
     nfa_curve(u, shape, sample, n_sample, log10_tests + log10_trials(trials), LOG10_FLOOR, nfa, best)
     return nfa, best + 1 + n_sample
-
-
-def _full(v: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """``v`` broadcast to ``shape``, contiguous (the kernel reads rows of it)."""
-    return np.ascontiguousarray(v if v.shape == shape else np.broadcast_to(v, shape))
 
 
 _LOG10_TRIALS: dict[int, float] = {}

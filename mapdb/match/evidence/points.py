@@ -97,9 +97,8 @@ def refinement_inliers(u: np.ndarray, dist: np.ndarray, mid: np.ndarray, k_best:
         raise ValueError(f"u must be 2-D (hypotheses x objects), got shape {u.shape}")
     inlier = np.zeros(u.shape, bool)
     if u.shape[1]:
-        _refine_inliers(u, np.ascontiguousarray(dist, dtype=np.float64),
-                               np.ascontiguousarray(mid, dtype=np.int64),
-                               np.ascontiguousarray(k_best, dtype=np.int64), GATE_SIGMAS, inlier)
+        _refine_inliers(u, np.ascontiguousarray(dist, dtype=np.float64), np.ascontiguousarray(mid, dtype=np.int64),
+                        np.ascontiguousarray(k_best, dtype=np.int64), GATE_SIGMAS, inlier)
     return inlier
 
 
