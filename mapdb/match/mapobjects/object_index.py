@@ -85,8 +85,8 @@ class ObjectIndex:
     """Map objects for verification: a KD-tree per label, label densities, the region's bounds.
 
     ``tree`` (a :class:`~mapdb.match.mapobjects.label_trees.LabelTrees`) finds, in one call of the compiled
-    kernel, the nearest objects of each query's own label whatever the mix of labels (a call costs about a
-    microsecond whatever its size; the cKDTree over ``(x, y, label * gap)`` it replaced cost tens).
+    kernel, the nearest objects of each query's own label whatever the mix of labels (a call costs 4-8
+    microseconds of fixed cost; the cKDTree over ``(x, y, label * gap)`` it replaced cost 29-54).
 
     Parameters
     ----------
