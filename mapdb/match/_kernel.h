@@ -8,6 +8,7 @@
 
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <math.h>
 #include <stdint.h>
 
 /* A buffer taken from a Python object (``held`` when it must be released). */
@@ -37,7 +38,11 @@ void cpw_sum(const double *a, Py_ssize_t n, double *rr, double *ri);
 void cmul(double ar, double ai, double br, double bi, double *cr, double *ci);
 void cdiv(double ar, double ai, double br, double bi, double *cr, double *ci);
 double cabs_np(double re, double im);
-int np_less(double a, double b);
+/* numpy's order for floats: ascending, NaN last (inline: sorts and nearest-neighbour loops call it per compare). */
+static inline int np_less(double a, double b)
+{
+    return isnan(b) ? !isnan(a) : a < b;
+}
 void sort_keyed(Keyed *k, Py_ssize_t n);
 void sort_values(double *x, Py_ssize_t n);
 

@@ -158,11 +158,6 @@ static PyObject *quads_keys(PyObject *self, PyObject *args)
 /* The ``k`` nearest other points of each of ``n`` points ``xy`` (n x 2) into ``nn`` (n x k): the k + 1 nearest
  * (squared distances as a KD-tree sums them, equal ones in point order), the point itself dropped (the last of them
  * when another point sits on it and it is not among them: quads.nearest_others); only for the points whose ``wanted`` is not negative. */
-static inline int quads_less(double a, double b)  /* np_less, inlined: NaN last */
-{
-    return isnan(b) ? !isnan(a) : a < b;
-}
-
 static void quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, const int64_t *wanted, int64_t *nn)
 {
     Keyed near[65];  /* the k + 1 nearest so far, in order (k <= 64) */
@@ -174,11 +169,11 @@ static void quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, const in
         for (Py_ssize_t j = 0; j < n; j++) {
             double dx = xy[2 * j] - xy[2 * i], dy = xy[2 * j + 1] - xy[2 * i + 1];
             Keyed x = {dx * dx + dy * dy, j};
-            if (have == k + 1 && !quads_less(x.v, near[k].v)) {
+            if (have == k + 1 && !np_less(x.v, near[k].v)) {
                 continue;  /* not nearer than the (k+1)-th: equal ones come later in point order */
             }
             Py_ssize_t at = have < k + 1 ? have++ : k;
-            while (at > 0 && quads_less(x.v, near[at - 1].v)) {
+            while (at > 0 && np_less(x.v, near[at - 1].v)) {
                 near[at] = near[at - 1];
                 at--;
             }

@@ -143,15 +143,6 @@ double cabs_np(double re, double im)
 
 /* ------------------------------------------------------------------ sorting */
 
-/* numpy's order for floats: ascending, NaN last. */
-int np_less(double a, double b)
-{
-    if (isnan(b)) {
-        return !isnan(a);
-    }
-    return a < b;
-}
-
 
 static int keyed_cmp(const void *pa, const void *pb)
 {
