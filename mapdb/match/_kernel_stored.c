@@ -114,10 +114,21 @@ static int stored_offer(StoredBest *b, const StoredHit *h)
     return 0;
 }
 
-/* The directory's cell of ``key`` (-1 absent), or -2 when its page is not decoded yet (then asked for once). */
-static int64_t stored_find(const StoredTables *t, uint64_t key, StoredNeeds *nd, uint8_t *asked, int *err)
+/* The page that can hold ``key`` (the last whose first key is at most key; -1 if none).  A row's cells come in key
+ * order: the search gallops from the previous key's page ``*hint`` (-1: a binary search of the whole fence). */
+static Py_ssize_t stored_page(const StoredTables *t, uint64_t key, Py_ssize_t *hint)
 {
     Py_ssize_t lo = 0, hi = t->n_pages;
+    if (*hint >= 0 && t->fence_key[*hint] <= key) {
+        lo = *hint;
+        Py_ssize_t step = 1;
+        while (lo + step < t->n_pages && t->fence_key[lo + step] <= key) {
+            lo += step;
+            step *= 2;
+        }
+        hi = lo + step < t->n_pages ? lo + step : t->n_pages;
+        lo++;
+    }
     while (lo < hi) {  /* the first page whose first key is above key */
         Py_ssize_t mid = lo + (hi - lo) / 2;
         if (t->fence_key[mid] <= key) {
@@ -126,7 +137,15 @@ static int64_t stored_find(const StoredTables *t, uint64_t key, StoredNeeds *nd,
             hi = mid;
         }
     }
-    Py_ssize_t page = lo - 1;
+    *hint = lo - 1;
+    return lo - 1;
+}
+
+/* The directory's cell of ``key`` (-1 absent), or -2 when its page is not decoded yet (then asked for once). */
+static int64_t stored_find(const StoredTables *t, uint64_t key, StoredNeeds *nd, uint8_t *asked, int *err,
+                           Py_ssize_t *hint)
+{
+    Py_ssize_t page = stored_page(t, key, hint);
     if (page < 0) {
         return -1;
     }
@@ -195,28 +214,33 @@ static int stored_row_cells(const StoredTables *t, const StoredAsk *a, Py_ssize_
         }
         base[j] = f > 0 ? (int64_t)f : 0;
     }
-    double reach = (a->r[i] / cell) * (1.0 + STORED_SLACK) + STORED_SLACK;
-    for (int step = 0; step < 81; step++) {
-        static const int div[4] = {27, 9, 3, 1};
-        int64_t cand[4];
-        double sum = 0.0;
-        int ok = 1;
-        for (int j = 0; j < 4; j++) {
-            cand[j] = base[j] + (step / div[j]) % 3 - 1;
-            ok = ok && cand[j] >= 0 && cand[j] <= top;
-            double g = fmax(fmax((double)cand[j] - s[j], s[j] - (double)(cand[j] + 1)), 0.0);
-            sum = j ? sum + g * g : g * g;
+    double reach = (a->r[i] / cell) * (1.0 + STORED_SLACK) + STORED_SLACK, g2[4][3];
+    int in[4][3];
+    for (int j = 0; j < 4; j++) {  /* each invariant's squared gap to its 3 cells, and whether they are keys' */
+        for (int d = 0; d < 3; d++) {
+            int64_t c = base[j] + d - 1;
+            double x = (double)c - s[j], y = s[j] - (double)(c + 1), g = x > y ? x : y;
+            g = g > 0.0 ? g : 0.0;
+            g2[j][d] = g * g;
+            in[j][d] = c >= 0 && c <= top;
         }
-        if (!ok || !(sum <= reach * reach)) {
+    }
+    Py_ssize_t hint = -1;
+    for (int step = 0; step < 81; step++) {
+        int d0 = step / 27, d1 = (step / 9) % 3, d2 = (step / 3) % 3, d3 = step % 3;
+        /* (gap * gap).sum(axis=2), numpy's order */
+        double sum = ((g2[0][d0] + g2[1][d1]) + g2[2][d2]) + g2[3][d3];
+        if (!(in[0][d0] && in[1][d1] && in[2][d2] && in[3][d3]) || !(sum <= reach * reach)) {
             continue;
         }
+        int64_t cand[4] = {base[0] + d0 - 1, base[1] + d1 - 1, base[2] + d2 - 1, base[3] + d3 - 1};
         StoredCell c = {.row = i, .key = (uint64_t)a->lk[i]};
         for (int j = 0; j < 4; j++) {
             c.key = (c.key << t->bits) | (uint64_t)cand[j];
             c.rel[j] = (float)((s[j] - (double)cand[j]) * sc);
         }
         int err = 0;
-        int64_t at = stored_find(t, c.key, nd, asked, &err);
+        int64_t at = stored_find(t, c.key, nd, asked, &err, &hint);
         if (err) {
             return err;
         }
