@@ -225,8 +225,8 @@ int stored_resolve_one(const StoredTables *t, int64_t anchor, int64_t triple, St
     if (block >= t->nb_blocks) {
         return -(10 + STORED_BAD_ID);
     }
-    if (!t->nb_checked[block]) {
-        return stored_need(&nd->nb, anchor) ? -1 : 1;
+    if (!t->nb_checked[block]) {  /* every such anchor: Python reads their neighbours' coordinates at once */
+        return stored_push(&nd->nb, anchor) ? -1 : 1;
     }
     int bad = stored_neighbours(t, anchor, nb);
     if (bad) {

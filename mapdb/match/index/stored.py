@@ -301,7 +301,7 @@ class StoredQuadIndex:
         """A kernel call on this index's tables: where it reaches a directory page, quad range, neighbour block or
         coordinate block not checked yet, those are decoded and checked here (the checks and their errors are
         Python's) and the call made again."""
-        for _ in range(8):  # each round checks what the previous one reached: pages, quads, neighbours, coordinates
+        for _ in range(8):  # each round checks what the previous one reached: pages, quads, neighbours (and coordinates)
             out = call(self._tables, *args)
             if out[0] == 0:
                 return tuple(out[1:])
@@ -312,8 +312,8 @@ class StoredQuadIndex:
                 self._directory.decode(pages)
             if ranges.size:
                 self._sections["quads"].check_ranges(ranges[0::2], ranges[0::2] + ranges[1::2])
-            if nb.size:
-                self._neighbours.rows(nb)
+            if nb.size:  # and the coordinates of those anchors' quads, which the next round would ask for
+                co = np.concatenate([co, nb, self._neighbours.rows(nb).reshape(-1)])
             if co.size:
                 self._coords.rows(co)
         raise MapFormatError(f"{self.where}: quad index blocks could not be checked (file is corrupt)")
