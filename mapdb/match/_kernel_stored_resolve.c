@@ -206,7 +206,7 @@ static inline void stored_sort4(int64_t *v)
     }
 }
 
-/* Record an object whose block is not checked (once a block per call: ``last`` the previous one asked for). */
+/* Record an object whose block is not checked (not again when the previous one recorded is of the same block). */
 static int stored_need(StoredVec *v, int64_t id)
 {
     if (v->n && v->v[v->n - 1] / STORED_NB_BLOCK == id / STORED_NB_BLOCK) {

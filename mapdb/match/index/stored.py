@@ -28,9 +28,10 @@ The code is in the modules beside this one (the reader): :mod:`~mapdb.match.inde
 prefix, header, sections, cell keys), :mod:`~mapdb.match.index.packed` (the packed codes),
 :mod:`~mapdb.match.index.build` (:func:`build_index`, the external sort; :mod:`~mapdb.match.index.sections`),
 :mod:`~mapdb.match.index.generate` (neighbours, quads, cells), :mod:`~mapdb.match.index.lookup` (checked
-sections, the cells and candidates of a lookup), :mod:`~mapdb.match.index.directory` (the cell directory and
-the neighbours, decoded as lookups reach them), :mod:`~mapdb.match.index.binding` (the index checked against
-its map).
+sections), :mod:`~mapdb.match.index.directory` (the cell directory and the neighbours, decoded as lookups reach
+them), :mod:`~mapdb.match.index.binding` (the index checked against its map).  A lookup's per-query work (its
+cells, the directory search, the candidates' bounds, resolving and checking them, the ``k`` nearest) is the
+compiled kernel's (``_kernel_stored.c``), which reads only what this reader has checked (:meth:`_kernel`).
 """
 
 from __future__ import annotations
@@ -301,7 +302,7 @@ class StoredQuadIndex:
         """A kernel call on this index's tables: where it reaches a directory page, quad range, neighbour block or
         coordinate block not checked yet, those are decoded and checked here (the checks and their errors are
         Python's) and the call made again."""
-        for _ in range(8):  # each round checks what the previous one reached: pages, quads, neighbours (and coordinates)
+        for _ in range(8):  # a round checks what the previous reached: pages, quads, neighbours (and coordinates)
             out = call(self._tables, *args)
             if out[0] == 0:
                 return tuple(out[1:])
