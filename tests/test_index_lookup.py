@@ -6,11 +6,12 @@ import zlib
 
 import numpy as np
 import pytest
+from storedrefs import bound_candidates, find
 
 from mapdb.errors import MapFormatError
 from mapdb.match.index.directory import Directory, Neighbours
 from mapdb.match.index.layout import BLOCK, cell_keys
-from mapdb.match.index.lookup import Section, bound_candidates, take_rows
+from mapdb.match.index.lookup import Section, take_rows
 from mapdb.match.index.packed import (
     NB_BLOCK,
     PAD,
@@ -52,18 +53,18 @@ def _directory(n_cells: int, seed: int) -> tuple[Directory, np.ndarray, np.ndarr
 def test_the_directory_finds_every_cell_and_no_absent_one(n_cells: int) -> None:
     d, keys, counts = _directory(n_cells, n_cells)
     present = np.random.default_rng(1).permutation(keys)
-    at = d.find(present)
+    at = find(d, present)
     assert at.tolist() == np.searchsorted(keys, present).tolist()
     assert d.count[at].tolist() == counts[at].tolist()
     assert d.start[at].tolist() == (np.cumsum(counts) - counts)[at].tolist()
     absent = np.setdiff1d(np.concatenate([keys + np.uint64(1), keys - np.uint64(1)]), keys)
     edges = np.array([0, 1, np.iinfo(np.uint64).max], np.uint64)
-    assert (d.find(np.setdiff1d(np.concatenate([absent, edges]), keys)) == -1).all()
+    assert (find(d, np.setdiff1d(np.concatenate([absent, edges]), keys)) == -1).all()
 
 
 def test_the_directory_decodes_only_the_pages_a_lookup_reaches() -> None:
     d, keys, _ = _directory(20 * PAGE_CELLS, 3)
-    d.find(keys[[3, PAGE_CELLS * 5]])
+    find(d, keys[[3, PAGE_CELLS * 5]])
     assert 1 <= d.decoded.sum() <= 2 and not d.decoded.all()
     # A damaged byte of a page not read yet fails its checksum when a lookup first reaches it.
     d, keys, _ = _directory(200 * PAGE_CELLS, 3)
@@ -72,9 +73,9 @@ def test_the_directory_decodes_only_the_pages_a_lookup_reaches() -> None:
     last = d.first_byte[-2]
     raw[last + 2] ^= 0x10
     d.data.array, d.data.raw = raw, raw
-    assert d.find(keys[[3]]).tolist() == [3]
+    assert find(d, keys[[3]]).tolist() == [3]
     with pytest.raises(MapFormatError, match="dir_data block"):
-        d.find(keys[[-1]])
+        find(d, keys[[-1]])
 
 
 def test_records_and_neighbours_decode_to_what_was_packed() -> None:

@@ -9,6 +9,7 @@ import zlib
 
 import numpy as np
 import pytest
+import storedrefs
 from click.testing import CliRunner
 from mapdb_cli.index import index as index_command
 
@@ -19,7 +20,6 @@ from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
 from mapdb.match.index import build as index_build
 from mapdb.match.index import generate as index_generate
-from mapdb.match.index import lookup as index_lookup
 from mapdb.match.index.layout import QUAD_NEIGHBOURS, QUAD_TRIPLES
 from mapdb.match.index.stored import StoredQuadIndex, build_index, index_path, open_index
 from mapdb.match.quads import QuadIndex, canonical_quads, label_keys, nearest_others, neighbour_quads
@@ -154,7 +154,7 @@ def test_a_lookup_reads_only_the_cells_its_ball_reaches() -> None:
     # most 3 coordinates (each 0.5 cells away; four such make 1.0 > 0.9): 1 + 8 + 24 + 32.
     cell = np.array([0.1])
     q = np.array([[0.05, 0.15, 0.25, 0.35]]) - 1.0 + np.array([[10, 10, 10, 10]]) * 0.1
-    which, rel, keys = index_lookup.query_cells(q, np.array([0.09]), cell, np.array([3]), 12, 256)
+    which, rel, keys = storedrefs.query_cells(q, np.array([0.09]), cell, np.array([3]), 12, 256)
     assert which.tolist() == [0] * 65 and np.unique(keys).size == 65
     # The query's place relative to each cell's corner, in 1/256ths of the cell.
     assert set(np.round(rel.ravel(), 3).tolist()) <= {-128.0, 128.0, 384.0}

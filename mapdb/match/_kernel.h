@@ -89,6 +89,7 @@ extern PyMethodDef quads_methods[];
 extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */
 extern PyMethodDef image_quads_methods[];  /* _kernel_image_quads.c */
 extern PyMethodDef map_quads_methods[];  /* _kernel_map_quads.c: a map tile's quads and tree points */
+extern PyMethodDef stored_methods[];  /* _kernel_stored.c: the stored quad index's lookup */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

@@ -1,6 +1,8 @@
 """Type stub of mapdb's compiled kernel (``_kernel.c``): arrays are C-contiguous numpy arrays of the dtypes named,
 outputs are written into the arrays passed."""
 
+from typing import Any
+
 import numpy as np
 
 def refine_inliers(u: np.ndarray, dist: np.ndarray, mid: np.ndarray, k_best: np.ndarray, gate_sigmas: float,
@@ -53,3 +55,6 @@ def map_quads(nn: np.ndarray, anchors: np.ndarray, n: int, sorted: bool, z: np.n
               label: np.ndarray | None, n_labels: int, positions: bool, gap: float,
               weight: float) -> tuple[bytearray, bytearray, bytearray]: ...
 def map_canonical(zq: np.ndarray, order: np.ndarray, invariants: np.ndarray, ab: np.ndarray) -> None: ...
+def stored_lookup(tables: tuple[object, ...], invariants: np.ndarray, radius: np.ndarray, cell: np.ndarray,
+                  label_keys: np.ndarray, k: int, limit: int) -> tuple[Any, ...]: ...
+def stored_resolve(tables: tuple[object, ...], anchor: np.ndarray, triple: np.ndarray) -> tuple[Any, ...]: ...

@@ -57,8 +57,8 @@ static int map_longest_pair(const double *z, double *ab)
 }
 
 /* Canonical order (positions 0..3), invariants and, with ``ab``, |AB| of quad ``z`` (4 complex): canonical_quads'
- * row. */
-static void map_canonical_row(const double *z, int *order, double *t, double *ab)
+ * row (also the stored index's, _kernel_stored_resolve.c). */
+void map_canonical_row(const double *z, int *order, double *t, double *ab)
 {
     int pair = map_longest_pair(z, ab);
     QuadsFrame f;

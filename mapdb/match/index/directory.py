@@ -1,8 +1,9 @@
 """A version-4 index's packed parts as a lookup reads them: the cell directory, the neighbours, the coordinates.
 
-:class:`Directory` finds cells by key: the fence (one row a page, in memory) names the page that can hold a
+:class:`Directory` holds the cells by key: the fence (one row a page, in memory) names the page that can hold a
 key; a page is decoded (:func:`~mapdb.match.index.packed.page_fields`) and checked the first time a lookup
-reads it, into arrays kept for the next lookups, so a query reads only the pages it needs.
+reads it, into arrays kept for the next lookups (the kernel's lookup, ``_kernel_stored.c``, searches them), so a
+query reads only the pages it needs.
 :class:`Neighbours` gives the neighbours of anchors from their packed blocks, each block checked before use;
 :class:`Coordinates` the positions of objects, each block decoded and checked the first time, then kept.
 """
@@ -112,23 +113,6 @@ class Directory:
         before = np.cumsum(counts) - counts  # quads before each cell, restarted at each page
         self.start[at] = self.first_quad[todo][page] + before - np.repeat(before[np.cumsum(n) - n], n)
         self.decoded[todo] = True
-
-    def find(self, keys: np.ndarray) -> np.ndarray:
-        """Cell numbers of cell keys (-1 where absent): the fence names the page, a search inside it the cell."""
-        if not self.fence_key.size or not keys.size:
-            return np.full(keys.size, -1, np.int64)
-        page = np.searchsorted(self.fence_key, keys, side="right") - 1
-        ok = page >= 0
-        page = np.maximum(page, 0)
-        self.decode(page[ok])
-        lo, hi = self.first_cell[page], self.first_cell[page + 1]
-        # Branchless binary search inside each page (at most PAGE_CELLS cells): every probe stays on the page.
-        at = lo
-        for step in (PAGE_CELLS >> 1) >> np.arange((PAGE_CELLS >> 1).bit_length()):
-            at = at + step * (self.key[np.minimum(at + (step - 1), hi - 1)] < keys)
-        found = ok & (at < hi)
-        found[found] = self.key[at[found]] == keys[found]
-        return np.where(found, at, -1)
 
     def first_cells(self, lk: np.ndarray) -> np.ndarray:
         """The first cell of each label combination ``lk`` (a page begins there); refused if it has none."""

@@ -28,9 +28,10 @@ The code is in the modules beside this one (the reader): :mod:`~mapdb.match.inde
 prefix, header, sections, cell keys), :mod:`~mapdb.match.index.packed` (the packed codes),
 :mod:`~mapdb.match.index.build` (:func:`build_index`, the external sort; :mod:`~mapdb.match.index.sections`),
 :mod:`~mapdb.match.index.generate` (neighbours, quads, cells), :mod:`~mapdb.match.index.lookup` (checked
-sections, the cells and candidates of a lookup), :mod:`~mapdb.match.index.directory` (the cell directory and
-the neighbours, decoded as lookups reach them), :mod:`~mapdb.match.index.binding` (the index checked against
-its map).
+sections), :mod:`~mapdb.match.index.directory` (the cell directory and the neighbours, decoded as lookups reach
+them), :mod:`~mapdb.match.index.binding` (the index checked against its map).  A lookup's per-query work (its
+cells, the directory search, the candidates' bounds, resolving and checking them, the ``k`` nearest) is the
+compiled kernel's (``_kernel_stored.c``), which reads only what this reader has checked (:meth:`_kernel`).
 """
 
 from __future__ import annotations
@@ -44,9 +45,10 @@ import numpy as np
 
 from ...errors import MapdbIOError, MapFormatError, open_regular, reading
 from ...mapfile.reader import MetaMap
+from .._kernel import stored_lookup, stored_resolve
 from ..arrays import sorted_unique
-from ..quads import canonical_quads, label_keys
-from .binding import PageBoxes, check_filed, check_identity, check_positions, map_identity
+from ..quads import label_keys
+from .binding import PageBoxes, check_filed, check_identity, check_positions, map_identity, mismatch
 from .build import build_index
 from .directory import Coordinates, Directory, Neighbours
 from .layout import (
@@ -60,15 +62,7 @@ from .layout import (
     section_shapes,
     triples,
 )
-from .lookup import (
-    LOOKUP_CANDIDATES,
-    Best,
-    bound_candidates,
-    map_sections,
-    pieces,
-    query_cells,
-    take_rows,
-)
+from .lookup import LOOKUP_CANDIDATES, map_sections
 from .packed import unpack_records
 
 AUDITED = 16  # candidates a lookup's batch resolves and checks whatever their bounds (check_filed)
@@ -103,8 +97,10 @@ class StoredQuadIndex:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         where = str(self.path)
+        self._tables: tuple[object, ...] = ()  # the arrays the kernel's lookup reads (_kernel_tables)
         self._boxes: PageBoxes | None = None  # the map's page boxes, once bound to it (check_map)
         self._audited = np.zeros(0, np.int64)  # label combinations whose first cell was checked (_audit)
+        self._audited_set: set[int] = set()  # the same, for lookups' test
         with reading(where, "quad index"):
             f = open_regular(self.path, where, "quad index")  # closed below once mapped and the small sections read
         try:
@@ -151,6 +147,17 @@ class StoredQuadIndex:
                                       c.quad_neighbours, where)
         self._coords = Coordinates(read["co_start"], read["co_width"], read["co_base"], read["co_data"], c.objects,
                                    where)
+        self._tables = self._kernel_tables()
+
+    def _kernel_tables(self) -> tuple[object, ...]:
+        """The arrays the kernel's lookup reads (``_kernel_stored.h``), in its order: views of the sections and of
+        the directory's, neighbours' and coordinates' arrays, which they fill in place as blocks are checked."""
+        d, nb, co, quads = self._directory, self._neighbours, self._coords, self._sections["quads"]
+        return (quads.array, quads.checked, np.ascontiguousarray(d.fence_key), d.first_cell, d.decoded, d.key,
+                d.start, d.count, np.ascontiguousarray(self._triples, np.int64), nb.start.array, nb.width.array,
+                nb.data.array, nb.checked, co.xy, co.decoded,
+                (self._sub_bits, self._triple_bits, self._bits, self.quad_neighbours, self.n_objects,
+                 int(self.origin[0]), int(self.origin[1]), self.quantum))
 
     # ------------------------------------------------------------------------------------------ public
 
@@ -189,6 +196,7 @@ class StoredQuadIndex:
     def close(self) -> None:
         """Release the mapping (arrays returned by lookups are copies and stay valid)."""
         self._sections = {}
+        self._tables = ()
         if self._mmap is not None:
             try:
                 self._mmap.close()
@@ -280,16 +288,44 @@ class StoredQuadIndex:
         if not rows.size:
             return empty
         cell = self._combo_cell[pos[rows]]
-        q = inv[rows]
-        r = np.minimum(radius[rows], cell)
-        self._audit(sorted_unique(self._combo_keys[pos[rows]]))
-        which, start, length, rel, keys = self._cell_ranges(q, r, cell, self._combo_keys[pos[rows]])
-        best = Best(k)
-        for piece, idx in pieces(start, length, LOOKUP_CANDIDATES):
-            self._candidates(which[piece], idx, take_rows(rel, piece), keys[piece], q, r, cell, k, best)
-        row, ids, dist = best.result()
-        row = rows[row]
-        return (row, ids, dist) if return_distance else (row, ids)
+        lk = self._combo_keys[pos[rows]]
+        if not self._audited_set.issuperset(lk.tolist()):  # a set: an np.isin a lookup cost 30 us
+            self._audit(sorted_unique(lk))
+        # The kernel's (_kernel_stored.c): cells, directory, bounds, resolving, filing checks and the best k.
+        row, ids, dist = self._kernel(stored_lookup, inv[rows], np.minimum(radius[rows], cell), cell, lk, int(k),
+                                      LOOKUP_CANDIDATES)
+        row = rows[np.frombuffer(row, np.int64)]
+        ids = np.frombuffer(ids, np.int64).reshape(-1, 4).copy()
+        return (row, ids, np.frombuffer(dist, np.float64).copy()) if return_distance else (row, ids)
+
+    def _kernel(self, call: Any, *args: Any) -> tuple[Any, ...]:
+        """A kernel call on this index's tables: where it reaches a directory page, quad range, neighbour block or
+        coordinate block not checked yet, those are decoded and checked here (the checks and their errors are
+        Python's) and the call made again."""
+        for _ in range(8):  # a round checks what the previous reached: pages, quads, neighbours (and coordinates)
+            out = call(self._tables, *args)
+            if out[0] == 0:
+                return tuple(out[1:])
+            if out[0] == 2:
+                raise self._corruption(int(out[1]))
+            pages, ranges, nb, co = (np.frombuffer(b, np.int64) for b in out[1:])
+            if pages.size:
+                self._directory.decode(pages)
+            if ranges.size:
+                self._sections["quads"].check_ranges(ranges[0::2], ranges[0::2] + ranges[1::2])
+            if nb.size:  # and the coordinates of those anchors' quads, which the next round would ask for
+                co = np.concatenate([co, nb, self._neighbours.rows(nb).reshape(-1)])
+            if co.size:
+                self._coords.rows(co)
+        raise MapFormatError(f"{self.where}: quad index blocks could not be checked (file is corrupt)")
+
+    def _corruption(self, code: int) -> MapFormatError:
+        """The error of a kernel's corruption code (_kernel_stored.h: STORED_BAD_ID, NOT_FILED, BAD_RANGE)."""
+        if code == 1:
+            return MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
+        if code == 2:
+            return mismatch(self.where, "a quad recomputed from its objects is not where the index files it")
+        return MapFormatError(f"{self.where}: quad index block out of range (file is corrupt)")
 
     def _audit(self, lk: np.ndarray) -> None:
         """The first lookup of each label combination resolves the first quad of its first cell and checks that
@@ -308,67 +344,20 @@ class StoredQuadIndex:
         check_filed(inv, self._directory.key[at], records[2], self._combo_cell[np.searchsorted(self._combo_keys, new)],
                     self._bits, self._sub_bits, self.where)
         self._audited = sorted_unique(np.concatenate([self._audited, new]))
-
-    def _cell_ranges(self, q: np.ndarray, r: np.ndarray, cell: np.ndarray,
-                     lk: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The non-empty cells the queries' balls reach: query row, first quad, quads, the query's position
-        relative to the cell (:func:`~mapdb.match.index.lookup.query_cells`), the cell's key.
-
-        Their directory pages are decoded and checked, and the blocks of ``quads`` holding them (read below
-        range by range).
-        """
-        which, rel, keys = query_cells(q, r, cell, lk, self._bits, 1 << self._sub_bits)
-        at = self._directory.find(keys)
-        found = at >= 0
-        which, at = which[found], at[found]
-        start, length = self._directory.start[at], self._directory.count[at]
-        # Every candidate's record is read (its position inside the cell bounds its distance).
-        self._sections["quads"].check_ranges(start, start + length)
-        return which, start, length, rel[found], keys[found]
+        self._audited_set = set(self._audited.tolist())
 
     def _records(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Anchors, triple numbers and positions inside their cells of the quads at ``positions``."""
         rows = self._sections["quads"].rows(positions)
         return unpack_records(rows, self._sub_bits, self._triple_bits)
 
-    def _candidates(self, which: np.ndarray, idx: np.ndarray, rel: np.ndarray, key: np.ndarray, q: np.ndarray,
-                    r: np.ndarray, cell: np.ndarray, k: int, best: Best) -> None:
-        """Bound, resolve and measure one batch of candidates; offer those within the radius to ``best``.
-
-        ``which`` (the query row of each candidate) is ascending; ``key`` is the key of its cell.  Every
-        resolved candidate must be filed where its recomputed invariants put it (``check_filed``).
-        """
-        anchor, triple, sub = unpack_records(take_rows(self._sections["quads"].array, idx), self._sub_bits,
-                                             self._triple_bits)  # its blocks checked by _cell_ranges
-        which_all = which
-        which, kept = bound_candidates(which, np.arange(idx.size), rel, sub, r, cell, k, 1 << self._sub_bits)
-        # A few candidates the bounds dropped are resolved and checked too: forged positions in cells (or cell
-        # sides) would otherwise make every candidate look far, and lookups find nothing without a word.
-        audit = sorted_unique(np.linspace(0, idx.size - 1, min(idx.size, AUDITED)).astype(np.int64))
-        both = np.concatenate([kept, audit])
-        ids, inv = self._resolve(anchor[both], triple[both])
-        check_filed(inv, key[both], take_rows(sub, both), cell[which_all[both]], self._bits, self._sub_bits,
-                    self.where)
-        ids, inv = ids[: kept.size], inv[: kept.size]
-        if not kept.size:
-            return
-        dist = np.sqrt(((inv - q[which]) ** 2).sum(axis=1))
-        hit = dist <= r[which]
-        best.offer(which[hit], ids[hit], dist[hit])
-
     def _resolve(self, anchor: np.ndarray, triple: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Object ids ``(m, 4)`` in canonical order and invariants of quads given by anchors and triple numbers."""
-        if anchor.size and (anchor.max() >= self.n_objects or triple.max() >= len(self._triples)):
-            raise MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
-        nb = self._neighbours.rows(anchor)
-        members = np.empty((anchor.size, 4), np.int64)
-        members[:, 0] = anchor
-        members[:, 1:] = np.take_along_axis(nb, self._triples[triple], axis=1)
-        # The canonical order from the ids in ascending order, as at build time (and as QuadIndex does).
-        members.sort(axis=1)
-        with np.errstate(all="ignore"):  # four objects on one spot (forged coordinates): NaN, refused by the caller
-            order, inv, _ = canonical_quads(self.coordinates(members))
-        return np.take_along_axis(members, order, axis=1), inv
+        """Object ids ``(m, 4)`` in canonical order and invariants of quads given by anchors and triple numbers
+        (the kernel's: ids sorted, then :func:`~mapdb.match.quads.canonical_quads`' order; NaN invariants for four
+        objects on one spot, refused by the caller)."""
+        ids, inv = self._kernel(stored_resolve, np.ascontiguousarray(anchor, np.int64),
+                                np.ascontiguousarray(triple, np.int64))
+        return np.frombuffer(ids, np.int64).reshape(-1, 4).copy(), np.frombuffer(inv, np.float64).reshape(-1, 4).copy()
 
     def quads(self, start: int = 0, stop: int | None = None) -> np.ndarray:
         """Object ids ``(m, 4)``, in canonical order, of the stored quads ``start:stop`` (in key order)."""

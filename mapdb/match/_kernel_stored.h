@@ -1,0 +1,64 @@
+/* The stored quad index's lookup in the kernel (_kernel_stored.c: cells, directory, bounds, best k;
+ * _kernel_stored_resolve.c: records, neighbours, coordinates, canonical quads, filing checks).
+ *
+ * Python (mapdb.match.index.stored) keeps the file's integrity: it decodes and checks directory pages and checksums
+ * blocks; the kernel reads only what Python has checked (the flags arrays it is given) and, where a lookup reaches
+ * a page or block not checked yet, answers with what it needs (StoredNeeds) instead of hits: Python checks those
+ * and asks again.  Every index and range read is bounds-checked, so a wrong table never crashes.
+ */
+#ifndef MAPDB_KERNEL_STORED_H
+#define MAPDB_KERNEL_STORED_H
+
+#include "_kernel.h"
+
+#define STORED_TABLES 15
+#define STORED_NB_BLOCK 64  /* packed.NB_BLOCK */
+#define STORED_BLOCK_BITS 12  /* layout.BLOCK_BITS: 4 KiB checksum blocks */
+
+/* Corruption found (the Python side raises MapFormatError with the matching message). */
+enum { STORED_OK = 0, STORED_BAD_ID = 1, STORED_NOT_FILED = 2, STORED_BAD_RANGE = 3 };
+
+/* The index's arrays (StoredQuadIndex's sections, directory, neighbours, coordinates) as the kernel reads them. */
+typedef struct {
+    Arr a[STORED_TABLES];
+    const uint8_t *quads, *q_checked, *decoded, *nb_width, *nb_data, *nb_checked, *co_decoded;
+    const uint64_t *fence_key, *dir_key, *nb_start;
+    const int64_t *first_cell, *dir_start, *dir_count, *triples;
+    const int32_t *xy;
+    Py_ssize_t n_quads, rb, q_blocks, n_pages, n_cells, n_triples, nb_blocks, nb_bytes, co_blocks;
+    int sub_bits, triple_bits, bits, k_nb;
+    int64_t n_objects, ox, oy;
+    double quantum;
+} StoredTables;
+
+/* A growable int64 list. */
+typedef struct {
+    int64_t *v;
+    Py_ssize_t n, cap;
+} StoredVec;
+
+/* What a lookup needs checked before it can answer: directory pages, quad ranges (start, count), the objects whose
+ * neighbour blocks and coordinate blocks are not checked yet. */
+typedef struct {
+    StoredVec pages, ranges, nb, co;
+} StoredNeeds;
+
+int stored_push(StoredVec *s, int64_t x);
+void stored_needs_free(StoredNeeds *nd);
+int stored_needs_any(const StoredNeeds *nd);
+/* A Python bytes object of the list's int64s. */
+PyObject *stored_vec_bytes(const StoredVec *s);
+/* A quad record's anchor, triple number and four positions inside its cell (packed.unpack_records). */
+void stored_record(const StoredTables *t, Py_ssize_t at, int64_t *anchor, int64_t *triple, uint8_t *sub);
+/* Resolve a quad: ids in canonical order and invariants.  0 when done, 1 when it needs blocks (recorded in
+ * ``nd``), -1 on memory error, or -(10 + a STORED_ code) on corruption. */
+int stored_resolve_one(const StoredTables *t, int64_t anchor, int64_t triple, StoredNeeds *nd, int64_t *ids,
+                       double *inv);
+/* 1 when invariants ``inv`` fall in the cell of ``key`` at positions ``sub`` (binding.check_filed's row). */
+int stored_filed(const StoredTables *t, const double *inv, uint64_t key, const uint8_t *sub, double cell);
+/* The tables from Python's tuple; 0, or -1 with TypeError / ValueError set (release with arr_release). */
+int stored_take_tables(PyObject *tables, StoredTables *t);
+/* A C-contiguous buffer of one of the format letters ``fmt`` (itemsize bytes, ndim dimensions). */
+int stored_take(PyObject *obj, Arr *a, const char *name, const char *fmt, Py_ssize_t itemsize, int ndim);
+
+#endif
