@@ -11,8 +11,10 @@
 typedef struct {
     double d2;
     double tie;         /* among equal distances, the nearer to the prior's place first (0 without) */
-    int64_t i;          /* the point's row */
-    Py_ssize_t at;      /* its place in tree order */
+    int64_t i;          /* the point's row (in a joint lookup, its tree's first row added: the merged tree's row) */
+    int64_t own;        /* its row in its own tree */
+    Py_ssize_t at;      /* its place in its tree's order */
+    Py_ssize_t tree;    /* which tree */
 } QuadsHit;
 
 /* (d2, tie, i) ordering: nearer first; equal distances nearer the prior's place (an index without positions looked
@@ -33,11 +35,13 @@ typedef struct {
     const double *quad_z;  /* with ``by_place``: equal distances ranked by the squared distance of the quad's */
     double cx, cy;         /* centroid to (cx, cy) */
     int by_place;
+    int64_t offset;        /* the tree searched: its first row among the trees looked up jointly, and which */
+    Py_ssize_t tree;
 } QuadsBest;
 
 static void quads_offer(QuadsBest *b, double d2, int64_t i, Py_ssize_t at_tree)
 {
-    QuadsHit x = {d2, 0.0, i, at_tree};
+    QuadsHit x = {d2, 0.0, b->offset + i, i, at_tree, b->tree};
     if (b->by_place) {
         const double *z = b->quad_z + 8 * i;
         double ex = 0.25 * (z[0] + z[2] + z[4] + z[6]) - b->cx, ey = 0.25 * (z[1] + z[3] + z[5] + z[7]) - b->cy;
@@ -180,37 +184,74 @@ static double quads_query_bound(const QuadsAsk *ask, double radius, int position
     return mine <= bound2 ? mine : bound2;
 }
 
-/* One tree's hits for every query, filtered as QuadIndex.lookup did, appended to ``o``; -1 out of memory. */
-static int quads_lookup_tree(const QuadsTree *t, const double *quad_z, const QuadsAsk *ask, QuadsHit *heap,
-                             QuadsOut *o)
+/* Query ``r``'s hits in trees [from, to) (their map points ``zs``, first rows ``offsets``), filtered as
+ * QuadIndex.lookup did, appended to ``o``: one tree's k nearest, or with several the k nearest of them all, as one
+ * tree over their points concatenated (QuadIndex.merged) would find them; -1 out of memory. */
+static int quads_lookup_query(QuadsTree *const *tt, const double *const *zs, const int64_t *offsets, Py_ssize_t from,
+                              Py_ssize_t to, const QuadsAsk *ask, Py_ssize_t r, QuadsBest *b, QuadsOut *o)
 {
     double q[QUADS_MAX_DIM];
-    int positions = t->d == 7;
-    QuadsBest b = {heap, 0, ask->k < t->n ? ask->k : t->n, ask->bound * ask->bound, quad_z, ask->px, ask->py,
-                   ask->by_place && !positions};
-    for (Py_ssize_t r = 0; r < ask->m; r++) {
-        memcpy(q, ask->inv + 4 * r, sizeof(double) * 4);
-        q[4] = ask->key[r];
-        q[5] = ask->px;
-        q[6] = ask->py;
-        b.n = 0;
-        b.bound2 = quads_query_bound(ask, ask->radius[r], positions);
-        if (quads_within(&b, quads_low(t->box, q, t->d))) {
-            quads_search(t, 0, q, &b);
+    int positions = tt[from]->d == 7;
+    memcpy(q, ask->inv + 4 * r, sizeof(double) * 4);
+    q[4] = ask->key[r];
+    q[5] = ask->px;
+    q[6] = ask->py;
+    b->n = 0;
+    b->bound2 = quads_query_bound(ask, ask->radius[r], positions);
+    for (Py_ssize_t t = from; t < to; t++) {
+        b->quad_z = zs[t];
+        b->offset = offsets[t];
+        b->tree = t;
+        if (quads_within(b, quads_low(tt[t]->box, q, tt[t]->d))) {
+            quads_search(tt[t], 0, q, b);
         }
-        qsort(heap, (size_t)b.n, sizeof(QuadsHit), qhit_cmp);
-        double rad = ask->radius[r];
-        for (Py_ssize_t c = 0; c < b.n; c++) {
-            double dist = sqrt(heap[c].d2);
-            int keep = dist <= (positions ? ask->bound : rad);
-            if (keep && positions) {
-                /* The tree's distance mixes the invariants' with the position's: split them (as lookup() did). */
-                const double *p = t->pts + heap[c].at * t->d;
-                double ex = p[5] - ask->px, ey = p[6] - ask->py;
-                double off2 = ex * ex + ey * ey;
-                keep = dist * dist - off2 <= rad * rad && off2 <= ask->reach * ask->reach;
+    }
+    qsort(b->h, (size_t)b->n, sizeof(QuadsHit), qhit_cmp);
+    double rad = ask->radius[r];
+    for (Py_ssize_t c = 0; c < b->n; c++) {
+        const QuadsHit *hit = &b->h[c];
+        double dist = sqrt(hit->d2);
+        int keep = dist <= (positions ? ask->bound : rad);
+        if (keep && positions) {
+            /* The tree's distance mixes the invariants' with the position's: split them (as lookup() did). */
+            const double *p = tt[hit->tree]->pts + hit->at * tt[hit->tree]->d;
+            double ex = p[5] - ask->px, ey = p[6] - ask->py;
+            double off2 = ex * ex + ey * ey;
+            keep = dist * dist - off2 <= rad * rad && off2 <= ask->reach * ask->reach;
+        }
+        if (keep && quads_push(o, r, zs[hit->tree] + 8 * hit->own) < 0) {
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* Every query's hits: tree by tree (each tree's k nearest), or with ``joint`` query by query over all the trees
+ * (their k nearest together, the rows of later trees after those of earlier ones); -1 out of memory. */
+static int quads_lookup_trees(QuadsTree *const *tt, const double *const *zs, Py_ssize_t nt, int joint,
+                              const QuadsAsk *ask, QuadsHit *heap, QuadsOut *o)
+{
+    int64_t offsets[256];
+    Py_ssize_t total = 0;
+    for (Py_ssize_t t = 0; t < nt; t++) {
+        offsets[t] = joint ? total : 0;
+        total += tt[t]->n;
+    }
+    QuadsBest b = {heap, 0, 0, 0.0, NULL, ask->px, ask->py, ask->by_place && tt[0]->d != 7, 0, 0};
+    if (joint) {
+        b.k = ask->k < total ? ask->k : total;
+        for (Py_ssize_t r = 0; r < ask->m; r++) {
+            if (quads_lookup_query(tt, zs, offsets, 0, nt, ask, r, &b, o) < 0) {
+                return -1;
             }
-            if (keep && quads_push(o, r, quad_z + 8 * heap[c].i) < 0) {
+        }
+        return 0;
+    }
+    for (Py_ssize_t t = 0; t < nt; t++) {
+        b.k = ask->k < tt[t]->n ? ask->k : tt[t]->n;
+        b.by_place = ask->by_place && tt[t]->d != 7;
+        for (Py_ssize_t r = 0; r < ask->m; r++) {
+            if (quads_lookup_query(tt, zs, offsets, t, t + 1, ask, r, &b, o) < 0) {
                 return -1;
             }
         }
@@ -251,13 +292,48 @@ static PyObject *quads_result(QuadsOut *o)
     return out;
 }
 
+/* The hits of trees ``tt`` (checked, their map points ``za``): -1 with an error set when they cannot be looked up
+ * jointly (trees of different columns) or out of memory. */
+static PyObject *quads_hits(QuadsTree *const *tt, const Arr *za, Py_ssize_t nt, int joint, const QuadsAsk *ask)
+{
+    const double *zs[256];
+    Py_ssize_t most = 1, total = 0;
+    for (Py_ssize_t i = 0; i < nt; i++) {
+        if (joint && tt[i]->d != tt[0]->d) {
+            return PyErr_Format(PyExc_ValueError, "trees looked up jointly have the same columns");
+        }
+        zs[i] = D(za[i]);
+        most = tt[i]->n > most ? tt[i]->n : most;
+        total += tt[i]->n;
+    }
+    most = joint && total > most ? total : most;
+    most = ask->k < most ? ask->k : most;
+    QuadsHit *heap = malloc(sizeof(QuadsHit) * (size_t)most);
+    if (!heap) {
+        return PyErr_NoMemory();
+    }
+    QuadsOut o = {NULL, NULL, 0, 0};
+    int bad = 0;
+    if (nt) {
+        Py_BEGIN_ALLOW_THREADS
+        bad = quads_lookup_trees(tt, zs, nt, joint, ask, heap, &o);
+        Py_END_ALLOW_THREADS
+    }
+    PyObject *out = bad ? PyErr_NoMemory() : quads_result(&o);
+    free(heap);
+    free(o.rows);
+    free(o.z);
+    return out;
+}
+
 static PyObject *quads_lookup(PyObject *self, PyObject *args)
 {
     PyObject *trees, *zs, *oinv, *okey, *orad;
     QuadsAsk ask;
+    int joint = 0;
     Arr a[3] = {{{0}}};
-    if (!PyArg_ParseTuple(args, "O!O!OOOnddddp:quads_lookup", &PyTuple_Type, &trees, &PyTuple_Type, &zs, &oinv,
-                          &okey, &orad, &ask.k, &ask.px, &ask.py, &ask.reach, &ask.bound, &ask.by_place)) {
+    if (!PyArg_ParseTuple(args, "O!O!OOOnddddp|p:quads_lookup", &PyTuple_Type, &trees, &PyTuple_Type, &zs, &oinv,
+                          &okey, &orad, &ask.k, &ask.px, &ask.py, &ask.reach, &ask.bound, &ask.by_place, &joint)) {
         return NULL;
     }
     Py_ssize_t nt = PyTuple_GET_SIZE(trees);
@@ -281,29 +357,7 @@ static PyObject *quads_lookup(PyObject *self, PyObject *args)
     Arr za[256];
     QuadsTree *tt[256];
     memset(za, 0, sizeof(Arr) * (size_t)nt);
-    QuadsOut o = {NULL, NULL, 0, 0};
-    QuadsHit *heap = NULL;
-    int failed = quads_take_trees(trees, zs, za, tt, nt);
-    Py_ssize_t most = 1;
-    for (Py_ssize_t i = 0; i < nt && !failed; i++) {
-        most = tt[i]->n > most ? tt[i]->n : most;
-    }
-    most = ask.k < most ? ask.k : most;
-    if (!failed) {
-        heap = malloc(sizeof(QuadsHit) * (size_t)most);
-        failed = heap ? 0 : (PyErr_NoMemory(), -1);
-    }
-    for (Py_ssize_t i = 0; i < nt && !failed; i++) {
-        int bad;
-        Py_BEGIN_ALLOW_THREADS
-        bad = quads_lookup_tree(tt[i], D(za[i]), &ask, heap, &o);
-        Py_END_ALLOW_THREADS
-        failed = bad ? (PyErr_NoMemory(), -1) : 0;
-    }
-    PyObject *out = failed ? NULL : quads_result(&o);
-    free(heap);
-    free(o.rows);
-    free(o.z);
+    PyObject *out = quads_take_trees(trees, zs, za, tt, nt) ? NULL : quads_hits(tt, za, nt, joint, &ask);
     arr_release(za, (int)nt);
     arr_release(a, 3);
     return out;
@@ -311,7 +365,8 @@ static PyObject *quads_lookup(PyObject *self, PyObject *args)
 
 PyMethodDef quads_methods[] = {
     {"quads_lookup", quads_lookup, METH_VARARGS,
-     "quads_lookup(trees, quad_zs, invariants, key, radius, k, px, py, reach, bound, by_place): the hits of image quads in "
-     "each tree, tree by tree: (query rows, map points) as bytearrays of int64 and of complex128 (h, 4)."},
+     "quads_lookup(trees, quad_zs, invariants, key, radius, k, px, py, reach, bound, by_place, joint=False): the hits of "
+     "image quads in each tree, tree by tree, or with joint in all the trees as one (the k nearest of them all, rows "
+     "numbered through the trees in turn): (query rows, map points) as bytearrays of int64 and of complex128 (h, 4)."},
     {NULL, NULL, 0, NULL},
 };

@@ -13,7 +13,9 @@
  * place, nearest that place first (scipy's order among ties depends on its tree: the one difference, see
  * tests/test_kernel_quads.py; on a perfect lattice, where thousands of quads tie, the k nearest taken in point order
  * all lay outside the prior's disc).  Several trees (a prior's tiles) are looked up in one call,
- * their hits tree by tree, as successive lookups gave them.
+ * their hits tree by tree, as successive lookups gave them; or jointly (a block of tiles), as one tree over their
+ * points concatenated would answer: per query the k nearest of all the trees, equal distances in the concatenated
+ * point order (the search's answer does not depend on the tree's shape, only on the points and their rows).
  *
  * The tree: the points of each label key first gathered under one subtree (three-way partitions around a key), then
  * sliding-midpoint splits of the widest side of the cell the parents' splits leave (scipy's cKDTree's default

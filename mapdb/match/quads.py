@@ -245,15 +245,18 @@ class QuadIndex:
     def _out_of_reach(self, place: complex, reach: float) -> bool:
         """No quad's position (tree units) within ``reach`` of ``place``, by the box of the positions (per axis no
         nearer than any position, in floating point too): the lookup would keep no hit, its tree query is saved."""
-        where = self._where
-        if where is None:
-            assert self.tree is not None
-            lo, hi = self.tree.data[:, 5:7].min(axis=0).tolist(), self.tree.data[:, 5:7].max(axis=0).tolist()
-            where = self._where = (lo[0], lo[1], hi[0], hi[1])
-        x0, y0, x1, y1 = where
+        x0, y0, x1, y1 = self._box()
         dx = max(x0 - place.real, 0.0, place.real - x1)
         dy = max(y0 - place.imag, 0.0, place.imag - y1)
         return dx * dx + dy * dy > reach * reach
+
+    def _box(self) -> tuple[float, float, float, float]:
+        """The box of the quads' positions (tree units), made once."""
+        if self._where is None:
+            assert self.tree is not None
+            lo, hi = self.tree.data[:, 5:7].min(axis=0).tolist(), self.tree.data[:, 5:7].max(axis=0).tolist()
+            self._where = (lo[0], lo[1], hi[0], hi[1])
+        return self._where
 
     @classmethod
     def merged(cls, parts: Sequence[QuadIndex]) -> QuadIndex:
@@ -304,7 +307,8 @@ def lookup_parts(
     if not parts or not len(invariants):
         return empty
     first, near = parts[0]
-    if any((ix.positions, len(ix.labels), nr) != (first.positions, len(first.labels), near) for ix, nr in parts):
+    if len(parts) > 1 and any(hasattr(ix, "searched") or (ix.positions, len(ix.labels), nr)
+                              != (first.positions, len(first.labels), near) for ix, nr in parts):
         found = [lookup_parts([part], invariants, labels, radius, k) for part in parts]
         return np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])
     bound = float(radius.max())
@@ -317,7 +321,10 @@ def lookup_parts(
         if not parts:
             return empty
         bound += reach
-    trees = [_kernel_tree(ix) for ix, _ in parts]
+    # A block (quad_block.QuadBlock): its parts searched together, as one index (or, looked up often, merged).
+    searched = getattr(first, "searched", None)
+    indexes, joint = searched() if searched is not None else ([ix for ix, _ in parts], False)
+    trees = [_kernel_tree(ix) for ix in indexes]
     key = label_keys(labels, len(first.labels))
     np.multiply(key, LABEL_GAP, out=key)
     if not first.positions and near is not None:
@@ -325,9 +332,9 @@ def lookup_parts(
         # before near_only are those it keeps where the map repeats itself.
         place = complex(near[0])
     rows, flat = quads_lookup(
-        tuple(trees), tuple(np.ascontiguousarray(ix.quad_z, np.complex128) for ix, _ in parts),
+        tuple(trees), tuple(np.ascontiguousarray(ix.quad_z, np.complex128) for ix in indexes),
         np.ascontiguousarray(invariants, np.float64), key, np.ascontiguousarray(radius, np.float64), int(k),
-        place.real, place.imag, reach, bound, not first.positions and near is not None)
+        place.real, place.imag, reach, bound, not first.positions and near is not None, joint)
     hit_rows, map_z = np.frombuffer(rows, np.int64), np.frombuffer(flat, np.complex128).reshape(-1, 4)
     return (hit_rows, map_z) if first.positions else near_only(hit_rows, map_z, near)
 
