@@ -218,6 +218,24 @@ def test_whole_map_indexes_of_a_map_with_blocks_are_its_views() -> None:
         town.label_counts[BLOCK_LABEL]
 
 
+def test_point_images_only_leave_the_folded_view_until_a_mask_image_comes() -> None:
+    """whole_map_indexes(masks=False) (the analysis's): only the view point images are matched in is built; the
+    folded view, made when an image with building areas first comes, has its whole-map indexes at once, and
+    answers as a localizer that built both at the start."""
+    town = _town_with_blocks()
+    lazy, eager = Localizer(town), Localizer(town)
+    lazy_objects, _ = lazy.whole_map_indexes(masks=False)
+    eager_objects, _ = eager.whole_map_indexes()
+    assert sorted(lazy._views) == [False] and sorted(eager._views) == [False, True]
+    assert np.array_equal(lazy_objects.counts, eager_objects.counts)
+    image = simulate_images(town, 1, altitude=150.0, fov_deg=60.0, yaw="random", min_objects=10, seed=1)[0]
+    for o in image["objects"]:
+        o["area_px"] = 400.0  # mask blobs: matched in the folded view
+    a, b = lazy.localize(image), eager.localize(image)
+    assert sorted(lazy._views) == [False, True] and lazy._views[True]._whole_quads is not None
+    assert (a.status, a.x, a.y, a.score) == (b.status, b.x, b.y, b.score)
+
+
 def test_a_footprint_crossing_itself_still_joins_its_block(tmp_path: Path) -> None:
     doc = OsmXml()
     doc.ring(square(0.0, 0.0, 5.0), {"building": "yes"})

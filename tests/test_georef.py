@@ -3,6 +3,7 @@ checked against the simulator's camera (the truth the images were drawn from), a
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -69,6 +70,24 @@ def test_answers_footprint_is_the_cameras(paper: MemoryMap, tilted: bool) -> Non
         # From the unrounded corners: within a millimetre's worth of degrees of the rounded ones'.
         assert np.abs(np.array(record["footprint_lonlat"]) - np.array(lonlat)).max() < 1e-7
         assert Answer.from_json(record).to_json() == record
+
+
+def test_a_brief_answer_is_the_full_one_without_the_ground(paper: MemoryMap) -> None:
+    """Localizer.localize(brief=True) (the analysis's answers): the same answer, without lon/lat and georef."""
+    from mapdb.localize import Localizer
+
+    images = simulate_images(paper, 4, pixel_std=1.0, yaw="random", seed=3, attitude_std=5.0, with_attitude=True)
+    images.append({"width": 640, "height": 480, "objects": []})  # a rejection: nothing to leave out
+    localizer = Localizer(paper)
+    for image in images:
+        full, brief = localizer.localize(image), localizer.localize(image, brief=True)
+        ground = ("lon", "lat", "width", "height", "transform", "transform_error_m", "footprint", "footprint_lonlat")
+        if full.ok:
+            assert all(getattr(full, name) is not None for name in ground)
+        assert all(getattr(brief, name) is None for name in ground)
+        assert dataclasses.replace(full, time_ms=0.0, **dict.fromkeys(ground)) == \
+            dataclasses.replace(brief, time_ms=0.0)
+    assert sum(localizer.localize(image).ok for image in images) == 4
 
 
 def test_the_geometry_is_the_pinhole_camera_exactly() -> None:

@@ -20,7 +20,9 @@ detector's errors and the prior's offset.  This module draws exactly those numbe
 * **The image** of a sample that is localized (:func:`cell_image`): the objects it shows projected by
   :func:`~mapdb.camera.project_to_image`, then the detector and the prior, with the generator where its pose
   left it: :func:`~mapdb.simulation.simulate.simulate_image_at`'s document, without its ``truth`` (the
-  localizer does not read it).
+  localizer does not read it), handed over as the arrays
+  :func:`~mapdb.detections.images.parse_image` would make of it (:class:`~mapdb.detections.images.ImageObjects`:
+  no document written and parsed again, the same numbers).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import Camera, Pose, project_to_image
+from ..detections.images import MAX_OBJECTS, ImageObjects, Prior
 from ..simulation.detector import Detector, detect, label_mix
 from ..simulation.documents import add_hints, image_document
 from ..simulation.poses import Shot
@@ -238,22 +241,35 @@ def image_view(objects: Any, tree: Any, pose: Pose, camera: Camera,
 
 
 def cell_image(objects: Any, shown: np.ndarray, pose: Pose, camera: Camera, generator: np.random.Generator,
-               detector: Detector, prior: float | None, image_id: str) -> dict[str, Any]:
-    """The image document a sample is localized from (``generator`` where its pose's draws left it):
+               detector: Detector, prior: float | None, image_id: str) -> ImageObjects | dict[str, Any]:
+    """The image a sample is localized from (``generator`` where its pose's draws left it):
     :func:`~mapdb.simulation.simulate.simulate_image_at` of the objects it shows (``shown``, sorted indices into
-    ``objects``, from :func:`cell_views`), without its truth.
+    ``objects``, from :func:`cell_views`), without its truth, as the :class:`~mapdb.detections.images.ImageObjects`
+    that :func:`~mapdb.detections.images.parse_image` makes of that document.
 
     Only the objects shown are projected (the simulator projects all those within reach): a point's pixels do
-    not depend on the other points projected with it, and the objects not shown draw nothing.
+    not depend on the other points projected with it, and the objects not shown draw nothing.  The arrays pass
+    every check of the parser: the detector keeps pixels inside the image (``0 <= u < width``), the camera and the
+    prior are the configuration's (checked in range), and the prior's centre lies within its radius of the map.
+    An image of more than ``MAX_OBJECTS`` objects, which the parser refuses, is its document, so that the
+    localizer refuses it as before.
     """
     local = objects.take(shown)
     u, v, seen = visible_objects(local, pose, camera)
     index = np.flatnonzero(seen).astype(np.int64)
     index, u, v, label_names = detect(generator, local, index, u[seen], v[seen], camera, detector)
-    image = image_document(image_id, camera, label_names, u, v)
+    hints: dict[str, Any] = {}
     shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
-    add_hints(generator, image, shot, pose.x, pose.y, prior, False, False)
-    return image
+    add_hints(generator, hints, shot, pose.x, pose.y, prior, False, False)
+    if u.size > MAX_OBJECTS:
+        return {**image_document(image_id, camera, label_names, u, v), **hints}
+    disc = hints.get("prior")
+    # The parser's types: float64 pixels, labels as Python strings in an object array, floats for the rest.
+    return ImageObjects(id=image_id, width=float(camera.width), height=float(camera.height),
+                        x=np.asarray(u, np.float64), y=np.asarray(v, np.float64),
+                        names=np.array([str(name) for name in label_names], dtype=object),
+                        prior=None if disc is None else Prior(float(disc["x"]), float(disc["y"]), disc["radius"]),
+                        fov_deg=float(camera.fov_deg))
 
 
 def detector_of(label_counts: dict[str, int], pixel_std: float, miss_rate: float, spurious_rate: float,

@@ -40,6 +40,7 @@ in twenty, is more likely to go unseen in 2 images than in 16.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -50,6 +51,7 @@ import numpy as np
 
 from ..answers import Answer
 from ..camera import Camera, Pose
+from ..detections.images import ImageObjects
 from ..evaluation.evaluate import DEFAULT_FP_THRESHOLD_M
 from .draws import Poses, cell_image, cell_poses, cell_views, detector_of, positioned
 
@@ -250,8 +252,9 @@ def _opened(map_path: str) -> tuple[Any, Any]:
         m = open_map(map_path)
         localizer = Localizer(m)
         # With the whole map's quad index loaded, every query (with a prior too) looks hypotheses up in it:
-        # an answer then never depends on which images a worker answered before.
-        localizer.whole_map_indexes()
+        # an answer then never depends on which images a worker answered before.  The images are points (no
+        # building areas): the view of a map with blocks folded in is never searched, and not built.
+        localizer.whole_map_indexes(masks=False)
         _OPEN[key] = (m, localizer)
     return _OPEN[key]
 
@@ -440,10 +443,13 @@ def _localize(ctx: _Context, shown: np.ndarray, pose: Pose, generator: np.random
     # exists (it is None only for a map without any).
     assert ctx.detector is not None
     image = cell_image(ctx.objects, shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
-    answer = ctx.localizer.localize(image)
+    # Brief answers: the position, score and candidates are all a cell's measures read.
+    answer = ctx.localizer.localize(image, brief=True)
     lost = answer
     if cfg.prior is not None:
-        lost = ctx.localizer.localize({key: value for key, value in image.items() if key != "prior"})
+        alone = dataclasses.replace(image, prior=None) if isinstance(image, ImageObjects) else \
+            {key: value for key, value in image.items() if key != "prior"}
+        lost = ctx.localizer.localize(alone, brief=True)
     if not answer.ok or answer.x is None or answer.y is None:
         return None, lost
     return math.hypot(answer.x - pose.x, answer.y - pose.y), lost

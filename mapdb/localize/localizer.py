@@ -196,6 +196,9 @@ class Localizer:
         self.blocks = blocks
         self._has_blocks = has_blocks(map)
         self._views: dict[bool, Localizer] = {}
+        # Set by whole_map_indexes(masks=False): a view made later gets its whole-map indexes when it is made, so
+        # that its answers, like the other view's, never depend on the images answered before.
+        self._whole_views = False
 
     def matcher_for(self, codes: np.ndarray, area_px: np.ndarray | None) -> Localizer:
         """The localizer whose indexes an image is matched in: this one for a map without blocks, else the one
@@ -213,10 +216,12 @@ class Localizer:
             view = Localizer(BlocksView(self.map, fold), self.method, self.options, self.prior)
             view.warn = self.warn
             self._views[fold] = view
+            if self._whole_views:
+                view.whole_map_indexes()
         return view
 
     def localize(self, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None = None, *,
-                 source: str = "image", pose: PosePrior | None = None) -> Answer:
+                 source: str = "image", pose: PosePrior | None = None, brief: bool = False) -> Answer:
         """Answer one image (see :func:`localize`); ``prior`` overrides the localizer's own.
 
         ``pose`` (fast method): where the camera is, which way it points and at what scale
@@ -227,14 +232,20 @@ class Localizer:
 
         A stored index found damaged during the answer is dropped (saying so once) and the image answered
         again with the quad index built in memory: the answer is the in-memory search's.
+
+        ``image`` as :class:`~mapdb.detections.images.ImageObjects` is taken as checked (what
+        :func:`~mapdb.detections.images.parse_image` returns; a caller making its own, as the analysis does from
+        simulated arrays, vouches for the same ranges).  ``brief``: an accepted answer without where the image
+        lies on the ground (no ``lon``, ``lat``, ``width``, ``height``, ``transform``, ``footprint``), for callers
+        that read only the position, score and candidates; every other field is the same.
         """
         if prior is None and pose is not None:
             prior = pose.disc
         try:
-            return _answer(self, image, self.prior if prior is None else prior, source, pose)
+            return _answer(self, image, self.prior if prior is None else prior, source, pose, brief)
         except _StoredIndexError as exc:
             self._drop_stored(str(exc))
-            return _answer(self, image, self.prior if prior is None else prior, source, pose)
+            return _answer(self, image, self.prior if prior is None else prior, source, pose, brief)
 
     def _no_stored_index_for_masks(self) -> None:
         """Say once that a map's stored index does not serve the images matched against its blocks: it holds the
@@ -257,7 +268,7 @@ class Localizer:
 
     # ------------------------------------------------------------------------------------ indexes
 
-    def whole_map_indexes(self) -> tuple[ObjectIndex, QuadIndex | StoredQuads]:
+    def whole_map_indexes(self, *, masks: bool = True) -> tuple[ObjectIndex, QuadIndex | StoredQuads]:
         """The whole map's object and quad indexes, for one answer.
 
         Quads: the stored lost-in-space index beside the map file when there is one (``mapdb index MAP``;
@@ -266,10 +277,15 @@ class Localizer:
         the background from the second answer on, is ready (:class:`WholeMapObjects`); the same answers.
 
         A map with blocks is searched through its views: theirs are built (both when blocks are used) and the
-        view without blocks' returned.
+        view without blocks' returned.  ``masks`` False (a caller whose images are points, as the analysis's):
+        the view with blocks folded in, which only images with building areas are matched in, is left until such
+        an image first comes, and its whole-map indexes are then built at once (its answers the same either way;
+        for Andorra its quads of two worlds cost 1.2 s of start-up).
         """
         if self._has_blocks:
-            views = [self._view(fold) for fold in ((True, False) if self.blocks else (False,))]
+            self._whole_views = self._whole_views or not masks
+            folds = (True, False) if self.blocks and masks else (False,)
+            views = [self._view(fold) for fold in folds]
             return [view.whole_map_indexes() for view in views][-1]
         if self._whole_quads is None:
             stored = self._stored_index()
@@ -479,8 +495,8 @@ def localize(
     return localizer_for(map, method, options).localize(image, prior, source=source)
 
 
-def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
-            prior: tuple[float, float, float] | None, source: str, pose: PosePrior | None = None) -> Answer:
+def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects, prior: tuple[float, float, float] | None,
+            source: str, pose: PosePrior | None = None, brief: bool = False) -> Answer:
     start = time.perf_counter()
     image_id = _image_id(image)
     try:
@@ -510,7 +526,8 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects,
                        None if levelled else im.area_px, outward, (focal_px, im.altitude_m), pose)
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
-    return ok_record(image_id, localizer.map.crs, found, focal_px, levelled, start, im)
+    return ok_record(image_id, localizer.map.crs, found, focal_px, levelled, start, None if brief else im,
+                     lonlat=not brief)
 
 
 def _checked(image: dict[str, Any] | ImageObjects, crs: str, prior: tuple[float, float, float] | None,

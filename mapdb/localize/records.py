@@ -135,11 +135,14 @@ def _located(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bo
 
 
 def ok_record(image_id: Any, crs: str, pose: FoundPose, focal_px: float | None, levelled: bool,
-               start: float, image: ImageObjects | None = None) -> Answer:
-    """The answer of a localized image (module docs); where it lies on the ground when ``image`` is given."""
+               start: float, image: ImageObjects | None = None, *, lonlat: bool = True) -> Answer:
+    """The answer of a localized image (module docs); where it lies on the ground when ``image`` is given, its
+    ``lon`` and ``lat`` unless ``lonlat`` is False (a caller that reads neither spares PROJ's transform)."""
     a, b = pose.a, pose.b
-    fields, (lon, lat) = ({}, to_lonlat(crs, b.real, b.imag)) if image is None else _located(crs, a, b, image,
-                                                                                              levelled)
+    if image is not None:
+        fields, (lon, lat) = _located(crs, a, b, image, levelled)
+    else:
+        fields, (lon, lat) = {}, to_lonlat(crs, b.real, b.imag) if lonlat else (None, None)
     return Answer(
         id=image_id,
         status="ok",
