@@ -25,8 +25,10 @@
    of the three extracts, rotated, each object jittered by 2 m: ``synthetic_world.synthetic_world``), assembled
    and written once with its stored quad index (``mapdb index``) into the cache directory (the build time is
    printed when it is made), timed without a prior only (with one, most of a hundred scattered images would
-   build their own tiles: a tile build, not the matcher).  A baseline without the stored index (5144dec) would
-   build the whole world's quad index in memory (about 250 s and 14 GB): its 1M row is left out, saying so.
+   build their own tiles: a tile build, not the matcher).  A baseline whose stored index is of format 1 (5144dec)
+   reads the same world with its own index, built once by its own code beside a link to the world in the cache
+   (:func:`_world_versions`); one without any would build the world's quad index in memory (about 250 s and 14
+   GB): its 1M row is left out, saying so.
 6. Start-up: ``mapdb --help`` and a one-image ``mapdb query`` with a prior, from process start to the
    answer's line on the pipe (the first answer) and to exit, median of ``--repeats`` fresh processes (5 by
    default), the baseline's beside this tree's (its ``mapdb`` and CLI first on ``PYTHONPATH``).  As installed: Python's
@@ -164,7 +166,7 @@ def case_images(case: str, images: list[dict]) -> list[dict]:
 
 
 def time_images(versions: dict, map_path: Path, images: list[dict], counted: int,
-                cases: tuple[str, ...] = CASES) -> dict:
+                cases: tuple[str, ...] = CASES, paths: dict[str, Path] | None = None) -> dict:
     """Per version and case (:data:`CASES`): median and p95 ms per image of ``localize``, alternating
     versions image by image; localized images, answers the same as the first version's (:func:`same_answer`;
     ``differ`` lists the others: image id, this version's and the first's), and the median numpy calls an image
@@ -172,7 +174,8 @@ def time_images(versions: dict, map_path: Path, images: list[dict], counted: int
     result = {}
     for case in cases:
         subset = case_images(case, images)
-        maps = {label: store.open_map(map_path) for label, (localize, store) in versions.items()}
+        maps = {label: store.open_map((paths or {}).get(label, map_path))
+                for label, (localize, store) in versions.items()}
         times: dict[str, list[float]] = {label: [] for label in versions}
         good = dict.fromkeys(versions, 0)
         answers: dict[str, list] = {label: [] for label in versions}
@@ -296,9 +299,10 @@ def per_image_table(args: argparse.Namespace, maps: dict[str, Path], work: Path)
     for name, path in maps.items():
         images = simulated(path, args.n, args.seed, args.prior_radius)
         gauge = gauge_ms()
-        cases, here = (("no prior",), _world_versions(versions, args.baseline, work)) if name == WORLD else (CASES,
-                                                                                                         versions)
-        results = time_images(here, path, images, args.count, cases)
+        cases, here, paths = CASES, versions, None
+        if name == WORLD:
+            cases, here, paths = ("no prior",), *_world_versions(versions, args.baseline, work, path)
+        results = time_images(here, path, images, args.count, cases, paths)
         for label, res in results.items():
             for case, r in res.items():
                 print(f"  {name:<14} {label:<17} {case:<10} {r['median_ms']:9.2f} {r['p95_ms']:8.2f} "
@@ -321,14 +325,30 @@ def _has_module(rev: str, work: Path, module: str) -> bool:
     return True
 
 
-def _world_versions(versions: dict, baseline: str | None, work: Path) -> dict:
-    """The versions timed on the 1M world: without the baseline when it has no stored quad index (it would build
-    the whole world's in memory: about 250 s and 14 GB)."""
-    if baseline is not None and not _has_module(baseline, work, "match.index.stored"):
+def _world_versions(versions: dict, baseline: str | None, work: Path, world: Path) -> tuple[dict, dict]:
+    """The versions timed on the 1M world and the world's path for each: a baseline whose stored quad index is
+    of an older format (``mapdb.match.stored_index``, format 1, as 5144dec's) gets the same world with its own
+    index, built once by its own ``build_index`` beside a link to the world in the cache (the time taken
+    printed); a baseline without any is left out (it would build the world's in memory: about 250 s and 14 GB)."""
+    if baseline is None or _has_module(baseline, work, "match.index.stored"):
+        return versions, {}
+    if not _has_module(baseline, work, "match.stored_index"):
         print(f"  {WORLD}: baseline {baseline} has no stored quad index (it would build the world's in memory, "
               "about 250 s and 14 GB): this tree only")
-        return {"this tree": versions["this tree"]}
-    return versions
+        return {"this tree": versions["this tree"]}, {}
+    own = world.parent / f"{world.stem}-index-of-{baseline}" / world.name
+    index = own.with_name(own.name + ".qidx")
+    if not index.exists():
+        own.parent.mkdir(parents=True, exist_ok=True)
+        if not own.exists():
+            own.symlink_to(world)
+        start = time.perf_counter()
+        partial = own.with_name(own.name + ".partial")
+        import_baseline(baseline, work, "match.index_build").build_index(own, partial)
+        partial.rename(index)
+        print(f"  {WORLD}: baseline {baseline}'s own stored index (format 1) built in "
+              f"{time.perf_counter() - start:.0f} s, {index.stat().st_size / 1e6:.0f} MB", flush=True)
+    return versions, {f"baseline {baseline}": own}
 
 
 def world_map(cache: Path) -> Path:
