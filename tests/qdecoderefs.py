@@ -1,7 +1,7 @@
 """The numpy code the kernel's block decoding (``_kernel_qdecode.c``) replaced, kept verbatim as the tests'
 reference (tests/test_kernel_qdecode.py): ``packed.neighbour_fields``, ``coord_fields`` (per object),
-``page_fields``, ``cells_of_dense``, ``Directory.decode`` and ``Coordinates._decode`` as they were at 51e92c9,
-each taking the object it was a method of as ``self``."""
+``page_fields``, ``cells_of_dense``, ``Directory.decode``, ``Coordinates._decode`` and ``PageBoxes.check`` as they
+were at 51e92c9, each taking the object it was a method of as ``self``."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import numpy as np
 from mapdb.errors import MapFormatError
 from mapdb.mapfile.codec import _read_fields, _unzigzag
 from mapdb.match.arrays import sorted_unique
+from mapdb.match.index.binding import PageBoxes, mismatch
 from mapdb.match.index.directory import Coordinates, Directory
 from mapdb.match.index.packed import NB_BLOCK, PAD
 
@@ -123,3 +124,13 @@ def coordinates_decode(self: Coordinates, todo: np.ndarray) -> None:
         self.check(objects, xy)
     self.xy[objects] = xy
     self.decoded[todo] = True
+
+
+def page_boxes_check(self: PageBoxes, ids: np.ndarray, xy: np.ndarray) -> None:
+    """Refuse unless every object ``ids`` (in range) at ``xy`` (quanta, ``(m, 2)``) lies inside its page's box."""
+    page = np.searchsorted(self.start, ids, side="right") - 1
+    outside = ((xy < self.lo[page]) | (xy > self.hi[page])).any(axis=1)
+    if outside.any():
+        raise mismatch(self.where, f"coordinates of objects of map page {int(page[outside][0])} lie outside "
+                                   f"the page", self.map_path)
+    self.checked[page] = True

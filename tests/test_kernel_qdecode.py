@@ -14,8 +14,10 @@ import qdecoderefs
 
 from mapdb.build.pipeline import build_map
 from mapdb.errors import MapFormatError
+from mapdb.mapfile.reader import open_map
 from mapdb.mapfile.writer import write_map
 from mapdb.match import _kernel
+from mapdb.match.index.binding import PageBoxes
 from mapdb.match.index.directory import Directory
 from mapdb.match.index.layout import BLOCK
 from mapdb.match.index.lookup import Section
@@ -57,6 +59,9 @@ def indexed(request, tmp_path_factory) -> Path:
 
 def test_real_indexes_decode_as_the_numpy_code(indexed: Path) -> None:
     ours, ref = StoredQuadIndex(index_path(indexed)), StoredQuadIndex(index_path(indexed))
+    with open_map(indexed) as m:  # bound to the map: every block decoded is checked against its page boxes
+        ours.check_map(m)
+        ref.check_map(m)
     try:
         pages = ours._directory.decoded.size
         rng = np.random.default_rng(0)
@@ -71,6 +76,7 @@ def test_real_indexes_decode_as_the_numpy_code(indexed: Path) -> None:
         got = ours._coords.rows(objects)
         qdecoderefs.coordinates_decode(ref._coords, np.arange(ref._coords.decoded.size))
         assert np.array_equal(got, ref._coords.xy.astype(np.int64)) and np.array_equal(ours._coords.xy, ref._coords.xy)
+        assert ours._boxes is not None and ours._boxes.checked.all()
         nb = ours._neighbours
         want = qdecoderefs.neighbour_fields(nb.data.array, nb.start.array[objects // NB_BLOCK].astype(np.int64),
                                             nb.width.array[objects // NB_BLOCK].astype(np.int64), objects, nb.k)
@@ -172,6 +178,35 @@ def test_forged_pages_are_refused_as_before() -> None:
     assert 20 < refused < 150  # both kinds of outcome were tried
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_page_boxes_are_the_numpy_code(seed: int) -> None:
+    """Objects checked against their map pages' boxes (empty pages among them, objects on the borders, some
+    outside): the same page named in the same error, or the same pages marked checked."""
+    rng = np.random.default_rng(seed)
+    p = 40
+    table = np.zeros(p, [("ox", "<i8"), ("oy", "<i8"), ("ex", "<u4"), ("ey", "<u4"), ("count", "<u4")])
+    table["ox"], table["oy"] = rng.integers(0, 1000, p), rng.integers(0, 1000, p)
+    table["ex"], table["ey"] = rng.integers(0, 50, p), rng.integers(0, 50, p)
+    table["count"] = rng.integers(0, 30, p) * (rng.random(p) < 0.8)
+    ours, ref = PageBoxes(table, (3, 7), "x.qidx", "x.mapdb"), PageBoxes(table, (3, 7), "x.qidx", "x.mapdb")
+    ids = np.sort(rng.choice(int(ours.start[-1]), 200, replace=False))
+    page = np.searchsorted(ours.start, ids, side="right") - 1
+    xy = ours.lo[page] + rng.integers(0, 2, (ids.size, 2)) * (ours.hi[page] - ours.lo[page])  # corners
+    xy += (rng.random((ids.size, 2)) < 0.5) * rng.integers(0, 51, (ids.size, 2)).clip(max=ours.hi[page] - xy)
+    if seed % 2:
+        bad = rng.integers(0, ids.size)
+        xy[bad, seed % 4 // 2] += 1 + ours.hi[page[bad], seed % 4 // 2] - ours.lo[page[bad], seed % 4 // 2]
+    errors = []
+    for boxes, check in ((ours, PageBoxes.check), (ref, qdecoderefs.page_boxes_check)):
+        try:
+            check(boxes, ids, xy)
+            errors.append(None)
+        except MapFormatError as exc:
+            errors.append(str(exc))
+    assert errors[0] == errors[1] and (errors[0] is None) == (seed % 2 == 0)
+    assert np.array_equal(ours.checked, ref.checked) and ours.checked.any() == (seed % 2 == 0)
+
+
 def test_wrong_calls_raise() -> None:
     data = np.zeros(64, np.uint8)
     one = np.zeros(1, np.int64)
@@ -208,3 +243,10 @@ def test_wrong_calls_raise() -> None:
         _kernel.qdecode_directory_pages(data, row, 12, 5, np.frombuffer(bytes(32), np.uint64), count, start)
     with pytest.raises(ValueError):
         _kernel.qdecode_directory_pages(data, row[:, :8].copy(), 12, 5, key, count, start)
+    start2, box = np.array([0, 2]), np.zeros((1, 2), np.int64)
+    with pytest.raises(ValueError):  # an object past the pages
+        _kernel.qdecode_page_boxes(np.array([2]), box, start2, box, box, np.zeros(1, bool))
+    with pytest.raises(TypeError):
+        _kernel.qdecode_page_boxes(np.array([1]), box, start2, box, box, np.zeros(1, np.int64))
+    with pytest.raises(ValueError):
+        _kernel.qdecode_page_boxes(np.array([1]), box, np.array([0, 1, 2]), box, box, np.zeros(1, bool))

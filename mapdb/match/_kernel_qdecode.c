@@ -1,5 +1,5 @@
 /* The stored quad index's bit-packed blocks decoded (packed.py: coord_fields, neighbour_fields;
- * directory.py: Directory.decode's pages).
+ * directory.py: Directory.decode's pages; binding.py: PageBoxes.check).
  *
  * A cold lookup (a place no lookup reached before) decodes the directory pages, coordinate blocks and neighbour
  * blocks it reaches; numpy's field reader (codec._read_fields) spent most of such a lookup building index arrays.
@@ -297,7 +297,74 @@ static PyObject *qdecode_neighbour_fields(PyObject *self, PyObject *args)
     return out;
 }
 
+/* The page holding object ``id``: the last page whose first object is at most ``id`` (numpy's
+ * searchsorted(start, id, side="right") - 1). */
+static Py_ssize_t qdecode_page_of(const int64_t *start, Py_ssize_t n, int64_t id)
+{
+    Py_ssize_t lo = 0, hi = n;
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (start[mid] <= id) {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo - 1;
+}
+
+/* page_boxes(ids, xy, start, lo, hi, checked) -> int: -1 when every object ``ids`` at ``xy`` (m, 2) lies inside
+ * its page's box (lo, hi: (P, 2), borders inside; start: each page's first object and the end), then those pages
+ * marked in ``checked``; else the page of the first object outside (nothing marked: binding.PageBoxes.check). */
+static PyObject *qdecode_page_boxes(PyObject *self, PyObject *args)
+{
+    PyObject *o[6];
+    Arr a[6];
+    if (!PyArg_ParseTuple(args, "OOOOOO", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5])) {
+        return NULL;
+    }
+    const char *names[5] = {"ids", "xy", "start", "lo", "hi"};
+    const int dims[5] = {1, 2, 1, 2, 2};
+    for (int i = 0; i < 5; i++) {
+        if (arr_take(o[i], &a[i], names[i], 'q', dims[i], 0, 0) < 0) {
+            arr_release(a, i);
+            return NULL;
+        }
+    }
+    if (arr_take(o[5], &a[5], "checked", '?', 1, 1, 0) < 0) {
+        arr_release(a, 5);
+        return NULL;
+    }
+    Py_ssize_t m = arr_dim(&a[0], 0), pages = arr_dim(&a[3], 0);
+    if (arr_check_shape(&a[1], "xy", m, 2) < 0 || arr_check_shape(&a[2], "start", pages + 1, 0) < 0
+            || arr_check_shape(&a[4], "hi", pages, 2) < 0 || arr_check_shape(&a[5], "checked", pages, 0) < 0) {
+        arr_release(a, 6);
+        return NULL;
+    }
+    const int64_t *ids = Q(a[0]), *xy = Q(a[1]), *start = Q(a[2]), *lo = Q(a[3]), *hi = Q(a[4]);
+    Py_ssize_t outside = -1;
+    for (Py_ssize_t i = 0; i < m && outside < 0; i++) {
+        Py_ssize_t p = qdecode_page_of(start, pages + 1, ids[i]);
+        if (p < 0 || p >= pages) {
+            arr_release(a, 6);
+            PyErr_SetString(PyExc_ValueError, "page_boxes: an object id is outside the pages");
+            return NULL;
+        }
+        if (xy[2 * i] < lo[2 * p] || xy[2 * i + 1] < lo[2 * p + 1] || xy[2 * i] > hi[2 * p]
+                || xy[2 * i + 1] > hi[2 * p + 1]) {
+            outside = p;
+        }
+    }
+    for (Py_ssize_t i = 0; i < m && outside < 0; i++) {
+        B(a[5])[qdecode_page_of(start, pages + 1, ids[i])] = 1;
+    }
+    arr_release(a, 6);
+    return PyLong_FromSsize_t(outside);
+}
+
 PyMethodDef qdecode_methods[] = {
+    {"qdecode_page_boxes", qdecode_page_boxes, METH_VARARGS,
+     "-1 when every object lies inside its map page's box (pages marked checked), else the first outside's page."},
     {"qdecode_coord_fields", qdecode_coord_fields, METH_VARARGS,
      "Positions (bytes of int64, (m, 2)) of packed coordinate blocks (packed.coord_fields)."},
     {"qdecode_directory_pages", qdecode_directory_pages, METH_VARARGS,
