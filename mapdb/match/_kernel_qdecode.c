@@ -10,6 +10,8 @@
  */
 #include "_kernel_stored.h"
 
+#include <string.h>
+
 #define QDECODE_MAX_WIDTH 57  /* codec._read_fields: fields of at most 57 bits */
 
 /* The field of ``w`` bits at bit ``at`` of ``buf`` (``n`` bytes); -1 in *bad when its window leaves the buffer. */
@@ -19,11 +21,11 @@ static inline uint64_t qdecode_field(const uint8_t *buf, Py_ssize_t n, int64_t a
         *bad = 1;
         return 0;
     }
-    const uint8_t *p = buf + (at >> 3);
-    uint64_t word = 0;
-    for (int i = 0; i < 8; i++) {
-        word = (word << 8) | p[i];
-    }
+    uint64_t word;
+    memcpy(&word, buf + (at >> 3), 8);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    word = __builtin_bswap64(word);  /* the window is big-endian */
+#endif
     uint64_t head = (word << (at & 7)) >> 1;
     return head >> (63 - w);
 }
@@ -299,8 +301,16 @@ static PyObject *qdecode_neighbour_fields(PyObject *self, PyObject *args)
 
 /* The page holding object ``id``: the last page whose first object is at most ``id`` (numpy's
  * searchsorted(start, id, side="right") - 1). */
-static Py_ssize_t qdecode_page_of(const int64_t *start, Py_ssize_t n, int64_t id)
+static Py_ssize_t qdecode_page_of(const int64_t *start, Py_ssize_t n, int64_t id, Py_ssize_t *hint)
 {
+    Py_ssize_t h = *hint;
+    /* A block's objects come in order: most are in the previous object's page or the next one. */
+    for (Py_ssize_t p = h; p >= 0 && p < n - 1 && p <= h + 2 && start[p] <= id; p++) {
+        if (id < start[p + 1]) {
+            *hint = p;
+            return p;
+        }
+    }
     Py_ssize_t lo = 0, hi = n;
     while (lo < hi) {
         Py_ssize_t mid = lo + (hi - lo) / 2;
@@ -310,6 +320,7 @@ static Py_ssize_t qdecode_page_of(const int64_t *start, Py_ssize_t n, int64_t id
             hi = mid;
         }
     }
+    *hint = lo - 1 >= 0 ? lo - 1 : 0;
     return lo - 1;
 }
 
@@ -342,9 +353,9 @@ static PyObject *qdecode_page_boxes(PyObject *self, PyObject *args)
         return NULL;
     }
     const int64_t *ids = Q(a[0]), *xy = Q(a[1]), *start = Q(a[2]), *lo = Q(a[3]), *hi = Q(a[4]);
-    Py_ssize_t outside = -1;
+    Py_ssize_t outside = -1, hint = 0;
     for (Py_ssize_t i = 0; i < m && outside < 0; i++) {
-        Py_ssize_t p = qdecode_page_of(start, pages + 1, ids[i]);
+        Py_ssize_t p = qdecode_page_of(start, pages + 1, ids[i], &hint);
         if (p < 0 || p >= pages) {
             arr_release(a, 6);
             PyErr_SetString(PyExc_ValueError, "page_boxes: an object id is outside the pages");
@@ -356,7 +367,7 @@ static PyObject *qdecode_page_boxes(PyObject *self, PyObject *args)
         }
     }
     for (Py_ssize_t i = 0; i < m && outside < 0; i++) {
-        B(a[5])[qdecode_page_of(start, pages + 1, ids[i])] = 1;
+        B(a[5])[qdecode_page_of(start, pages + 1, ids[i], &hint)] = 1;
     }
     arr_release(a, 6);
     return PyLong_FromSsize_t(outside);

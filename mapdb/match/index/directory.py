@@ -177,14 +177,17 @@ class Coordinates:
                 or (hi > data.array.size - PAD).any()):
             raise _corrupt(self.where, "coordinate block out of range")
         data.check_ranges(lo, hi + PAD)
-        objects = (np.repeat(todo * NB_BLOCK, size) + np.arange(int(size.sum()))
-                   - np.repeat(np.cumsum(size) - size, size))
+        # Every block is whole but the file's last (then last in todo, which is sorted): its objects end the rows.
+        objects = ((todo * NB_BLOCK)[:, None] + np.arange(NB_BLOCK)).reshape(-1)[: int(size.sum())]
         xy = coord_fields(data.array, lo, w, b, size)
         if xy.size and xy.max() >= 2**31:
             raise _corrupt(self.where, "holds a coordinate out of range")
         if self.check is not None:
             self.check(objects, xy)
-        self.xy[objects] = xy
+        whole = todo.size - int(size[-1] < NB_BLOCK)  # stored a block (64 rows) at a time
+        self.xy[: self.n // NB_BLOCK * NB_BLOCK].reshape(-1, NB_BLOCK, 2)[todo[:whole]] = (
+            xy[: whole * NB_BLOCK].reshape(-1, NB_BLOCK, 2))
+        self.xy[objects[whole * NB_BLOCK :]] = xy[whole * NB_BLOCK :]
         self.decoded[todo] = True
 
     def verify(self) -> None:
