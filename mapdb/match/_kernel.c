@@ -451,5 +451,9 @@ PyMODINIT_FUNC PyInit__kernel(void)
         Py_DECREF(m);
         return NULL;
     }
+    if (PyModule_AddFunctions(m, qdecode_methods) < 0) {
+        Py_DECREF(m);
+        return NULL;
+    }
     return m;
 }

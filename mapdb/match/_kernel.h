@@ -90,6 +90,7 @@ extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */
 extern PyMethodDef image_quads_methods[];  /* _kernel_image_quads.c */
 extern PyMethodDef map_quads_methods[];  /* _kernel_map_quads.c: a map tile's quads and tree points */
 extern PyMethodDef stored_methods[];  /* _kernel_stored.c: the stored quad index's lookup */
+extern PyMethodDef qdecode_methods[];  /* _kernel_qdecode.c: the stored index's packed blocks decoded */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

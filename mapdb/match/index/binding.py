@@ -34,6 +34,7 @@ import numpy as np
 from ...errors import MapFormatError, open_regular, reading
 from ...mapfile.layout import MAGIC as MAP_MAGIC
 from ...mapfile.reader import MetaMap
+from .._kernel import qdecode_page_boxes
 from .layout import cell_keys, cells_of
 
 __all__ = ["IDENTITY_KEYS", "PageBoxes", "check_filed", "check_identity", "check_positions", "map_identity",
@@ -113,13 +114,13 @@ class PageBoxes:
         self.where, self.map_path = where, map_path
 
     def check(self, ids: np.ndarray, xy: np.ndarray) -> None:
-        """Refuse unless every object ``ids`` (in range) at ``xy`` (quanta, ``(m, 2)``) lies inside its page's box."""
-        page = np.searchsorted(self.start, ids, side="right") - 1
-        outside = ((xy < self.lo[page]) | (xy > self.hi[page])).any(axis=1)
-        if outside.any():
-            raise mismatch(self.where, f"coordinates of objects of map page {int(page[outside][0])} lie outside "
-                                       f"the page", self.map_path)
-        self.checked[page] = True
+        """Refuse unless every object ``ids`` (in range) at ``xy`` (quanta, ``(m, 2)``) lies inside its page's box
+        (the kernel's, ``_kernel_qdecode.c``: a block's objects are each a search of the pages' first objects)."""
+        page = qdecode_page_boxes(np.ascontiguousarray(ids, np.int64), np.ascontiguousarray(xy, np.int64),
+                                  self.start, self.lo, self.hi, self.checked)
+        if page >= 0:
+            raise mismatch(self.where, f"coordinates of objects of map page {page} lie outside the page",
+                           self.map_path)
 
 
 def check_filed(inv: np.ndarray, key: np.ndarray, sub: np.ndarray, cell: np.ndarray, bits: int, sub_bits: int,

@@ -1,7 +1,7 @@
 """A version-4 index's packed parts as a lookup reads them: the cell directory, the neighbours, the coordinates.
 
 :class:`Directory` holds the cells by key: the fence (one row a page, in memory) names the page that can hold a
-key; a page is decoded (:func:`~mapdb.match.index.packed.page_fields`) and checked the first time a lookup
+key; a page is decoded and checked (by the kernel, ``_kernel_qdecode.c``) the first time a lookup
 reads it, into arrays kept for the next lookups (the kernel's lookup, ``_kernel_stored.c``, searches them), so a
 query reads only the pages it needs.
 :class:`Neighbours` gives the neighbours of anchors from their packed blocks, each block checked before use;
@@ -15,19 +15,10 @@ from collections.abc import Callable
 import numpy as np
 
 from ...errors import MapFormatError
+from .._kernel import qdecode_directory_pages
 from ..arrays import sorted_unique
 from .lookup import Section
-from .packed import (
-    NB_BLOCK,
-    PAD,
-    PAGE_CELLS,
-    cells_of_dense,
-    coord_fields,
-    dense_cells,
-    dense_side,
-    neighbour_fields,
-    page_fields,
-)
+from .packed import NB_BLOCK, PAD, PAGE_CELLS, coord_fields, dense_cells, dense_side, neighbour_fields
 
 __all__ = ["Coordinates", "Directory", "Neighbours"]
 
@@ -93,25 +84,15 @@ class Directory:
         wg, wc = self.data.array[lo].astype(np.int64), self.data.array[lo + 1].astype(np.int64)
         if (wg > 32).any() or (wc > 32).any() or (-(-(16 + (n - 1) * wg + n * wc) // 8) != hi - lo).any():
             raise _corrupt(self.where, "directory page out of range")
-        offsets, counts, _ = page_fields(self.data.array, lo, n)
-        span = self.page_side[todo] ** 4
-        page = np.repeat(np.arange(todo.size), n)
-        rank = np.arange(page.size) - np.repeat(np.cumsum(n) - n, n)
-        step = np.diff(offsets, prepend=-1)
-        if (((step <= 0) & (rank > 0)).any() or (self.page_dense[todo][page] + offsets >= span[page]).any()
-                or counts.max() > self.max_cell
-                or (np.bincount(page, counts, todo.size) != self.first_quad[todo + 1] - self.first_quad[todo]).any()):
+        # The kernel's (_kernel_qdecode.c): every page decoded and checked (gaps above 0, cells inside their
+        # combination's span, counts at most max_cell and summing to the page's quads), then its cells' keys,
+        # counts and first quads written; nothing is written unless every page passes.
+        side = self.page_side[todo]
+        pages = np.column_stack([lo, n, self.page_dense[todo], side**4, side, self.page_lk[todo],
+                                 self.first_quad[todo], self.first_quad[todo + 1], self.first_cell[todo]])
+        if not qdecode_directory_pages(self.data.array, pages, self.bits, self.max_cell, self.key, self.count,
+                                       self.start):
             raise _corrupt(self.where, "directory page out of range")
-        dense = self.page_dense[todo][page] + offsets
-        cells = cells_of_dense(dense, self.page_side[todo][page])
-        key = self.page_lk[todo][page].astype(np.uint64)
-        for j in range(4):
-            key = (key << np.uint64(self.bits)) | cells[:, j].astype(np.uint64)
-        at = self.first_cell[todo][page] + rank
-        self.key[at] = key
-        self.count[at] = counts
-        before = np.cumsum(counts) - counts  # quads before each cell, restarted at each page
-        self.start[at] = self.first_quad[todo][page] + before - np.repeat(before[np.cumsum(n) - n], n)
         self.decoded[todo] = True
 
     def first_cells(self, lk: np.ndarray) -> np.ndarray:
@@ -196,15 +177,17 @@ class Coordinates:
                 or (hi > data.array.size - PAD).any()):
             raise _corrupt(self.where, "coordinate block out of range")
         data.check_ranges(lo, hi + PAD)
-        objects = (np.repeat(todo * NB_BLOCK, size) + np.arange(int(size.sum()))
-                   - np.repeat(np.cumsum(size) - size, size))
-        xy = coord_fields(data.array, np.repeat(lo, size), np.repeat(w, size, axis=0), np.repeat(b, size, axis=0),
-                          objects)
+        # Every block is whole but the file's last (then last in todo, which is sorted): its objects end the rows.
+        objects = ((todo * NB_BLOCK)[:, None] + np.arange(NB_BLOCK)).reshape(-1)[: int(size.sum())]
+        xy = coord_fields(data.array, lo, w, b, size)
         if xy.size and xy.max() >= 2**31:
             raise _corrupt(self.where, "holds a coordinate out of range")
         if self.check is not None:
             self.check(objects, xy)
-        self.xy[objects] = xy
+        whole = todo.size - int(size[-1] < NB_BLOCK)  # stored a block (64 rows) at a time
+        self.xy[: self.n // NB_BLOCK * NB_BLOCK].reshape(-1, NB_BLOCK, 2)[todo[:whole]] = (
+            xy[: whole * NB_BLOCK].reshape(-1, NB_BLOCK, 2))
+        self.xy[objects[whole * NB_BLOCK :]] = xy[whole * NB_BLOCK :]
         self.decoded[todo] = True
 
     def verify(self) -> None:

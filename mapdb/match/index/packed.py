@@ -10,22 +10,24 @@ Four codes, each read at random without decoding more than a lookup needs:
 * **coordinates**: each object's position as offsets from the smallest x and y of its block of
   :data:`NB_BLOCK` objects, bit-packed at the block's two widths (:func:`pack_coords`, :func:`coord_fields`);
 * **directory pages** of at most :data:`PAGE_CELLS` cells of one label combination: the gaps between the
-  cells' dense numbers and their quad counts, bit-packed at the page's two widths (:func:`pack_pages`,
-  :func:`page_fields`).
+  cells' dense numbers and their quad counts, bit-packed at the page's two widths (:func:`pack_pages`; decoded
+  and checked by :meth:`~mapdb.match.index.directory.Directory.decode`).
 
-Bits are packed most significant first and read through the map's codec (:mod:`mapdb.mapfile.codec`), whose
-reader wants 8 zero bytes after the data: every packed section ends with them.
+Bits are packed most significant first (by the map's codec, :mod:`mapdb.mapfile.codec`) and read by the compiled
+kernel (``_kernel_qdecode.c``) exactly as the codec's reader reads them: through the 64-bit window at a field's
+first byte, so 8 zero bytes follow the data: every packed section ends with them.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ...mapfile.codec import _bits_of, _read_fields, _unzigzag, _zigzag
+from ...mapfile.codec import _bits_of, _zigzag
+from .._kernel import qdecode_coord_fields, qdecode_neighbour_fields
 
-__all__ = ["NB_BLOCK", "PAGE_CELLS", "PAD", "cells_of_dense", "coord_fields", "dense_cells", "dense_side",
-           "directory_pages", "neighbour_fields", "pack_coords", "pack_neighbours", "pack_pages", "pack_records",
-           "page_fields", "record_layout", "unpack_records"]
+__all__ = ["NB_BLOCK", "PAGE_CELLS", "PAD", "coord_fields", "dense_cells", "dense_side", "directory_pages",
+           "neighbour_fields", "pack_coords", "pack_neighbours", "pack_pages", "pack_records", "record_layout",
+           "unpack_records"]
 
 NB_BLOCK = 64  # objects whose neighbours share one bit width
 PAGE_CELLS = 64  # cells of a directory page (the fence, in memory, holds one row a page)
@@ -89,11 +91,15 @@ def pack_neighbours(table: np.ndarray, first: int) -> tuple[np.ndarray, np.ndarr
 def neighbour_fields(data: np.ndarray, block_start: np.ndarray, width: np.ndarray, objects: np.ndarray,
                      k: int) -> np.ndarray:
     """Neighbour ids ``(m, k)`` (int64) of ``objects`` from the packed data, given their blocks' first byte and
-    width (both already checked against the data's length)."""
-    pos = (objects % NB_BLOCK)[:, None] * k + np.arange(k)
-    start = block_start[:, None] * 8 + pos * width[:, None]
-    z = _read_fields(data, start.reshape(-1), np.repeat(width, k))
-    return objects[:, None] + _unzigzag(z).reshape(-1, k)
+    width (both already checked against the data's length; the kernel's, ``_kernel_qdecode.c``).
+
+    Raises
+    ------
+    ValueError
+        If a field lies outside ``data`` (which must end in :data:`PAD` zero bytes) or is wider than 57 bits.
+    """
+    out = qdecode_neighbour_fields(data, _int64(block_start), _int64(width), _int64(objects), int(k))
+    return np.frombuffer(out, np.int64).reshape(-1, k) if k else np.zeros((len(objects), 0), np.int64)
 
 
 def pack_coords(coords: np.ndarray, first: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -116,12 +122,19 @@ def pack_coords(coords: np.ndarray, first: int) -> tuple[np.ndarray, np.ndarray,
 
 
 def coord_fields(data: np.ndarray, block_start: np.ndarray, width: np.ndarray, base: np.ndarray,
-                 objects: np.ndarray) -> np.ndarray:
-    """Coordinates ``(m, 2)`` (int64 quanta) of ``objects`` from the packed data, given their blocks' first byte,
-    widths ``(m, 2)`` and bases ``(m, 2)`` (all already checked against the data's length)."""
-    at = block_start * 8 + (objects % NB_BLOCK) * (width[:, 0] + width[:, 1])
-    xy = _read_fields(data, np.column_stack([at, at + width[:, 0]]).reshape(-1), width.reshape(-1))
-    return base + xy.astype(np.int64).reshape(-1, 2)
+                 size: np.ndarray) -> np.ndarray:
+    """Coordinates ``(m, 2)`` (int64 quanta) of the first ``size`` objects of each block from the packed data, given
+    the blocks' first byte, widths ``(b, 2)`` and bases ``(b, 2)`` (all already checked against the data's length;
+    the kernel's, ``_kernel_qdecode.c``): the blocks' objects in turn.
+
+    Raises
+    ------
+    ValueError
+        If a field lies outside ``data`` (which must end in :data:`PAD` zero bytes) or is wider than 57 bits.
+    """
+    out = qdecode_coord_fields(data, _int64(block_start), _int64(width).reshape(-1, 2),
+                               _int64(base).reshape(-1, 2), _int64(size))
+    return np.frombuffer(out, np.int64).reshape(-1, 2)
 
 
 def dense_side(cell: np.ndarray) -> np.ndarray:
@@ -135,17 +148,6 @@ def dense_cells(cells: np.ndarray, side: np.ndarray) -> np.ndarray:
     for j in (1, 2, 3):
         d = d * side + cells[:, j]
     return d
-
-
-def cells_of_dense(dense: np.ndarray, side: np.ndarray) -> np.ndarray:
-    """The cell coordinates ``(m, 4)`` of dense cell numbers (:func:`dense_cells` inverted)."""
-    out = np.empty((dense.size, 4), np.int64)
-    d = dense.astype(np.int64)
-    for j in (3, 2, 1):
-        out[:, j] = d % side
-        d = d // side
-    out[:, 0] = d
-    return out
 
 
 def pack_pages(dense: np.ndarray, count: np.ndarray, page_first: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -194,25 +196,8 @@ def _packed_groups(values: np.ndarray, widths: np.ndarray, starts: np.ndarray,
     return np.packbits(_bits_of(allv, allw)), nbytes
 
 
-def page_fields(data: np.ndarray, start: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Decode directory pages (first byte ``start``, ``cells`` cells each; ranges already checked).
-
-    Returns, for every cell of the pages in order, the dense gap from the page's first cell (int64, 0 for
-    the first), its quad count, and each page's two widths ``(p, 2)``.
-    """
-    head = _read_fields(data, np.repeat(start * 8, 2) + np.tile([0, 8], start.size), np.full(2 * start.size, 8))
-    w = head.astype(np.int64).reshape(-1, 2)
-    rank = np.arange(int(cells.sum())) - np.repeat(np.cumsum(cells) - cells, cells)
-    page = np.repeat(np.arange(start.size), cells)
-    base = start[page] * 8 + 16
-    wg, wc = w[page, 0], w[page, 1]
-    gap_at = base + (rank - 1) * wg
-    is_first = rank == 0
-    gaps = _read_fields(data, np.where(is_first, base, gap_at), np.where(is_first, 0, wg)).astype(np.int64)
-    count_at = base + (cells[page] - 1) * wg + rank * wc
-    counts = _read_fields(data, count_at, wc).astype(np.int64) + 1
-    total = np.cumsum(gaps)  # restarted at each page (its first gap is 0)
-    return total - np.repeat(total[np.cumsum(cells) - cells], cells), counts, w
+def _int64(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, np.int64)
 
 
 def directory_pages(keys: np.ndarray, counts: np.ndarray, combos: np.ndarray, cells: np.ndarray,
