@@ -65,25 +65,24 @@ void map_canonical_row(const double *z, int *order, double *t, double *ab)
     quads_frame(z, pair, &f);
     memcpy(order, f.order, sizeof(f.order));
     memcpy(t, f.t, sizeof(f.t));
-    if (t[0] + t[2] > 1.0) {  /* t.real.sum(axis=1) > 1.0 */
-        int o = order[0];
-        order[0] = order[1];
-        order[1] = o;
-        for (int c = 0; c < 2; c++) {
-            t[2 * c] = 1.0 - t[2 * c];
-            t[2 * c + 1] = 0.0 - t[2 * c + 1];
-        }
+    /* the swaps by selection, not branches: each is a coin toss */
+    int swap_ab = t[0] + t[2] > 1.0;  /* t.real.sum(axis=1) > 1.0 */
+    int o0 = order[0], o1 = order[1];
+    order[0] = swap_ab ? o1 : o0;
+    order[1] = swap_ab ? o0 : o1;
+    for (int c = 0; c < 2; c++) {
+        t[2 * c] = select_d(swap_ab, 1.0 - t[2 * c], t[2 * c]);
+        t[2 * c + 1] = select_d(swap_ab, 0.0 - t[2 * c + 1], t[2 * c + 1]);
     }
-    if (t[0] > t[2]) {
-        int o = order[2];
-        order[2] = order[3];
-        order[3] = o;
-        double re = t[0], im = t[1];
-        t[0] = t[2];
-        t[1] = t[3];
-        t[2] = re;
-        t[3] = im;
-    }
+    int cd = t[0] > t[2];
+    int o2 = order[2], o3 = order[3];
+    order[2] = cd ? o3 : o2;
+    order[3] = cd ? o2 : o3;
+    double c_re = t[0], c_im = t[1], d_re = t[2], d_im = t[3];
+    t[0] = select_d(cd, d_re, c_re);
+    t[1] = select_d(cd, d_im, c_im);
+    t[2] = select_d(cd, c_re, d_re);
+    t[3] = select_d(cd, c_im, d_im);
 }
 
 static int map_row_cmp(const void *pa, const void *pb)
