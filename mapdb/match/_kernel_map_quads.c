@@ -12,6 +12,7 @@
  * invariants, the label key (label_keys' float arithmetic) times the gap and, with positions, the centroid (numpy's
  * mean of four complex numbers: (a + b) + (c + d), over 4) times the weight.
  */
+#pragma GCC optimize("O3")
 #include "_kernel_quads.h"
 
 #include <math.h>

@@ -7,40 +7,36 @@
 
 /* ------------------------------------------------------------------ build */
 
-/* During the build, the points' rows move in ``pts`` (tree order) with their ``idx``: a partition reads its column
- * in one stretch instead of gathering each point from where it was given, and a leaf is where it stays, with no copy
- * after.  The swaps are those the build made moving ``idx`` alone: the same order, the same tree. */
-#define QUADS_AT(t, r, j) ((t)->pts[(r) * (t)->d + (j)])
+/* During the build, points are reordered through ``idx`` alone (cheaper than moving rows); copied in tree order
+ * after. */
+#define QUADS_AT(t, r, j) ((t)->src[(t)->idx[r] * (t)->d + (j)])
 
-static inline void quads_swap(QuadsTree *t, Py_ssize_t i, Py_ssize_t j)
+static void quads_swap(QuadsTree *t, Py_ssize_t i, Py_ssize_t j)
 {
     int64_t k = t->idx[i];
     t->idx[i] = t->idx[j];
     t->idx[j] = k;
-    double *a = t->pts + i * t->d, *b = t->pts + j * t->d;
-    for (Py_ssize_t c = 0; c < t->d; c++) {
-        double v = a[c];
-        a[c] = b[c];
-        b[c] = v;
-    }
 }
 
 /* Partition [lo, hi) by ``split`` along ``dim``: returns the first point not below it. */
 static Py_ssize_t quads_partition(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, int dim, double split)
 {
-    const double *col = t->pts + dim;
+    const double *src = t->src + dim;  /* locals: the swaps cannot then be taken to change them */
+    int64_t *idx = t->idx;
     Py_ssize_t d = t->d, i = lo, j = hi - 1;
     for (;;) {
-        while (i <= j && col[i * d] < split) {
+        while (i <= j && src[idx[i] * d] < split) {
             i++;
         }
-        while (i <= j && !(col[j * d] < split)) {
+        while (i <= j && !(src[idx[j] * d] < split)) {
             j--;
         }
         if (i >= j) {
             return i;
         }
-        quads_swap(t, i++, j--);
+        int64_t k = idx[i];
+        idx[i++] = idx[j];
+        idx[j--] = k;
     }
 }
 
@@ -114,10 +110,10 @@ static Py_ssize_t quads_new_node(QuadsTree *t)
 static void quads_points_box(const QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, double *box)
 {
     Py_ssize_t d = t->d;
-    memcpy(box, t->pts + lo * d, sizeof(double) * d);
-    memcpy(box + d, t->pts + lo * d, sizeof(double) * d);
+    memcpy(box, t->src + t->idx[lo] * d, sizeof(double) * d);
+    memcpy(box + d, t->src + t->idx[lo] * d, sizeof(double) * d);
     for (Py_ssize_t r = lo + 1; r < hi; r++) {
-        const double *p = t->pts + r * d;
+        const double *p = t->src + t->idx[r] * d;
         for (Py_ssize_t j = 0; j < d; j++) {
             box[j] = p[j] < box[j] ? p[j] : box[j];
             box[d + j] = p[j] > box[d + j] ? p[j] : box[d + j];
@@ -147,15 +143,24 @@ static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, c
     }
     t->nodes[me] = (QuadsNode){lo, hi, -1, -1};
     double sub[2 * QUADS_MAX_DIM];
+    memcpy(sub, cell, sizeof(double) * 2 * d);
     int dim = 0;
     double split = 0.0;
-    Py_ssize_t mid = -1;
-    if (hi - lo > QUADS_LEAF) {  /* (a leaf's cell is not read: a key's few points come with none) */
-        memcpy(sub, cell, sizeof(double) * 2 * d);
-        mid = quads_split(t, lo, hi, sub, &dim, &split);
-    }
-    if (mid < 0) {  /* a leaf: its points are where they stay, boxed in one pass */
-        quads_points_box(t, lo, hi, t->box + 2 * d * me);
+    Py_ssize_t mid = hi - lo <= QUADS_LEAF ? -1 : quads_split(t, lo, hi, sub, &dim, &split);
+    if (mid < 0) {  /* a leaf: its points are where they stay, copied in tree order and boxed in one pass */
+        double *box = t->box + 2 * d * me;
+        for (Py_ssize_t r = lo; r < hi; r++) {
+            memcpy(t->pts + r * d, t->src + t->idx[r] * d, sizeof(double) * d);
+        }
+        memcpy(box, t->pts + lo * d, sizeof(double) * d);
+        memcpy(box + d, t->pts + lo * d, sizeof(double) * d);
+        for (Py_ssize_t r = lo + 1; r < hi; r++) {
+            const double *p = t->pts + r * d;
+            for (Py_ssize_t j = 0; j < d; j++) {
+                box[j] = p[j] < box[j] ? p[j] : box[j];
+                box[d + j] = p[j] > box[d + j] ? p[j] : box[d + j];
+            }
+        }
         return me;
     }
     double keep = sub[d + dim];
@@ -173,50 +178,29 @@ static Py_ssize_t quads_build_node(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, c
     return me;
 }
 
-/* A point's label key and row, as the key partitions move them. */
-typedef struct {
-    double key;
-    int64_t idx;
-} QuadsKeyRow;
-
 /* A node over [lo, hi) whose label keys (column QUADS_KEY) differ: split three ways around the key of its middle point
  * (less, equal, greater; a quicksort's partition), so that each key's quads form one subtree of their own before
  * any other split, in a pass over the points a level (a key's quads leave the partitions once their key is the
- * pivot).  Boxes are the union of the children's.  The partitions move ``kr``'s (key, row) pairs, 16 bytes read in
- * one stretch, not the points' rows; a key's rows are gathered into tree order once its points are alone.  Returns
- * the node's number, or -1 out of memory. */
-static Py_ssize_t quads_build_keys(QuadsTree *t, QuadsKeyRow *kr, Py_ssize_t lo, Py_ssize_t hi)
+ * pivot).  Boxes are the union of the children's.  Returns the node's number, or -1 out of memory. */
+static Py_ssize_t quads_build_keys(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi)
 {
-    double pivot = kr[lo + (hi - lo) / 2].key;
+    double pivot = QUADS_AT(t, lo + (hi - lo) / 2, QUADS_KEY);
     int mixed = 0;
     for (Py_ssize_t r = lo; r < hi && !mixed; r++) {
-        mixed = kr[r].key != pivot;
+        mixed = QUADS_AT(t, r, QUADS_KEY) != pivot;
     }
-    if (!mixed) {  /* one key's points: their rows to their place in tree order, then split by position */
-        Py_ssize_t d = t->d;
-        for (Py_ssize_t r = lo; r < hi; r++) {
-            const double *row = t->src + kr[r].idx * d;
-            double *to = t->pts + r * d;
-            t->idx[r] = kr[r].idx;
-            for (Py_ssize_t c = 0; c < d; c++) {  /* a loop, not memcpy: 5 or 7 numbers */
-                to[c] = row[c];
-            }
-        }
+    if (!mixed) {
         double box[2 * QUADS_MAX_DIM];
-        if (hi - lo > QUADS_LEAF) {  /* a leaf boxes its points itself; a parent needs its cell */
-            quads_points_box(t, lo, hi, box);
-        }
+        quads_points_box(t, lo, hi, box);
         return quads_build_node(t, lo, hi, box);
     }
     Py_ssize_t a = lo, i = lo, b = hi;  /* [lo, a) less, [a, i) equal, [b, hi) greater */
     while (i < b) {
-        QuadsKeyRow v = kr[i];
-        if (v.key < pivot) {
-            kr[i++] = kr[a];
-            kr[a++] = v;
-        } else if (v.key > pivot) {
-            kr[i] = kr[--b];
-            kr[b] = v;
+        double v = QUADS_AT(t, i, QUADS_KEY);
+        if (v < pivot) {
+            quads_swap(t, a++, i++);
+        } else if (v > pivot) {
+            quads_swap(t, i, --b);
         } else {
             i++;
         }
@@ -227,8 +211,8 @@ static Py_ssize_t quads_build_keys(QuadsTree *t, QuadsKeyRow *kr, Py_ssize_t lo,
     }
     /* less | (equal | greater), or equal | greater when nothing is less */
     Py_ssize_t cut = a > lo ? a : b;
-    Py_ssize_t left = a > lo ? quads_build_keys(t, kr, lo, a) : quads_build_keys(t, kr, a, b);
-    Py_ssize_t right = left < 0 ? -1 : quads_build_keys(t, kr, cut, hi);
+    Py_ssize_t left = a > lo ? quads_build_keys(t, lo, a) : quads_build_keys(t, a, b);
+    Py_ssize_t right = left < 0 ? -1 : quads_build_keys(t, cut, hi);
     if (right < 0) {
         return -1;
     }
@@ -287,19 +271,13 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
         arr_release(a, 1);
         return PyErr_NoMemory();
     }
-    QuadsKeyRow *kr = malloc(sizeof(QuadsKeyRow) * n);
-    if (!kr) {
-        quads_free(t);
-        arr_release(a, 1);
-        return PyErr_NoMemory();
-    }
     t->src = pts;
     for (Py_ssize_t i = 0; i < n; i++) {
-        kr[i] = (QuadsKeyRow){pts[i * d + QUADS_KEY], i};
+        t->idx[i] = i;
     }
     Py_ssize_t root;
     Py_BEGIN_ALLOW_THREADS
-    root = quads_build_keys(t, kr, 0, n);
+    root = quads_build_keys(t, 0, n);
     if (root >= 0 && t->n_nodes < t->cap) {  /* give back what the nodes did not use */
         QuadsNode *nodes = realloc(t->nodes, sizeof(QuadsNode) * t->n_nodes);
         double *box = realloc(t->box, sizeof(double) * 2 * d * t->n_nodes);
@@ -307,7 +285,6 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
         t->box = box ? box : t->box;
     }
     Py_END_ALLOW_THREADS
-    free(kr);
     t->src = NULL;
     arr_release(a, 1);
     if (root < 0) {
