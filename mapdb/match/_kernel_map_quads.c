@@ -12,7 +12,6 @@
  * invariants, the label key (label_keys' float arithmetic) times the gap and, with positions, the centroid (numpy's
  * mean of four complex numbers: (a + b) + (c + d), over 4) times the weight.
  */
-#pragma GCC optimize("O3")
 #include "_kernel_quads.h"
 
 #include <math.h>
@@ -29,6 +28,7 @@ static int map_longest_pair(const double *z, double *ab)
 {
     double s[6];
     int pair = 0, ok = 1;
+    #pragma GCC unroll 6
     for (int j = 0; j < 6; j++) {
         const double *p = z + 2 * quads_pair(j)[0], *q = z + 2 * quads_pair(j)[1];
         double dx = p[0] - q[0], dy = p[1] - q[1];
@@ -36,6 +36,7 @@ static int map_longest_pair(const double *z, double *ab)
         ok = ok && s[j] >= 1e-250 && s[j] <= 1e250;
         pair = s[j] > s[pair] ? j : pair;
     }
+    #pragma GCC unroll 6
     for (int j = 0; j < 6 && ok; j++) {
         ok = j == pair || s[pair] > s[j] * (1.0 + 1e-9);
     }
@@ -58,8 +59,8 @@ static int map_longest_pair(const double *z, double *ab)
 }
 
 /* Canonical order (positions 0..3), invariants and, with ``ab``, |AB| of quad ``z`` (4 complex): canonical_quads'
- * row (also the stored index's, _kernel_stored_resolve.c). */
-void map_canonical_row(const double *z, int *order, double *t, double *ab)
+ * row.  Inline: a tile's quads (map_points) make it in their loop. */
+static inline void map_canonical_at(const double *z, int *order, double *t, double *ab)
 {
     int pair = map_longest_pair(z, ab);
     QuadsFrame f;
@@ -71,6 +72,7 @@ void map_canonical_row(const double *z, int *order, double *t, double *ab)
     int o0 = order[0], o1 = order[1];
     order[0] = swap_ab ? o1 : o0;
     order[1] = swap_ab ? o0 : o1;
+    #pragma GCC unroll 6
     for (int c = 0; c < 2; c++) {
         t[2 * c] = select_d(swap_ab, 1.0 - t[2 * c], t[2 * c]);
         t[2 * c + 1] = select_d(swap_ab, 0.0 - t[2 * c + 1], t[2 * c + 1]);
@@ -84,6 +86,12 @@ void map_canonical_row(const double *z, int *order, double *t, double *ab)
     t[1] = select_d(cd, d_im, c_im);
     t[2] = select_d(cd, c_re, d_re);
     t[3] = select_d(cd, c_im, d_im);
+}
+
+/* map_canonical_at for the stored index (_kernel_stored_resolve.c) and map_canonical. */
+void map_canonical_row(const double *z, int *order, double *t, double *ab)
+{
+    map_canonical_at(z, order, t, ab);
 }
 
 static int map_row_cmp(const void *pa, const void *pb)
@@ -101,6 +109,7 @@ static int map_row_cmp(const void *pa, const void *pb)
 static inline void map_sort4(int64_t *v)
 {
     static const int net[5][2] = {{0, 1}, {2, 3}, {0, 2}, {1, 3}, {1, 2}};
+    #pragma GCC unroll 6
     for (int c = 0; c < 5; c++) {
         int64_t a = v[net[c][0]], b = v[net[c][1]];
         v[net[c][0]] = a < b ? a : b;
@@ -227,6 +236,7 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
         const int64_t *id = ids + 4 * i;
         double w[8], inv[4];
         int frame = 0, order[4];
+        #pragma GCC unroll 6
         for (int x = 0; x < 4; x++) {
             w[2 * x] = z[2 * id[x]];
             w[2 * x + 1] = z[2 * id[x] + 1];
@@ -235,9 +245,10 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
         if (!frame) {  /* four objects on one spot (duplicates in the sources) */
             continue;
         }
-        map_canonical_row(w, order, inv, NULL);
+        map_canonical_at(w, order, inv, NULL);
         int64_t kept[4];
         double key = 0.0, *out = zq + 8 * m, *pt = pts + (Py_ssize_t)dim * m;
+        #pragma GCC unroll 6
         for (int x = 0; x < 4; x++) {
             kept[x] = id[order[x]];
             out[2 * x] = w[2 * order[x]];
