@@ -10,6 +10,7 @@
 #include <Python.h>
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 /* A buffer taken from a Python object (``held`` when it must be released). */
 typedef struct {
@@ -37,6 +38,43 @@ double pw_sum(const double *a, Py_ssize_t n);
 void cpw_sum(const double *a, Py_ssize_t n, double *rr, double *ri);
 void cmul(double ar, double ai, double br, double bi, double *cr, double *ci);
 void cdiv(double ar, double ai, double br, double bi, double *cr, double *ci);
+/* cdiv in two steps, for several numerators over one denominator (a quad's two points in its frame, a centroid's
+ * division by 4): its ratio and scale made once (cdiv_by), then each quotient (cdiv_apply), the same bits. */
+typedef struct {
+    double rat, scl, zero;  /* zero: |Re b| when b is 0 (numpy divides by it) */
+    int by_re;  /* |Re b| >= |Im b| (not when either is NaN) */
+    int is_zero;
+} CDivisor;
+static inline void cdiv_by(double br, double bi, CDivisor *d)
+{
+    double babs_r = fabs(br), babs_i = fabs(bi);
+    d->by_re = babs_r >= babs_i;
+    d->is_zero = d->by_re && babs_r == 0 && babs_i == 0;
+    d->zero = babs_r;
+    d->rat = d->is_zero ? 0.0 : d->by_re ? bi / br : br / bi;
+    d->scl = d->is_zero ? 0.0 : d->by_re ? 1.0 / (br + bi * d->rat) : 1.0 / (bi + br * d->rat);
+}
+/* ``c`` ? a : b, by their bits: no branch to mispredict where c is a coin toss (which side of a quad is longer). */
+static inline double select_d(int c, double a, double b)
+{
+    uint64_t ua, ub, m = (uint64_t)0 - (uint64_t)(c != 0);
+    memcpy(&ua, &a, sizeof(ua));
+    memcpy(&ub, &b, sizeof(ub));
+    ua = (ua & m) | (ub & ~m);
+    memcpy(&a, &ua, sizeof(a));
+    return a;
+}
+static inline void cdiv_apply(const CDivisor *d, double ar, double ai, double *cr, double *ci)
+{
+    if (d->is_zero) {
+        *cr = ar / d->zero;
+        *ci = ai / d->zero;
+        return;
+    }
+    /* both of Smith's forms, the one numpy takes kept (the same operations in the same order) */
+    *cr = select_d(d->by_re, ar + ai * d->rat, ar * d->rat + ai) * d->scl;
+    *ci = select_d(d->by_re, ai - ar * d->rat, ai * d->rat - ar) * d->scl;
+}
 double cabs_np(double re, double im);
 /* numpy's order for floats: ascending, NaN last (inline: sorts and nearest-neighbour loops call it per compare). */
 static inline int np_less(double a, double b)

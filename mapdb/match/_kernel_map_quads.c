@@ -28,6 +28,7 @@ static int map_longest_pair(const double *z, double *ab)
 {
     double s[6];
     int pair = 0, ok = 1;
+    #pragma GCC unroll 6
     for (int j = 0; j < 6; j++) {
         const double *p = z + 2 * quads_pair(j)[0], *q = z + 2 * quads_pair(j)[1];
         double dx = p[0] - q[0], dy = p[1] - q[1];
@@ -35,6 +36,7 @@ static int map_longest_pair(const double *z, double *ab)
         ok = ok && s[j] >= 1e-250 && s[j] <= 1e250;
         pair = s[j] > s[pair] ? j : pair;
     }
+    #pragma GCC unroll 6
     for (int j = 0; j < 6 && ok; j++) {
         ok = j == pair || s[pair] > s[j] * (1.0 + 1e-9);
     }
@@ -57,33 +59,39 @@ static int map_longest_pair(const double *z, double *ab)
 }
 
 /* Canonical order (positions 0..3), invariants and, with ``ab``, |AB| of quad ``z`` (4 complex): canonical_quads'
- * row (also the stored index's, _kernel_stored_resolve.c). */
-void map_canonical_row(const double *z, int *order, double *t, double *ab)
+ * row.  Inline: a tile's quads (map_points) make it in their loop. */
+static inline void map_canonical_at(const double *z, int *order, double *t, double *ab)
 {
     int pair = map_longest_pair(z, ab);
     QuadsFrame f;
     quads_frame(z, pair, &f);
     memcpy(order, f.order, sizeof(f.order));
     memcpy(t, f.t, sizeof(f.t));
-    if (t[0] + t[2] > 1.0) {  /* t.real.sum(axis=1) > 1.0 */
-        int o = order[0];
-        order[0] = order[1];
-        order[1] = o;
-        for (int c = 0; c < 2; c++) {
-            t[2 * c] = 1.0 - t[2 * c];
-            t[2 * c + 1] = 0.0 - t[2 * c + 1];
-        }
+    /* the swaps by selection, not branches: each is a coin toss */
+    int swap_ab = t[0] + t[2] > 1.0;  /* t.real.sum(axis=1) > 1.0 */
+    int o0 = order[0], o1 = order[1];
+    order[0] = swap_ab ? o1 : o0;
+    order[1] = swap_ab ? o0 : o1;
+    #pragma GCC unroll 6
+    for (int c = 0; c < 2; c++) {
+        t[2 * c] = select_d(swap_ab, 1.0 - t[2 * c], t[2 * c]);
+        t[2 * c + 1] = select_d(swap_ab, 0.0 - t[2 * c + 1], t[2 * c + 1]);
     }
-    if (t[0] > t[2]) {
-        int o = order[2];
-        order[2] = order[3];
-        order[3] = o;
-        double re = t[0], im = t[1];
-        t[0] = t[2];
-        t[1] = t[3];
-        t[2] = re;
-        t[3] = im;
-    }
+    int cd = t[0] > t[2];
+    int o2 = order[2], o3 = order[3];
+    order[2] = cd ? o3 : o2;
+    order[3] = cd ? o2 : o3;
+    double c_re = t[0], c_im = t[1], d_re = t[2], d_im = t[3];
+    t[0] = select_d(cd, d_re, c_re);
+    t[1] = select_d(cd, d_im, c_im);
+    t[2] = select_d(cd, c_re, d_re);
+    t[3] = select_d(cd, c_im, d_im);
+}
+
+/* map_canonical_at for the stored index (_kernel_stored_resolve.c) and map_canonical. */
+void map_canonical_row(const double *z, int *order, double *t, double *ab)
+{
+    map_canonical_at(z, order, t, ab);
 }
 
 static int map_row_cmp(const void *pa, const void *pb)
@@ -101,6 +109,7 @@ static int map_row_cmp(const void *pa, const void *pb)
 static inline void map_sort4(int64_t *v)
 {
     static const int net[5][2] = {{0, 1}, {2, 3}, {0, 2}, {1, 3}, {1, 2}};
+    #pragma GCC unroll 6
     for (int c = 0; c < 5; c++) {
         int64_t a = v[net[c][0]], b = v[net[c][1]];
         v[net[c][0]] = a < b ? a : b;
@@ -108,13 +117,22 @@ static inline void map_sort4(int64_t *v)
     }
 }
 
+/* Where an id stands in the anchor row at hand (map_earlier's table, -1 elsewhere): the anchor itself is MAP_ANCHOR. */
+#define MAP_ANCHOR 64
+
 /* For anchor row ``r`` (id ``i``) and each neighbour x that is an earlier anchor (a lower id: rows ascend), which of
  * the row's neighbours (bit y) that anchor's own neighbours hold, when they hold ``i`` (else 0): a quad of i's
- * neighbours x, y, z came first from x when x's mask holds the other two. */
+ * neighbours x, y, z came first from x when x's mask holds the other two.  ``pos`` (n, all -1) says where each id
+ * stands in row r, set here and reset before returning: one look-up per neighbour of x instead of a scan of the row
+ * (the row's ids are distinct, so the same masks). */
 static void map_earlier(const int64_t *nn, const int64_t *row_of, Py_ssize_t r, int64_t i, Py_ssize_t k,
-                        uint64_t *mask)
+                        signed char *pos, uint64_t *mask)
 {
     const int64_t *row = nn + r * k;
+    for (Py_ssize_t y = 0; y < k; y++) {
+        pos[row[y]] = (signed char)y;
+    }
+    pos[i] = MAP_ANCHOR;
     for (Py_ssize_t x = 0; x < k; x++) {
         mask[x] = 0;
         int64_t j = row[x];
@@ -122,30 +140,34 @@ static void map_earlier(const int64_t *nn, const int64_t *row_of, Py_ssize_t r, 
             continue;
         }
         const int64_t *other = nn + row_of[j] * k;
+        uint64_t held = 0;
         int holds_i = 0;
         for (Py_ssize_t c = 0; c < k; c++) {
-            holds_i = holds_i || other[c] == i;
+            int at = pos[other[c]];
+            holds_i |= at == MAP_ANCHOR;
+            held |= at >= 0 && at < MAP_ANCHOR ? (uint64_t)1 << at : 0;
         }
-        for (Py_ssize_t y = 0; y < k && holds_i; y++) {
-            for (Py_ssize_t c = 0; c < k; c++) {
-                mask[x] |= (uint64_t)(other[c] == row[y]) << y;
-            }
-        }
+        mask[x] = holds_i ? held : 0;
     }
+    for (Py_ssize_t y = 0; y < k; y++) {
+        pos[row[y]] = -1;
+    }
+    pos[i] = -1;
 }
 
 /* The distinct quads of anchors ``anchor`` (p, ascending) with their ``k`` nearest ``nn`` (p x k, distinct, not the
  * anchor): rows of sorted ids into ``out`` (room for p C(k, 3) rows), where they first come (anchor by anchor, in
  * triple order: a quad is new unless an earlier anchor among its points reached the other three), or sorted when
- * ``sorted``.  ``row_of`` (n): each id's anchor row, -1 for none.  Returns how many. */
+ * ``sorted``.  ``row_of`` (n): each id's anchor row, -1 for none; ``pos``: n bytes of room.  Returns how many. */
 static Py_ssize_t map_combine(const int64_t *nn, const int64_t *anchor, const int64_t *row_of, Py_ssize_t p,
-                              Py_ssize_t k, int sorted, int64_t *out)
+                              Py_ssize_t k, int sorted, signed char *pos, Py_ssize_t n, int64_t *out)
 {
     Py_ssize_t used = 0;
     uint64_t mask[64];
+    memset(pos, -1, (size_t)n);
     for (Py_ssize_t r = 0; r < p; r++) {
         const int64_t *row = nn + r * k;
-        map_earlier(nn, row_of, r, anchor[r], k, mask);
+        map_earlier(nn, row_of, r, anchor[r], k, pos, mask);
         for (Py_ssize_t x = 0; x < k; x++) {
             for (Py_ssize_t y = x + 1; y < k; y++) {
                 for (Py_ssize_t z = y + 1; z < k; z++) {
@@ -208,10 +230,13 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
 {
     Py_ssize_t m = 0;
     double base = (double)(n_labels > 1 ? n_labels : 1);
+    CDivisor four;  /* the centroid's division by 4, its ratio and scale made once */
+    cdiv_by(4.0, 0.0, &four);
     for (Py_ssize_t i = 0; i < q; i++) {
         const int64_t *id = ids + 4 * i;
         double w[8], inv[4];
         int frame = 0, order[4];
+        #pragma GCC unroll 6
         for (int x = 0; x < 4; x++) {
             w[2 * x] = z[2 * id[x]];
             w[2 * x + 1] = z[2 * id[x] + 1];
@@ -220,9 +245,10 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
         if (!frame) {  /* four objects on one spot (duplicates in the sources) */
             continue;
         }
-        map_canonical_row(w, order, inv, NULL);
+        map_canonical_at(w, order, inv, NULL);
         int64_t kept[4];
         double key = 0.0, *out = zq + 8 * m, *pt = pts + (Py_ssize_t)dim * m;
+        #pragma GCC unroll 6
         for (int x = 0; x < 4; x++) {
             kept[x] = id[order[x]];
             out[2 * x] = w[2 * order[x]];
@@ -235,7 +261,7 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
         if (dim == 7) {
             double re = (out[0] + out[2]) + (out[4] + out[6]), im = (out[1] + out[3]) + (out[5] + out[7]);
             double cr, ci;
-            cdiv(re, im, 4.0, 0.0, &cr, &ci);
+            cdiv_apply(&four, re, im, &cr, &ci);
             pt[5] = weight * cr;
             pt[6] = weight * ci;
         }
@@ -245,30 +271,29 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
 }
 
 /* map_quads' answer from its checked arrays ``a`` (nn, anchors, z, label) and ``row_of``: the distinct quads, and
- * with z and label those with a frame in canonical order, their tree points and complex points, as bytearrays. */
-static PyObject *map_build(Arr *a, const int64_t *row_of, Py_ssize_t p, Py_ssize_t k, int sorted, Py_ssize_t n_labels,
-                           int positions, double gap, double weight)
+ * with z and label those with a frame in canonical order, their tree points and complex points, as bytearrays.
+ * The quads are made in their answer's bytearray (room for every anchor's triples, cut to those kept): no
+ * buffer of their own, no copy. */
+static PyObject *map_build(Arr *a, const int64_t *row_of, Py_ssize_t n, Py_ssize_t p, Py_ssize_t k, int sorted,
+                           Py_ssize_t n_labels, int positions, double gap, double weight)
 {
     Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = a[2].held ? (positions ? 7 : 5) : 0;
-    int64_t *ids = malloc(sizeof(int64_t) * (size_t)(4 * q + 1));
+    signed char *pos = malloc((size_t)(n > 0 ? n : 1));
     PyObject *out = NULL, *o[3] = {NULL, NULL, NULL};
-    if (!ids) {
-        PyErr_NoMemory();
-    } else {
-        m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, ids) : 0;
+    o[0] = pos ? PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * q) : PyErr_NoMemory();
+    if (o[0]) {
+        int64_t *ids = (int64_t *)PyByteArray_AS_STRING(o[0]);
+        m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, pos, n, ids) : 0;
         /* written in place (the kept quads' ids, points and complex points), then cut to the quads with a frame:
          * no copy of megabytes a tile */
-        o[0] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * m);
         o[1] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * dim * m);
         o[2] = PyByteArray_FromStringAndSize(NULL, a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0);
     }
     if (o[0] && o[1] && o[2]) {
-        int64_t *kept = (int64_t *)PyByteArray_AS_STRING(o[0]);
         if (a[2].held) {
-            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim,
-                           (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
+            m = map_points((int64_t *)PyByteArray_AS_STRING(o[0]), m, D(a[2]), Q(a[3]), n_labels, gap, weight,
+                           (int)dim, (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
         }
-        memcpy(kept, ids, sizeof(int64_t) * 4 * (size_t)m);
         if (PyByteArray_Resize(o[0], (Py_ssize_t)sizeof(int64_t) * 4 * m) == 0
             && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
             && PyByteArray_Resize(o[2], a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0) == 0) {
@@ -278,7 +303,7 @@ static PyObject *map_build(Arr *a, const int64_t *row_of, Py_ssize_t p, Py_ssize
     for (int x = 0; x < 3; x++) {
         Py_XDECREF(o[x]);
     }
-    free(ids);
+    free(pos);
     return out;
 }
 
@@ -314,7 +339,7 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
         arr_release(a, 4);
         return NULL;
     }
-    PyObject *out = map_build(a, row_of, p, k, sorted, n_labels, positions, gap, weight);
+    PyObject *out = map_build(a, row_of, n, p, k, sorted, n_labels, positions, gap, weight);
     free(row_of);
     arr_release(a, 4);
     return out;

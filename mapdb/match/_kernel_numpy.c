@@ -105,23 +105,9 @@ void cmul(double ar, double ai, double br, double bi, double *cr, double *ci)
 
 void cdiv(double ar, double ai, double br, double bi, double *cr, double *ci)
 {
-    double babs_r = fabs(br), babs_i = fabs(bi);
-    if (babs_r >= babs_i) {
-        if (babs_r == 0 && babs_i == 0) {
-            *cr = ar / babs_r;
-            *ci = ai / babs_r;
-        } else {
-            double rat = bi / br;
-            double scl = 1.0 / (br + bi * rat);
-            *cr = (ar + ai * rat) * scl;
-            *ci = (ai - ar * rat) * scl;
-        }
-    } else {
-        double rat = br / bi;
-        double scl = 1.0 / (bi + br * rat);
-        *cr = (ar * rat + ai) * scl;
-        *ci = (ai * rat - ar) * scl;
-    }
+    CDivisor d;
+    cdiv_by(br, bi, &d);
+    cdiv_apply(&d, ar, ai, cr, ci);
 }
 
 /* numpy's absolute value of a complex number as its SIMD loops compute it (x86-64 with AVX2 or AVX-512):

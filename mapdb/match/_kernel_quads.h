@@ -74,10 +74,11 @@ static inline void quads_frame(const double *z, int pair, QuadsFrame *f)
 {
     memcpy(f->order, quads_pair(pair), sizeof(f->order));
     const double *a = z + 2 * f->order[0], *b = z + 2 * f->order[1];
-    double br = b[0] - a[0], bi = b[1] - a[1];
+    CDivisor by;  /* one denominator, B - A, for both points */
+    cdiv_by(b[0] - a[0], b[1] - a[1], &by);
     for (int c = 0; c < 2; c++) {
         const double *p = z + 2 * f->order[2 + c];
-        cdiv(p[0] - a[0], p[1] - a[1], br, bi, &f->t[2 * c], &f->t[2 * c + 1]);
+        cdiv_apply(&by, p[0] - a[0], p[1] - a[1], &f->t[2 * c], &f->t[2 * c + 1]);
     }
 }
 
