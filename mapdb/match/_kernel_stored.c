@@ -173,22 +173,19 @@ static int64_t stored_find(const StoredTables *t, uint64_t key, StoredNeeds *nd,
 }
 
 /* A found cell kept (its quads' blocks asked for when not all checked). */
-static int stored_keep_cell(const StoredTables *t, StoredCells *out, StoredCell *c, int64_t at, StoredNeeds *nd)
+static int stored_keep_cell(const StoredTables *t, StoredCells *out, StoredCell *c, int64_t at)
 {
     c->start = t->dir_start[at];
     c->count = t->dir_count[at];
     if (c->start < 0 || c->count < 0 || c->start > t->n_quads - c->count) {
         return -(10 + STORED_BAD_RANGE);
     }
-    if (c->count) {
-        for (int64_t blk = (c->start * t->rb) >> STORED_BLOCK_BITS;
-             blk <= ((c->start + c->count) * t->rb - 1) >> STORED_BLOCK_BITS; blk++) {
-            if (!t->q_checked[blk]) {
-                if (stored_push(&nd->ranges, c->start) || stored_push(&nd->ranges, c->count)) {
-                    return -1;
-                }
-                break;
-            }
+    if (c->count) {  /* its quads' blocks checksummed here (Python's Section checks the same flags) */
+        int64_t bad = qcheck_blocks(t->quads, t->n_quads * t->rb, t->q_crcs, t->q_mark,
+                                    (c->start * t->rb) >> STORED_BLOCK_BITS,
+                                    ((c->start + c->count) * t->rb - 1) >> STORED_BLOCK_BITS);
+        if (bad >= 0) {
+            return -(10 + STORED_BAD_BLOCK + (int)(bad < INT32_MAX - 64 ? bad : INT32_MAX - 64));
         }
     }
     StoredCell *v = stored_grow(out->v, &out->cap, out->n + 1, sizeof(StoredCell));
@@ -244,7 +241,7 @@ static int stored_row_cells(const StoredTables *t, const StoredAsk *a, Py_ssize_
         if (err) {
             return err;
         }
-        if (at >= 0 && (err = stored_keep_cell(t, out, &c, at, nd))) {
+        if (at >= 0 && (err = stored_keep_cell(t, out, &c, at))) {
             return err;
         }
     }
