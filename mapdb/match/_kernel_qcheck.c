@@ -70,13 +70,15 @@ static PyObject *py_qcheck_crc32(PyObject *self, PyObject *args)
 {
     (void)self;
     Py_buffer view;
-    unsigned long start = 0;
-    if (!PyArg_ParseTuple(args, "y*|k:qcheck_crc32", &view, &start)) {
+    PyObject *start_obj = NULL;
+    if (!PyArg_ParseTuple(args, "y*|O!:qcheck_crc32", &view, &PyLong_Type, &start_obj)) {
         return NULL;
     }
-    if (start > 0xFFFFFFFFul) {
+    unsigned long long start = start_obj ? PyLong_AsUnsignedLongLong(start_obj) : 0;
+    if (start_obj && (PyErr_Occurred() || start > 0xFFFFFFFFull)) {
+        PyErr_Clear();  /* an OverflowError (a negative start) is a ValueError here, as a start past 32 bits */
         PyBuffer_Release(&view);
-        PyErr_SetString(PyExc_ValueError, "qcheck_crc32: start must fit in 32 bits");
+        PyErr_SetString(PyExc_ValueError, "qcheck_crc32: start must be in [0, 2**32)");
         return NULL;
     }
     uint32_t c = qcheck_crc32((uint32_t)start, (const uint8_t *)view.buf, (size_t)view.len);

@@ -106,9 +106,11 @@ static int stored_check_sizes(StoredTables *t)
     t->nb_blocks = arr_dim(&a[10], 0);
     t->nb_bytes = arr_dim(&a[11], 0);
     t->co_blocks = arr_dim(&a[14], 0);
-    if (t->rb < 1 || t->rb > 8 || t->q_blocks < (t->n_quads * t->rb + 4095) / 4096 || arr_dim(&a[15], 0) != t->q_blocks
-        || a[1].view.readonly) {
+    if (t->rb < 1 || t->rb > 8 || t->q_blocks < (t->n_quads * t->rb + 4095) / 4096 || arr_dim(&a[15], 0) != t->q_blocks) {
         return stored_bad("quads and their blocks disagree");
+    }
+    if (a[1].view.readonly) {  /* the lookup marks the quads blocks it checks (_kernel_qcheck.c) */
+        return stored_bad("quads checked must be writable");
     }
     if (arr_dim(&a[2], 0) != t->n_pages || arr_dim(&a[3], 0) != t->n_pages + 1 || arr_dim(&a[6], 0) != t->n_cells
         || arr_dim(&a[7], 0) != t->n_cells || arr_dim(&a[8], 1) != 3 || arr_dim(&a[9], 0) < t->nb_blocks
