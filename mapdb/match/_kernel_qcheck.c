@@ -1,10 +1,19 @@
 /* The stored index's 4 KiB blocks checked in the kernel: a table-driven CRC-32 (the one zlib.crc32 computes:
  * reflected polynomial 0xEDB88320, initial and final XOR 0xFFFFFFFF), eight bytes a step ("slice-by-8").
  *
- * The lookup (_kernel_stored.c) checks the blocks of the quad ranges it reaches here, marking them in the same flags
- * array Python's Section uses, so it continues where it used to return the ranges for Python to check.
+ * The lookup (_kernel_stored.c) checks the blocks of the quad ranges it reaches here (qcheck_quads), marking them in
+ * the same flags array Python's Section uses, so it continues where it used to return the ranges for Python to
+ * check.  A block's pages are asked of the OS first (MADV_WILLNEED), as Python's Section does.
  */
 #include "_kernel_stored.h"
+
+#include <stdlib.h>
+#if defined(__unix__) || defined(__APPLE__)
+#include <sys/mman.h>
+#include <unistd.h>
+#endif
+
+#define QCHECK_GAP 8  /* lookup._PREFETCH_GAP */
 
 static uint32_t qcheck_table[8][256];
 static int qcheck_ready = 0;
@@ -49,21 +58,60 @@ uint32_t qcheck_crc32(uint32_t crc, const uint8_t *p, size_t n)
     return ~c;
 }
 
-int64_t qcheck_blocks(const uint8_t *raw, Py_ssize_t nbytes, const uint32_t *crcs, uint8_t *checked, int64_t first,
-                      int64_t last)
+static int qcheck_cmp(const void *a, const void *b)
 {
-    for (int64_t b = first; b <= last; b++) {
-        if (checked[b]) {
+    int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+    return (x > y) - (x < y);
+}
+
+/* Ask the OS for the blocks' pages at once (a cold lookup then waits for one round of reads in parallel, not one
+ * page fault after another): runs of blocks closer than QCHECK_GAP in one call, as lookup.Section._prefetch. */
+static void qcheck_prefetch(const uint8_t *raw, Py_ssize_t nbytes, const int64_t *blocks, Py_ssize_t n)
+{
+#if defined(MADV_WILLNEED) && defined(_SC_PAGESIZE)
+    uintptr_t page = (uintptr_t)sysconf(_SC_PAGESIZE);
+    for (Py_ssize_t i = 0, j; i < n && page > 0; i = j) {
+        for (j = i + 1; j < n && blocks[j] - blocks[j - 1] <= QCHECK_GAP; j++) {
+        }
+        uintptr_t lo = (uintptr_t)(raw + (blocks[i] << STORED_BLOCK_BITS));
+        int64_t end = (blocks[j - 1] + 1) << STORED_BLOCK_BITS;
+        uintptr_t hi = (uintptr_t)(raw + (end < nbytes ? end : nbytes));
+        lo -= lo % page;  /* madvise wants a page's start; a failure only means reading on demand */
+        (void)madvise((void *)lo, (size_t)(hi - lo), MADV_WILLNEED);
+    }
+#else
+    (void)raw, (void)nbytes, (void)blocks, (void)n;
+#endif
+}
+
+int qcheck_quads(const StoredTables *t, StoredVec *blocks)
+{
+    Py_ssize_t n = 0, nbytes = t->n_quads * t->rb;
+    if (blocks->n == 0) {
+        return 0;
+    }
+    qsort(blocks->v, (size_t)blocks->n, sizeof(int64_t), qcheck_cmp);
+    for (Py_ssize_t i = 0; i < blocks->n; i++) {
+        if (n == 0 || blocks->v[i] != blocks->v[n - 1]) {
+            blocks->v[n++] = blocks->v[i];
+        }
+    }
+    blocks->n = n;
+    if (n > 1) {
+        qcheck_prefetch(t->quads, nbytes, blocks->v, n);
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        int64_t b = blocks->v[i], lo = b << STORED_BLOCK_BITS, hi = (b + 1) << STORED_BLOCK_BITS;
+        hi = hi < nbytes ? hi : nbytes;
+        if (t->q_mark[b]) {
             continue;
         }
-        int64_t lo = b << STORED_BLOCK_BITS, hi = (b + 1) << STORED_BLOCK_BITS;
-        hi = hi < nbytes ? hi : nbytes;
-        if (qcheck_crc32(0, raw + lo, (size_t)(hi > lo ? hi - lo : 0)) != crcs[b]) {
-            return b;
+        if (qcheck_crc32(0, t->quads + lo, (size_t)(hi > lo ? hi - lo : 0)) != t->q_crcs[b]) {
+            return -(10 + STORED_BAD_BLOCK + (int)(b < INT32_MAX - 64 ? b : INT32_MAX - 64));
         }
-        checked[b] = 1;
+        t->q_mark[b] = 1;
     }
-    return -1;
+    return 0;
 }
 
 static PyObject *py_qcheck_crc32(PyObject *self, PyObject *args)

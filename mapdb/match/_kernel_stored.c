@@ -173,19 +173,19 @@ static int64_t stored_find(const StoredTables *t, uint64_t key, StoredNeeds *nd,
 }
 
 /* A found cell kept (its quads' blocks asked for when not all checked). */
-static int stored_keep_cell(const StoredTables *t, StoredCells *out, StoredCell *c, int64_t at)
+static int stored_keep_cell(const StoredTables *t, StoredCells *out, StoredCell *c, int64_t at, StoredNeeds *nd)
 {
     c->start = t->dir_start[at];
     c->count = t->dir_count[at];
     if (c->start < 0 || c->count < 0 || c->start > t->n_quads - c->count) {
         return -(10 + STORED_BAD_RANGE);
     }
-    if (c->count) {  /* its quads' blocks checksummed here (Python's Section checks the same flags) */
-        int64_t bad = qcheck_blocks(t->quads, t->n_quads * t->rb, t->q_crcs, t->q_mark,
-                                    (c->start * t->rb) >> STORED_BLOCK_BITS,
-                                    ((c->start + c->count) * t->rb - 1) >> STORED_BLOCK_BITS);
-        if (bad >= 0) {
-            return -(10 + STORED_BAD_BLOCK + (int)(bad < INT32_MAX - 64 ? bad : INT32_MAX - 64));
+    if (c->count) {  /* its quads' blocks checked by the kernel before any is read (qcheck_quads) */
+        for (int64_t blk = (c->start * t->rb) >> STORED_BLOCK_BITS;
+             blk <= ((c->start + c->count) * t->rb - 1) >> STORED_BLOCK_BITS; blk++) {
+            if (!t->q_checked[blk] && stored_push(&nd->quads, blk)) {
+                return -1;
+            }
         }
     }
     StoredCell *v = stored_grow(out->v, &out->cap, out->n + 1, sizeof(StoredCell));
@@ -241,7 +241,7 @@ static int stored_row_cells(const StoredTables *t, const StoredAsk *a, Py_ssize_
         if (err) {
             return err;
         }
-        if (at >= 0 && (err = stored_keep_cell(t, out, &c, at))) {
+        if (at >= 0 && (err = stored_keep_cell(t, out, &c, at, nd))) {
             return err;
         }
     }
@@ -503,7 +503,8 @@ static PyObject *stored_lookup(PyObject *self, PyObject *args)
     }
     if (!rc && !nd.pages.n && !nd.ranges.n) {
         int incomplete = 0;
-        rc = stored_pieces(&t, &ask, &cs, &nd, &b, &incomplete);
+        rc = qcheck_quads(&t, &nd.quads);
+        rc = rc ? rc : stored_pieces(&t, &ask, &cs, &nd, &b, &incomplete);
         rc = rc ? rc : stored_flush(&b);
     }
     PyObject *out = stored_answer(rc, &nd, &b);

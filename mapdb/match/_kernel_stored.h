@@ -45,6 +45,7 @@ typedef struct {
  * neighbour blocks and coordinate blocks are not checked yet. */
 typedef struct {
     StoredVec pages, ranges, nb, co;
+    StoredVec quads;  /* the quads blocks reached and not checked yet: the kernel checks them (qcheck_quads) */
 } StoredNeeds;
 
 int stored_push(StoredVec *s, int64_t x);
@@ -68,7 +69,8 @@ int stored_take(PyObject *obj, Arr *a, const char *name, const char *fmt, Py_ssi
 /* _kernel_qcheck.c: zlib's CRC-32 of ``n`` bytes continued from ``crc``; the blocks ``first..last`` of ``raw``
  * (``nbytes`` long, 4 KiB blocks) not yet ``checked`` checked against ``crcs`` and marked: -1, or the first that fails. */
 uint32_t qcheck_crc32(uint32_t crc, const uint8_t *p, size_t n);
-int64_t qcheck_blocks(const uint8_t *raw, Py_ssize_t nbytes, const uint32_t *crcs, uint8_t *checked, int64_t first,
-                      int64_t last);
+/* The quads blocks in ``blocks`` (sorted and made unique in place) asked of the OS at once, then checked and marked
+ * in ascending order: 0, or -(10 + STORED_BAD_BLOCK + the first that fails). */
+int qcheck_quads(const StoredTables *t, StoredVec *blocks);
 
 #endif

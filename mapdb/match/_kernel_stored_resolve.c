@@ -32,6 +32,7 @@ void stored_needs_free(StoredNeeds *nd)
 {
     free(nd->pages.v);
     free(nd->ranges.v);
+    free(nd->quads.v);
     free(nd->nb.v);
     free(nd->co.v);
     memset(nd, 0, sizeof(*nd));
