@@ -41,8 +41,9 @@ typedef struct {
     Py_ssize_t n, cap;
 } StoredVec;
 
-/* What a lookup needs checked before it can answer: directory pages, quad ranges (start, count), the objects whose
- * neighbour blocks and coordinate blocks are not checked yet. */
+/* What a lookup needs checked before it can answer: directory pages, quad ranges (start, count; none since the
+ * kernel checks the quads blocks itself, the slot kept for the answer's shape), the objects whose neighbour blocks
+ * and coordinate blocks are not checked yet. */
 typedef struct {
     StoredVec pages, ranges, nb, co;
     StoredVec quads;  /* the quads blocks reached and not checked yet: the kernel checks them (qcheck_quads) */
