@@ -129,6 +129,7 @@ extern PyMethodDef image_quads_methods[];  /* _kernel_image_quads.c */
 extern PyMethodDef map_quads_methods[];  /* _kernel_map_quads.c: a map tile's quads and tree points */
 extern PyMethodDef stored_methods[];  /* _kernel_stored.c: the stored quad index's lookup */
 extern PyMethodDef qdecode_methods[];  /* _kernel_qdecode.c: the stored index's packed blocks decoded */
+extern PyMethodDef qcheck_methods[];  /* _kernel_qcheck.c: the stored index's blocks checked (CRC-32) */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

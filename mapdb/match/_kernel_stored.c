@@ -180,14 +180,11 @@ static int stored_keep_cell(const StoredTables *t, StoredCells *out, StoredCell 
     if (c->start < 0 || c->count < 0 || c->start > t->n_quads - c->count) {
         return -(10 + STORED_BAD_RANGE);
     }
-    if (c->count) {
+    if (c->count) {  /* its quads' blocks checked by the kernel before any is read (qcheck_quads) */
         for (int64_t blk = (c->start * t->rb) >> STORED_BLOCK_BITS;
              blk <= ((c->start + c->count) * t->rb - 1) >> STORED_BLOCK_BITS; blk++) {
-            if (!t->q_checked[blk]) {
-                if (stored_push(&nd->ranges, c->start) || stored_push(&nd->ranges, c->count)) {
-                    return -1;
-                }
-                break;
+            if (!t->q_checked[blk] && stored_push(&nd->quads, blk)) {
+                return -1;
             }
         }
     }
@@ -506,7 +503,8 @@ static PyObject *stored_lookup(PyObject *self, PyObject *args)
     }
     if (!rc && !nd.pages.n && !nd.ranges.n) {
         int incomplete = 0;
-        rc = stored_pieces(&t, &ask, &cs, &nd, &b, &incomplete);
+        rc = qcheck_quads(&t, &nd.quads);
+        rc = rc ? rc : stored_pieces(&t, &ask, &cs, &nd, &b, &incomplete);
         rc = rc ? rc : stored_flush(&b);
     }
     PyObject *out = stored_answer(rc, &nd, &b);

@@ -2,7 +2,7 @@
  * _kernel_stored_resolve.c: records, neighbours, coordinates, canonical quads, filing checks).
  *
  * Python (mapdb.match.index.stored) keeps the file's integrity: it decodes and checks directory pages and checksums
- * blocks; the kernel reads only what Python has checked (the flags arrays it is given) and, where a lookup reaches
+ * blocks (but the quads section's, which the lookup checksums where it reaches them: _kernel_qcheck.c); the kernel reads only what Python has checked (the flags arrays it is given) and, where a lookup reaches
  * a page or block not checked yet, answers with what it needs (StoredNeeds) instead of hits: Python checks those
  * and asks again.  Every index and range read is bounds-checked, so a wrong table never crashes.
  */
@@ -11,12 +11,14 @@
 
 #include "_kernel.h"
 
-#define STORED_TABLES 15
+#define STORED_TABLES 16
 #define STORED_NB_BLOCK 64  /* packed.NB_BLOCK */
 #define STORED_BLOCK_BITS 12  /* layout.BLOCK_BITS: 4 KiB checksum blocks */
 
 /* Corruption found (the Python side raises MapFormatError with the matching message). */
 enum { STORED_OK = 0, STORED_BAD_ID = 1, STORED_NOT_FILED = 2, STORED_BAD_RANGE = 3 };
+/* A quads block whose checksum fails: its code is this plus the block's number. */
+#define STORED_BAD_BLOCK 16
 
 /* The index's arrays (StoredQuadIndex's sections, directory, neighbours, coordinates) as the kernel reads them. */
 typedef struct {
@@ -25,6 +27,8 @@ typedef struct {
     const uint64_t *fence_key, *dir_key, *nb_start;
     const int64_t *first_cell, *dir_start, *dir_count, *triples;
     const int32_t *xy;
+    const uint32_t *q_crcs;  /* the quads section's block checksums */
+    uint8_t *q_mark;  /* q_checked, written as blocks pass (_kernel_qcheck.c) */
     Py_ssize_t n_quads, rb, q_blocks, n_pages, n_cells, n_triples, nb_blocks, nb_bytes, co_blocks;
     int sub_bits, triple_bits, bits, k_nb;
     int64_t n_objects, ox, oy;
@@ -37,10 +41,12 @@ typedef struct {
     Py_ssize_t n, cap;
 } StoredVec;
 
-/* What a lookup needs checked before it can answer: directory pages, quad ranges (start, count), the objects whose
- * neighbour blocks and coordinate blocks are not checked yet. */
+/* What a lookup needs checked before it can answer: directory pages, quad ranges (start, count; none since the
+ * kernel checks the quads blocks itself, the slot kept for the answer's shape), the objects whose neighbour blocks
+ * and coordinate blocks are not checked yet. */
 typedef struct {
     StoredVec pages, ranges, nb, co;
+    StoredVec quads;  /* the quads blocks reached and not checked yet: the kernel checks them (qcheck_quads) */
 } StoredNeeds;
 
 int stored_push(StoredVec *s, int64_t x);
@@ -60,5 +66,12 @@ int stored_filed(const StoredTables *t, const double *inv, uint64_t key, const u
 int stored_take_tables(PyObject *tables, StoredTables *t);
 /* A C-contiguous buffer of one of the format letters ``fmt`` (itemsize bytes, ndim dimensions). */
 int stored_take(PyObject *obj, Arr *a, const char *name, const char *fmt, Py_ssize_t itemsize, int ndim);
+
+/* _kernel_qcheck.c: zlib's CRC-32 of ``n`` bytes continued from ``crc``; the blocks ``first..last`` of ``raw``
+ * (``nbytes`` long, 4 KiB blocks) not yet ``checked`` checked against ``crcs`` and marked: -1, or the first that fails. */
+uint32_t qcheck_crc32(uint32_t crc, const uint8_t *p, size_t n);
+/* The quads blocks in ``blocks`` (sorted and made unique in place) asked of the OS at once, then checked and marked
+ * in ascending order: 0, or -(10 + STORED_BAD_BLOCK + the first that fails). */
+int qcheck_quads(const StoredTables *t, StoredVec *blocks);
 
 #endif

@@ -32,6 +32,7 @@ void stored_needs_free(StoredNeeds *nd)
 {
     free(nd->pages.v);
     free(nd->ranges.v);
+    free(nd->quads.v);
     free(nd->nb.v);
     free(nd->co.v);
     memset(nd, 0, sizeof(*nd));
@@ -84,7 +85,7 @@ static const struct {
     {"pages decoded", "?", 1, 1}, {"cell keys", "QL", 8, 1}, {"cell starts", "ql", 8, 1},
     {"cell counts", "ql", 8, 1}, {"triples", "ql", 8, 2}, {"nb_start", "QL", 8, 1}, {"nb_width", "B", 1, 1},
     {"nb_data", "B", 1, 1}, {"neighbours checked", "?", 1, 1}, {"coordinates", "i", 4, 2},
-    {"coordinates decoded", "?", 1, 1},
+    {"coordinates decoded", "?", 1, 1}, {"quads checksums", "I", 4, 1},
 };
 
 static int stored_bad(const char *what)
@@ -106,8 +107,11 @@ static int stored_check_sizes(StoredTables *t)
     t->nb_blocks = arr_dim(&a[10], 0);
     t->nb_bytes = arr_dim(&a[11], 0);
     t->co_blocks = arr_dim(&a[14], 0);
-    if (t->rb < 1 || t->rb > 8 || t->q_blocks < (t->n_quads * t->rb + 4095) / 4096) {
+    if (t->rb < 1 || t->rb > 8 || t->q_blocks < (t->n_quads * t->rb + 4095) / 4096 || arr_dim(&a[15], 0) != t->q_blocks) {
         return stored_bad("quads and their blocks disagree");
+    }
+    if (a[1].view.readonly) {  /* the lookup marks the quads blocks it checks (_kernel_qcheck.c) */
+        return stored_bad("quads checked must be writable");
     }
     if (arr_dim(&a[2], 0) != t->n_pages || arr_dim(&a[3], 0) != t->n_pages + 1 || arr_dim(&a[6], 0) != t->n_cells
         || arr_dim(&a[7], 0) != t->n_cells || arr_dim(&a[8], 1) != 3 || arr_dim(&a[9], 0) < t->nb_blocks
@@ -126,7 +130,7 @@ int stored_take_tables(PyObject *tables, StoredTables *t)
 {
     memset(t, 0, sizeof(*t));
     if (!PyTuple_Check(tables) || PyTuple_GET_SIZE(tables) != STORED_TABLES + 1) {
-        PyErr_SetString(PyExc_TypeError, "tables must be a tuple of 15 arrays and a tuple of parameters");
+        PyErr_SetString(PyExc_TypeError, "tables must be a tuple of 16 arrays and a tuple of parameters");
         return -1;
     }
     for (int i = 0; i < STORED_TABLES; i++) {
@@ -149,6 +153,7 @@ int stored_take_tables(PyObject *tables, StoredTables *t)
     t->dir_start = Q(a[6]), t->dir_count = Q(a[7]), t->triples = Q(a[8]);
     t->nb_start = (const uint64_t *)a[9].view.buf, t->nb_width = B(a[10]), t->nb_data = B(a[11]);
     t->nb_checked = B(a[12]), t->xy = (const int32_t *)a[13].view.buf, t->co_decoded = B(a[14]);
+    t->q_crcs = (const uint32_t *)a[15].view.buf, t->q_mark = (uint8_t *)a[1].view.buf;
     return stored_check_sizes(t);
 }
 

@@ -65,6 +65,7 @@ from .layout import (
 from .lookup import LOOKUP_CANDIDATES, map_sections
 from .packed import unpack_records
 
+_BAD_BLOCK = 16  # _kernel_stored.h's STORED_BAD_BLOCK: the code of a quads block whose checksum fails, less its number
 AUDITED = 16  # candidates a lookup's batch resolves and checks whatever their bounds (check_filed)
 
 __all__ = [
@@ -151,11 +152,12 @@ class StoredQuadIndex:
 
     def _kernel_tables(self) -> tuple[object, ...]:
         """The arrays the kernel's lookup reads (``_kernel_stored.h``), in its order: views of the sections and of
-        the directory's, neighbours' and coordinates' arrays, which they fill in place as blocks are checked."""
+        the directory's, neighbours' and coordinates' arrays, which they fill in place as blocks are checked, and
+        the quads section's checksums (the kernel checks the quads blocks it reaches, marking ``quads.checked``)."""
         d, nb, co, quads = self._directory, self._neighbours, self._coords, self._sections["quads"]
         return (quads.array, quads.checked, np.ascontiguousarray(d.fence_key), d.first_cell, d.decoded, d.key,
                 d.start, d.count, np.ascontiguousarray(self._triples, np.int64), nb.start.array, nb.width.array,
-                nb.data.array, nb.checked, co.xy, co.decoded,
+                nb.data.array, nb.checked, co.xy, co.decoded, quads.crcs,
                 (self._sub_bits, self._triple_bits, self._bits, self.quad_neighbours, self.n_objects,
                  int(self.origin[0]), int(self.origin[1]), self.quantum))
 
@@ -299,20 +301,19 @@ class StoredQuadIndex:
         return (row, ids, np.frombuffer(dist, np.float64).copy()) if return_distance else (row, ids)
 
     def _kernel(self, call: Any, *args: Any) -> tuple[Any, ...]:
-        """A kernel call on this index's tables: where it reaches a directory page, quad range, neighbour block or
-        coordinate block not checked yet, those are decoded and checked here (the checks and their errors are
-        Python's) and the call made again."""
+        """A kernel call on this index's tables: where it reaches a directory page, neighbour block or coordinate
+        block not checked yet, those are decoded and checked here (the checks and their errors are Python's) and
+        the call made again.  The quads blocks it reaches the kernel checksums itself and goes on."""
         for _ in range(8):  # a round checks what the previous reached: pages, quads, neighbours (and coordinates)
             out = call(self._tables, *args)
             if out[0] == 0:
                 return tuple(out[1:])
             if out[0] == 2:
                 raise self._corruption(int(out[1]))
-            pages, ranges, nb, co = (np.frombuffer(b, np.int64) for b in out[1:])
+            # The quads blocks the lookup reaches it checks itself (_kernel_qcheck.c): it asks for no quad ranges.
+            pages, _, nb, co = (np.frombuffer(b, np.int64) for b in out[1:])
             if pages.size:
                 self._directory.decode(pages)
-            if ranges.size:
-                self._sections["quads"].check_ranges(ranges[0::2], ranges[0::2] + ranges[1::2])
             if nb.size:  # and the coordinates of those anchors' quads, which the next round would ask for
                 co = np.concatenate([co, nb, self._neighbours.rows(nb).reshape(-1)])
             if co.size:
@@ -320,7 +321,10 @@ class StoredQuadIndex:
         raise MapFormatError(f"{self.where}: quad index blocks could not be checked (file is corrupt)")
 
     def _corruption(self, code: int) -> MapFormatError:
-        """The error of a kernel's corruption code (_kernel_stored.h: STORED_BAD_ID, NOT_FILED, BAD_RANGE)."""
+        """The error of a kernel's corruption code (_kernel_stored.h: STORED_BAD_ID, NOT_FILED, BAD_RANGE, and
+        STORED_BAD_BLOCK plus a quads block's number: the message :class:`~.lookup.Section` gives it)."""
+        if code >= _BAD_BLOCK:
+            return MapFormatError(f"{self.where}: quads block {code - _BAD_BLOCK} checksum mismatch (file is corrupt)")
         if code == 1:
             return MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
         if code == 2:
