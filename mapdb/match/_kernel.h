@@ -20,9 +20,9 @@ typedef struct {
 
 /* Release the held buffers of ``a[0 .. count)``. */
 void arr_release(Arr *a, int count);
-/* Take a C-contiguous buffer of format ``kind`` ('d' float64, 'Z' complex128, '?' bool, 'q' int64) and ``ndim``
- * dimensions from ``obj`` (None allowed when ``optional``: then nothing is held).  Returns 0, or -1 with
- * TypeError / ValueError set. */
+/* Take a C-contiguous buffer of format ``kind`` ('d' float64, 'Z' complex128, '?' bool, 'q' int64, 'Q' uint64,
+ * 'i' int32, 'I' uint32, 'B' uint8) and ``ndim`` dimensions from ``obj`` (None allowed when ``optional``: then
+ * nothing is held).  Returns 0, or -1 with TypeError / ValueError set. */
 int arr_take(PyObject *obj, Arr *a, const char *name, char kind, int ndim, int writable, int optional);
 /* The length of axis ``axis`` (-1 when nothing is held). */
 Py_ssize_t arr_dim(const Arr *a, int axis);

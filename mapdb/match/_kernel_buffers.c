@@ -34,6 +34,10 @@ static int arr_format_is(const Py_buffer *v, char kind)
     case 'Z': return strcmp(f, "Zd") == 0 && v->itemsize == 16;
     case '?': return strcmp(f, "?") == 0 && v->itemsize == 1;
     case 'q': return (strcmp(f, "q") == 0 || strcmp(f, "l") == 0) && v->itemsize == 8;
+    case 'Q': return (strcmp(f, "Q") == 0 || strcmp(f, "L") == 0) && v->itemsize == 8;
+    case 'i': return strcmp(f, "i") == 0 && v->itemsize == 4;
+    case 'I': return strcmp(f, "I") == 0 && v->itemsize == 4;
+    case 'B': return strcmp(f, "B") == 0 && v->itemsize == 1;
     default: return 0;
     }
 }
@@ -44,6 +48,10 @@ static const char *arr_kind_name(char kind)
     case 'd': return "float64";
     case 'Z': return "complex128";
     case '?': return "bool";
+    case 'Q': return "uint64";
+    case 'i': return "int32";
+    case 'I': return "uint32";
+    case 'B': return "uint8";
     default: return "int64";
     }
 }

@@ -53,7 +53,7 @@ static PyObject *qdecode_coord_fields(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOO", &o[0], &o[1], &o[2], &o[3], &o[4])) {
         return NULL;
     }
-    if (stored_take(o[0], &a[0], "data", "B", 1, 1) < 0) {
+    if (arr_take(o[0], &a[0], "data", 'B', 1, 0, 0) < 0) {
         return NULL;
     }
     const char *names[4] = {"block_start", "width", "base", "size"};
@@ -208,10 +208,10 @@ static PyObject *qdecode_directory_pages(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "directory_pages: bits must be in [1, 15]");
         return NULL;
     }
-    if (stored_take(o[0], &a[0], "data", "B", 1, 1) < 0) {
+    if (arr_take(o[0], &a[0], "data", 'B', 1, 0, 0) < 0) {
         return NULL;
     }
-    if (arr_take(o[1], &a[1], "pages", 'q', 2, 0, 0) < 0 || stored_take(o[2], &a[2], "key", "QL", 8, 1) < 0
+    if (arr_take(o[1], &a[1], "pages", 'q', 2, 0, 0) < 0 || arr_take(o[2], &a[2], "key", 'Q', 1, 0, 0) < 0
             || arr_take(o[3], &a[3], "count", 'q', 1, 1, 0) < 0 || arr_take(o[4], &a[4], "start", 'q', 1, 1, 0) < 0) {
         arr_release(a, 5);
         return NULL;
@@ -252,7 +252,7 @@ static PyObject *qdecode_neighbour_fields(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "OOOOn", &o[0], &o[1], &o[2], &o[3], &k)) {
         return NULL;
     }
-    if (stored_take(o[0], &a[0], "data", "B", 1, 1) < 0) {
+    if (arr_take(o[0], &a[0], "data", 'B', 1, 0, 0) < 0) {
         return NULL;
     }
     const char *names[3] = {"block_start", "width", "objects"};

@@ -64,8 +64,6 @@ int stored_resolve_one(const StoredTables *t, int64_t anchor, int64_t triple, St
 int stored_filed(const StoredTables *t, const double *inv, uint64_t key, const uint8_t *sub, double cell);
 /* The tables from Python's tuple; 0, or -1 with TypeError / ValueError set (release with arr_release). */
 int stored_take_tables(PyObject *tables, StoredTables *t);
-/* A C-contiguous buffer of one of the format letters ``fmt`` (itemsize bytes, ndim dimensions). */
-int stored_take(PyObject *obj, Arr *a, const char *name, const char *fmt, Py_ssize_t itemsize, int ndim);
 
 /* _kernel_qcheck.c: zlib's CRC-32 of ``n`` bytes continued from ``crc``; the blocks ``first..last`` of ``raw``
  * (``nbytes`` long, 4 KiB blocks) not yet ``checked`` checked against ``crcs`` and marked: -1, or the first that fails. */

@@ -48,44 +48,17 @@ PyObject *stored_vec_bytes(const StoredVec *s)
     return PyBytes_FromStringAndSize((const char *)s->v, (Py_ssize_t)(s->n * (Py_ssize_t)sizeof(int64_t)));
 }
 
-int stored_take(PyObject *obj, Arr *a, const char *name, const char *fmt, Py_ssize_t itemsize, int ndim)
-{
-    a->held = 0;
-    if (!PyObject_CheckBuffer(obj) || PyObject_GetBuffer(obj, &a->view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
-        PyErr_Clear();
-        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous array", name);
-        return -1;
-    }
-    a->held = 1;
-    const char *f = a->view.format ? a->view.format : "B";
-    if (f[0] == '<' || f[0] == '=' || f[0] == '@') {
-        f++;
-    }
-    if (a->view.itemsize != itemsize || f[0] == 0 || f[1] != 0 || strchr(fmt, f[0]) == NULL) {
-        PyErr_Format(PyExc_TypeError, "%s must have buffer format %s (%zd bytes), got '%s'", name, fmt, itemsize,
-                     a->view.format ? a->view.format : "B");
-        arr_release(a, 1);
-        return -1;
-    }
-    if (a->view.ndim != ndim) {
-        PyErr_Format(PyExc_ValueError, "%s must be %d-D, got %d-D", name, ndim, a->view.ndim);
-        arr_release(a, 1);
-        return -1;
-    }
-    return 0;
-}
-
 /* The tables' arrays: name, format letters, item size, dimensions (the order of StoredQuadIndex._tables). */
 static const struct {
-    const char *name, *fmt;
-    Py_ssize_t size;
+    const char *name;
+    char kind;  /* arr_take's: 'B' uint8, '?' bool, 'Q' uint64, 'q' int64, 'i' int32, 'I' uint32 */
     int ndim;
 } stored_specs[STORED_TABLES] = {
-    {"quads", "B", 1, 2}, {"quads checked", "?", 1, 1}, {"fence keys", "QL", 8, 1}, {"first cells", "ql", 8, 1},
-    {"pages decoded", "?", 1, 1}, {"cell keys", "QL", 8, 1}, {"cell starts", "ql", 8, 1},
-    {"cell counts", "ql", 8, 1}, {"triples", "ql", 8, 2}, {"nb_start", "QL", 8, 1}, {"nb_width", "B", 1, 1},
-    {"nb_data", "B", 1, 1}, {"neighbours checked", "?", 1, 1}, {"coordinates", "i", 4, 2},
-    {"coordinates decoded", "?", 1, 1}, {"quads checksums", "I", 4, 1},
+    {"quads", 'B', 2}, {"quads checked", '?', 1}, {"fence keys", 'Q', 1}, {"first cells", 'q', 1},
+    {"pages decoded", '?', 1}, {"cell keys", 'Q', 1}, {"cell starts", 'q', 1}, {"cell counts", 'q', 1},
+    {"triples", 'q', 2}, {"nb_start", 'Q', 1}, {"nb_width", 'B', 1}, {"nb_data", 'B', 1},
+    {"neighbours checked", '?', 1}, {"coordinates", 'i', 2}, {"coordinates decoded", '?', 1},
+    {"quads checksums", 'I', 1},
 };
 
 static int stored_bad(const char *what)
@@ -134,8 +107,8 @@ int stored_take_tables(PyObject *tables, StoredTables *t)
         return -1;
     }
     for (int i = 0; i < STORED_TABLES; i++) {
-        if (stored_take(PyTuple_GET_ITEM(tables, i), &t->a[i], stored_specs[i].name, stored_specs[i].fmt,
-                        stored_specs[i].size, stored_specs[i].ndim)) {
+        if (arr_take(PyTuple_GET_ITEM(tables, i), &t->a[i], stored_specs[i].name, stored_specs[i].kind,
+                     stored_specs[i].ndim, 0, 0)) {
             return -1;
         }
     }
