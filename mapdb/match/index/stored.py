@@ -65,7 +65,9 @@ from .layout import (
 from .lookup import LOOKUP_CANDIDATES, map_sections
 from .packed import unpack_records
 
-_BAD_BLOCK = 16  # _kernel_stored.h's STORED_BAD_BLOCK: the code of a quads block whose checksum fails, less its number
+# _kernel_stored.h's corruption codes: an id out of range, a quad not filed where its invariants put it, and (plus
+# the block's number) a quads block whose checksum fails; any other code is a block out of range.
+_BAD_ID, _NOT_FILED, _BAD_BLOCK = 1, 2, 16
 AUDITED = 16  # candidates a lookup's batch resolves and checks whatever their bounds (check_filed)
 
 __all__ = [
@@ -100,8 +102,7 @@ class StoredQuadIndex:
         where = str(self.path)
         self._tables: tuple[object, ...] = ()  # the arrays the kernel's lookup reads (_kernel_tables)
         self._boxes: PageBoxes | None = None  # the map's page boxes, once bound to it (check_map)
-        self._audited = np.zeros(0, np.int64)  # label combinations whose first cell was checked (_audit)
-        self._audited_set: set[int] = set()  # the same, for lookups' test
+        self._audited: set[int] = set()  # label combinations whose first cell was checked (_audit)
         with reading(where, "quad index"):
             f = open_regular(self.path, where, "quad index")  # closed below once mapped and the small sections read
         try:
@@ -291,8 +292,8 @@ class StoredQuadIndex:
             return empty
         cell = self._combo_cell[pos[rows]]
         lk = self._combo_keys[pos[rows]]
-        if not self._audited_set.issuperset(lk.tolist()):  # a set: an np.isin a lookup cost 30 us
-            self._audit(sorted_unique(lk))
+        if not self._audited.issuperset(lk.tolist()):  # a set: an np.isin a lookup cost 30 us
+            self._audit(lk)
         # The kernel's (_kernel_stored.c): cells, directory, bounds, resolving, filing checks and the best k.
         row, ids, dist = self._kernel(stored_lookup, inv[rows], np.minimum(radius[rows], cell), cell, lk, int(k),
                                       LOOKUP_CANDIDATES)
@@ -325,9 +326,9 @@ class StoredQuadIndex:
         STORED_BAD_BLOCK plus a quads block's number: the message :class:`~.lookup.Section` gives it)."""
         if code >= _BAD_BLOCK:
             return MapFormatError(f"{self.where}: quads block {code - _BAD_BLOCK} checksum mismatch (file is corrupt)")
-        if code == 1:
+        if code == _BAD_ID:
             return MapFormatError(f"{self.where}: quad index holds an object id out of range (file is corrupt)")
-        if code == 2:
+        if code == _NOT_FILED:
             return mismatch(self.where, "a quad recomputed from its objects is not where the index files it")
         return MapFormatError(f"{self.where}: quad index block out of range (file is corrupt)")
 
@@ -335,10 +336,8 @@ class StoredQuadIndex:
         """The first lookup of each label combination resolves the first quad of its first cell and checks that
         it is filed there (``check_filed``): a forged cell side would make lookups of the combination miss
         every cell, finding nothing to check and nothing to answer with."""
-        # sorted_unique and isin, not setdiff1d and union1d: their np.unique imports numpy.ma (0.05 s of a first
-        # answer), see mapdb.match.arrays.
-        new = sorted_unique(lk)
-        new = new[~np.isin(new, self._audited, assume_unique=True)]
+        # sorted_unique, not np.unique: it imports numpy.ma (0.05 s of a first answer), see mapdb.match.arrays.
+        new = np.array([key for key in sorted_unique(lk).tolist() if key not in self._audited], lk.dtype)
         if not new.size:
             return
         at = self._directory.first_cells(new)
@@ -347,8 +346,7 @@ class StoredQuadIndex:
         _, inv = self._resolve(records[0], records[1])
         check_filed(inv, self._directory.key[at], records[2], self._combo_cell[np.searchsorted(self._combo_keys, new)],
                     self._bits, self._sub_bits, self.where)
-        self._audited = sorted_unique(np.concatenate([self._audited, new]))
-        self._audited_set = set(self._audited.tolist())
+        self._audited.update(new.tolist())
 
     def _records(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Anchors, triple numbers and positions inside their cells of the quads at ``positions``."""
