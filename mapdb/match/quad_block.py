@@ -7,7 +7,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .quads import QuadIndex
+from .quads import QuadIndex, mergeable_parts
 
 __all__ = ["MERGE_AFTER", "QuadBlock"]
 
@@ -40,11 +40,7 @@ class QuadBlock(QuadIndex):
     """
 
     def __init__(self, parts: Sequence[QuadIndex]) -> None:  # noqa: D107 (the class says it)
-        self.parts = [q for q in parts if q.tree is not None]
-        self.labels = self.parts[0].labels if self.parts else ()
-        self.positions = bool(self.parts) and self.parts[0].positions
-        if any(q.positions != self.positions for q in self.parts):
-            raise ValueError("cannot merge quad indexes with and without positions")
+        self.parts, self.labels, self.positions = mergeable_parts(parts)
         if any(isinstance(q, QuadBlock) for q in self.parts) or len(self.parts) > 256:
             raise ValueError("a block holds at most 256 quad indexes, none a block")
         self.tree = self.parts[0].tree if self.parts else None  # says the block holds quads; its parts' are searched

@@ -18,7 +18,7 @@ from ..objects import Objects
 from ._kernel import map_canonical, map_quads, quads_build, quads_lookup
 
 __all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "label_keys", "lookup_parts",
-           "near_only", "nearest_others", "neighbour_quads"]
+           "mergeable_parts", "near_only", "nearest_others", "neighbour_quads"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -270,12 +270,8 @@ class QuadIndex:
         >>> QuadIndex.merged(parts).n_quads == parts[0].n_quads + parts[1].n_quads
         True
         """
-        parts = [q for q in parts if q.tree is not None]
         merged = cls.__new__(cls)
-        merged.labels = parts[0].labels if parts else ()
-        merged.positions = bool(parts) and parts[0].positions
-        if any(q.positions != merged.positions for q in parts):
-            raise ValueError("cannot merge quad indexes with and without positions")
+        parts, merged.labels, merged.positions = mergeable_parts(parts)
         if not parts:
             merged.tree = None
             merged.quad_z = np.zeros((0, 4), np.complex128)
@@ -283,6 +279,22 @@ class QuadIndex:
         merged.tree = QuadTree(np.concatenate([q.tree.data for q in parts if q.tree is not None]))
         merged.quad_z = np.concatenate([q.quad_z for q in parts])
         return merged
+
+
+def mergeable_parts(parts: Sequence[QuadIndex]) -> tuple[list[QuadIndex], tuple[str, ...], bool]:
+    """The indexes among ``parts`` that hold quads, their labels and whether they hold positions: what one index
+    over them (:meth:`QuadIndex.merged`, :class:`~mapdb.match.quad_block.QuadBlock`) shares.
+
+    Raises
+    ------
+    ValueError
+        If some hold positions and others do not.
+    """
+    held = [q for q in parts if q.tree is not None]
+    positions = bool(held) and held[0].positions
+    if any(q.positions != positions for q in held):
+        raise ValueError("cannot merge quad indexes with and without positions")
+    return held, held[0].labels if held else (), positions
 
 
 def lookup_parts(
