@@ -12,31 +12,6 @@
 
 #include <string.h>
 
-#define QDECODE_MAX_WIDTH 57  /* codec._read_fields: fields of at most 57 bits */
-
-/* The field of ``w`` bits at bit ``at`` of ``buf`` (``n`` bytes); -1 in *bad when its window leaves the buffer. */
-static inline uint64_t qdecode_field(const uint8_t *buf, Py_ssize_t n, int64_t at, int64_t w, int *bad)
-{
-    if (at < 0 || w < 0 || w > QDECODE_MAX_WIDTH || (at >> 3) > (int64_t)n - 8) {
-        *bad = 1;
-        return 0;
-    }
-    uint64_t word;
-    memcpy(&word, buf + (at >> 3), 8);
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    word = __builtin_bswap64(word);  /* the window is big-endian */
-#endif
-    uint64_t head = (word << (at & 7)) >> 1;
-    return head >> (63 - w);
-}
-
-/* codec._unzigzag of a field (below 2^57, so its int64 is exact). */
-static inline int64_t qdecode_unzigzag(uint64_t z)
-{
-    int64_t v = (int64_t)z;
-    return (v % 2 == 0) ? v / 2 : -(v + 1) / 2;
-}
-
 static PyObject *qdecode_bad(Arr *a, int count, const char *what)
 {
     arr_release(a, count);
@@ -88,14 +63,14 @@ static PyObject *qdecode_coord_fields(PyObject *self, PyObject *args)
     int bad = 0;
     for (Py_ssize_t i = 0; i < b && !bad; i++) {
         int64_t w0 = w[2 * i], w1 = w[2 * i + 1];
-        if (w0 < 0 || w1 < 0 || w0 > QDECODE_MAX_WIDTH || w1 > QDECODE_MAX_WIDTH) {
+        if (w0 < 0 || w1 < 0 || w0 > PACKED_MAX_WIDTH || w1 > PACKED_MAX_WIDTH) {
             bad = 1;
             break;
         }
         for (int64_t j = 0; j < size[i]; j++) {
             int64_t at = lo[i] * 8 + j * (w0 + w1);
-            *xy++ = base[2 * i] + (int64_t)qdecode_field(B(a[0]), a[0].view.len, at, w0, &bad);
-            *xy++ = base[2 * i + 1] + (int64_t)qdecode_field(B(a[0]), a[0].view.len, at + w0, w1, &bad);
+            *xy++ = base[2 * i] + (int64_t)packed_field(B(a[0]), a[0].view.len, at, w0, &bad);
+            *xy++ = base[2 * i + 1] + (int64_t)packed_field(B(a[0]), a[0].view.len, at + w0, w1, &bad);
         }
     }
     if (bad) {
@@ -114,10 +89,10 @@ static void qdecode_page(const Arr *data, int64_t at, int64_t cells, int64_t wg,
     int64_t run = 0;
     for (int64_t r = 0; r < cells; r++) {
         if (r > 0) {
-            run += (int64_t)qdecode_field(B(*data), data->view.len, at + (r - 1) * wg, wg, bad);
+            run += (int64_t)packed_field(B(*data), data->view.len, at + (r - 1) * wg, wg, bad);
         }
         off[r] = run;
-        count[r] = (int64_t)qdecode_field(B(*data), data->view.len, at + (cells - 1) * wg + r * wc, wc, bad) + 1;
+        count[r] = (int64_t)packed_field(B(*data), data->view.len, at + (cells - 1) * wg + r * wc, wc, bad) + 1;
     }
 }
 
@@ -142,8 +117,8 @@ static int qdecode_dir_page(const Arr *data, const int64_t *pg, int64_t max_cell
                             int *bad)
 {
     int64_t at = pg[QD_LO] * 8, n = pg[QD_N], sum = 0;
-    int64_t wg = (int64_t)qdecode_field(B(*data), data->view.len, at, 8, bad);
-    int64_t wc = (int64_t)qdecode_field(B(*data), data->view.len, at + 8, 8, bad);
+    int64_t wg = (int64_t)packed_field(B(*data), data->view.len, at, 8, bad);
+    int64_t wc = (int64_t)packed_field(B(*data), data->view.len, at + 8, 8, bad);
     qdecode_page(data, at + 16, n, wg, wc, off, cnt, bad);
     int ok = !*bad;
     for (int64_t r = 0; r < n && ok; r++) {
@@ -282,13 +257,13 @@ static PyObject *qdecode_neighbour_fields(PyObject *self, PyObject *args)
     int bad = 0;
     for (Py_ssize_t i = 0; i < m && !bad; i++) {
         if (obj[i] < 0 || obj[i] > INT64_MAX / 2 || lo[i] < 0 || lo[i] > INT64_MAX / 16 || w[i] < 0
-                || w[i] > QDECODE_MAX_WIDTH) {
+                || w[i] > PACKED_MAX_WIDTH) {
             bad = 1;
             break;
         }
         for (Py_ssize_t j = 0; j < k; j++) {
             int64_t at = lo[i] * 8 + ((obj[i] % STORED_NB_BLOCK) * k + j) * w[i];
-            *ids++ = obj[i] + qdecode_unzigzag(qdecode_field(B(a[0]), a[0].view.len, at, w[i], &bad));
+            *ids++ = obj[i] + packed_unzigzag(packed_field(B(a[0]), a[0].view.len, at, w[i], &bad));
         }
     }
     if (bad) {

@@ -11,9 +11,38 @@
 
 #include "_kernel.h"
 
+#include <string.h>
+
 #define STORED_TABLES 16
 #define STORED_NB_BLOCK 64  /* packed.NB_BLOCK */
 #define STORED_BLOCK_BITS 12  /* layout.BLOCK_BITS: 4 KiB checksum blocks */
+
+/* The index's packed fields, read as the map's codec reads them (_kernel_qdecode.c, _kernel_stored_resolve.c). */
+#define PACKED_MAX_WIDTH 57  /* codec._read_fields: fields of at most 57 bits */
+
+/* The field of ``w`` bits at bit ``at`` of ``buf`` (``n`` bytes); 1 in *bad when its window leaves the buffer
+ * or it is wider than PACKED_MAX_WIDTH. */
+static inline uint64_t packed_field(const uint8_t *buf, Py_ssize_t n, int64_t at, int64_t w, int *bad)
+{
+    if (at < 0 || w < 0 || w > PACKED_MAX_WIDTH || (at >> 3) > (int64_t)n - 8) {
+        *bad = 1;
+        return 0;
+    }
+    uint64_t word;
+    memcpy(&word, buf + (at >> 3), 8);
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+    word = __builtin_bswap64(word);  /* the window is big-endian */
+#endif
+    uint64_t head = (word << (at & 7)) >> 1;
+    return head >> (63 - w);
+}
+
+/* codec._unzigzag of a field (below 2^57, so its int64 is exact). */
+static inline int64_t packed_unzigzag(uint64_t z)
+{
+    int64_t v = (int64_t)z;
+    return (v % 2 == 0) ? v / 2 : -(v + 1) / 2;
+}
 
 /* Corruption found (the Python side raises MapFormatError with the matching message). */
 enum { STORED_OK = 0, STORED_BAD_ID = 1, STORED_NOT_FILED = 2, STORED_BAD_RANGE = 3 };

@@ -150,23 +150,17 @@ void stored_record(const StoredTables *t, Py_ssize_t at, int64_t *anchor, int64_
 static int stored_neighbours(const StoredTables *t, int64_t anchor, int64_t *nb)
 {
     int64_t block = anchor / STORED_NB_BLOCK;
-    uint64_t w = t->nb_width[block];
-    if (w > 57) {
+    int64_t w = t->nb_width[block];
+    if (w > PACKED_MAX_WIDTH || t->nb_start[block] > (uint64_t)t->nb_bytes) {
         return STORED_BAD_RANGE;
     }
+    int bad = 0;
     for (int j = 0; j < t->k_nb; j++) {
-        uint64_t bit = t->nb_start[block] * 8 + (uint64_t)((anchor % STORED_NB_BLOCK) * t->k_nb + j) * w;
-        uint64_t byte = bit >> 3;
-        if (t->nb_start[block] > (uint64_t)t->nb_bytes || byte + 8 > (uint64_t)t->nb_bytes) {
+        int64_t at = (int64_t)t->nb_start[block] * 8 + ((anchor % STORED_NB_BLOCK) * t->k_nb + j) * w;
+        nb[j] = anchor + packed_unzigzag(packed_field(t->nb_data, t->nb_bytes, at, w, &bad));
+        if (bad) {
             return STORED_BAD_RANGE;
         }
-        uint64_t word = 0;
-        for (int b = 0; b < 8; b++) {
-            word = (word << 8) | t->nb_data[byte + b];
-        }
-        uint64_t z = ((word << (bit & 7)) >> 1) >> (63 - w);  /* codec._read_fields */
-        int64_t d = (z & 1) ? -(int64_t)((z + 1) / 2) : (int64_t)(z / 2);
-        nb[j] = anchor + d;
         if (nb[j] < 0 || nb[j] >= t->n_objects) {
             return STORED_BAD_ID;
         }
