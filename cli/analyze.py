@@ -5,8 +5,9 @@ from __future__ import annotations
 import click
 
 from mapdb.analysis import SampleConfig
+from mapdb.analysis.cputime import CpuPhases
 from mapdb.analysis.grid import AnalysisError
-from mapdb.analysis.outputs import output_folder, write_outputs
+from mapdb.analysis.outputs import cell_totals, output_folder, write_outputs
 from mapdb.analysis.run import execute, plan
 from mapdb.cluster import DEFAULT_TIMEOUT_S, open_client
 from mapdb.match.index.stored import index_path
@@ -86,6 +87,7 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
     lattice's that agree are inferred from them. Writes a GeoTIFF (a band per measure),
     a PNG, a GeoPackage of the cells and summary.json into OUTDIR, which appears only when complete.
     """
+    phases = CpuPhases(start=0.0)  # this process's CPU from its start: the interpreter and the imports
     if jobs is not None and scheduler is not None:
         raise click.UsageError("give --jobs (a local cluster) or --scheduler (an existing one), not both")
     from mapdb.analysis.scenarios import read_scenarios
@@ -101,8 +103,9 @@ def analyze(map_file, outdir, cell_m, bbox, altitude, fov, size, attitude_std, p
     with output_folder(outdir, inputs, overwrite=overwrite, parents=parents) as folder:
         planned = plan(map_file, configs, cell_m=cell_m, bbox=bbox_values, progress=say)
         with open_client(jobs, scheduler, timeout_s) as client:
-            analyses = execute(planned, client, say)
+            analyses = execute(planned, client, say, phases)
         with output_errors(outdir):  # a full disk names OUTDIR/analysis.png, not the folder's temporary name
-            written = write_outputs(folder, analyses)
+            written = write_outputs(folder, analyses, phases)
     if say:
+        say(phases.line(*cell_totals(analyses)))
         say(f"{', '.join(written)} -> {outdir}")

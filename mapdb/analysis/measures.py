@@ -56,7 +56,7 @@ from ..evaluation.evaluate import DEFAULT_FP_THRESHOLD_M
 from .draws import Poses, cell_image, cell_poses, cell_views, detector_of, positioned
 
 __all__ = ["DECISION_LEVEL", "HINT_COLUMNS", "MIN_VISIBLE", "Z95", "CellMeasures", "SampleConfig", "ambiguity",
-           "inferred_interval", "measure_cells", "wilson_interval", "wilson_width"]
+           "inferred_interval", "measure_cells", "open_for_cells", "wilson_interval", "wilson_width"]
 
 # The fewest true objects in view from which the fast matcher can find the true place (one quad).
 MIN_VISIBLE = 4
@@ -184,6 +184,7 @@ class CellMeasures:
     high: np.ndarray
     inferred: np.ndarray       # 1: no image localized, the figures inferred (mapdb.analysis.adaptive)
     seconds: float = 0.0       # time spent measuring (set-up excluded)
+    cpu_s: float = 0.0         # CPU of the task's thread, map opening included (mapdb.analysis.cputime)
     label_names: tuple[str, ...] = field(default=())
 
     @classmethod
@@ -259,6 +260,11 @@ def _opened(map_path: str) -> tuple[Any, Any]:
     return _OPEN[key]
 
 
+def open_for_cells(map_path: str) -> None:
+    """Open now, in this process, the map and localizer the cells' tasks use (as their first call would)."""
+    _opened(map_path)
+
+
 # ------------------------------------------------------------------------------------------ the cells
 
 
@@ -299,6 +305,7 @@ def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.
     cell, :data:`HINT_COLUMNS`, from :func:`mapdb.analysis.adaptive.hints`): cells between the coarse lattice,
     each inferred from its own draws and its hint where the rule of :mod:`mapdb.analysis.adaptive` allows.
     """
+    cpu = time.thread_time()
     m, localizer = _opened(map_path)
     cells = np.asarray(cells, np.int64).reshape(-1, 2)
     # All the map's labels that have objects, in the map's order (as the run's bands are).
@@ -325,6 +332,7 @@ def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.
             hint = None if hints is None else hints[row]
             _measure_cell(ctx, int(cells[row, 0]), int(cells[row, 1]), poses[row], out, row, hint)
     out.seconds = time.perf_counter() - start
+    out.cpu_s = time.thread_time() - cpu
     return out
 
 

@@ -22,11 +22,12 @@ import numpy as np
 from ..errors import MapdbIOError, OutputClashError
 from ..outputs import pid_alive, refuse_existing
 from .adaptive import DECISION_LEVEL
+from .cputime import CpuPhases
 from .grid import Grid
 from .measures import MIN_VISIBLE, SampleConfig
 from .run import Analysis
 
-__all__ = ["NODATA", "SUCCESS_LEVEL", "comparison", "outcome", "output_folder", "parameters", "summary",
+__all__ = ["NODATA", "SUCCESS_LEVEL", "cell_totals", "comparison", "outcome", "output_folder", "parameters", "summary",
            "write_cells", "write_geotiff", "write_outputs", "write_summary", "ADAPTIVE_RULE"]
 
 # The GeoTIFF's no-data value (error and ambiguity where there is none); NULL in the GeoPackage.
@@ -280,9 +281,10 @@ def _widths(width: np.ndarray, simulated: np.ndarray) -> dict[str, float | None]
     return {"median": round(float(np.median(width[simulated])), 4), "max": round(float(width[simulated].max()), 4)}
 
 
-def summary(analyses: Sequence[Analysis]) -> dict[str, Any]:
+def summary(analyses: Sequence[Analysis], cpu: dict[str, Any] | None = None) -> dict[str, Any]:
     """``summary.json``: the area, the map, the outcome, the most ambiguous cells, the parameters, the
-    software; with several analyses (scenarios), one comparison table."""
+    software; with several analyses (scenarios), one comparison table; ``cpu`` (the run's CPU by phase,
+    :meth:`mapdb.analysis.cputime.CpuPhases.record`) last, if given."""
     first = analyses[0]
     grid = first.grid
     lon, lat = _lonlat(grid.crs, np.array(grid.bounds[::2]), np.array(grid.bounds[1::2]))
@@ -306,6 +308,8 @@ def summary(analyses: Sequence[Analysis]) -> dict[str, Any]:
     else:
         doc["scenarios"] = runs
         doc["comparison"] = comparison(analyses)
+    if cpu is not None:
+        doc["cpu"] = cpu
     return doc
 
 
@@ -326,13 +330,33 @@ def comparison(analyses: Sequence[Analysis]) -> list[dict[str, Any]]:
     return rows
 
 
-def write_summary(path: str | os.PathLike[str], analyses: Sequence[Analysis]) -> None:
+def write_summary(path: str | os.PathLike[str], analyses: Sequence[Analysis],
+                  cpu: dict[str, Any] | None = None) -> None:
     with open(path, "w", encoding="utf-8") as f:
-        json.dump(summary(analyses), f, indent=2, allow_nan=False)
+        json.dump(summary(analyses, cpu), f, indent=2, allow_nan=False)
         f.write("\n")
 
 
 # ------------------------------------------------------------------------------------------ everything
+
+
+def _import_writers() -> None:
+    """Import what the writers use (GDAL through rasterio and pyogrio, geopandas, matplotlib): about a second of
+    CPU, the same for a cell or a country."""
+    import geopandas  # noqa: F401
+    import pyogrio  # noqa: F401
+    import rasterio  # noqa: F401
+    import shapely  # noqa: F401
+
+    from ..evaluation.drawing import pyplot
+
+    pyplot()
+
+
+def cell_totals(analyses: Sequence[Analysis]) -> tuple[int, int]:
+    """The cells of every analysis's grid (each scenario's counted), and of them those images ran in."""
+    return (sum(a.grid.size for a in analyses),
+            sum(int(a.stats.get("cells_simulated", 0)) for a in analyses))
 
 
 def _slug(name: str, taken: set[str]) -> str:
@@ -346,14 +370,21 @@ def _slug(name: str, taken: set[str]) -> str:
     return slug
 
 
-def write_outputs(folder: str | os.PathLike[str], analyses: Sequence[Analysis]) -> list[str]:
+def write_outputs(folder: str | os.PathLike[str], analyses: Sequence[Analysis],
+                  phases: CpuPhases | None = None) -> list[str]:
     """Every output of an analysis (or of its scenarios) into ``folder``; the file names written.
 
     One analysis: ``analysis.tif``, ``analysis.png``, ``cells.gpkg``, ``summary.json``.  Scenarios: a GeoTIFF
     per scenario (``NAME.tif``), ``cells.gpkg`` with a layer per scenario, ``scenarios.png`` (small
-    multiples) and ``summary.json`` with the comparison table.
+    multiples) and ``summary.json`` with the comparison table.  With ``phases``, the writers' libraries are
+    imported first and counted in ``startup`` (a run pays them once, whatever its cells); ``outputs`` closes
+    before ``summary.json``, which then records every phase (``cpu``).
     """
     from .pictures import plot_analysis, plot_scenarios
+
+    if phases is not None:
+        _import_writers()
+        phases.close("startup")
 
     out = Path(folder)
     if len(analyses) == 1:
@@ -370,5 +401,9 @@ def write_outputs(folder: str | os.PathLike[str], analyses: Sequence[Analysis]) 
         plot_scenarios(out / "scenarios.png", analyses)
         names.append("scenarios.png")
     write_cells(out / "cells.gpkg", analyses)
-    write_summary(out / "summary.json", analyses)
+    cpu = None
+    if phases is not None:
+        phases.close("outputs")
+        cpu = phases.record(*cell_totals(analyses))
+    write_summary(out / "summary.json", analyses, cpu)
     return [*names, "cells.gpkg", "summary.json"]

@@ -34,8 +34,9 @@ from .. import __version__
 from ..cluster import run_tasks, worker_count
 from ..progress import ProgressLike, as_progress
 from .adaptive import coarse, hints
+from .cputime import CpuPhases
 from .grid import CellCounts, Grid, analysis_area, cell_counts, check_labels, make_grid
-from .measures import HINT_COLUMNS, MIN_VISIBLE, CellMeasures, SampleConfig, measure_cells
+from .measures import HINT_COLUMNS, MIN_VISIBLE, CellMeasures, SampleConfig, measure_cells, open_for_cells
 
 __all__ = ["BLOCK_CELLS", "MEASURES", "Analysis", "Plan", "analyze", "analyze_scenarios", "execute", "plan"]
 
@@ -160,15 +161,27 @@ def plan(map_path: str, configs: dict[str, SampleConfig], *, cell_m: float = 100
         return Plan(str(map_path), grid, _map_info(m), runs)
 
 
-def execute(planned: Plan, client: Any = None, progress: ProgressLike = None) -> list[Analysis]:
-    """Run every configuration of a plan (see :func:`analyze`)."""
+def execute(planned: Plan, client: Any = None, progress: ProgressLike = None,
+            phases: CpuPhases | None = None) -> list[Analysis]:
+    """Run every configuration of a plan (see :func:`analyze`).
+
+    With ``phases``, its ``startup`` closes at the first cell (the map and its indexes opened first, here when
+    there is no cluster) and its ``cells`` when the last is in place, the workers' tasks' CPU added.
+    """
     say = as_progress(progress)
-    return [_run(planned.map_path, planned.grid, counts, config, planned.map_info, name, client, say)
-            for name, config, counts in planned.runs]
+    if phases is not None:
+        if client is None:  # what the first task would open: start-up, paid once however many cells
+            open_for_cells(planned.map_path)
+        phases.close("startup")
+    analyses = [_run(planned.map_path, planned.grid, counts, config, planned.map_info, name, client, say, phases)
+                for name, config, counts in planned.runs]
+    if phases is not None:
+        phases.close("cells")
+    return analyses
 
 
 def _run(map_path: str, grid: Grid, counts: CellCounts, config: SampleConfig, info: dict[str, Any], name: str,
-         client: Any, say: Any) -> Analysis:
+         client: Any, say: Any, phases: CpuPhases | None = None) -> Analysis:
     """Sample every cell within reach of an object (or, adaptive, the lattice's and those between it where it
     disagrees), in blocks, and put the measures in place."""
     start = time.perf_counter()
@@ -180,7 +193,7 @@ def _run(map_path: str, grid: Grid, counts: CellCounts, config: SampleConfig, in
     i, j = grid.absolute(rows, cols)
     adaptive = config.sequential and config.adaptive
     first = sent[coarse(i[sent], j[sent])] if adaptive else sent
-    cells = _Cells(map_path, grid, config, rows, cols, heavy, bands)
+    cells = _Cells(map_path, grid, config, rows, cols, heavy, bands, phases=phases)
     prefix = f"{name}: " if name else ""
     warm = _warmup_cells(first[heavy[first]])
     result = cells.round(client, [warm])
@@ -221,6 +234,7 @@ class _Cells:
     heavy: np.ndarray
     bands: dict[str, np.ndarray]
     hints: np.ndarray | None = None  # a row a cell (NaN: none), for the cells between the lattice
+    phases: CpuPhases | None = None  # the run's CPU, to which the workers' tasks' is added
 
     def round(self, client: Any, task_cells: list[np.ndarray], say: Any = None) -> CellMeasures:
         """Measure groups of cells, a task each (the groups with the most cells to simulate first, so that no
@@ -233,6 +247,8 @@ class _Cells:
         for t, result in run_tasks(client, measure_cells, [tasks[t] for t in order]):
             index = task_cells[order[t]]
             _place(self.bands, result, self.rows[index], self.cols[index])
+            if client is not None and self.phases is not None:  # in this process, its CPU is the process's
+                self.phases.workers += result.cpu_s
             if say is not None:
                 say.advance(int(self.heavy[index].sum()))
         return result
