@@ -34,11 +34,20 @@ The projection: a country of AREA km² and OBJECTS map objects in 100 m cells, i
 measured maps' cells (a share of Monaco-like cells, the rest Andorra-like, the share chosen so that the
 objects per cell match the country's); each mode's core-seconds a grid cell (the median run's CPU over its
 grid cells, everything included: start-up, empty cells, outputs) times the country's cells.  A second
-projection takes out each version's start-up (the median CPU of ``--startup-repeat`` runs of the same command
-over one cell of the map, ``--bbox``, the versions taking turns), which a country's run pays once, not per cell.
-Not included: the growth of the per-image cost with the map's size (a country's lost-in-space search is
-slower), nor that of the outputs a country's run writes (its picture and its ``cells.gpkg`` grow with its
-cells; a small map's are in its start-up).
+projection takes out each version's start-up, which a country's run pays once, not per cell:
+
+* a version whose ``mapdb analyze`` accounts its own CPU by phase (``summary.json``'s ``cpu``,
+  :mod:`mapdb.analysis.cputime`: this tree's) is measured inside the same runs: the median over a mode's runs
+  of its cells + outputs CPU (the start-up phase, imports, map and index opening, planning, and the output
+  writers' imports, left out);
+* a version that does not (today's 402f56b, and a ``--main`` older than the accounting) by subtraction: the
+  whole run's median CPU less that version's start-up, the median CPU of ``--startup-repeat`` runs of the same
+  command over one cell of the map (``--bbox``, the versions taking turns), which also holds one cell's outputs.
+  On Monaco the run's cell work is about its start-up's size, so this figure's noise is the subtraction's.
+
+The table says which each mode's figure is ("in-run" or "subtracted").  Not included: the growth of the
+per-image cost with the map's size (a country's lost-in-space search is slower), nor that of the outputs a
+country's run writes beyond the measured maps' per-cell share.
 """
 
 from __future__ import annotations
@@ -207,11 +216,21 @@ def medians(runs: list[dict]) -> dict[str, dict]:
         out[mode] = {"cpu_s": statistics.median(r["cpu_s"] for r in mine), "cells": run["cells"],
                      "simulated": run["cells_simulated"], "drawn": run["images_localizable"],
                      "localized": run["images_localized"], "objects": mine[0]["summary"]["area"]["objects"],
-                     "out": mine[0]["out"]}
+                     "out": mine[0]["out"], **in_run(mine)}
     return out
 
 
-def side_by_side(name: str, med: dict[str, dict], startups: dict[str, float]) -> None:
+def in_run(runs: list[dict]) -> dict[str, float | None]:
+    """The runs' own CPU accounting (``summary.json``'s ``cpu``), medians over the runs: start-up, and the cells
+    and outputs (what grows with the area); None for a version that does not account it."""
+    cpus = [r["summary"].get("cpu") for r in runs]
+    if not all(cpus):
+        return {"startup_in_s": None, "net_s": None}
+    return {"startup_in_s": statistics.median(c["startup_s"] for c in cpus),
+            "net_s": statistics.median(c["cells_s"] + c["outputs_s"] for c in cpus)}
+
+
+def side_by_side(name: str, med: dict[str, dict], startups: dict[str, float | None]) -> None:
     today = med["today"]
     modes = [m for m in ("today", "base-sequential", "main", "sequential", "adaptive") if m in med]
     print(f"\n{name}, medians | " + " | ".join(modes) + " |\n|---|" + "---|" * len(modes))
@@ -221,7 +240,9 @@ def side_by_side(name: str, med: dict[str, dict], startups: dict[str, float]) ->
                        ("simulated", "cells simulated"), ("cpu_s", "CPU (s)"), ("ms_cell", "core-ms a simulated cell")):
         print(f"| {label} | " + " | ".join(f"{med[m][key]:,.1f} ({med[m][key] / today[key]:.2f}x)" for m in modes)
               + " |")
-    print("| start-up CPU (s, one cell) | " + " | ".join(f"{startups[MODES[m][0]]:.1f}" for m in modes) + " |")
+    print("| start-up CPU (s) | " + " | ".join(
+        f"{med[m]['startup_in_s']:.1f} (in-run)" if med[m]["net_s"] is not None
+        else f"{startups[MODES[m][0]]:.1f} (one-cell run)" for m in modes) + " |")
     if "main" in med:
         for mode in (m for m in ("sequential", "adaptive") if m in med):
             print(f"\n{mode} against main: CPU {med[mode]['cpu_s'] / med['main']['cpu_s']:.3f}x, core-ms a simulated "
@@ -241,7 +262,7 @@ def side_by_side(name: str, med: dict[str, dict], startups: dict[str, float]) ->
               f"{a['false_cells'][0]} fixed, {a['false_cells'][1]} {mode}")
 
 
-def projection(country: str, maps: dict[str, dict[str, dict]], startups: dict[str, dict[str, float]]) -> None:
+def projection(country: str, maps: dict[str, dict[str, dict]], startups: dict[str, dict[str, float | None]]) -> None:
     """Core-hours of a country whose cells mix the measured maps' cells to its objects per cell."""
     name, area, objects = country.split(":")
     cells = float(area) / 0.01
@@ -257,25 +278,34 @@ def projection(country: str, maps: dict[str, dict[str, dict]], startups: dict[st
           f"100 m ({density:.3f} objects a cell): {share:.1%} Monaco-like cells ({d_dense:.3f} objects a cell), "
           f"{1 - share:.1%} Andorra-like ({d_sparse:.4f})")
     print("| mode | core-ms a grid cell, Monaco | Andorra | country core-hours | / today's | without start-up: "
-          "Monaco | Andorra | core-hours | / today's |\n|---|---|---|---|---|---|---|---|---|")
+          "Monaco | Andorra | core-hours | / today's | start-up taken out |\n|---|---|---|---|---|---|---|---|---|---|")
     hours: dict[str, tuple[float, float]] = {}
     for mode in dense:
-        code = MODES[mode][0]
         per = [m[mode]["cpu_s"] / m[mode]["cells"] for m in (dense, sparse)]
-        net = [max(m[mode]["cpu_s"] - startups[k][code], 0.0) / m[mode]["cells"]
+        net = [without_startup(m[mode], startups[k][MODES[mode][0]]) / m[mode]["cells"]
                for m, k in ((dense, "monaco"), (sparse, "andorra"))]
+        how = "in-run" if dense[mode]["net_s"] is not None and sparse[mode]["net_s"] is not None else "subtracted"
         hours[mode] = tuple(cells * (share * p[0] + (1 - share) * p[1]) / 3600 for p in (per, net))  # type: ignore
         print(f"| {mode} | {1000 * per[0]:,.2f} | {1000 * per[1]:,.3f} | {hours[mode][0]:,.0f} | "
               f"{hours[mode][0] / hours['today'][0]:.3f} | {1000 * net[0]:,.2f} | {1000 * net[1]:,.3f} | "
-              f"{hours[mode][1]:,.0f} | {hours[mode][1] / hours['today'][1]:.3f} |")
+              f"{hours[mode][1]:,.0f} | {hours[mode][1] / hours['today'][1]:.3f} | {how} |")
     if "main" in hours:
         for mode in (m for m in hours if MODES[m][0] == "tree"):
             print(f"\n{mode} against main: {hours[mode][0] / hours['main'][0]:.3f}x the core-hours, "
                   f"{hours[mode][1] / hours['main'][1]:.3f}x without start-up")
 
 
+def without_startup(med: dict, startup_cpu: float | None) -> float:
+    """A mode's median CPU without its start-up: its runs' own cells + outputs CPU where they account it (the
+    same runs), else the whole run's less a one-cell run's (another process: the subtraction's noise)."""
+    if med["net_s"] is not None:
+        return float(med["net_s"])
+    assert startup_cpu is not None, "a version without in-run accounting needs its one-cell start-up runs"
+    return max(med["cpu_s"] - startup_cpu, 0.0)
+
+
 def measure_map(name: str, args: argparse.Namespace, workdir: Path,
-                envs: dict[str, dict[str, str] | None]) -> tuple[dict[str, dict], dict[str, float]]:
+                envs: dict[str, dict[str, str] | None]) -> tuple[dict[str, dict], dict[str, float | None]]:
     """Every mode's runs of one map, taking turns; the medians, and each version's start-up CPU."""
     map_path = build(workdir, name)
     modes = args.modes.split(",")
@@ -283,12 +313,14 @@ def measure_map(name: str, args: argparse.Namespace, workdir: Path,
     if args.identity:
         order.append("base-sequential")
     runs = [analyse(map_path, workdir / f"{name}-{mode}-{k}", mode, envs) for k, mode in enumerate(order)]
-    codes = list(dict.fromkeys(["base", "tree", *(MODES[m][0] for m in modes)]))
+    # One-cell start-up runs only for the versions whose runs do not account their own CPU by phase.
+    codes = list(dict.fromkeys(MODES[r["mode"]][0] for r in runs if "cpu" not in r["summary"]))
     samples: dict[str, list[float]] = {code: [] for code in codes}
     for k in range(args.startup_repeat):  # the versions taking turns, as the runs do: one cell's CPU is small
         for code in codes if k % 2 == 0 else codes[::-1]:
             samples[code].append(startup(map_path, workdir, code, envs))
-    startups = {code: statistics.median(samples[code]) for code in codes}
+    startups: dict[str, float | None] = {code: None for code, _ in MODES.values()}
+    startups.update({code: statistics.median(samples[code]) for code in codes})
     run_table(name, runs)
     med = medians(runs)
     side_by_side(name, med, startups)
