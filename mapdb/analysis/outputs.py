@@ -12,6 +12,7 @@ import os
 import re
 import secrets
 import shutil
+import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -389,6 +390,7 @@ def write_outputs(folder: str | os.PathLike[str], analyses: Sequence[Analysis],
     out = Path(folder)
     if len(analyses) == 1:
         write_geotiff(out / "analysis.tif", analyses[0])
+        drawn = time.process_time()
         plot_analysis(out / "analysis.png", analyses[0])
         names = ["analysis.tif", "analysis.png"]
     else:
@@ -398,12 +400,15 @@ def write_outputs(folder: str | os.PathLike[str], analyses: Sequence[Analysis],
             name = f"{_slug(analysis.name, taken)}.tif"
             write_geotiff(out / name, analysis)
             names.append(name)
+        drawn = time.process_time()
         plot_scenarios(out / "scenarios.png", analyses)
         names.append("scenarios.png")
+    drawn = time.process_time() - drawn  # the picture's CPU: a bounded figure, nearly the same for any area
     write_cells(out / "cells.gpkg", analyses)
     cpu = None
     if phases is not None:
         phases.close("outputs")
+        phases.picture += drawn
         cpu = phases.record(*cell_totals(analyses))
     write_summary(out / "summary.json", analyses, cpu)
     return [*names, "cells.gpkg", "summary.json"]
