@@ -410,9 +410,9 @@ def _measure_cell(ctx: _Context, i: int, j: int, poses: Poses, out: CellMeasures
 
 
 def column_medians(values: np.ndarray) -> np.ndarray:
-    """``np.median(values, axis=0)`` of a small integer array (a row an image), without its overhead (a tenth of a
-    millisecond a call, a cell's largest cost outside its images): the middle row of the sorted columns, or the
-    mean of the middle two, as float64 (exact: integers below 2**53).
+    """``np.median(values, axis=0)`` of a small integer array (a row an image), without its overhead (most of its
+    time on a cell's 16 rows): the middle row of the sorted columns, or the mean of the middle two, as float64
+    (exact: integers below 2**53).
 
     Examples
     --------
