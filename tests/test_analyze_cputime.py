@@ -80,3 +80,14 @@ def test_phases_accumulate_and_refuse_unknown_names() -> None:
     assert phases.total("cells") == pytest.approx(first + second + 2.0) and phases.total("outputs") == 0
     with pytest.raises(ValueError, match="unknown phase"):
         phases.close("lunch")
+
+
+@pytest.mark.slow
+def test_a_local_clusters_workers_are_counted(town: Path, tmp_path: Path) -> None:
+    """With --jobs, the cells' CPU is mostly the workers' tasks': counted in ``cells`` and shown apart."""
+    pytest.importorskip("distributed")
+    result = CliRunner().invoke(cli, ["analyze", str(town), "-o", str(tmp_path / "o"), "--samples", "4", "--jobs",
+                                      "2", "-q"])
+    assert result.exit_code == 0, result.output
+    cpu = json.loads((tmp_path / "o" / "summary.json").read_text())["cpu"]
+    assert cpu["workers_s"] > 0 and cpu["cells_s"] >= cpu["workers_s"]
