@@ -186,34 +186,36 @@ def _type(rule: Any, value: Any) -> bool:
     return False
 
 
-def _is_number(value: Any) -> bool:
-    return type(value) in (int, float)
+_NUMBER = (int, float)
 
 
-# The keywords whose rule is a plain value: a test of (rule, value).
-_KEYWORDS: dict[str, Callable[[Any, Any], bool]] = {
-    "required": lambda rule, v: type(v) is not dict or all(key in v for key in rule),
-    "minItems": lambda rule, v: type(v) is not list or len(v) >= rule,
-    "maxItems": lambda rule, v: type(v) is not list or len(v) <= rule,
-    "minLength": lambda rule, v: type(v) is not str or len(v) >= rule,
-    "maxLength": lambda rule, v: type(v) is not str or len(v) <= rule,
+# The keywords whose rule is a plain value: each compiled by closing over its rule, its test made inline in the closure
+# (one call a keyword when a document is checked).
+_KEYWORDS: dict[str, Callable[[Any], Callable[[Any], bool]]] = {
+    "minItems": lambda rule: lambda v: type(v) is not list or len(v) >= rule,
+    "maxItems": lambda rule: lambda v: type(v) is not list or len(v) <= rule,
+    "minLength": lambda rule: lambda v: type(v) is not str or len(v) >= rule,
+    "maxLength": lambda rule: lambda v: type(v) is not str or len(v) <= rule,
     # Written as "not beyond" so that NaN passes, as it does in jsonschema.
-    "minimum": lambda rule, v: not (_is_number(v) and v < rule),
-    "maximum": lambda rule, v: not (_is_number(v) and v > rule),
-    "exclusiveMinimum": lambda rule, v: not (_is_number(v) and v <= rule),
-    "exclusiveMaximum": lambda rule, v: not (_is_number(v) and v >= rule),
+    "minimum": lambda rule: lambda v: not (type(v) in _NUMBER and v < rule),
+    "maximum": lambda rule: lambda v: not (type(v) in _NUMBER and v > rule),
+    "exclusiveMinimum": lambda rule: lambda v: not (type(v) in _NUMBER and v <= rule),
+    "exclusiveMaximum": lambda rule: lambda v: not (type(v) in _NUMBER and v >= rule),
 }
 
 
-def _closing(test: Callable[[Any, Any], bool]) -> Callable[[Any], Callable[[Any], bool]]:
-    """A keyword's test of (rule, value) compiled by closing over the rule."""
-    return lambda rule: lambda v: test(rule, v)
+def _compile_required(rule: Any) -> Callable[[Any], bool]:
+    if type(rule) is list and all(type(key) is str for key in rule):  # the usual rule: one set comparison
+        keys = frozenset(rule)
+        return lambda v: type(v) is not dict or v.keys() >= keys
+    return lambda v: type(v) is not dict or all(key in v for key in rule)
 
 
 # How each keyword compiles: the ones whose rule holds subschemas (or a type) compile it once; the others close over
 # their rule.
 _COMPILERS: dict[str, Callable[[Any], Callable[[Any], bool]]] = {
-    **{keyword: _closing(test) for keyword, test in _KEYWORDS.items()},
+    **_KEYWORDS,
+    "required": _compile_required,
     "type": _compile_type,
     "properties": _compile_properties,
     "items": _compile_items,

@@ -127,8 +127,8 @@ def _located(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bo
     fields["transform_error_m"] = rounded(where.error_m, 3)
     # numpy's rounding of the whole array: what rounded() does to each of its numpy numbers.
     fields["footprint"] = np.round(where.footprint, 3).tolist()
-    centre, *corners = to_lonlat_many(crs, [b.real, *where.footprint[:, 0].tolist()],
-                                      [b.imag, *where.footprint[:, 1].tolist()])
+    xs, ys = zip(*where.footprint.tolist(), strict=True)
+    centre, *corners = to_lonlat_many(crs, [b.real, *xs], [b.imag, *ys])
     if all(lon is not None and lat is not None for lon, lat in corners):
         fields["footprint_lonlat"] = [[lon, lat] for lon, lat in corners]
     return fields, centre
