@@ -142,7 +142,8 @@ def test_a_level_images_georeference_is_the_references() -> None:
             continue
         assert got is not None and got.footprint.shape == (4, 2) and got.error_m == 0.0
         assert got.footprint.tolist() == want.tolist()
-        assert np.round(got.footprint, 3).tolist() == np.round(want, 3).tolist()
+        with np.errstate(all="ignore"):
+            assert np.round(got.footprint, 3).tolist() == np.round(want, 3).tolist()
 
 
 def _document(rng: random.Random) -> dict[str, Any]:
