@@ -83,11 +83,17 @@ def image_points(im: ImageObjects) -> tuple[np.ndarray, bool, list[str]]:
     return image_plane(u, v, im.width, im.height), levelled, notes
 
 
+@lru_cache(maxsize=64)
+def _focal_px(width: float, height: float, fov_deg: float) -> float:
+    """The camera's focal length in pixels, once per camera (a stream's images share one), not per image."""
+    return Camera(width, height, fov_deg).focal_px
+
+
 def scale_hints(im: ImageObjects, diag_px: float
                 ) -> tuple[float | None, tuple[float, float] | None, float | None]:
     """Focal length (pixels), allowed metres per pixel and the footprint's largest half-diagonal (metres),
     each None unless the field of view (and, for the last two, the altitude) is given."""
-    focal_px = None if im.fov_deg is None else Camera(im.width, im.height, im.fov_deg).focal_px
+    focal_px = None if im.fov_deg is None else _focal_px(im.width, im.height, im.fov_deg)
     if focal_px is None or im.altitude_m is None:
         return focal_px, None, None
     s0 = im.altitude_m / focal_px
