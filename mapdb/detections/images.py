@@ -220,10 +220,10 @@ def _plain_object_ok(obj: Any) -> bool:
 
 
 # An image's objects as plain lists: x, y, labels, and whether any object has keys besides those three.
-PlainObjects = tuple[list[Any], list[Any], list[str], bool]
+_PlainObjects = tuple[list[Any], list[Any], list[str], bool]
 
 
-def _plain_objects(objects: list[Any]) -> PlainObjects | None:
+def _plain_objects(objects: list[Any]) -> _PlainObjects | None:
     """The objects' positions and labels, read in the one loop that checks them by the schema's rules for an entry
     of ``objects`` (label: non-empty string; x, y: numbers in range; the region fields, :func:`_region_fields_ok`);
     None at the first object that breaks one, whose error the schema then words.  Plain objects have finite
@@ -395,7 +395,7 @@ def _region_fields(objects: list[dict[str, Any]], source: str
     return area, border, bbox
 
 
-def _check_schema(doc: Any, source: str) -> PlainObjects | None:
+def _check_schema(doc: Any, source: str) -> _PlainObjects | None:
     """Raise the first schema violation of an image document, in one line; else its objects as
     :func:`_plain_objects` reads them, or None when some object was not plain (the schema then passed it)."""
     if not isinstance(doc, dict):
