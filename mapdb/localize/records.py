@@ -129,7 +129,7 @@ def _located(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bo
     fields["footprint"] = np.round(where.footprint, 3).tolist()
     xs, ys = zip(*where.footprint.tolist(), strict=True)
     centre, *corners = to_lonlat_many(crs, [b.real, *xs], [b.imag, *ys])
-    if all(lon is not None and lat is not None for lon, lat in corners):
+    if (None, None) not in corners:  # to_lonlat_many gives a point's two numbers or two Nones
         fields["footprint_lonlat"] = [[lon, lat] for lon, lat in corners]
     return fields, centre
 
