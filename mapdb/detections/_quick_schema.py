@@ -174,24 +174,56 @@ def _compile_properties(rule: Any) -> Callable[[Any], bool]:
     return check
 
 
+# The keywords holding a list of subschemas (or one for items) are loops, not generators: no generator's frame
+# resumed for each subschema a document meets.
+
 def _compile_items(rule: Any) -> Callable[[Any], bool]:
     check = _compile(rule)
-    return lambda v: type(v) is not list or all(check(item) for item in v)
+
+    def items(v: Any) -> bool:
+        if type(v) is list:
+            for item in v:
+                if not check(item):
+                    return False
+        return True
+
+    return items
 
 
 def _compile_all(rule: Any) -> Callable[[Any], bool]:
     subs = [_compile(sub) for sub in rule]
-    return lambda v: all(check(v) for check in subs)
+
+    def all_of(v: Any) -> bool:
+        for check in subs:
+            if not check(v):
+                return False
+        return True
+
+    return all_of
 
 
 def _compile_any(rule: Any) -> Callable[[Any], bool]:
     subs = [_compile(sub) for sub in rule]
-    return lambda v: any(check(v) for check in subs)
+
+    def any_of(v: Any) -> bool:
+        for check in subs:
+            if check(v):
+                return True
+        return False
+
+    return any_of
 
 
 def _compile_one(rule: Any) -> Callable[[Any], bool]:
     subs = [_compile(sub) for sub in rule]
-    return lambda v: sum(check(v) for check in subs) == 1
+
+    def one_of(v: Any) -> bool:
+        passed = 0
+        for check in subs:  # every one, in order, as jsonschema counts them
+            passed += check(v)
+        return passed == 1
+
+    return one_of
 
 
 def _compile_not(rule: Any) -> Callable[[Any], bool]:
