@@ -20,12 +20,31 @@ True
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from .outputs import json_safe
 
 __all__ = ["Answer", "Candidate"]
+
+
+# Values json_safe returns as they are, by their exact type (a subclass is json_safe's to judge).
+_AS_IS = frozenset({str, int, bool, type(None)})
+
+
+def _safe(value: Any) -> Any:
+    """:func:`~mapdb.outputs.json_safe` of one of an answer's values: its floats, ints, strings and lists of them
+    judged here by their type (a document's few dozen values, written for every answer of a stream), anything else
+    by json_safe."""
+    kind = type(value)
+    if kind is float:
+        return value if math.isfinite(value) else None
+    if kind in _AS_IS:
+        return value
+    if kind is list:
+        return [_safe(item) for item in value]
+    return json_safe(value)
 
 
 def _number(value: Any) -> float | None:
@@ -64,7 +83,8 @@ class Candidate:
     sigma_m: float | None
 
     def to_json(self) -> dict[str, Any]:
-        return json_safe(dataclasses.asdict(self))
+        return {"x": _safe(self.x), "y": _safe(self.y), "inliers": _safe(self.inliers), "score": _safe(self.score),
+                "sigma_m": _safe(self.sigma_m)}
 
 
 # Fields written only when they have a value, in this order, after the pose and before the time.
@@ -122,19 +142,20 @@ class Answer:
 
     def to_json(self) -> dict[str, Any]:
         """The JSON object ``mapdb query`` writes: every number finite, optional fields only when set."""
-        record: dict[str, Any] = {"id": self.id, "status": self.status}
+        fields = self.__dict__
+        record: dict[str, Any] = {"id": _safe(self.id), "status": _safe(self.status)}
         if self.ok:
-            record.update((name, getattr(self, name)) for name in _POSE)
+            record.update((name, _safe(fields[name])) for name in _POSE)
             if self.altitude_m is not None:
-                record["altitude_m"] = self.altitude_m
+                record["altitude_m"] = _safe(self.altitude_m)
             record["levelled"] = bool(self.levelled)
-            record.update((name, getattr(self, name)) for name in _GEOREF if getattr(self, name) is not None)
+            record.update((name, _safe(fields[name])) for name in _GEOREF if fields[name] is not None)
         else:
-            record["reason"] = self.reason
+            record["reason"] = _safe(self.reason)
         record["candidates"] = [c.to_json() for c in self.candidates]
-        record.update((name, getattr(self, name)) for name in _OPTIONAL if getattr(self, name) is not None)
-        record["time_ms"] = self.time_ms
-        return json_safe(record)
+        record.update((name, _safe(fields[name])) for name in _OPTIONAL if fields[name] is not None)
+        record["time_ms"] = _safe(self.time_ms)
+        return record
 
     def properties(self) -> dict[str, Any]:
         """The answer's fields as GeoJSON properties: those of :meth:`to_json` whose values are not lists or

@@ -169,3 +169,17 @@ def test_compiled_gives_the_interpreters_verdict_on_the_image_schema():
     assert [quick.surely_valid(schema, d) for d in docs] == [v == "True" for v in verdicts]
     assert verdicts[0] == "True" and {"True", "False"} <= set(verdicts)
     assert quick.compiled(schema) is quick.compiled(schema)  # compiled once
+
+
+def test_a_numbers_schema_compiled_as_one_function_gives_the_interpreters_verdict():
+    """``{"type": "number"}`` with range keywords after it (an image document's leaves) is one function, not a check a
+    keyword: the same verdicts, NaN rules and values, strings against numbers and unknown types included."""
+    rng = random.Random(5)
+    values = [*_ODD, 1e6, 1e6 + 1, -0.0, -math.inf, 2.5, [1], {"a": 1}]
+    for _ in range(1500):
+        schema: dict[str, Any] = {"description": "a leaf", "type": "number"}
+        for keyword in rng.sample(["minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"], rng.randint(0, 4)):
+            schema[keyword] = rng.choice([0, 1, 2.5, -1, 1e6, math.nan, True])
+        for value in values:
+            assert verdict(schema, value) == ref_verdict(schema, value), (schema, value)
+    assert quick._compile({"type": "number", "minimum": 0}).__qualname__ == "_number.<locals>.check"

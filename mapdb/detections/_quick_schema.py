@@ -17,6 +17,7 @@ to numbers, ``required`` to objects), and NaN passes the range keywords (every c
 
 from __future__ import annotations
 
+import operator
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -87,6 +88,9 @@ def _compile(schema: Any) -> Callable[[Any], bool]:
     """The function :func:`compiled` returns (uncached)."""
     if not isinstance(schema, Mapping):
         return _unsure
+    rules = [(keyword, rule) for keyword, rule in schema.items() if keyword not in _ANNOTATIONS]
+    if rules and rules[0] == ("type", "number") and all(keyword in _RANGES for keyword, _ in rules[1:]):
+        return _number(tuple((_RANGES[keyword], rule) for keyword, rule in rules[1:]))
     checks: list[Callable[[Any], bool]] = []
     for keyword, rule in schema.items():
         if keyword in _ANNOTATIONS:
@@ -109,6 +113,29 @@ def _all_of(checks: list[Callable[[Any], bool]]) -> Callable[[Any], bool]:
             raise _UnsureError
         for one in checks:
             if not one(value):
+                return False
+        return True
+
+    return check
+
+
+# The range keywords, each as the comparison that fails a number (NaN fails none, as in jsonschema).
+_RANGES = {"minimum": operator.lt, "maximum": operator.gt, "exclusiveMinimum": operator.le,
+           "exclusiveMaximum": operator.ge}
+
+
+def _number(ranges: tuple[tuple[Callable[[Any, Any], bool], Any], ...]) -> Callable[[Any], bool]:
+    """A number's schema, ``{"type": "number"}`` and range keywords after it (most of an image document's leaves), as
+    one function: the verdict of :func:`_all_of` over their checks, with no call a keyword."""
+    decoded = _DECODED
+
+    def check(value: Any) -> bool:
+        if type(value) not in decoded:
+            raise _UnsureError
+        if type(value) not in _NUMBER:
+            return False
+        for fails, rule in ranges:
+            if fails(value, rule):
                 return False
         return True
 
@@ -147,24 +174,56 @@ def _compile_properties(rule: Any) -> Callable[[Any], bool]:
     return check
 
 
+# The keywords holding a list of subschemas (or one for items) are loops, not generators: no generator's frame
+# resumed for each subschema a document meets.
+
 def _compile_items(rule: Any) -> Callable[[Any], bool]:
     check = _compile(rule)
-    return lambda v: type(v) is not list or all(check(item) for item in v)
+
+    def items(v: Any) -> bool:
+        if type(v) is list:
+            for item in v:
+                if not check(item):
+                    return False
+        return True
+
+    return items
 
 
 def _compile_all(rule: Any) -> Callable[[Any], bool]:
     subs = [_compile(sub) for sub in rule]
-    return lambda v: all(check(v) for check in subs)
+
+    def all_of(v: Any) -> bool:
+        for check in subs:
+            if not check(v):
+                return False
+        return True
+
+    return all_of
 
 
 def _compile_any(rule: Any) -> Callable[[Any], bool]:
     subs = [_compile(sub) for sub in rule]
-    return lambda v: any(check(v) for check in subs)
+
+    def any_of(v: Any) -> bool:
+        for check in subs:
+            if check(v):
+                return True
+        return False
+
+    return any_of
 
 
 def _compile_one(rule: Any) -> Callable[[Any], bool]:
     subs = [_compile(sub) for sub in rule]
-    return lambda v: sum(check(v) for check in subs) == 1
+
+    def one_of(v: Any) -> bool:
+        passed = 0
+        for check in subs:  # every one, in order, as jsonschema counts them
+            passed += check(v)
+        return passed == 1
+
+    return one_of
 
 
 def _compile_not(rule: Any) -> Callable[[Any], bool]:
@@ -186,34 +245,36 @@ def _type(rule: Any, value: Any) -> bool:
     return False
 
 
-def _is_number(value: Any) -> bool:
-    return type(value) in (int, float)
+_NUMBER = (int, float)
 
 
-# The keywords whose rule is a plain value: a test of (rule, value).
-_KEYWORDS: dict[str, Callable[[Any, Any], bool]] = {
-    "required": lambda rule, v: type(v) is not dict or all(key in v for key in rule),
-    "minItems": lambda rule, v: type(v) is not list or len(v) >= rule,
-    "maxItems": lambda rule, v: type(v) is not list or len(v) <= rule,
-    "minLength": lambda rule, v: type(v) is not str or len(v) >= rule,
-    "maxLength": lambda rule, v: type(v) is not str or len(v) <= rule,
+# The keywords whose rule is a plain value: each compiled by closing over its rule, its test made inline in the closure
+# (one call a keyword when a document is checked).
+_KEYWORDS: dict[str, Callable[[Any], Callable[[Any], bool]]] = {
+    "minItems": lambda rule: lambda v: type(v) is not list or len(v) >= rule,
+    "maxItems": lambda rule: lambda v: type(v) is not list or len(v) <= rule,
+    "minLength": lambda rule: lambda v: type(v) is not str or len(v) >= rule,
+    "maxLength": lambda rule: lambda v: type(v) is not str or len(v) <= rule,
     # Written as "not beyond" so that NaN passes, as it does in jsonschema.
-    "minimum": lambda rule, v: not (_is_number(v) and v < rule),
-    "maximum": lambda rule, v: not (_is_number(v) and v > rule),
-    "exclusiveMinimum": lambda rule, v: not (_is_number(v) and v <= rule),
-    "exclusiveMaximum": lambda rule, v: not (_is_number(v) and v >= rule),
+    "minimum": lambda rule: lambda v: not (type(v) in _NUMBER and v < rule),
+    "maximum": lambda rule: lambda v: not (type(v) in _NUMBER and v > rule),
+    "exclusiveMinimum": lambda rule: lambda v: not (type(v) in _NUMBER and v <= rule),
+    "exclusiveMaximum": lambda rule: lambda v: not (type(v) in _NUMBER and v >= rule),
 }
 
 
-def _closing(test: Callable[[Any, Any], bool]) -> Callable[[Any], Callable[[Any], bool]]:
-    """A keyword's test of (rule, value) compiled by closing over the rule."""
-    return lambda rule: lambda v: test(rule, v)
+def _compile_required(rule: Any) -> Callable[[Any], bool]:
+    if type(rule) is list and all(type(key) is str for key in rule):  # the usual rule: one set comparison
+        keys = frozenset(rule)
+        return lambda v: type(v) is not dict or v.keys() >= keys
+    return lambda v: type(v) is not dict or all(key in v for key in rule)
 
 
 # How each keyword compiles: the ones whose rule holds subschemas (or a type) compile it once; the others close over
 # their rule.
 _COMPILERS: dict[str, Callable[[Any], Callable[[Any], bool]]] = {
-    **{keyword: _closing(test) for keyword, test in _KEYWORDS.items()},
+    **_KEYWORDS,
+    "required": _compile_required,
     "type": _compile_type,
     "properties": _compile_properties,
     "items": _compile_items,

@@ -59,6 +59,8 @@ from typing import TYPE_CHECKING, Any, BinaryIO
 import numpy as np
 
 from ..errors import ImageInputError, reading
+from ._fields import positions as _positions
+from ._fields import region_fields as _region_fields
 from ._quick_schema import surely_valid
 
 if TYPE_CHECKING:
@@ -95,6 +97,8 @@ MAX_IMAGE_SIDE_PX = 1_000_000
 MAX_AREA_PX = 1e12
 # A region's elongation: a one-pixel line across the largest image.
 MAX_ELONGATION = 1e6
+# The JSON decoder's numbers, exactly (bool is not one; a subclass goes to the schema).
+_NUMBER = (int, float)
 # Narrower than any lens; a denormal field of view made the focal length infinite.
 MIN_FOV_DEG = 0.001
 # Half the Earth's circumference: a wider prior excludes nothing, and a finite bound keeps the prior's
@@ -214,21 +218,40 @@ def _schema_message(error: Any, prefix: tuple[str, ...] = ()) -> str:
 
 def _plain_object_ok(obj: Any) -> bool:
     """The schema's rules for one entry of ``objects`` (label: non-empty string; x, y: numbers in range)."""
-    if type(obj) is not dict:
-        return False
-    # Any, not Any | None: the type() tests below rule out None before the comparisons.
-    label: Any = obj.get("label")
-    x: Any = obj.get("x")
-    y: Any = obj.get("y")
-    return (
-        type(label) is str
-        and label != ""
-        and type(x) in (int, float)
-        and type(y) in (int, float)
-        and 0 <= x <= MAX_IMAGE_SIDE_PX
-        and 0 <= y <= MAX_IMAGE_SIDE_PX
-        and (len(obj) == 3 or _region_fields_ok(obj))
-    )
+    return _plain_objects([obj]) is not None
+
+
+# An image's objects as plain lists: x, y, labels, and whether any object has keys besides those three.
+_PlainObjects = tuple[list[Any], list[Any], list[str], bool]
+
+
+def _plain_objects(objects: list[Any]) -> _PlainObjects | None:
+    """The objects' positions and labels, read in the one loop that checks them by the schema's rules for an entry
+    of ``objects`` (label: non-empty string; x, y: numbers in range; the region fields, :func:`_region_fields_ok`);
+    None at the first object that breaks one, whose error the schema then words.  Plain objects have finite
+    positions (NaN fails the range tests)."""
+    xs: list[Any] = []
+    ys: list[Any] = []
+    labels: list[str] = []
+    extra = False
+    for obj in objects:
+        if type(obj) is not dict:
+            return None
+        # Any, not Any | None: the type() tests below rule out None before the comparisons.
+        label: Any = obj.get("label")
+        x: Any = obj.get("x")
+        y: Any = obj.get("y")
+        if not (type(label) is str and label != "" and type(x) in _NUMBER and type(y) in _NUMBER
+                and 0 <= x <= MAX_IMAGE_SIDE_PX and 0 <= y <= MAX_IMAGE_SIDE_PX):
+            return None
+        if len(obj) != 3:
+            if not _region_fields_ok(obj):
+                return None
+            extra = True
+        xs.append(x)
+        ys.append(y)
+        labels.append(label)
+    return xs, ys, labels, extra
 
 
 def _region_fields_ok(obj: dict[str, Any]) -> bool:
@@ -320,9 +343,16 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
     width = _finite(doc["width"], "width", source)
     height = _finite(doc["height"], "height", source)
     objects = doc["objects"]
-    x, y = _positions(objects, width, height, source, finite=plain)
-    names = np.array([o["label"] for o in objects], dtype=object)
-    area_px, border, bbox = _region_fields(objects, source)
+    if plain is not None and (not objects or (max(plain[0]) <= width and max(plain[1]) <= height)):
+        # The usual document: its objects read once, by the check, and inside the image.
+        xs, ys, labels, extra = plain
+        x, y = np.array(xs, np.float64), np.array(ys, np.float64)
+        names = np.array(labels, dtype=object)
+        area_px, border, bbox = _region_fields(objects, source) if extra else (None, None, None)
+    else:
+        x, y = _positions(objects, width, height, source)
+        names = np.array([o["label"] for o in objects], dtype=object)
+        area_px, border, bbox = _region_fields(objects, source)
     prior = _make_prior(doc["prior"], source) if "prior" in doc else None
     attitude = doc.get("attitude") or {}
     roll = attitude.get("roll_deg")
@@ -347,28 +377,9 @@ def parse_image(doc: Any, source: str = "<image>") -> ImageObjects:
     )
 
 
-def _region_fields(objects: list[dict[str, Any]], source: str
-                   ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """The objects' optional ``area_px``, ``border`` and ``bbox`` as arrays (None when no object has one)."""
-    has = {key for o in objects for key in ("area_px", "border", "bbox") if key in o}  # one pass for the three
-    area = np.array([o.get("area_px", math.nan) for o in objects], np.float64) if "area_px" in has else None
-    border = np.array([o.get("border", False) for o in objects], bool) if "border" in has else None
-    bbox = np.array([o.get("bbox", (math.nan,) * 4) for o in objects], np.float64).reshape(-1, 4) \
-        if "bbox" in has else None
-    # The schema lets NaN and infinities through (JSON's readers accept them): a value given must be finite.
-    for name, values in (("area_px", area), ("bbox", bbox)):
-        if values is None:
-            continue
-        given = np.array([name in o for o in objects], bool)
-        bad = given & ~np.isfinite(values.reshape(len(objects), -1)).all(axis=1)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise ImageInputError(f"{source}: objects[{i}].{name} is {objects[i][name]!r}, not finite")
-    return area, border, bbox
-
-
-def _check_schema(doc: Any, source: str) -> bool:
-    """Raise the first schema violation of an image document, in one line; else whether all objects were plain."""
+def _check_schema(doc: Any, source: str) -> _PlainObjects | None:
+    """Raise the first schema violation of an image document, in one line; else its objects as
+    :func:`_plain_objects` reads them, or None when some object was not plain (the schema then passed it)."""
     if not isinstance(doc, dict):
         raise ImageInputError(_not_an_object(doc, source))
     objects = doc.get("objects")
@@ -377,33 +388,11 @@ def _check_schema(doc: Any, source: str) -> bool:
     # The schema is checked on the document with its object list emptied (a constant cost), and the objects by
     # the same rules in one plain loop (jsonschema costs ~20 us per object, more than matching); any object failing
     # it sends the whole document through the schema, which words the error.
-    whole = not (isinstance(objects, list) and all(map(_plain_object_ok, objects)))
-    checked = doc if whole else {**doc, "objects": []}
+    plain = _plain_objects(objects) if isinstance(objects, list) else None
+    checked = doc if plain is None else {**doc, "objects": []}
     if (error := _first_error(checked)) is not None:
         raise ImageInputError(f"{source}: {_schema_message(error)}")
-    return not whole
-
-
-def _positions(objects: list[dict[str, Any]], width: float, height: float, source: str, finite: bool = False
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """The objects' pixel positions, each finite (``finite``: known, as for plain objects) and inside the image."""
-    n = len(objects)
-    x = np.fromiter((o["x"] for o in objects), dtype=np.float64, count=n)
-    y = np.fromiter((o["y"] for o in objects), dtype=np.float64, count=n)
-    if finite and (not n or (x.max() <= width and y.max() <= height)):  # the usual document: two reductions
-        return x, y
-    bad = ~(np.isfinite(x) & np.isfinite(y))
-    if bad.any():
-        i = int(np.argmax(bad))
-        axis = "x" if not math.isfinite(x[i]) else "y"
-        raise ImageInputError(f"{source}: objects[{i}].{axis} is {objects[i][axis]!r}, not a finite number")
-    outside = (x > width) | (y > height)
-    if outside.any():
-        i = int(np.argmax(outside))
-        raise ImageInputError(
-            f"{source}: objects[{i}] at ({x[i]:g}, {y[i]:g}) is outside the {width:g}x{height:g} image"
-        )
-    return x, y
+    return plain
 
 
 def _short(exc: json.JSONDecodeError) -> str:

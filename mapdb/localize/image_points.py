@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import Counter
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,12 @@ __all__ = ["SCALE_TOLERANCE", "image_points", "known_objects", "scale_hints"]
 SCALE_TOLERANCE = 1.5
 
 
+@lru_cache(maxsize=16)
+def _label_codes(map_labels: tuple[str, ...]) -> dict[str, int]:
+    """Each label's code in a map (its place in the map's label table), made once per map, not per image."""
+    return {name: code for code, name in enumerate(map_labels)}
+
+
 def known_objects(im: ImageObjects, map_labels: tuple[str, ...]) -> tuple[ImageObjects, np.ndarray, dict]:
     """The image's objects of labels the map knows, their label codes, and the others counted.
 
@@ -34,7 +41,10 @@ def known_objects(im: ImageObjects, map_labels: tuple[str, ...]) -> tuple[ImageO
     n = len(im)
     if n < 3:
         raise RejectionError(f"{n} objects: at least 3 are needed")
-    known = {name: code for code, name in enumerate(map_labels)}
+    known = _label_codes(map_labels)
+    codes = [known.get(name, -1) for name in im.names.tolist()]
+    if -1 not in codes:  # the usual image: every label known, one pass
+        return im, np.array(codes, np.int64), {}
     is_known = np.fromiter((name in known for name in im.names), dtype=bool, count=n)
     unknown = sorted({str(name) for name in im.names[~is_known]})
     skipped: dict[str, Any] = {}
@@ -73,11 +83,17 @@ def image_points(im: ImageObjects) -> tuple[np.ndarray, bool, list[str]]:
     return image_plane(u, v, im.width, im.height), levelled, notes
 
 
+@lru_cache(maxsize=64)
+def _focal_px(width: float, height: float, fov_deg: float) -> float:
+    """The camera's focal length in pixels, once per camera (a stream's images share one), not per image."""
+    return Camera(width, height, fov_deg).focal_px
+
+
 def scale_hints(im: ImageObjects, diag_px: float
                 ) -> tuple[float | None, tuple[float, float] | None, float | None]:
     """Focal length (pixels), allowed metres per pixel and the footprint's largest half-diagonal (metres),
     each None unless the field of view (and, for the last two, the altitude) is given."""
-    focal_px = None if im.fov_deg is None else Camera(im.width, im.height, im.fov_deg).focal_px
+    focal_px = None if im.fov_deg is None else _focal_px(im.width, im.height, im.fov_deg)
     if focal_px is None or im.altitude_m is None:
         return focal_px, None, None
     s0 = im.altitude_m / focal_px

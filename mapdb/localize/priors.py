@@ -80,7 +80,7 @@ def outside_bounds(prior: tuple[float, float, float], margin: float, bounds: tup
     """
     x, y, r = prior
     x0, y0, x1, y1 = bounds
-    if not all(math.isfinite(v) for v in bounds):
+    if not all(map(math.isfinite, bounds)):
         return None  # nothing known about where the map is
     gap = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
     if gap <= r + margin:

@@ -127,9 +127,9 @@ def _located(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bo
     fields["transform_error_m"] = rounded(where.error_m, 3)
     # numpy's rounding of the whole array: what rounded() does to each of its numpy numbers.
     fields["footprint"] = np.round(where.footprint, 3).tolist()
-    centre, *corners = to_lonlat_many(crs, [b.real, *where.footprint[:, 0].tolist()],
-                                      [b.imag, *where.footprint[:, 1].tolist()])
-    if all(lon is not None and lat is not None for lon, lat in corners):
+    xs, ys = zip(*where.footprint.tolist(), strict=True)
+    centre, *corners = to_lonlat_many(crs, [b.real, *xs], [b.imag, *ys])
+    if (None, None) not in corners:  # to_lonlat_many gives a point's two numbers or two Nones
         fields["footprint_lonlat"] = [[lon, lat] for lon, lat in corners]
     return fields, centre
 
@@ -152,7 +152,8 @@ def ok_record(image_id: Any, crs: str, pose: FoundPose, focal_px: float | None, 
         lat=lat,
         crs=crs or None,
         inliers=int(pose.inliers),
-        heading_deg=rounded((-math.degrees(np.angle(a))) % 360.0, 3),
+        # np.angle's own ufunc on the two parts (np.angle itself first makes an array of a): the same numpy number.
+        heading_deg=rounded((-math.degrees(np.arctan2(a.imag, a.real))) % 360.0, 3),
         scale_m_per_px=rounded(abs(a), 6),
         sigma_m=None if pose.sigma_m is None else rounded(pose.sigma_m, 3),
         score=pose.score,
