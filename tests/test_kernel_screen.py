@@ -1,0 +1,140 @@
+"""The screen's neighbours of image objects (mapdb/match/_kernel_screen.c, ``screen.screen_neighbours``) against the
+scipy code it replaced, kept here verbatim as the reference.
+
+Where no two distances of a row tie the k nearest are unique and both must give the same indices in the same order;
+where they tie (duplicates, a lattice) the kernel ranks the lower index first, scipy by its heap: there the
+distances must be the same and the order the kernel's rule.  Wrong calls raise TypeError/ValueError.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mapdb._scipy import cKDTree
+from mapdb.match import _kernel
+from mapdb.match.options import FastOptions
+from mapdb.match.screen import screen_neighbours
+
+# ---------------------------------------------------------------- the scipy reference (main at 9b40c11)
+
+
+def ref_screen_neighbours(z: np.ndarray, opts: FastOptions) -> np.ndarray:
+    n = z.size
+    xy = np.column_stack([z.real, z.imag])
+    return cKDTree(xy).query(xy, k=min(opts.screen_objects, n))[1].reshape(n, -1)
+
+
+# ---------------------------------------------------------------- helpers
+
+
+def _sq(z: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Each row's squared distances to its neighbours, computed as both sides compare them."""
+    d = z[rows] - z[:, None]
+    return d.real * d.real + d.imag * d.imag
+
+
+def _check_tie_rule(z: np.ndarray, got: np.ndarray) -> None:
+    """Nearest first; among equal distances, the lower index first; and nothing left out is closer."""
+    d2 = _sq(z, got)
+    assert np.all(np.diff(d2, axis=1) >= 0)
+    same = np.diff(d2, axis=1) == 0
+    assert np.all(np.diff(got, axis=1)[same] > 0)
+    everything = _sq(z, np.broadcast_to(np.arange(z.size), (z.size, z.size)))
+    for i in range(z.size):
+        left_out = np.setdiff1d(np.arange(z.size), got[i])
+        assert not np.any(everything[i, left_out] < d2[i, -1])
+        # an object left out at the k-th distance has a higher index than those kept there
+        at_edge = left_out[everything[i, left_out] == d2[i, -1]]
+        assert not at_edge.size or at_edge.min() > got[i][d2[i] == d2[i, -1]].max()
+
+
+# ---------------------------------------------------------------- random inputs: identical to scipy
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_random_images_identical_to_scipy(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(4, 80))
+    z = rng.uniform(-500, 500, n) + 1j * rng.uniform(-400, 400, n)
+    for k in (1, 4, 12, n):
+        opts = FastOptions(screen_objects=k)
+        got = screen_neighbours(z, opts)
+        assert got.dtype == np.int64 and got.shape == (n, min(k, n))
+        np.testing.assert_array_equal(got, ref_screen_neighbours(z, opts))
+        assert np.all(got[:, 0] == np.arange(n))  # itself first
+
+
+def test_more_objects_than_a_scipy_leaf_and_the_largest_image():
+    rng = np.random.default_rng(7)
+    z = rng.normal(0, 300, 256) + 1j * rng.normal(0, 300, 256)
+    opts = FastOptions()
+    np.testing.assert_array_equal(screen_neighbours(z, opts), ref_screen_neighbours(z, opts))
+
+
+# ---------------------------------------------------------------- edges: ties, duplicates, one row
+
+
+def test_lattice_ties_same_distances_lower_index_first():
+    g = np.arange(5)
+    z = (g[:, None] * 10 + 1j * g[None, :] * 10).ravel().astype(np.complex128)
+    opts = FastOptions(screen_objects=6)
+    got, ref = screen_neighbours(z, opts), ref_screen_neighbours(z, opts)
+    np.testing.assert_array_equal(_sq(z, got), _sq(z, ref))
+    _check_tie_rule(z, got)
+
+
+def test_duplicates():
+    z = np.array([0, 5, 0, 5, 1j, 0], np.complex128)
+    got = screen_neighbours(z, FastOptions(screen_objects=4))
+    ref = ref_screen_neighbours(z, FastOptions(screen_objects=4))
+    np.testing.assert_array_equal(_sq(z, got), _sq(z, ref))
+    _check_tie_rule(z, got)
+    assert got[2].tolist() == [0, 2, 5, 4]  # the duplicates of point 2, lower index first, then the nearest
+
+
+def test_one_object_and_none():
+    assert screen_neighbours(np.array([3 + 4j]), FastOptions()).tolist() == [[0]]
+    assert screen_neighbours(np.zeros(0, np.complex128), FastOptions()).shape == (0, 0)
+
+
+def test_huge_coordinates_overflowing_the_squares():
+    z = np.array([0, 1e200, -1e200, 1e200j], np.complex128)
+    got = screen_neighbours(z, FastOptions(screen_objects=4))
+    # every other point's squared distance overflows to inf: a tie, so itself and then the others in order
+    for i, row in enumerate(got.tolist()):
+        assert row == [i] + [j for j in range(4) if j != i]
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, complex(0, np.nan)])
+def test_non_finite_refused_as_scipy_refused(bad):
+    z = np.array([0, 1, bad, 1j], np.complex128)
+    with pytest.raises(ValueError):
+        ref_screen_neighbours(z, FastOptions())
+    with pytest.raises(ValueError, match="finite"):
+        screen_neighbours(z, FastOptions())
+
+
+# ---------------------------------------------------------------- wrong calls
+
+
+def test_wrong_calls_raise():
+    z = np.array([0, 1, 1j], np.complex128)
+    with pytest.raises(TypeError):
+        _kernel.screen_knn(z.real.copy(), np.empty((3, 2), np.int64))  # not complex
+    with pytest.raises(TypeError):
+        _kernel.screen_knn(z, np.empty((3, 2), np.int32))  # not int64
+    with pytest.raises(ValueError):
+        _kernel.screen_knn(z, np.empty((3, 4), np.int64))  # more neighbours than objects
+    with pytest.raises(ValueError):
+        _kernel.screen_knn(z, np.empty((3, 0), np.int64))
+    with pytest.raises(ValueError):
+        _kernel.screen_knn(z, np.empty((2, 2), np.int64))  # a row short
+    with pytest.raises((TypeError, ValueError)):
+        _kernel.screen_knn(z, np.empty((3, 2), np.int64)[:, ::-1])  # not C-contiguous
+    frozen = np.empty((3, 2), np.int64)
+    frozen.setflags(write=False)
+    with pytest.raises((TypeError, ValueError, BufferError)):
+        _kernel.screen_knn(z, frozen)
+    with pytest.raises(TypeError):
+        _kernel.screen_knn(z)
