@@ -1,5 +1,6 @@
-"""The screen's neighbours of image objects (mapdb/match/_kernel_screen.c, ``screen.screen_neighbours``) against the
-scipy code it replaced, kept here verbatim as the reference.
+"""The matcher's cheap screens (mapdb/match/_kernel_screen.c) against the code they replaced, kept here verbatim as
+the reference: the screen's neighbours of image objects (``screen.screen_neighbours``, scipy's tree before) and
+the rivals' quick count (``ObjectIndex.near_counts``, ``rivals._near_counts``' numpy before).
 
 Where no two distances of a row tie the k nearest are unique and both must give the same indices in the same order;
 where they tie (duplicates, a lattice) the kernel ranks the lower index first, scipy by its heap: there the
@@ -13,8 +14,10 @@ import pytest
 
 from mapdb._scipy import cKDTree
 from mapdb.match import _kernel
+from mapdb.match.mapobjects.object_index import ObjectIndex
 from mapdb.match.options import FastOptions
 from mapdb.match.screen import screen_neighbours
+from mapdb.objects import Objects
 
 # ---------------------------------------------------------------- the scipy reference (main at 9b40c11)
 
@@ -23,6 +26,14 @@ def ref_screen_neighbours(z: np.ndarray, opts: FastOptions) -> np.ndarray:
     n = z.size
     xy = np.column_stack([z.real, z.imag])
     return cKDTree(xy).query(xy, k=min(opts.screen_objects, n))[1].reshape(n, -1)
+
+
+def ref_near_counts(a, b, z, img_label, index, gate):
+    # rivals._near_counts before the kernel (its sigma and SCREEN_SIGMAS folded into ``gate``)
+    w = (a[:, None] * z[None, :] + b[:, None]).ravel()
+    rows, _, _ = index.within(w, np.tile(img_label, a.size), gate, 1)
+    near = np.bincount(rows // z.size, minlength=a.size)
+    return near
 
 
 # ---------------------------------------------------------------- helpers
@@ -138,3 +149,80 @@ def test_wrong_calls_raise():
         _kernel.screen_knn(z, frozen)
     with pytest.raises(TypeError):
         _kernel.screen_knn(z)
+
+
+# ---------------------------------------------------------------- the rivals' quick count
+
+
+def _town(seed: int, n: int, labels: int = 3, grid: bool = False) -> ObjectIndex:
+    rng = np.random.default_rng(seed)
+    if grid:  # a lattice: ties everywhere, and objects exactly at the gate's distance
+        g = np.arange(int(np.sqrt(n)))
+        x, y = (g[:, None] * 10.0 + 0 * g[None, :]).ravel(), (0 * g[:, None] + g[None, :] * 10.0).ravel()
+    else:
+        x, y = rng.uniform(0, 1000, n), rng.uniform(0, 800, n)
+    label = rng.integers(0, labels, x.size)
+    return ObjectIndex(Objects(x, y, label, np.zeros(x.size), tuple(f"l{j}" for j in range(labels))))
+
+
+def _poses(rng, h: int, n: int):
+    a = rng.uniform(0.3, 0.6, h) * np.exp(1j * rng.uniform(-np.pi, np.pi, h))
+    b = rng.uniform(0, 1000, h) + 1j * rng.uniform(0, 800, h)
+    z = rng.uniform(-300, 300, n) + 1j * rng.uniform(-200, 200, n)
+    return a, b, z
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_near_counts_identical_to_the_reference(seed):
+    rng = np.random.default_rng(100 + seed)
+    index = _town(seed, int(rng.integers(50, 3000)), int(rng.integers(1, 5)))
+    h, n = int(rng.integers(1, 60)), int(rng.integers(1, 40))
+    a, b, z = _poses(rng, h, n)
+    img_label = rng.integers(0, len(index.labels), n)
+    for gate in (0.5, 5.0, 30.0, 1e9):
+        got = index.near_counts(a, b, z, img_label, gate)
+        assert got.dtype == np.int64
+        np.testing.assert_array_equal(got, ref_near_counts(a, b, z, img_label, index, gate))
+
+
+def test_near_counts_edges():
+    index = _town(0, 400, 2, grid=True)
+    rng = np.random.default_rng(5)
+    a = np.array([1.0, 1.0, 1j, np.nan, 1.0], np.complex128)
+    b = np.array([0, 5, 3 + 4j, 0, np.inf], np.complex128)
+    z = np.array([0, 10, 10j, 20 + 20j, 0, 5 + 5j], np.complex128)  # a duplicate, a point between the lattice's
+    img_label = rng.integers(0, 2, z.size)
+    for gate in (0.0, 5.0, 5.000000001, 10.0, np.nan, np.inf):
+        got = index.near_counts(a, b, z, img_label, gate)
+        np.testing.assert_array_equal(got, ref_near_counts(a, b, z, img_label, index, gate))
+    one = index.near_counts(a[:1], b[:1], z[:1], img_label[:1], 1.0)
+    np.testing.assert_array_equal(one, ref_near_counts(a[:1], b[:1], z[:1], img_label[:1], index, 1.0))
+    none = index.near_counts(a[:0], b[:0], z, img_label, 1.0)
+    assert none.shape == (0,) and none.dtype == np.int64
+    # a label the map does not hold counts nothing, as the tree's query finds nothing for it
+    assert index.near_counts(a[:1], b[:1], z, np.full(z.size, 7), 1e9).tolist() == [0]
+
+
+def test_near_counts_refuse_wrong_calls():
+    index = _town(1, 100)
+    tree = index.fused_tree()._tree()
+    a = b = np.zeros(2, np.complex128)
+    z, lab = np.zeros(3, np.complex128), np.zeros(3, np.int64)
+    out = np.empty(2, np.int64)
+    _kernel.screen_near_counts(*tree, a, b, z, lab, 1.0, out)
+    with pytest.raises(TypeError):
+        _kernel.screen_near_counts(*tree, a.real.copy(), b, z, lab, 1.0, out)
+    with pytest.raises(TypeError):
+        _kernel.screen_near_counts(*tree, a, b, z, lab.astype(np.int32), 1.0, out)
+    with pytest.raises(ValueError):
+        _kernel.screen_near_counts(*tree, a, b[:1], z, lab, 1.0, out)
+    with pytest.raises(ValueError):
+        _kernel.screen_near_counts(*tree, a, b, z, lab[:2], 1.0, out)
+    with pytest.raises(ValueError):
+        _kernel.screen_near_counts(*tree, a, b, z, lab, 1.0, np.empty(3, np.int64))
+    with pytest.raises(TypeError):
+        _kernel.screen_near_counts(*tree, a, b, z, lab, "1", out)
+    bad_node = tree[3].copy()
+    bad_node[:] = 10**9
+    with pytest.raises(ValueError):
+        _kernel.screen_near_counts(tree[0], tree[1], tree[2], bad_node, tree[4], a, b, z, lab, 1e9, out)

@@ -1,4 +1,8 @@
-/* The screen's neighbours of image objects (screen.screen_neighbours): each image object's k nearest image objects.
+/* The matcher's cheap screens, each one call: the screen's neighbours of image objects (screen.screen_neighbours:
+ * each image object's k nearest image objects) and the rivals' quick count (ObjectIndex.near_counts: how many
+ * image objects each place puts near a map object of their label).
+ *
+ * Neighbours of image objects:
  *
  * An image holds a few dozen objects (at most FastOptions.max_objects, 256), so every pair's squared distance is
  * read directly (at most 65,536 of them) and the k smallest of a row kept by insertion: no tree to build, no
@@ -70,7 +74,59 @@ static PyObject *screen_knn(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ------------------------------------------------------------------ the rivals' quick count */
+
+/* Of each pose r (a, b as re, im pairs), how many of the n image objects land closer than sqrt(bound2) to a map
+ * object of their label: a z + b as numpy computes it (its complex product, then the sum), each point's nearest
+ * under the bound (objects_knn's k = 1 query: a squared distance below bound2; a label outside the tree's, a
+ * non-finite point or a NaN bound finds none, as there). */
+static void screen_count_rows(ObjectsTree *t, const double *a, const double *b, const double *z, const int64_t *lab,
+                              Py_ssize_t h, Py_ssize_t n, double bound2, int64_t *out)
+{
+    for (Py_ssize_t r = 0; r < h; r++) {
+        int64_t count = 0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            double wr, wi, d2;
+            cmul(a[2 * r], a[2 * r + 1], z[2 * i], z[2 * i + 1], &wr, &wi);
+            wr += b[2 * r];
+            wi += b[2 * r + 1];
+            count += objects_nearest1(t, lab[i], wr, wi, bound2, &d2) >= 0;
+        }
+        out[r] = count;
+    }
+}
+
+static PyObject *screen_near_counts(PyObject *self, PyObject *args)
+{
+    PyObject *o[5], *oa, *ob, *oz, *olab, *oout;
+    double bound;
+    Arr a[10] = {{{0}}};
+    ObjectsTree t;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOdO:screen_near_counts", &o[0], &o[1], &o[2], &o[3], &o[4], &oa, &ob, &oz,
+                          &olab, &bound, &oout)) {
+        return NULL;
+    }
+    if (objects_take_tree(o, a, &t) < 0 || arr_take(oa, &a[5], "a", 'Z', 1, 0, 0)
+        || arr_take(ob, &a[6], "b", 'Z', 1, 0, 0) || arr_take(oz, &a[7], "z", 'Z', 1, 0, 0)
+        || arr_take(olab, &a[8], "img_label", 'q', 1, 0, 0) || arr_take(oout, &a[9], "out", 'q', 1, 1, 0)) {
+        arr_release(a, 10);
+        return NULL;
+    }
+    Py_ssize_t h = arr_dim(&a[5], 0), n = arr_dim(&a[7], 0);
+    if (arr_check_shape(&a[6], "b", h, 0) || arr_check_shape(&a[8], "img_label", n, 0)
+        || arr_check_shape(&a[9], "out", h, 0)) {
+        arr_release(a, 10);
+        return NULL;
+    }
+    screen_count_rows(&t, D(a[5]), D(a[6]), D(a[7]), Q(a[8]), h, n, bound * bound, Q(a[9]));
+    arr_release(a, 10);
+    return objects_checked(&t);
+}
+
 PyMethodDef screen_methods[] = {
+    {"screen_near_counts", screen_near_counts, METH_VARARGS,
+     "screen_near_counts(pts, pid, box, node, root, a, b, z, img_label, bound, out): each pose's image objects "
+     "closer than bound to a map object of their label."},
     {"screen_knn", screen_knn, METH_VARARGS,
      "screen_knn(z, out): each of the n image objects' k nearest (out: (n, k) int64; ties: lower index first)."},
     {NULL, NULL, 0, NULL},

@@ -191,10 +191,7 @@ def _near_counts(a: np.ndarray, b: np.ndarray, best: Candidate, z: np.ndarray, i
     if not a.size:
         return np.zeros(0, np.int64)
     sigma = max(best.sigma_axis_m, opts.pixel_sigmas[0] * abs(best.a))
-    w = (a[:, None] * z[None, :] + b[:, None]).ravel()
-    rows, _, _ = index.within(w, np.tile(img_label, a.size), SCREEN_SIGMAS * sigma, 1)
-    near = np.bincount(rows // z.size, minlength=a.size)
-    return near
+    return index.near_counts(a, b, z, img_label, SCREEN_SIGMAS * sigma)
 
 
 def _compared(best: Candidate, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,

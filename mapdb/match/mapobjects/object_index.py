@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ...objects import Objects
-from .._kernel import first_allowed, objects_density, verify_screen
+from .._kernel import first_allowed, objects_density, screen_near_counts, verify_screen
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
@@ -358,6 +358,24 @@ class ObjectIndex:
                                                                               0.5 * self.gap))
         for j, hits in enumerate(found):
             out[j // codes.size][int(codes[j % codes.size])] = hits
+        return out
+
+    def near_counts(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,
+                    gate: float) -> np.ndarray:
+        """How many image objects each pose ``z -> a z + b`` (``a``, ``b``: ``(H,)``) puts closer than ``gate`` metres
+        (at most half the label gap) to a map object of their label: ``(H,)``, the pairs :meth:`within` would find
+        with ``k = 1`` counted per pose.  One call of the compiled kernel (``screen_near_counts``) on an index whose
+        objects are in one tree; an index reading pages as queries need them counts through :meth:`within`."""
+        tree = self.fused_tree()
+        if tree is None:
+            w = (a[:, None] * z[None, :] + b[:, None]).ravel()
+            rows, _, _ = self.within(w, np.tile(img_label, a.size), gate, 1)
+            return np.bincount(rows // z.size, minlength=a.size)
+        out = np.empty(a.size, np.int64)
+        screen_near_counts(*tree._tree(), np.ascontiguousarray(a, np.complex128),
+                           np.ascontiguousarray(b, np.complex128), np.ascontiguousarray(z, np.complex128),
+                           np.ascontiguousarray(img_label, np.int64),
+                           self._bound(gate), out)
         return out
 
     def within(self, w: np.ndarray, img_label: np.ndarray, gate: float, k: int) -> tuple[np.ndarray, ...]:
