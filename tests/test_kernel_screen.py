@@ -182,7 +182,14 @@ def test_near_counts_identical_to_the_reference(seed):
     for gate in (0.5, 5.0, 30.0, 1e9):
         got = index.near_counts(a, b, z, img_label, gate)
         assert got.dtype == np.int64
-        np.testing.assert_array_equal(got, ref_near_counts(a, b, z, img_label, index, gate))
+        ref = ref_near_counts(a, b, z, img_label, index, gate)
+        np.testing.assert_array_equal(got, ref)
+        # with a count to reach, those reaching it are exact and the others stay below it
+        for need in (1, 4, n // 2, n, n + 1):
+            short = index.near_counts(a, b, z, img_label, gate, need)
+            np.testing.assert_array_equal(short >= need, ref >= need)
+            np.testing.assert_array_equal(short[ref >= need], ref[ref >= need])
+            assert np.all(short <= ref)
 
 
 def test_near_counts_edges():
@@ -209,20 +216,22 @@ def test_near_counts_refuse_wrong_calls():
     a = b = np.zeros(2, np.complex128)
     z, lab = np.zeros(3, np.complex128), np.zeros(3, np.int64)
     out = np.empty(2, np.int64)
-    _kernel.screen_near_counts(*tree, a, b, z, lab, 1.0, out)
+    _kernel.screen_near_counts(*tree, a, b, z, lab, 1.0, 0, out)
     with pytest.raises(TypeError):
-        _kernel.screen_near_counts(*tree, a.real.copy(), b, z, lab, 1.0, out)
+        _kernel.screen_near_counts(*tree, a.real.copy(), b, z, lab, 1.0, 0, out)
     with pytest.raises(TypeError):
-        _kernel.screen_near_counts(*tree, a, b, z, lab.astype(np.int32), 1.0, out)
+        _kernel.screen_near_counts(*tree, a, b, z, lab.astype(np.int32), 1.0, 0, out)
     with pytest.raises(ValueError):
-        _kernel.screen_near_counts(*tree, a, b[:1], z, lab, 1.0, out)
+        _kernel.screen_near_counts(*tree, a, b[:1], z, lab, 1.0, 0, out)
     with pytest.raises(ValueError):
-        _kernel.screen_near_counts(*tree, a, b, z, lab[:2], 1.0, out)
+        _kernel.screen_near_counts(*tree, a, b, z, lab[:2], 1.0, 0, out)
     with pytest.raises(ValueError):
-        _kernel.screen_near_counts(*tree, a, b, z, lab, 1.0, np.empty(3, np.int64))
+        _kernel.screen_near_counts(*tree, a, b, z, lab, 1.0, 0, np.empty(3, np.int64))
     with pytest.raises(TypeError):
-        _kernel.screen_near_counts(*tree, a, b, z, lab, "1", out)
+        _kernel.screen_near_counts(*tree, a, b, z, lab, "1", 0, out)
+    with pytest.raises(TypeError):
+        _kernel.screen_near_counts(*tree, a, b, z, lab, 1.0, 0.5, out)
     bad_node = tree[3].copy()
     bad_node[:] = 10**9
     with pytest.raises(ValueError):
-        _kernel.screen_near_counts(tree[0], tree[1], tree[2], bad_node, tree[4], a, b, z, lab, 1e9, out)
+        _kernel.screen_near_counts(tree[0], tree[1], tree[2], bad_node, tree[4], a, b, z, lab, 1e9, 0, out)

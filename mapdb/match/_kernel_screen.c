@@ -79,13 +79,14 @@ static PyObject *screen_knn(PyObject *self, PyObject *args)
 /* Of each pose r (a, b as re, im pairs), how many of the n image objects land closer than sqrt(bound2) to a map
  * object of their label: a z + b as numpy computes it (its complex product, then the sum), each point's nearest
  * under the bound (objects_knn's k = 1 query: a squared distance below bound2; a label outside the tree's, a
- * non-finite point or a NaN bound finds none, as there). */
+ * non-finite point or a NaN bound finds none, as there).  Counts below ``need`` may stop short (still below it). */
 static void screen_count_rows(ObjectsTree *t, const double *a, const double *b, const double *z, const int64_t *lab,
-                              Py_ssize_t h, Py_ssize_t n, double bound2, int64_t *out)
+                              Py_ssize_t h, Py_ssize_t n, double bound2, int64_t need, int64_t *out)
 {
     for (Py_ssize_t r = 0; r < h; r++) {
         int64_t count = 0;
-        for (Py_ssize_t i = 0; i < n; i++) {
+        /* a place that can no longer reach ``need`` stops: its count, below need, is all the caller reads of it */
+        for (Py_ssize_t i = 0; i < n && count + (n - i) >= need; i++) {
             double wr, wi, d2;
             cmul(a[2 * r], a[2 * r + 1], z[2 * i], z[2 * i + 1], &wr, &wi);
             wr += b[2 * r];
@@ -100,10 +101,11 @@ static PyObject *screen_near_counts(PyObject *self, PyObject *args)
 {
     PyObject *o[5], *oa, *ob, *oz, *olab, *oout;
     double bound;
+    long long need;
     Arr a[10] = {{{0}}};
     ObjectsTree t;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOdO:screen_near_counts", &o[0], &o[1], &o[2], &o[3], &o[4], &oa, &ob, &oz,
-                          &olab, &bound, &oout)) {
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOdLO:screen_near_counts", &o[0], &o[1], &o[2], &o[3], &o[4], &oa, &ob, &oz,
+                          &olab, &bound, &need, &oout)) {
         return NULL;
     }
     if (objects_take_tree(o, a, &t) < 0 || arr_take(oa, &a[5], "a", 'Z', 1, 0, 0)
@@ -118,15 +120,15 @@ static PyObject *screen_near_counts(PyObject *self, PyObject *args)
         arr_release(a, 10);
         return NULL;
     }
-    screen_count_rows(&t, D(a[5]), D(a[6]), D(a[7]), Q(a[8]), h, n, bound * bound, Q(a[9]));
+    screen_count_rows(&t, D(a[5]), D(a[6]), D(a[7]), Q(a[8]), h, n, bound * bound, (int64_t)need, Q(a[9]));
     arr_release(a, 10);
     return objects_checked(&t);
 }
 
 PyMethodDef screen_methods[] = {
     {"screen_near_counts", screen_near_counts, METH_VARARGS,
-     "screen_near_counts(pts, pid, box, node, root, a, b, z, img_label, bound, out): each pose's image objects "
-     "closer than bound to a map object of their label."},
+     "screen_near_counts(pts, pid, box, node, root, a, b, z, img_label, bound, need, out): each pose's image "
+     "objects closer than bound to a map object of their label (counts below need may stop short)."},
     {"screen_knn", screen_knn, METH_VARARGS,
      "screen_knn(z, out): each of the n image objects' k nearest (out: (n, k) int64; ties: lower index first)."},
     {NULL, NULL, 0, NULL},

@@ -107,8 +107,9 @@ def find_rivals(
         a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
     if not a.size:
         return []
-    near = _near_counts(a, b, best, z, img_label, index, opts)
-    ok = _elsewhere(a, b, best, diag_px) & (near >= max(4.0, SCREEN_SHARE * best.inliers))
+    need = max(4.0, SCREEN_SHARE * best.inliers)
+    near = _near_counts(a, b, best, z, img_label, index, opts, math.ceil(need))
+    ok = _elsewhere(a, b, best, diag_px) & (near >= need)
     # The places where most objects land near a map object of their label are refitted first.
     keep = np.flatnonzero(ok)[np.argsort(-near[ok], kind="stable")][: opts.ambiguity_places]
     if not keep.size:
@@ -181,17 +182,18 @@ def _places(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np
 
 
 def _near_counts(a: np.ndarray, b: np.ndarray, best: Candidate, z: np.ndarray, img_label: np.ndarray,
-                 index: ObjectIndex, opts: FastOptions) -> np.ndarray:
+                 index: ObjectIndex, opts: FastOptions, need: int = 0) -> np.ndarray:
     """How many image objects each place ``(a, b)`` puts within :data:`SCREEN_SIGMAS` of the winner's
-    residual error of a map object of their label.
+    residual error of a map object of their label (a count below ``need`` may stop short, staying below it).
 
     One bounded query for all places: a place where fewer than :data:`SCREEN_SHARE` of the winner's number
-    of inliers land so (most chance alignments of an ordinary map) is never refitted.
+    of inliers land so (most chance alignments of an ordinary map) is never refitted, and its count stops as
+    soon as the objects left cannot bring it there.
     """
     if not a.size:
         return np.zeros(0, np.int64)
     sigma = max(best.sigma_axis_m, opts.pixel_sigmas[0] * abs(best.a))
-    return index.near_counts(a, b, z, img_label, SCREEN_SIGMAS * sigma)
+    return index.near_counts(a, b, z, img_label, SCREEN_SIGMAS * sigma, need)
 
 
 def _compared(best: Candidate, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,

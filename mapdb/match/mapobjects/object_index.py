@@ -360,12 +360,14 @@ class ObjectIndex:
             out[j // codes.size][int(codes[j % codes.size])] = hits
         return out
 
-    def near_counts(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,
-                    gate: float) -> np.ndarray:
+    def near_counts(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray, gate: float,
+                    at_least: int = 0) -> np.ndarray:
         """How many image objects each pose ``z -> a z + b`` (``a``, ``b``: ``(H,)``) puts closer than ``gate`` metres
         (at most half the label gap) to a map object of their label: ``(H,)``, the pairs :meth:`within` would find
-        with ``k = 1`` counted per pose.  One call of the compiled kernel (``screen_near_counts``) on an index whose
-        objects are in one tree; an index reading pages as queries need them counts through :meth:`within`."""
+        with ``k = 1`` counted per pose.  A count below ``at_least`` may stop short (it stays below): a caller
+        asking only for the poses reaching it is spared the rest of the others' queries.  One call of the compiled
+        kernel (``screen_near_counts``) on an index whose objects are in one tree; an index reading pages as queries
+        need them counts through :meth:`within`."""
         tree = self.fused_tree()
         if tree is None:
             w = (a[:, None] * z[None, :] + b[:, None]).ravel()
@@ -374,8 +376,7 @@ class ObjectIndex:
         out = np.empty(a.size, np.int64)
         screen_near_counts(*tree._tree(), np.ascontiguousarray(a, np.complex128),
                            np.ascontiguousarray(b, np.complex128), np.ascontiguousarray(z, np.complex128),
-                           np.ascontiguousarray(img_label, np.int64),
-                           self._bound(gate), out)
+                           np.ascontiguousarray(img_label, np.int64), self._bound(gate), at_least, out)
         return out
 
     def within(self, w: np.ndarray, img_label: np.ndarray, gate: float, k: int) -> tuple[np.ndarray, ...]:
