@@ -177,8 +177,12 @@ def _places(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np
     # One number per cell of a place's width and twelfth of a turn (a lattice repeats itself turned too).
     turn = np.floor(np.angle(a[away] / best.a) / (np.pi / 6.0))
     cell = (np.floor(b[away].real / separation) * 2.0**24 + np.floor(b[away].imag / separation)) * 16.0 + turn
-    _, first = np.unique(cell, return_index=True)
-    return away[np.sort(first)]
+    # Each cell's first hypothesis, in order: a dict of a few dozen Python numbers, not np.unique's sort (its
+    # first indices, sorted, are these; NaN cells are one cell there, the key None here).
+    first: dict[float | None, int] = {}
+    for j, c in enumerate(cell.tolist()):
+        first.setdefault(c if c == c else None, j)
+    return away[list(first.values())]
 
 
 def _near_counts(a: np.ndarray, b: np.ndarray, best: Candidate, z: np.ndarray, img_label: np.ndarray,
