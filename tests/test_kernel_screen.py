@@ -95,6 +95,19 @@ def test_lattice_ties_same_distances_lower_index_first():
     _check_tie_rule(z, got)
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_integer_pixels_many_ties(seed):
+    # detections rounded to whole pixels: equal x everywhere, equal distances often
+    rng = np.random.default_rng(50 + seed)
+    n = int(rng.integers(5, 200))
+    z = rng.integers(-20, 21, n) + 1j * rng.integers(-15, 16, n).astype(np.float64)
+    for k in (3, 12):
+        opts = FastOptions(screen_objects=k)
+        got, ref = screen_neighbours(z, opts), ref_screen_neighbours(z, opts)
+        np.testing.assert_array_equal(_sq(z, got), _sq(z, ref))
+        _check_tie_rule(z, got)
+
+
 def test_duplicates():
     z = np.array([0, 5, 0, 5, 1j, 0], np.complex128)
     got = screen_neighbours(z, FastOptions(screen_objects=4))
