@@ -132,7 +132,7 @@ def polish(
     evidence = evidence or ImageEvidence()
     a, b = cand.a, cand.b
     w = _projected(evidence, a, b, z)  # the first association's projections too
-    farthest = float(np.max(np.abs(w[cand.pairs[:, 0]] - index.z[cand.pairs[:, 1]])))
+    farthest = float(np.abs(w[cand.pairs[:, 0]] - index.z[cand.pairs[:, 1]]).max())
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
     fit: ReliefFit | None = None
