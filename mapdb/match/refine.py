@@ -56,7 +56,7 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
     log10 NFA without areas, when it has them)."""
     inlier = np.ascontiguousarray(inlier, bool)
     counts = inlier.sum(axis=1)
-    keep = np.flatnonzero(np.isfinite(a) & (counts >= 3))
+    keep = (np.isfinite(a) & (counts >= 3)).nonzero()[0]
     if not keep.size:
         return []
     # Every row's error model in one kernel call (the residual sigma and the prediction variance factor of each
@@ -65,7 +65,7 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
     sigma, variance = fit_errors(z, dist[keep], kept)
     rows, cols = np.nonzero(kept)
     pairs = _paired(cols, mid[keep[rows], cols])
-    ends = np.cumsum(counts[keep]).tolist()
+    ends = counts[keep].cumsum().tolist()
     points = None if nfa_points is None else nfa_points[keep].tolist()
     return [Candidate(a=a_j, b=b_j, log10_nfa=nfa_j, inliers=end - start, sigma_axis_m=sigma_j,
                       variance_factor=variance_j, pairs=pairs[start:end],

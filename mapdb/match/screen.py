@@ -98,7 +98,7 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
                             max(1 + hyps.map_z.shape[1], opts.density_neighbours))
     nfa = decision_nfa(hyps.a, hyps.b, hyps.img_ids, hyps.map_z, z, img_label, index, index.density, log10_tests,
                        near=near)
-    chosen = distinct(hyps.b, np.argsort(nfa, kind="stable"), np.abs(hyps.a) * diag_px * PLACE_FRACTION,
+    chosen = distinct(hyps.b, nfa.argsort(kind="stable"), np.abs(hyps.a) * diag_px * PLACE_FRACTION,
                       opts.refine_candidates)
     hyps = hyps.take(chosen)
     near = None if near is None else near.take(chosen)

@@ -149,8 +149,11 @@ class ObjectIndex:
         ``centres`` (complex) and ``radius`` have shape ``(H,)``; the result ``(H, L)``.  A label with no
         object in a disc counts one, so that no density is zero.
         """
-        centres = np.ascontiguousarray(np.atleast_1d(np.asarray(centres, np.complex128)).ravel())
-        radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.float64), centres.shape))
+        centres = np.ascontiguousarray(np.asarray(centres, np.complex128).reshape(-1))
+        radius = np.asarray(radius, np.float64)
+        if radius.shape != centres.shape:  # the usual radius is one a centre (broadcast_to costs 5 us)
+            radius = np.broadcast_to(radius, centres.shape)
+        radius = np.ascontiguousarray(radius)
         # The disc's share inside the bounds, its area, each present label's count over the trees: one kernel call.
         out = np.empty((centres.size, len(self.labels)))
         objects_density(self._trees(), centres, radius, _DISC, self._bounds, np.flatnonzero(self.counts),
