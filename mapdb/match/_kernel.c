@@ -451,7 +451,8 @@ PyMODINIT_FUNC PyInit__kernel(void)
         Py_DECREF(m);
         return NULL;
     }
-    if (PyModule_AddFunctions(m, qdecode_methods) < 0 || PyModule_AddFunctions(m, qcheck_methods) < 0) {
+    if (PyModule_AddFunctions(m, qdecode_methods) < 0 || PyModule_AddFunctions(m, qcheck_methods) < 0
+        || PyModule_AddFunctions(m, screen_methods) < 0) {
         Py_DECREF(m);
         return NULL;
     }

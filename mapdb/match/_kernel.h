@@ -130,6 +130,7 @@ extern PyMethodDef map_quads_methods[];  /* _kernel_map_quads.c: a map tile's qu
 extern PyMethodDef stored_methods[];  /* _kernel_stored.c: the stored quad index's lookup */
 extern PyMethodDef qdecode_methods[];  /* _kernel_qdecode.c: the stored index's packed blocks decoded */
 extern PyMethodDef qcheck_methods[];  /* _kernel_qcheck.c: the stored index's blocks checked (CRC-32) */
+extern PyMethodDef screen_methods[];  /* _kernel_screen.c: the screen's neighbours of image objects */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

@@ -56,7 +56,7 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
     log10 NFA without areas, when it has them)."""
     inlier = np.ascontiguousarray(inlier, bool)
     counts = inlier.sum(axis=1)
-    keep = np.flatnonzero(np.isfinite(a) & (counts >= 3))
+    keep = (np.isfinite(a) & (counts >= 3)).nonzero()[0]
     if not keep.size:
         return []
     # Every row's error model in one kernel call (the residual sigma and the prediction variance factor of each
@@ -64,8 +64,8 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
     kept = inlier[keep]
     sigma, variance = fit_errors(z, dist[keep], kept)
     rows, cols = np.nonzero(kept)
-    pairs = np.column_stack([cols, mid[keep][rows, cols]])
-    ends = np.cumsum(counts[keep]).tolist()
+    pairs = _paired(cols, mid[keep[rows], cols])
+    ends = counts[keep].cumsum().tolist()
     points = None if nfa_points is None else nfa_points[keep].tolist()
     return [Candidate(a=a_j, b=b_j, log10_nfa=nfa_j, inliers=end - start, sigma_axis_m=sigma_j,
                       variance_factor=variance_j, pairs=pairs[start:end],
@@ -131,20 +131,23 @@ def polish(
     """
     evidence = evidence or ImageEvidence()
     a, b = cand.a, cand.b
-    farthest = float(np.max(np.abs(_projected(evidence, a, b, z)[cand.pairs[:, 0]] - index.z[cand.pairs[:, 1]])))
+    w = _projected(evidence, a, b, z)  # the first association's projections too
+    farthest = float(np.abs(w[cand.pairs[:, 0]] - index.z[cand.pairs[:, 1]]).max())
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
     fit: ReliefFit | None = None
     scale = abs(a)
-    for _ in range(iterations):
-        w = _projected(evidence, a, b, z)
+    for it in range(iterations):
+        if it:
+            w = _projected(evidence, a, b, z)
         rows, cols, costs = index.within(w, img_label, gate, 3)
         if not rows.size:
             return cand
         if all_distinct(rows) and all_distinct(cols):
-            if fit is not None and np.array_equal(pairs, np.column_stack([rows, cols])):
+            found = _paired(rows, cols)  # no image or map object has a rival: nothing to assign
+            if fit is not None and _same(pairs, found):
                 break  # the pairs of the last fit: fitting them again gives it again
-            pairs = np.column_stack([rows, cols])  # no image or map object has a rival: nothing to assign
+            pairs = found
             scale = abs(a)  # the scale cut blobs are placed at, the jackknife's too
             fit = evidence.fit(z, index, pairs, scale, b)
             if fit is None:
@@ -166,8 +169,8 @@ def polish(
         else:
             r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
         good = cost[r_opt, c_opt] < big
-        assigned = np.column_stack([img_u[r_opt[good]], map_u[c_opt[good]]])
-        if fit is not None and np.array_equal(pairs, assigned):
+        assigned = _paired(img_u[r_opt[good]], map_u[c_opt[good]])
+        if fit is not None and _same(pairs, assigned):
             break
         pairs = assigned
         scale = abs(a)
@@ -180,6 +183,19 @@ def polish(
     sigma_axis, variance = evidence.error(z, index, pairs, fit, scale)
     return Candidate(a=a, b=b, log10_nfa=cand.log10_nfa, inliers=len(pairs), sigma_axis_m=sigma_axis,
                      variance_factor=variance, pairs=pairs, log10_nfa_points=cand.log10_nfa_points)
+
+
+def _paired(image_ids: np.ndarray, map_ids: np.ndarray) -> np.ndarray:
+    """Pairs ``(k, 2)`` (int64) of image and map ids: ``np.column_stack`` of them (integer arrays) in half its calls."""
+    pairs = np.empty((image_ids.size, 2), np.int64)
+    pairs[:, 0] = image_ids
+    pairs[:, 1] = map_ids
+    return pairs
+
+
+def _same(pairs: np.ndarray, other: np.ndarray) -> bool:
+    """Whether two pair tables are equal (``np.array_equal`` of integer arrays, without its conversions)."""
+    return pairs.shape == other.shape and bool((pairs == other).all())
 
 
 def _projected(evidence: ImageEvidence, a: complex, b: complex, z: np.ndarray) -> np.ndarray:

@@ -107,8 +107,9 @@ def find_rivals(
         a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
     if not a.size:
         return []
-    near = _near_counts(a, b, best, z, img_label, index, opts)
-    ok = _elsewhere(a, b, best, diag_px) & (near >= max(4.0, SCREEN_SHARE * best.inliers))
+    need = max(4.0, SCREEN_SHARE * best.inliers)
+    near = _near_counts(a, b, best, z, img_label, index, opts, math.ceil(need))
+    ok = _elsewhere(a, b, best, diag_px) & (near >= need)
     # The places where most objects land near a map object of their label are refitted first.
     keep = np.flatnonzero(ok)[np.argsort(-near[ok], kind="stable")][: opts.ambiguity_places]
     if not keep.size:
@@ -176,25 +177,27 @@ def _places(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np
     # One number per cell of a place's width and twelfth of a turn (a lattice repeats itself turned too).
     turn = np.floor(np.angle(a[away] / best.a) / (np.pi / 6.0))
     cell = (np.floor(b[away].real / separation) * 2.0**24 + np.floor(b[away].imag / separation)) * 16.0 + turn
-    _, first = np.unique(cell, return_index=True)
-    return away[np.sort(first)]
+    # Each cell's first hypothesis, in order: a dict of a few dozen Python numbers, not np.unique's sort (its
+    # first indices, sorted, are these; NaN cells are one cell there, the key None here).
+    first: dict[float | None, int] = {}
+    for j, c in enumerate(cell.tolist()):
+        first.setdefault(c if c == c else None, j)
+    return away[list(first.values())]
 
 
 def _near_counts(a: np.ndarray, b: np.ndarray, best: Candidate, z: np.ndarray, img_label: np.ndarray,
-                 index: ObjectIndex, opts: FastOptions) -> np.ndarray:
+                 index: ObjectIndex, opts: FastOptions, need: int = 0) -> np.ndarray:
     """How many image objects each place ``(a, b)`` puts within :data:`SCREEN_SIGMAS` of the winner's
-    residual error of a map object of their label.
+    residual error of a map object of their label (a count below ``need`` may stop short, staying below it).
 
     One bounded query for all places: a place where fewer than :data:`SCREEN_SHARE` of the winner's number
-    of inliers land so (most chance alignments of an ordinary map) is never refitted.
+    of inliers land so (most chance alignments of an ordinary map) is never refitted, and its count stops as
+    soon as the objects left cannot bring it there.
     """
     if not a.size:
         return np.zeros(0, np.int64)
     sigma = max(best.sigma_axis_m, opts.pixel_sigmas[0] * abs(best.a))
-    w = (a[:, None] * z[None, :] + b[:, None]).ravel()
-    rows, _, _ = index.within(w, np.tile(img_label, a.size), SCREEN_SIGMAS * sigma, 1)
-    near = np.bincount(rows // z.size, minlength=a.size)
-    return near
+    return index.near_counts(a, b, z, img_label, SCREEN_SIGMAS * sigma, need)
 
 
 def _compared(best: Candidate, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray,

@@ -51,7 +51,7 @@ def screen(
     benchmarks/lost_in_space_index.py --lookups-only --worlds 5000000 --jitter 2 --baseline 2731d67``) and
     Monaco's rendered sim-000073 (300 m, heights) moved from 0.08 to 1.66 m off: left out."""
     nfa = index.screen_nfa(a, b, z, screen_of[img_ids[:, 0]], img_label, log10_tests)
-    return np.argsort(nfa, kind="stable")[:keep]
+    return nfa.argsort(kind="stable")[:keep]
 
 
 def decision_nfa(

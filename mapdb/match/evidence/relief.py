@@ -78,14 +78,17 @@ def radial_excess(src: np.ndarray, dst: np.ndarray, a: complex, b: complex) -> t
     >>> excess
     True
     """
-    w = a * src + b
-    radial = np.exp(1j * np.angle(a * src))  # unit vectors away from the nadir, in map metres
-    q = (w - dst) * np.conj(radial)
+    # numpy's operations of ``w = a src + b``, ``exp(1j angle(a src))``, ``conj`` and ``sum`` called directly (the
+    # product a src made once, angle's arctan2 and sum's add.reduce without their wrappers): the same numbers.
+    moved = a * src
+    w = moved + b
+    radial = np.exp(1j * np.arctan2(moved.imag, moved.real))  # unit vectors away from the nadir, in map metres
+    q = (w - dst) * radial.conj()
     n = src.size
     if n <= 4:
         return q.real, q.imag, False
     ratio_limit = math.exp(_Z_ONE_PERCENT * 2.0 / math.sqrt(n - 2))
-    excess = bool(np.sum(q.real**2) > ratio_limit * max(float(np.sum(q.imag**2)), 1e-300))
+    excess = bool(np.add.reduce(q.real**2) > ratio_limit * max(float(np.add.reduce(q.imag**2)), 1e-300))
     return q.real, q.imag, excess
 
 

@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from ...objects import Objects
-from .._kernel import first_allowed, objects_density, verify_screen
+from .._kernel import first_allowed, objects_density, screen_near_counts, verify_screen
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
@@ -149,8 +149,11 @@ class ObjectIndex:
         ``centres`` (complex) and ``radius`` have shape ``(H,)``; the result ``(H, L)``.  A label with no
         object in a disc counts one, so that no density is zero.
         """
-        centres = np.ascontiguousarray(np.atleast_1d(np.asarray(centres, np.complex128)).ravel())
-        radius = np.ascontiguousarray(np.broadcast_to(np.asarray(radius, np.float64), centres.shape))
+        centres = np.ascontiguousarray(np.asarray(centres, np.complex128).reshape(-1))
+        radius = np.asarray(radius, np.float64)
+        if radius.shape != centres.shape:  # the usual radius is one a centre (broadcast_to costs 5 us)
+            radius = np.broadcast_to(radius, centres.shape)
+        radius = np.ascontiguousarray(radius)
         # The disc's share inside the bounds, its area, each present label's count over the trees: one kernel call.
         out = np.empty((centres.size, len(self.labels)))
         objects_density(self._trees(), centres, radius, _DISC, self._bounds, np.flatnonzero(self.counts),
@@ -358,6 +361,25 @@ class ObjectIndex:
                                                                               0.5 * self.gap))
         for j, hits in enumerate(found):
             out[j // codes.size][int(codes[j % codes.size])] = hits
+        return out
+
+    def near_counts(self, a: np.ndarray, b: np.ndarray, z: np.ndarray, img_label: np.ndarray, gate: float,
+                    at_least: int = 0) -> np.ndarray:
+        """How many image objects each pose ``z -> a z + b`` (``a``, ``b``: ``(H,)``) puts closer than ``gate`` metres
+        (at most half the label gap) to a map object of their label: ``(H,)``, the pairs :meth:`within` would find
+        with ``k = 1`` counted per pose.  A count below ``at_least`` may stop short (it stays below): a caller
+        asking only for the poses reaching it is spared the rest of the others' queries.  One call of the compiled
+        kernel (``screen_near_counts``) on an index whose objects are in one tree; an index reading pages as queries
+        need them counts through :meth:`within`."""
+        tree = self.fused_tree()
+        if tree is None:
+            w = (a[:, None] * z[None, :] + b[:, None]).ravel()
+            rows, _, _ = self.within(w, np.tile(img_label, a.size), gate, 1)
+            return np.bincount(rows // z.size, minlength=a.size)
+        out = np.empty(a.size, np.int64)
+        screen_near_counts(*tree._tree(), np.ascontiguousarray(a, np.complex128),
+                           np.ascontiguousarray(b, np.complex128), np.ascontiguousarray(z, np.complex128),
+                           np.ascontiguousarray(img_label, np.int64), self._bound(gate), at_least, out)
         return out
 
     def within(self, w: np.ndarray, img_label: np.ndarray, gate: float, k: int) -> tuple[np.ndarray, ...]:
