@@ -8,6 +8,7 @@ reflection (images are not mirrored).  The labels of ``A, B, C, D`` are part of 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -15,10 +16,10 @@ import numpy as np
 
 from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
-from ._kernel import map_canonical, map_quads, quads_build, quads_lookup
+from ._kernel import map_canonical, map_quads, objects_build, objects_knn, quads_build, quads_lookup
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "label_keys", "lookup_parts",
-           "mergeable_parts", "near_only", "nearest_others", "neighbour_quads"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "decided_nearest", "label_keys",
+           "lookup_parts", "mergeable_parts", "near_only", "nearest_others", "neighbour_quads"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -65,14 +66,59 @@ def neighbour_quads(xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | No
 def _anchor_neighbours(xy: np.ndarray, neighbours: int, anchors: np.ndarray | None
                        ) -> tuple[np.ndarray, np.ndarray] | None:
     """Each anchor's ``neighbours`` nearest others (cKDTree's, whose order among equal distances decides which quads
-    exist) and the anchors' ids, as int64; None when there are no quads (fewer than three neighbours, no anchor)."""
+    exist: :func:`decided_nearest`) and the anchors' ids, as int64; None when there are no quads (fewer than three
+    neighbours, no anchor)."""
     n = len(xy)
     k = min(neighbours, n - 1)
     anchor_ids = np.arange(n) if anchors is None else np.flatnonzero(anchors)
     if k < 3 or not anchor_ids.size:
         return None
-    nn = nearest_others(quick_tree(xy), xy, anchor_ids, k)
-    return np.ascontiguousarray(nn, np.int64), np.ascontiguousarray(anchor_ids, np.int64)
+    nn = decided_nearest(xy, anchor_ids, k)
+    return nn, np.ascontiguousarray(anchor_ids, np.int64)
+
+
+# Two distances closer than this (relative) are taken for a tie by decided_nearest: far beyond the rounding of a
+# squared distance (a few units in the last place), so that rows it decides are decided for every exact search.
+_TIE = 1e-9
+
+
+def decided_nearest(xy: np.ndarray, ids: np.ndarray, k: int) -> np.ndarray:
+    """:func:`nearest_others` over ``quick_tree(xy)``, the same rows: ``(len(ids), k)`` int64, C-contiguous.
+
+    A row whose point and its ``k + 1`` nearest others (its ``k`` and the next, when there is one) lie at distinct
+    distances, each nearer than the next by more than ``_TIE`` of it, has one answer, whatever the exact search: the
+    kernel's object tree gives it (``_kernel_objects.c``, half cKDTree's time on a map tile).  The other rows (equal
+    distances, points on one spot, non-finite or vanishing distances) are cKDTree's, whose heap's order among equal
+    distances no other search reproduces: asked of the same tree over the same points, row by row as before.
+
+    Examples
+    --------
+    >>> xy = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0], [7.0, 0.0], [-2.5, 0.0]])
+    >>> decided_nearest(xy, np.arange(5), 2).tolist()
+    [[1, 4], [0, 2], [1, 0], [2, 1], [0, 1]]
+    """
+    n, m = len(xy), min(k + 2, len(xy))
+    if not 0 < k < n:
+        raise ValueError(f"need 0 < k < {n} points, got k = {k}")
+    if not np.isfinite(xy).all():  # no distance decides: every row cKDTree's
+        return np.ascontiguousarray(nearest_others(quick_tree(xy), xy, ids, k), np.int64)
+    x, y = np.ascontiguousarray(xy[:, 0], np.float64), np.ascontiguousarray(xy[:, 1], np.float64)
+    label, query_label = np.zeros(n, np.int64), np.zeros(ids.size, np.int64)
+    pts, pid, root = np.empty((n, 2)), np.empty(n, np.int64), np.empty(1, np.int64)
+    box, node = np.empty((2 * n + 1, 4)), np.empty((2 * n + 1, 3), np.int64)
+    objects_build(x, y, label, pts, pid, box, node, root)
+    d, i = np.empty((ids.size, m)), np.empty((ids.size, m), np.int64)
+    objects_knn(pts, pid, box, node, root, x[ids] + 1j * y[ids], query_label, math.inf, n, d, i)
+    with np.errstate(invalid="ignore", over="ignore"):
+        # Undecided: the point not first, two distances within _TIE, or any below 1e-100 (where a squared distance
+        # loses digits) or overflowing.
+        undecided = (i[:, 0] != ids) | ~(d[:, 1:] > d[:, :-1] * (1.0 + _TIE)).all(axis=1) \
+            | ~(d[:, 1:] >= 1e-100).all(axis=1) | ~np.isfinite(d[:, -1])
+    nn = np.ascontiguousarray(i[:, 1:k + 1])
+    if undecided.any():
+        nn[undecided] = nearest_others(quick_tree(xy), xy, np.asarray(ids)[undecided], k)
+    return nn
+
 
 def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] | None
               ) -> tuple[np.ndarray, np.ndarray]:
@@ -102,6 +148,10 @@ def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, worke
     [1, 0, 1]
     """
     _, nn = tree.query(xy[ids], k + 1, workers=workers)
+    if np.array_equal(nn[:, 0], ids):
+        # Each point first in its own row (no other on it), as in all but a few rows of a map: the rest are its
+        # others, as the general case below takes them (a row holds a point once), without its masks.
+        return nn[:, 1:]
     # The point itself is usually first, but not when another point sits on it: drop it wherever it is.
     own = nn == ids[:, None]
     own[~own.any(axis=1), -1] = True
