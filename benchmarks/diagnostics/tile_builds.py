@@ -21,8 +21,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _baseline import cached_maps, import_baseline  # noqa: E402
 from matcher_core import CACHE, DATA, EXTRACTS, gauge_ms, p95, simulated  # noqa: E402

@@ -109,11 +109,14 @@ def decided_nearest(xy: np.ndarray, ids: np.ndarray, k: int) -> np.ndarray:
     objects_build(x, y, label, pts, pid, box, node, root)
     d, i = np.empty((ids.size, m)), np.empty((ids.size, m), np.int64)
     objects_knn(pts, pid, box, node, root, x[ids] + 1j * y[ids], query_label, math.inf, n, d, i)
-    with np.errstate(invalid="ignore", over="ignore"):
-        # Undecided: the point not first, two distances within _TIE, or any below 1e-100 (where a squared distance
-        # loses digits) or overflowing.
-        undecided = (i[:, 0] != ids) | ~(d[:, 1:] > d[:, :-1] * (1.0 + _TIE)).all(axis=1) \
-            | ~(d[:, 1:] >= 1e-100).all(axis=1) | ~np.isfinite(d[:, -1])
+    # Undecided: the point not first, or a distance not beyond the one before by more than _TIE of it, or not beyond
+    # 1e-100 (where a squared distance loses digits); two overflowing distances (inf) are not beyond each other.
+    # The coordinates are finite: no distance is NaN.
+    with np.errstate(over="ignore"):
+        limit = d[:, :-1] * (1.0 + _TIE)
+    np.maximum(limit, 1e-100, out=limit)
+    undecided = (d[:, 1:] <= limit).any(axis=1)
+    undecided |= i[:, 0] != ids
     nn = np.ascontiguousarray(i[:, 1:k + 1])
     if undecided.any():
         nn[undecided] = nearest_others(quick_tree(xy), xy, np.asarray(ids)[undecided], k)
