@@ -53,7 +53,8 @@ def neighbour_quads(xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | No
     >>> q.shape[1], len(q) > 0, bool(np.all(np.diff(q, axis=1) > 0))
     (4, True, True)
     """
-    found = _anchor_neighbours(xy, neighbours, anchors)
+    xy = np.asarray(xy, np.float64)
+    found = _anchor_neighbours(xy[:, 0], xy[:, 1], neighbours, anchors)
     if found is None:
         return np.zeros((0, 4), dtype=np.int64)
     nn, anchor_ids = found
@@ -63,17 +64,17 @@ def neighbour_quads(xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | No
     return np.frombuffer(quads, np.int64).reshape(-1, 4)
 
 
-def _anchor_neighbours(xy: np.ndarray, neighbours: int, anchors: np.ndarray | None
-                       ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Each anchor's ``neighbours`` nearest others (cKDTree's, whose order among equal distances decides which quads
-    exist: :func:`decided_nearest`) and the anchors' ids, as int64; None when there are no quads (fewer than three
-    neighbours, no anchor)."""
-    n = len(xy)
+def _anchor_neighbours(x: np.ndarray, y: np.ndarray, neighbours: int, anchors: np.ndarray | None,
+                       z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each anchor's ``neighbours`` nearest others among points ``x, y`` (cKDTree's, whose order among equal distances
+    decides which quads exist: :func:`decided_nearest`) and the anchors' ids, as int64; None when there are no quads
+    (fewer than three neighbours, no anchor).  ``z``: the points as complex numbers, if at hand."""
+    n = len(x)
     k = min(neighbours, n - 1)
     anchor_ids = np.arange(n) if anchors is None else np.flatnonzero(anchors)
     if k < 3 or not anchor_ids.size:
         return None
-    nn = decided_nearest(xy, anchor_ids, k)
+    nn = _decided_nearest(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), anchor_ids, k, z)
     return nn, np.ascontiguousarray(anchor_ids, np.int64)
 
 
@@ -97,18 +98,26 @@ def decided_nearest(xy: np.ndarray, ids: np.ndarray, k: int) -> np.ndarray:
     >>> decided_nearest(xy, np.arange(5), 2).tolist()
     [[1, 4], [0, 2], [1, 0], [2, 1], [0, 1]]
     """
-    n, m = len(xy), min(k + 2, len(xy))
+    xy = np.asarray(xy, np.float64)
+    return _decided_nearest(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), ids, k)
+
+
+def _decided_nearest(x: np.ndarray, y: np.ndarray, ids: np.ndarray, k: int, z: np.ndarray | None = None
+                     ) -> np.ndarray:
+    """:func:`decided_nearest` of points ``x, y`` (C-contiguous float64; ``z``, if given, them as complex)."""
+    n, m = len(x), min(k + 2, len(x))
     if not 0 < k < n:
         raise ValueError(f"need 0 < k < {n} points, got k = {k}")
-    if not np.isfinite(xy).all():  # no distance decides: every row cKDTree's
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):  # no distance decides: every row cKDTree's
+        xy = np.column_stack([x, y])
         return np.ascontiguousarray(nearest_others(quick_tree(xy), xy, ids, k), np.int64)
-    x, y = np.ascontiguousarray(xy[:, 0], np.float64), np.ascontiguousarray(xy[:, 1], np.float64)
     label, query_label = np.zeros(n, np.int64), np.zeros(ids.size, np.int64)
     pts, pid, root = np.empty((n, 2)), np.empty(n, np.int64), np.empty(1, np.int64)
     box, node = np.empty((2 * n + 1, 4)), np.empty((2 * n + 1, 3), np.int64)
     objects_build(x, y, label, pts, pid, box, node, root)
     d, i = np.empty((ids.size, m)), np.empty((ids.size, m), np.int64)
-    objects_knn(pts, pid, box, node, root, x[ids] + 1j * y[ids], query_label, math.inf, n, d, i)
+    objects_knn(pts, pid, box, node, root, z[ids] if z is not None else x[ids] + 1j * y[ids], query_label, math.inf,
+                n, d, i)
     # Undecided: the point not first, or a distance not beyond the one before by more than _TIE of it, or not beyond
     # 1e-100 (where a squared distance loses digits); two overflowing distances (inf) are not beyond each other.
     # The coordinates are finite: no distance is NaN.
@@ -119,6 +128,7 @@ def decided_nearest(xy: np.ndarray, ids: np.ndarray, k: int) -> np.ndarray:
     undecided |= i[:, 0] != ids
     nn = np.ascontiguousarray(i[:, 1:k + 1])
     if undecided.any():
+        xy = np.column_stack([x, y])
         nn[undecided] = nearest_others(quick_tree(xy), xy, np.asarray(ids)[undecided], k)
     return nn
 
@@ -246,14 +256,13 @@ class QuadIndex:
                  positions: bool = False) -> None:
         self.labels = tuple(objects.labels)
         self.positions = positions
-        found = _anchor_neighbours(np.column_stack([objects.x, objects.y]), neighbours, anchors) \
-            if len(objects) >= 4 else None
+        z = np.ascontiguousarray(objects.x + 1j * objects.y, np.complex128)
+        found = _anchor_neighbours(objects.x, objects.y, neighbours, anchors, z) if len(objects) >= 4 else None
         self.tree: TreePoints | None = None
         zq = np.zeros((0, 4), np.complex128)
         if found is not None:
             # One kernel call: the distinct quads, those with a frame (four objects on one spot, duplicates in the
             # sources, have none) in canonical order, and their tree points.
-            z = np.ascontiguousarray(objects.x + 1j * objects.y, np.complex128)
             label = np.ascontiguousarray(objects.label, np.int64)
             _, points, flat = map_quads(*found, len(objects), len(objects) >= _PACKABLE, z, label, len(self.labels),
                                         positions, LABEL_GAP, POSITION_WEIGHT)
