@@ -12,7 +12,8 @@ import shapely
 
 from mapdb._scipy import quick_tree
 from mapdb.mapfile.reader import _MAX_QUANTA, open_map
-from mapdb.match.quads import QuadIndex, decided_nearest, nearest_others
+from mapdb.match.nearest import decided_nearest, nearest_others
+from mapdb.match.quads import QuadIndex
 
 _RELATIVE = Path(__file__).resolve().parents[2] / "shared" / "data"
 OSM = (_RELATIVE if _RELATIVE.is_dir() else Path("/work/shared/data")) / "osm"
