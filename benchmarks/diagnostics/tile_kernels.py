@@ -47,7 +47,7 @@ def tile_inputs(path: Path, tiles: int, seed: int) -> list[tuple]:
             far = TILE_SIZE_M + TILE_PAD_M
             o = m.query_bbox(x0 - TILE_PAD_M, y0 - TILE_PAD_M, x0 + far, y0 + far)
             anchors = (o.x >= x0) & (o.x < x0 + TILE_SIZE_M) & (o.y >= y0) & (o.y < y0 + TILE_SIZE_M)
-            found = _anchor_neighbours(np.column_stack([o.x, o.y]), 8, anchors) if len(o) >= 4 else None
+            found = _anchor_neighbours(o.x, o.y, 8, anchors) if len(o) >= 4 else None
             if found is not None:
                 z = np.ascontiguousarray(o.x + 1j * o.y, np.complex128)
                 out.append((*found, z, np.ascontiguousarray(o.label, np.int64), len(o.labels)))

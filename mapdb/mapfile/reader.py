@@ -287,9 +287,18 @@ class MetaMap(MapBase):
         box = [min(max(v, -limit), limit) for v in box]
         lo_x, lo_y, hi_x, hi_y = math.floor(box[0]), math.floor(box[1]), math.ceil(box[2]), math.ceil(box[3])
         hits = np.sort(self._tree.query(shapely.box(lo_x, lo_y, hi_x, hi_y)))
-        found = self._objects(hits.tolist())
-        inside = (found.x >= minx) & (found.x <= maxx) & (found.y >= miny) & (found.y <= maxy)
-        return self._label_filter(found.take(inside), labels)
+        # Each page's objects in the box taken from the page itself (a prior's tile keeps about a tenth of the
+        # pages it meets): no copy of whole pages to cut, one Objects made; the same objects in the same order.
+        parts = []
+        for _, page in self._pages(hits.tolist()):
+            x, y = page[0], page[1]
+            inside = (x >= minx) & (x <= maxx) & (y >= miny) & (y <= maxy)
+            parts.append([column[inside] for column in page])
+        if not parts:
+            return Objects.empty(self.labels, self.crs)
+        x, y, label, area, *elevation = (np.concatenate(p) if len(p) > 1 else p[0] for p in zip(*parts, strict=True))
+        found = Objects(x, y, label, area, self.labels, self.crs, elevation[0] if elevation else None)
+        return self._label_filter(found, labels)
 
     def all(self) -> Objects:
         objects = self._objects(range(self.page_count))

@@ -13,12 +13,12 @@ from typing import Protocol
 
 import numpy as np
 
-from .._scipy import cKDTree, quick_tree
 from ..objects import Objects
 from ._kernel import map_canonical, map_quads, quads_build, quads_lookup
+from .nearest import _decided_nearest, decided_nearest, nearest_others
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "label_keys", "lookup_parts",
-           "mergeable_parts", "near_only", "nearest_others", "neighbour_quads"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "decided_nearest", "label_keys",
+           "lookup_parts", "mergeable_parts", "near_only", "nearest_others", "neighbour_quads"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -52,7 +52,8 @@ def neighbour_quads(xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | No
     >>> q.shape[1], len(q) > 0, bool(np.all(np.diff(q, axis=1) > 0))
     (4, True, True)
     """
-    found = _anchor_neighbours(xy, neighbours, anchors)
+    xy = np.asarray(xy, np.float64)
+    found = _anchor_neighbours(xy[:, 0], xy[:, 1], neighbours, anchors)
     if found is None:
         return np.zeros((0, 4), dtype=np.int64)
     nn, anchor_ids = found
@@ -62,17 +63,19 @@ def neighbour_quads(xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | No
     return np.frombuffer(quads, np.int64).reshape(-1, 4)
 
 
-def _anchor_neighbours(xy: np.ndarray, neighbours: int, anchors: np.ndarray | None
-                       ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Each anchor's ``neighbours`` nearest others (cKDTree's, whose order among equal distances decides which quads
-    exist) and the anchors' ids, as int64; None when there are no quads (fewer than three neighbours, no anchor)."""
-    n = len(xy)
+def _anchor_neighbours(x: np.ndarray, y: np.ndarray, neighbours: int, anchors: np.ndarray | None,
+                       z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each anchor's ``neighbours`` nearest others among points ``x, y`` (cKDTree's, whose order among equal distances
+    decides which quads exist: :func:`decided_nearest`) and the anchors' ids, as int64; None when there are no quads
+    (fewer than three neighbours, no anchor).  ``z``: the points as complex numbers, if at hand."""
+    n = len(x)
     k = min(neighbours, n - 1)
     anchor_ids = np.arange(n) if anchors is None else np.flatnonzero(anchors)
     if k < 3 or not anchor_ids.size:
         return None
-    nn = nearest_others(quick_tree(xy), xy, anchor_ids, k)
-    return np.ascontiguousarray(nn, np.int64), np.ascontiguousarray(anchor_ids, np.int64)
+    nn = _decided_nearest(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), anchor_ids, k, z)
+    return nn, np.ascontiguousarray(anchor_ids, np.int64)
+
 
 def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] | None
               ) -> tuple[np.ndarray, np.ndarray]:
@@ -90,22 +93,6 @@ def near_only(rows: np.ndarray, quad_z: np.ndarray, near: tuple[complex, float] 
         return rows, quad_z
     keep = np.abs(quad_z.mean(axis=1) - near[0]) <= near[1]
     return rows[keep], quad_z[keep]
-
-
-def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, workers: int = 1) -> np.ndarray:
-    """The ``k`` nearest other points of points ``ids`` (rows nearest first), from ``tree`` over ``xy``.
-
-    Examples
-    --------
-    >>> xy = np.array([[0.0, 0.0], [1.0, 0.0], [3.0, 0.0]])
-    >>> nearest_others(cKDTree(xy), xy, np.arange(3), 1).ravel().tolist()
-    [1, 0, 1]
-    """
-    _, nn = tree.query(xy[ids], k + 1, workers=workers)
-    # The point itself is usually first, but not when another point sits on it: drop it wherever it is.
-    own = nn == ids[:, None]
-    own[~own.any(axis=1), -1] = True
-    return nn[~own].reshape(ids.size, k)
 
 
 def canonical_quads(zq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -193,14 +180,13 @@ class QuadIndex:
                  positions: bool = False) -> None:
         self.labels = tuple(objects.labels)
         self.positions = positions
-        found = _anchor_neighbours(np.column_stack([objects.x, objects.y]), neighbours, anchors) \
-            if len(objects) >= 4 else None
+        z = np.ascontiguousarray(objects.x + 1j * objects.y, np.complex128)
+        found = _anchor_neighbours(objects.x, objects.y, neighbours, anchors, z) if len(objects) >= 4 else None
         self.tree: TreePoints | None = None
         zq = np.zeros((0, 4), np.complex128)
         if found is not None:
             # One kernel call: the distinct quads, those with a frame (four objects on one spot, duplicates in the
             # sources, have none) in canonical order, and their tree points.
-            z = np.ascontiguousarray(objects.x + 1j * objects.y, np.complex128)
             label = np.ascontiguousarray(objects.label, np.int64)
             _, points, flat = map_quads(*found, len(objects), len(objects) >= _PACKABLE, z, label, len(self.labels),
                                         positions, LABEL_GAP, POSITION_WEIGHT)
