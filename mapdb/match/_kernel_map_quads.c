@@ -172,16 +172,17 @@ static Py_ssize_t map_combine(const int64_t *nn, const int64_t *anchor, const in
             for (Py_ssize_t y = x + 1; y < k; y++) {
                 for (Py_ssize_t z = y + 1; z < k; z++) {
                     uint64_t bx = (uint64_t)1 << x, by = (uint64_t)1 << y, bz = (uint64_t)1 << z;
-                    if ((mask[x] & (by | bz)) == (by | bz) || (mask[y] & (bx | bz)) == (bx | bz)
-                        || (mask[z] & (bx | by)) == (bx | by)) {
-                        continue;  /* an earlier anchor made it */
-                    }
-                    int64_t *v = out + 4 * used++;
+                    /* written always, kept (used advanced) unless an earlier anchor made it: no branch on a coin
+                     * toss (out has room for every triple) */
+                    int made = ((mask[x] & (by | bz)) == (by | bz)) | ((mask[y] & (bx | bz)) == (bx | bz))
+                               | ((mask[z] & (bx | by)) == (bx | by));
+                    int64_t *v = out + 4 * used;
                     v[0] = anchor[r];
                     v[1] = row[x];
                     v[2] = row[y];
                     v[3] = row[z];
                     map_sort4(v);
+                    used += !made;
                 }
             }
         }
@@ -270,33 +271,35 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
     return m;
 }
 
-/* Room kept between calls for a tile's anchor rows, id positions and distinct quads (most of them not kept when a
- * tile's index is built: its answer's ids are not wanted, or cut to the quads with a frame). */
+/* Room kept between calls for a tile's anchor rows and id places, and, when its ids are not wanted (a tile's index
+ * built), its distinct quads, most of them cut after: memory already faulted in, not fresh pages a call. */
 static QuadsScratch map_scratch;
 
 /* map_quads' answer from its checked arrays ``a`` (nn, anchors, z, label) and ``row_of``: the distinct quads (when
- * ``want_ids``, else an empty bytearray), and with z and label those with a frame in canonical order, their tree
- * points and complex points, as bytearrays.  The quads are made in ``ids`` (scratch, room for every anchor's
- * triples), the points and complex points in their answer's bytearrays (cut to those kept): only the kept ids
- * copied. */
-static PyObject *map_build(Arr *a, const int64_t *row_of, signed char *pos, int64_t *ids, Py_ssize_t n, Py_ssize_t p,
-                           Py_ssize_t k, int sorted, Py_ssize_t n_labels, int positions, double gap, double weight,
-                           int want_ids)
+ * ``scratch`` is NULL, else an empty bytearray: they are made in it, room for every anchor's triples), and with z and
+ * label those with a frame in canonical order, their tree points and complex points, as bytearrays.  Each is made in
+ * its answer's bytearray (room for every anchor's triples, cut to those kept): no copy. */
+static PyObject *map_build(Arr *a, const int64_t *row_of, signed char *pos, int64_t *scratch, Py_ssize_t n,
+                           Py_ssize_t p, Py_ssize_t k, int sorted, Py_ssize_t n_labels, int positions, double gap,
+                           double weight)
 {
-    Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), dim = a[2].held ? (positions ? 7 : 5) : 0;
-    Py_ssize_t m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, pos, n, ids) : 0;
+    Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = a[2].held ? (positions ? 7 : 5) : 0;
     PyObject *out = NULL, *o[3] = {NULL, NULL, NULL};
-    o[1] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * dim * m);
-    o[2] = PyByteArray_FromStringAndSize(NULL, a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0);
-    if (o[1] && o[2] && a[2].held) {
-        m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim,
-                       (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
+    o[0] = PyByteArray_FromStringAndSize(NULL, scratch ? 0 : (Py_ssize_t)sizeof(int64_t) * 4 * q);
+    if (o[0]) {
+        int64_t *ids = scratch ? scratch : (int64_t *)PyByteArray_AS_STRING(o[0]);
+        m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, pos, n, ids) : 0;
+        /* written in place (the kept quads' ids, points and complex points), then cut to the quads with a frame:
+         * no copy of megabytes a tile */
+        o[1] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * dim * m);
+        o[2] = PyByteArray_FromStringAndSize(NULL, a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0);
+        if (o[1] && o[2] && a[2].held) {
+            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim,
+                           (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
+        }
     }
-    if (o[1] && o[2]) {
-        o[0] = PyByteArray_FromStringAndSize(want_ids ? (const char *)ids : NULL,
-                                             want_ids ? (Py_ssize_t)sizeof(int64_t) * 4 * m : 0);
-    }
-    if (o[0] && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
+    if (o[0] && o[1] && o[2] && PyByteArray_Resize(o[0], scratch ? 0 : (Py_ssize_t)sizeof(int64_t) * 4 * m) == 0
+        && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
         && PyByteArray_Resize(o[2], a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0) == 0) {
         out = PyTuple_Pack(3, o[0], o[1], o[2]);
     }
@@ -325,8 +328,9 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
         return NULL;
     }
     Py_ssize_t p = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1), nn = n > 0 ? n : 0;
-    Py_ssize_t q = k < 3 || k > 64 ? 0 : p * (k * (k - 1) * (k - 2) / 6);
-    /* one block: each id's anchor row (n int64), the quads (q rows of 4 int64), each id's place in a row (n bytes) */
+    Py_ssize_t q = want_ids || k < 3 || k > 64 ? 0 : p * (k * (k - 1) * (k - 2) / 6);
+    /* one block: each id's anchor row (n int64), the quads when not wanted (q rows of 4 int64), each id's place in a
+     * row (n bytes) */
     int64_t *row_of = quads_scratch_claim(&map_scratch, sizeof(int64_t) * (size_t)(nn + 4 * q) + (size_t)nn);
     if (!row_of) {
         arr_release(a, 4);
@@ -337,8 +341,8 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
     }
     PyObject *out = NULL;
     if (!PyErr_Occurred() && !map_check(Q(a[0]), Q(a[1]), a[3].held ? Q(a[3]) : NULL, p, k, n, row_of)) {
-        out = map_build(a, row_of, (signed char *)(row_of + nn + 4 * q), row_of + nn, n, p, k, sorted, n_labels,
-                        positions, gap, weight, want_ids);
+        out = map_build(a, row_of, (signed char *)(row_of + nn + 4 * q), want_ids ? NULL : row_of + nn, n, p, k,
+                        sorted, n_labels, positions, gap, weight);
     }
     quads_scratch_release(&map_scratch, row_of);
     arr_release(a, 4);
