@@ -50,6 +50,7 @@ typedef struct {
     QuadsNode *nodes;
     const double *src;   /* the points given, during the build */
     double *box;         /* per node, the least then the greatest coordinate per dimension (2 d) */
+    int64_t *work;       /* n places of room, during the build (the partitions' swaps) */
 } QuadsTree;
 
 /* ------------------------------------------------------------------ a quad's frames, shared by the image's quads
