@@ -249,6 +249,28 @@ static void quads_capsule_free(PyObject *capsule)
     quads_free((QuadsTree *)PyCapsule_GetPointer(capsule, QUADS_CAPSULE));
 }
 
+/* A tree's arrays for ``n`` points of ``d`` columns, its partitions' room claimed (the GIL held); NULL when out of
+ * memory. */
+static QuadsTree *quads_alloc(Py_ssize_t n, Py_ssize_t d)
+{
+    QuadsTree *t = calloc(1, sizeof(QuadsTree));
+    if (t) {
+        t->cap = 4 * (n / QUADS_LEAF) + 16;  /* grown when splits peel off small parts */
+        t->n = n;
+        t->d = d;
+        t->pts = malloc(sizeof(double) * n * d);
+        t->idx = malloc(sizeof(int64_t) * n);
+        t->work = quads_scratch_claim(&quads_tree_scratch, sizeof(int64_t) * (size_t)n);
+        t->nodes = malloc(sizeof(QuadsNode) * t->cap);
+        t->box = malloc(sizeof(double) * 2 * d * t->cap);
+    }
+    if (t && (!t->pts || !t->idx || !t->nodes || !t->box || !t->work)) {
+        quads_free(t);
+        return NULL;
+    }
+    return t;
+}
+
 static PyObject *quads_build(PyObject *self, PyObject *args)
 {
     PyObject *opts;
@@ -268,19 +290,8 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
             return PyErr_Format(PyExc_ValueError, "points must be finite");
         }
     }
-    QuadsTree *t = calloc(1, sizeof(QuadsTree));
-    if (t) {
-        t->cap = 4 * (n / QUADS_LEAF) + 16;  /* grown when splits peel off small parts */
-        t->n = n;
-        t->d = d;
-        t->pts = malloc(sizeof(double) * n * d);
-        t->idx = malloc(sizeof(int64_t) * n);
-        t->work = quads_scratch_claim(&quads_tree_scratch, sizeof(int64_t) * (size_t)n);
-        t->nodes = malloc(sizeof(QuadsNode) * t->cap);
-        t->box = malloc(sizeof(double) * 2 * d * t->cap);
-    }
-    if (!t || !t->pts || !t->idx || !t->nodes || !t->box || !t->work) {
-        quads_free(t);
+    QuadsTree *t = quads_alloc(n, d);
+    if (!t) {
         arr_release(a, 1);
         return PyErr_NoMemory();
     }
