@@ -172,6 +172,104 @@ static void curve_rows(const double *p, Py_ssize_t h, Py_ssize_t t, double offse
     }
 }
 
+/* ------------------------------------------------------------------ shaped rows, thresholds skipped exactly */
+
+/* Whether threshold k's curve value c = offset + max(log10 tail, floor) is surely above ``low`` when its chance is
+ * at least ``lo`` (0 < lo < 1): the tail P(X >= k) is at least its tail at lo, which is at least its term P(X = k);
+ * the tail as computed is within 1e-12 in log10 of the true one (tests/test_kernel.py), and the margin (1e-6, and
+ * 1e-9 of the terms' size) is far wider than that and than the rounding here. */
+static int nfa_above(Py_ssize_t t, Py_ssize_t k, double lo, const double *lf, double offset, double floor_,
+                     double low)
+{
+    double kl = (double)k * log(lo), rl = (double)(t - k) * log1p(-lo);
+    double lb = (lf[t] - lf[k] - lf[t - k] + kl + rl) / M_LN10;
+    double err = 1e-6 + 1e-9 * (lf[t] + lf[k] + lf[t - k] + fabs(kl) + fabs(rl));
+    double m = lb - err;
+    return offset + (m >= floor_ ? m : floor_) > low;
+}
+
+/* A lower bound of a threshold tau's chance, the mean over i of 1 - exp(-tau r_i) (0 <= tau < inf, every r_i finite
+ * and > 0): each term is at least 1 - exp(-tau r_min), and, 1 - exp(-x) being concave and 0 at 0, at least
+ * (r_i / r_max)(1 - exp(-tau r_max)), whose mean is ``share`` (mean r / r_max) times that.  Less 1e-9 of it: far
+ * more than the rounding of these few operations and of the chance's own mean of t <= 100000 terms. */
+static double nfa_chance_below(double tau, double rmin, double rmax, double share)
+{
+    double a = -expm1(-tau * rmin), b = share * -expm1(-tau * rmax);
+    return (a > b ? a : b) * (1.0 - 1e-9);
+}
+
+/* Threshold j's curve value, its chance as chances_shaped forms it (numpy's first form) and its tail as
+ * curve_rows reads it; NaN when its chance is NaN. */
+static double nfa_threshold(double tau, const double *rest, double *term, Py_ssize_t t, int positive, Py_ssize_t j,
+                            const double *lf, double offset, double floor_)
+{
+    double p = 1.0;
+    if (!(positive && tau == INFINITY)) {  /* else each term expm1(-inf) = -1: p = 1 exactly */
+        for (Py_ssize_t i = 0; i < t; i++) {
+            term[i] = expm1(-tau * rest[i]);
+        }
+        p = -(pw_sum(term, t) / (double)t);
+    }
+    if (isnan(p)) {
+        return NAN;
+    }
+    p = p >= 0.0 ? (p <= 1.0 ? p : 1.0) : 0.0;
+    double l = log10_tail(t, j + 1, p, lf);
+    return offset + ((l >= floor_ || isnan(l)) ? l : floor_);
+}
+
+/* One shaped row's curve, chances_shaped and curve_rows for one row (the same operations), with thresholds that
+ * cannot be its minimum skipped: their chances (t expm1 each) are never formed.  Walked from the last threshold
+ * down (the minimum is mostly near the end: most objects are inliers), a tie kept at the lower threshold (numpy's
+ * argmin), a threshold skipped when its curve value is surely above the lowest so far (nfa_above on
+ * nfa_chance_below).  Skipping needs every trial shape finite and > 0 and no NaN threshold (then no chance of the
+ * row is NaN, formed or not) and offset not NaN; else every threshold in order.  Returns 1 when a chance formed
+ * is NaN: the caller then forms the whole array numpy's way (its second form for every row). */
+static int nfa_shaped_row(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t n,
+                          Py_ssize_t ns, Keyed *k, double *rest, double *term, const double *lf, double offset,
+                          double floor_, double *nfa, int64_t *best)
+{
+    Py_ssize_t t = n - ns, arg = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        k[i].v = ((sample && sample[i]) ? -1.0 : u[i]) / shape[i];
+        k[i].i = i;
+    }
+    sort_keyed(k, n);
+    int positive = 1, skip = !isnan(k[n - 1].v) && !isnan(offset) && t <= 100000;
+    double rmin = INFINITY, rmax = 0.0, rsum = 0.0, low = 0.0;
+    for (Py_ssize_t i = 0; i < t; i++) {
+        rest[i] = shape[k[ns + i].i];
+        positive &= rest[i] > 0.0;
+        skip &= isfinite(rest[i]);
+        rmin = rest[i] < rmin ? rest[i] : rmin;
+        rmax = rest[i] > rmax ? rest[i] : rmax;
+        rsum += rest[i];
+    }
+    skip &= positive;
+    double share = skip ? (rsum / (double)t) / rmax : 0.0;
+    for (Py_ssize_t s = 0; s < t; s++) {
+        Py_ssize_t j = skip ? t - 1 - s : s;
+        double tau = k[ns + j].v;
+        if (skip && s > 0 && tau >= 0.0 && tau < INFINITY) {
+            double lo = nfa_chance_below(tau, rmin, rmax, share);
+            if (lo > 0.0 && lo < 1.0 && nfa_above(t, j + 1, lo, lf, offset, floor_, low)) {
+                continue;
+            }
+        }
+        double c = nfa_threshold(tau, rest, term, t, positive, j, lf, offset, floor_);
+        if (isnan(c) && (skip || !isnan(offset))) {
+            return 1;  /* a NaN chance (offset is not NaN) */
+        }
+        if (skip ? (s == 0 || c <= low) : (j == 0 || (!isnan(low) && (c < low || isnan(c))))) {
+            low = c;
+            arg = j;
+        }
+    }
+    *nfa = low;
+    *best = (int64_t)arg;
+    return 0;
+}
+
 static PyObject *nfa_curve(PyObject *self, PyObject *args)
 {
     PyObject *ou, *oshape, *osample, *onfa, *obest;
@@ -208,6 +306,28 @@ static PyObject *nfa_curve(PyObject *self, PyObject *args)
     Py_RETURN_NONE;
 }
 
+/* ln i! for i <= NFA_LF_CACHED, made once (the first call holds the GIL): every call's curve reads the same. */
+#define NFA_LF_CACHED 4096
+static double nfa_lf[NFA_LF_CACHED + 1];
+static int nfa_lf_made = 0;
+
+static const double *nfa_lf_table(Py_ssize_t t, double *own)
+{
+    if (t > NFA_LF_CACHED) {
+        for (Py_ssize_t i = 0; i <= t; i++) {
+            own[i] = lgamma((double)i + 1.0);
+        }
+        return own;
+    }
+    if (!nfa_lf_made) {
+        for (Py_ssize_t i = 0; i <= NFA_LF_CACHED; i++) {
+            nfa_lf[i] = lgamma((double)i + 1.0);
+        }
+        nfa_lf_made = 1;
+    }
+    return nfa_lf;
+}
+
 int nfa_rows(const double *u, const double *shape, const unsigned char *sample, Py_ssize_t h, Py_ssize_t n,
              Py_ssize_t ns, double offset, double floor_, double *nfa, int64_t *best)
 {
@@ -220,13 +340,18 @@ int nfa_rows(const double *u, const double *shape, const unsigned char *sample, 
         PyErr_NoMemory();
         return -1;
     }
-    double *lf = x + 2 * n + 2, *p = lf + t + 1;
-    for (Py_ssize_t i = 0; i <= t; i++) {
-        lf[i] = lgamma((double)i + 1.0);
-    }
+    const double *lf = nfa_lf_table(t, x + 2 * n + 2);
+    double *p = x + 2 * n + 2 + t + 1;
     Py_BEGIN_ALLOW_THREADS
-    chances_rows(u, shape, sample, h, n, ns, k, x, x + n + 1, p);
-    curve_rows(p, h, t, offset, floor_, lf, nfa, best);
+    int any_nan = 0;
+    for (Py_ssize_t r = 0; shape != NULL && !any_nan && r < h; r++) {
+        any_nan = nfa_shaped_row(u + r * n, shape + r * n, sample ? sample + r * n : NULL, n, ns, k, x, x + n + 1,
+                                 lf, offset, floor_, nfa + r, best + r);
+    }
+    if (shape == NULL || any_nan) {  /* numpy's way: every chance, then the curves */
+        chances_rows(u, shape, sample, h, n, ns, k, x, x + n + 1, p);
+        curve_rows(p, h, t, offset, floor_, lf, nfa, best);
+    }
     Py_END_ALLOW_THREADS
     PyMem_Free(k);
     PyMem_Free(x);

@@ -314,6 +314,46 @@ static void objects_knn_node(ObjectsTree *t, int64_t nd, double qx, double qy, O
     }
 }
 
+/* objects_knn_node's walk without recursion, the same nodes in the same order: a node's farther child waits on a
+ * stack with its box's distance and is entered, when popped, only if it may still hold a neighbour (the test the
+ * recursion made after the nearer child's subtree).  A tree deeper than the stack (a degenerate one) finishes
+ * in the recursion from the node that overflowed it. */
+#define OBJECTS_STACK 64
+static void objects_knn_walk(ObjectsTree *t, int64_t root, double qx, double qy, ObjectsBest *b)
+{
+    int64_t wait[OBJECTS_STACK];
+    double wait2[OBJECTS_STACK];
+    int top = 0;
+    int64_t nd = root;
+    for (;;) {
+        const int64_t *nn = t->node + 3 * nd;
+        if (nn[2] < 0) {
+            for (int64_t j = nn[0]; j < nn[1]; j++) {
+                objects_offer(b, objects_d2(t->pts + 2 * j, qx, qy), t->pid[j]);
+            }
+        } else if (top == OBJECTS_STACK) {
+            objects_knn_node(t, nd, qx, qy, b);
+        } else if (objects_node_ok(t, nd + 1) && objects_node_ok(t, nn[2])) {
+            int64_t c0 = nd + 1, c1 = nn[2];
+            double n0 = objects_box_near2(t, c0, qx, qy), n1 = objects_box_near2(t, c1, qx, qy);
+            int first = n1 < n0;
+            wait[top] = first ? c0 : c1;
+            wait2[top++] = first ? n0 : n1;
+            if (objects_may_hold(b, first ? n1 : n0)) {
+                nd = first ? c1 : c0;
+                continue;
+            }
+        }
+        do {  /* the next waiting node that may still hold a neighbour */
+            if (top == 0) {
+                return;
+            }
+            top--;
+        } while (!objects_may_hold(b, wait2[top]));
+        nd = wait[top];
+    }
+}
+
 /* The nearest object of label ``l`` to (qx, qy) with a squared distance below ``bound2`` (ties: the lower index):
  * its index, its squared distance in ``*d2``; -1 when there is none.  A k = 1 query of objects_knn, for the fused
  * queries of other files (_kernel_verify.c: verify_screen). */
@@ -324,7 +364,7 @@ int64_t objects_nearest1(ObjectsTree *t, int64_t l, double qx, double qy, double
     ObjectsBest b = {&bd, &bi, 1, 0, bound2};
     int64_t r = isfinite(qx) && isfinite(qy) ? objects_root(t, l) : -1;
     if (r >= 0 && objects_may_hold(&b, objects_box_near2(t, r, qx, qy))) {
-        objects_knn_node(t, r, qx, qy, &b);
+        objects_knn_walk(t, r, qx, qy, &b);
     }
     *d2 = bd;
     return b.count ? bi : -1;
@@ -366,7 +406,7 @@ static PyObject *objects_knn(PyObject *self, PyObject *args)
         ObjectsBest b = {out_d + j * k, out_i + j * k, k, 0, bound * bound};
         int64_t r = isfinite(w[2 * j]) && isfinite(w[2 * j + 1]) ? objects_root(&t, lab[j]) : -1;
         if (r >= 0 && objects_may_hold(&b, objects_box_near2(&t, r, w[2 * j], w[2 * j + 1]))) {
-            objects_knn_node(&t, r, w[2 * j], w[2 * j + 1], &b);
+            objects_knn_walk(&t, r, w[2 * j], w[2 * j + 1], &b);
         }
         for (Py_ssize_t c = 0; c < k; c++) {
             out_d[j * k + c] = c < b.count ? sqrt(out_d[j * k + c]) : INFINITY;
