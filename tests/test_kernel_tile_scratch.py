@@ -74,4 +74,4 @@ def test_a_tree_looks_up_the_same_whatever_was_built_before():
         other = np.ascontiguousarray(np.column_stack([rng.uniform(0, 1, (n, 4)), rng.integers(0, 50, n) * LABEL_GAP]))
         _kernel.quads_build(other)
         assert hits() == alone
-    assert len(alone[0]) // 8 >= 50  # int64 rows: every query found its own point at least, so the lookups compared something
+    assert len(alone[0]) // 8 >= 50  # int64 rows: each query found its own point, so something was compared
