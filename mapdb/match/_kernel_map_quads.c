@@ -172,16 +172,17 @@ static Py_ssize_t map_combine(const int64_t *nn, const int64_t *anchor, const in
             for (Py_ssize_t y = x + 1; y < k; y++) {
                 for (Py_ssize_t z = y + 1; z < k; z++) {
                     uint64_t bx = (uint64_t)1 << x, by = (uint64_t)1 << y, bz = (uint64_t)1 << z;
-                    if ((mask[x] & (by | bz)) == (by | bz) || (mask[y] & (bx | bz)) == (bx | bz)
-                        || (mask[z] & (bx | by)) == (bx | by)) {
-                        continue;  /* an earlier anchor made it */
-                    }
-                    int64_t *v = out + 4 * used++;
+                    /* written always, kept (used advanced) unless an earlier anchor made it: no branch on a coin
+                     * toss (out has room for every triple) */
+                    int made = ((mask[x] & (by | bz)) == (by | bz)) | ((mask[y] & (bx | bz)) == (bx | bz))
+                               | ((mask[z] & (bx | by)) == (bx | by));
+                    int64_t *v = out + 4 * used;
                     v[0] = anchor[r];
                     v[1] = row[x];
                     v[2] = row[y];
                     v[3] = row[z];
                     map_sort4(v);
+                    used += !made;
                 }
             }
         }
@@ -270,40 +271,41 @@ static Py_ssize_t map_points(int64_t *ids, Py_ssize_t q, const double *z, const 
     return m;
 }
 
-/* map_quads' answer from its checked arrays ``a`` (nn, anchors, z, label) and ``row_of``: the distinct quads, and
- * with z and label those with a frame in canonical order, their tree points and complex points, as bytearrays.
- * The quads are made in their answer's bytearray (room for every anchor's triples, cut to those kept): no
- * buffer of their own, no copy. */
-static PyObject *map_build(Arr *a, const int64_t *row_of, Py_ssize_t n, Py_ssize_t p, Py_ssize_t k, int sorted,
-                           Py_ssize_t n_labels, int positions, double gap, double weight)
+/* Room kept between calls for a tile's anchor rows and id places, and, when its ids are not wanted (a tile's index
+ * built), its distinct quads, most of them cut after: memory already faulted in, not fresh pages a call. */
+static QuadsScratch map_scratch;
+
+/* map_quads' answer from its checked arrays ``a`` (nn, anchors, z, label) and ``row_of``: the distinct quads (when
+ * ``scratch`` is NULL, else an empty bytearray: they are made in it, room for every anchor's triples), and with z and
+ * label those with a frame in canonical order, their tree points and complex points, as bytearrays.  Each is made in
+ * its answer's bytearray (room for every anchor's triples, cut to those kept): no copy. */
+static PyObject *map_build(Arr *a, const int64_t *row_of, signed char *pos, int64_t *scratch, Py_ssize_t n,
+                           Py_ssize_t p, Py_ssize_t k, int sorted, Py_ssize_t n_labels, int positions, double gap,
+                           double weight)
 {
     Py_ssize_t q = k < 3 ? 0 : p * (k * (k - 1) * (k - 2) / 6), m = 0, dim = a[2].held ? (positions ? 7 : 5) : 0;
-    signed char *pos = malloc((size_t)(n > 0 ? n : 1));
     PyObject *out = NULL, *o[3] = {NULL, NULL, NULL};
-    o[0] = pos ? PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * q) : PyErr_NoMemory();
+    o[0] = PyByteArray_FromStringAndSize(NULL, scratch ? 0 : (Py_ssize_t)sizeof(int64_t) * 4 * q);
     if (o[0]) {
-        int64_t *ids = (int64_t *)PyByteArray_AS_STRING(o[0]);
+        int64_t *ids = scratch ? scratch : (int64_t *)PyByteArray_AS_STRING(o[0]);
         m = q ? map_combine(Q(a[0]), Q(a[1]), row_of, p, k, sorted, pos, n, ids) : 0;
         /* written in place (the kept quads' ids, points and complex points), then cut to the quads with a frame:
          * no copy of megabytes a tile */
         o[1] = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * dim * m);
         o[2] = PyByteArray_FromStringAndSize(NULL, a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0);
+        if (o[1] && o[2] && a[2].held) {
+            m = map_points(ids, m, D(a[2]), Q(a[3]), n_labels, gap, weight, (int)dim,
+                           (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
+        }
     }
-    if (o[0] && o[1] && o[2]) {
-        if (a[2].held) {
-            m = map_points((int64_t *)PyByteArray_AS_STRING(o[0]), m, D(a[2]), Q(a[3]), n_labels, gap, weight,
-                           (int)dim, (double *)PyByteArray_AS_STRING(o[1]), (double *)PyByteArray_AS_STRING(o[2]));
-        }
-        if (PyByteArray_Resize(o[0], (Py_ssize_t)sizeof(int64_t) * 4 * m) == 0
-            && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
-            && PyByteArray_Resize(o[2], a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0) == 0) {
-            out = PyTuple_Pack(3, o[0], o[1], o[2]);
-        }
+    if (o[0] && o[1] && o[2] && PyByteArray_Resize(o[0], scratch ? 0 : (Py_ssize_t)sizeof(int64_t) * 4 * m) == 0
+        && PyByteArray_Resize(o[1], (Py_ssize_t)sizeof(double) * dim * m) == 0
+        && PyByteArray_Resize(o[2], a[2].held ? (Py_ssize_t)sizeof(double) * 8 * m : 0) == 0) {
+        out = PyTuple_Pack(3, o[0], o[1], o[2]);
     }
     for (int x = 0; x < 3; x++) {
         Py_XDECREF(o[x]);
     }
-    free(pos);
     return out;
 }
 
@@ -311,11 +313,11 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
 {
     PyObject *onn, *oanchor, *oz, *olabel;
     Py_ssize_t n, n_labels;
-    int sorted, positions;
+    int sorted, positions, want_ids = 1;
     double gap, weight;
     Arr a[4] = {{{0}}};
-    if (!PyArg_ParseTuple(args, "OOnpOOnpdd:map_quads", &onn, &oanchor, &n, &sorted, &oz, &olabel, &n_labels,
-                          &positions, &gap, &weight)) {
+    if (!PyArg_ParseTuple(args, "OOnpOOnpdd|p:map_quads", &onn, &oanchor, &n, &sorted, &oz, &olabel, &n_labels,
+                          &positions, &gap, &weight, &want_ids)) {
         return NULL;
     }
     if (arr_take(onn, &a[0], "nn", 'q', 2, 0, 0) || arr_take(oanchor, &a[1], "anchors", 'q', 1, 0, 0)
@@ -325,8 +327,11 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
         arr_release(a, 4);
         return NULL;
     }
-    Py_ssize_t p = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1);
-    int64_t *row_of = malloc(sizeof(int64_t) * (size_t)(n > 0 ? n : 1));
+    Py_ssize_t p = arr_dim(&a[0], 0), k = arr_dim(&a[0], 1), nn = n > 0 ? n : 0;
+    Py_ssize_t q = want_ids || k < 3 || k > 64 ? 0 : p * (k * (k - 1) * (k - 2) / 6);
+    /* one block: each id's anchor row (n int64), the quads when not wanted (q rows of 4 int64), each id's place in a
+     * row (n bytes) */
+    int64_t *row_of = quads_scratch_claim(&map_scratch, sizeof(int64_t) * (size_t)(nn + 4 * q) + (size_t)nn);
     if (!row_of) {
         arr_release(a, 4);
         return PyErr_NoMemory();
@@ -334,13 +339,12 @@ static PyObject *map_quads(PyObject *self, PyObject *args)
     if (a[2].held != a[3].held) {
         PyErr_SetString(PyExc_ValueError, "need z with label");
     }
-    if (PyErr_Occurred() || map_check(Q(a[0]), Q(a[1]), a[3].held ? Q(a[3]) : NULL, p, k, n, row_of)) {
-        free(row_of);
-        arr_release(a, 4);
-        return NULL;
+    PyObject *out = NULL;
+    if (!PyErr_Occurred() && !map_check(Q(a[0]), Q(a[1]), a[3].held ? Q(a[3]) : NULL, p, k, n, row_of)) {
+        out = map_build(a, row_of, (signed char *)(row_of + nn + 4 * q), want_ids ? NULL : row_of + nn, n, p, k,
+                        sorted, n_labels, positions, gap, weight);
     }
-    PyObject *out = map_build(a, row_of, n, p, k, sorted, n_labels, positions, gap, weight);
-    free(row_of);
+    quads_scratch_release(&map_scratch, row_of);
     arr_release(a, 4);
     return out;
 }
@@ -375,7 +379,8 @@ PyMethodDef map_quads_methods[] = {
     {"map_quads", map_quads, METH_VARARGS,
      "map_quads(nn, anchors, n, sorted, z, label, n_labels, positions, gap, weight): the distinct quads of anchors "
      "with their k nearest (neighbour_quads), and, given z and label, QuadIndex's: the quads with a frame in "
-     "canonical order, their tree points and complex points; three bytearrays."},
+     "canonical order, their tree points and complex points; three bytearrays; with an 11th "
+     "argument ids false (default true), the first empty (the ids not copied out)."},
     {"map_canonical", map_canonical, METH_VARARGS,
      "map_canonical(zq, order, invariants, ab): canonical_quads into the arrays given."},
     {NULL, NULL, 0, NULL},

@@ -18,26 +18,34 @@ static void quads_swap(QuadsTree *t, Py_ssize_t i, Py_ssize_t j)
     t->idx[j] = k;
 }
 
-/* Partition [lo, hi) by ``split`` along ``dim``: returns the first point not below it. */
+/* Partition [lo, hi) by ``split`` along ``dim``: returns the first point not below it.  The swaps are a Hoare
+ * partition's (the first point not below from the left with the first below from the right, and so on while they
+ * cross), found without a branch on each point's side (a coin toss): the points below counted (s), then the places
+ * of those not below in [lo, lo + s) and of those below in [lo + s, hi), from the right, listed in ``work`` and
+ * swapped pairwise. */
 static Py_ssize_t quads_partition(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi, int dim, double split)
 {
-    const double *src = t->src + dim;  /* locals: the swaps cannot then be taken to change them */
-    int64_t *idx = t->idx;
-    Py_ssize_t d = t->d, i = lo, j = hi - 1;
-    for (;;) {
-        while (i <= j && src[idx[i] * d] < split) {
-            i++;
-        }
-        while (i <= j && !(src[idx[j] * d] < split)) {
-            j--;
-        }
-        if (i >= j) {
-            return i;
-        }
-        int64_t k = idx[i];
-        idx[i++] = idx[j];
-        idx[j--] = k;
+    const double *src = t->src + dim;  /* locals: the stores cannot then be taken to change them */
+    int64_t *idx = t->idx, *left = t->work, *right;
+    Py_ssize_t d = t->d, s = lo, nl = 0, nr = 0;
+    for (Py_ssize_t r = lo; r < hi; r++) {
+        s += src[idx[r] * d] < split;
     }
+    right = left + (s - lo);
+    for (Py_ssize_t r = lo; r < s; r++) {
+        left[nl] = r;
+        nl += !(src[idx[r] * d] < split);
+    }
+    for (Py_ssize_t r = hi - 1; r >= s; r--) {
+        right[nr] = r;
+        nr += src[idx[r] * d] < split;
+    }
+    for (Py_ssize_t c = 0; c < nl; c++) {  /* nl == nr: as many above the cut as below it */
+        int64_t k = idx[left[c]];
+        idx[left[c]] = idx[right[c]];
+        idx[right[c]] = k;
+    }
+    return s;
 }
 
 /* Split [lo, hi) at the middle of the widest dimension of its ``cell`` (the box its parents' splits leave it: no pass
@@ -221,6 +229,9 @@ static Py_ssize_t quads_build_keys(QuadsTree *t, Py_ssize_t lo, Py_ssize_t hi)
     return me;
 }
 
+/* Room kept between calls for the partitions' lists of places (n int64): memory already faulted in. */
+static QuadsScratch quads_tree_scratch;
+
 static void quads_free(QuadsTree *t)
 {
     if (t) {
@@ -228,6 +239,7 @@ static void quads_free(QuadsTree *t)
         free(t->idx);
         free(t->nodes);
         free(t->box);
+        quads_scratch_release(&quads_tree_scratch, t->work);
         free(t);
     }
 }
@@ -235,6 +247,28 @@ static void quads_free(QuadsTree *t)
 static void quads_capsule_free(PyObject *capsule)
 {
     quads_free((QuadsTree *)PyCapsule_GetPointer(capsule, QUADS_CAPSULE));
+}
+
+/* A tree's arrays for ``n`` points of ``d`` columns, its partitions' room claimed (the GIL held); NULL when out of
+ * memory. */
+static QuadsTree *quads_alloc(Py_ssize_t n, Py_ssize_t d)
+{
+    QuadsTree *t = calloc(1, sizeof(QuadsTree));
+    if (t) {
+        t->cap = 4 * (n / QUADS_LEAF) + 16;  /* grown when splits peel off small parts */
+        t->n = n;
+        t->d = d;
+        t->pts = malloc(sizeof(double) * n * d);
+        t->idx = malloc(sizeof(int64_t) * n);
+        t->work = quads_scratch_claim(&quads_tree_scratch, sizeof(int64_t) * (size_t)n);
+        t->nodes = malloc(sizeof(QuadsNode) * t->cap);
+        t->box = malloc(sizeof(double) * 2 * d * t->cap);
+    }
+    if (t && (!t->pts || !t->idx || !t->nodes || !t->box || !t->work)) {
+        quads_free(t);
+        return NULL;
+    }
+    return t;
 }
 
 static PyObject *quads_build(PyObject *self, PyObject *args)
@@ -256,18 +290,8 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
             return PyErr_Format(PyExc_ValueError, "points must be finite");
         }
     }
-    QuadsTree *t = calloc(1, sizeof(QuadsTree));
-    if (t) {
-        t->cap = 4 * (n / QUADS_LEAF) + 16;  /* grown when splits peel off small parts */
-        t->n = n;
-        t->d = d;
-        t->pts = malloc(sizeof(double) * n * d);
-        t->idx = malloc(sizeof(int64_t) * n);
-        t->nodes = malloc(sizeof(QuadsNode) * t->cap);
-        t->box = malloc(sizeof(double) * 2 * d * t->cap);
-    }
-    if (!t || !t->pts || !t->idx || !t->nodes || !t->box) {
-        quads_free(t);
+    QuadsTree *t = quads_alloc(n, d);
+    if (!t) {
         arr_release(a, 1);
         return PyErr_NoMemory();
     }
@@ -286,6 +310,8 @@ static PyObject *quads_build(PyObject *self, PyObject *args)
     }
     Py_END_ALLOW_THREADS
     t->src = NULL;
+    quads_scratch_release(&quads_tree_scratch, t->work);
+    t->work = NULL;
     arr_release(a, 1);
     if (root < 0) {
         quads_free(t);

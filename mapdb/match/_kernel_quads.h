@@ -29,6 +29,7 @@
 
 #include "_kernel.h"
 
+#include <stdlib.h>
 #include <string.h>
 
 #define QUADS_LEAF 16
@@ -49,6 +50,7 @@ typedef struct {
     QuadsNode *nodes;
     const double *src;   /* the points given, during the build */
     double *box;         /* per node, the least then the greatest coordinate per dimension (2 d) */
+    int64_t *work;       /* n places of room, during the build (the partitions' swaps) */
 } QuadsTree;
 
 /* ------------------------------------------------------------------ a quad's frames, shared by the image's quads
@@ -79,6 +81,48 @@ static inline void quads_frame(const double *z, int pair, QuadsFrame *f)
     for (int c = 0; c < 2; c++) {
         const double *p = z + 2 * f->order[2 + c];
         cdiv_apply(&by, p[0] - a[0], p[1] - a[1], &f->t[2 * c], &f->t[2 * c + 1]);
+    }
+}
+
+/* ------------------------------------------------------------------ scratch kept between calls (a tile's build)
+ *
+ * A buffer of a file's own, grown as needed and never freed: a tile's scratch arrays are then memory already
+ * faulted in, not fresh pages each call.  Claimed and given back with the GIL held; a call that finds it claimed
+ * (another thread's build, which released the GIL) takes memory of its own. */
+typedef struct {
+    void *buf;
+    size_t cap;
+    int busy;
+} QuadsScratch;
+
+/* ``bytes`` of room (at least one): the scratch's when free, else malloc'd; NULL when out of memory. */
+static inline void *quads_scratch_claim(QuadsScratch *s, size_t bytes)
+{
+    bytes = bytes ? bytes : 1;
+    if (s->busy) {
+        return malloc(bytes);
+    }
+    if (s->cap < bytes) {
+        size_t cap = bytes > 2 * s->cap ? bytes : 2 * s->cap;
+        void *buf = malloc(cap);  /* not realloc: the old contents are not wanted */
+        if (!buf) {
+            return NULL;
+        }
+        free(s->buf);
+        s->buf = buf;
+        s->cap = cap;
+    }
+    s->busy = 1;
+    return s->buf;
+}
+
+/* Give back what quads_scratch_claim gave (NULL allowed). */
+static inline void quads_scratch_release(QuadsScratch *s, void *p)
+{
+    if (p && p == s->buf) {
+        s->busy = 0;
+    } else {
+        free(p);
     }
 }
 

@@ -188,8 +188,9 @@ class QuadIndex:
             # One kernel call: the distinct quads, those with a frame (four objects on one spot, duplicates in the
             # sources, have none) in canonical order, and their tree points.
             label = np.ascontiguousarray(objects.label, np.int64)
+            # (the ids are not wanted: not copied out of the kernel's scratch)
             _, points, flat = map_quads(*found, len(objects), len(objects) >= _PACKABLE, z, label, len(self.labels),
-                                        positions, LABEL_GAP, POSITION_WEIGHT)
+                                        positions, LABEL_GAP, POSITION_WEIGHT, False)
             zq = np.frombuffer(flat, np.complex128).reshape(-1, 4)
             if len(zq):
                 self.tree = QuadTree(np.frombuffer(points, np.float64).reshape(len(zq), 7 if positions else 5))
