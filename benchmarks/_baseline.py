@@ -117,6 +117,14 @@ def as_json(answer: Any) -> dict:
     return answer.to_json() if hasattr(answer, "to_json") else answer
 
 
+def extract_maps(names: list[str], extracts: dict[str, str], data: Path, cache: Path) -> dict[str, Path]:
+    """:func:`cached_maps` of the extracts ``names`` (keys of ``extracts``); the script exits saying it skipped when
+    one of their files is not under ``data``."""
+    if not all((data / extracts[n]).exists() for n in names):
+        sys.exit(f"skipped: the extracts are not all in {data}")
+    return cached_maps({n: extracts[n] for n in names}, data, cache)
+
+
 def cached_maps(extracts: dict[str, str], data: Path, cache: Path) -> dict[str, Path]:
     """Each extract's map (``name -> file name`` under ``data``), built once into ``cache``, outside the
     repository, by this tree's map-writing code (:func:`code_digest` in the file name)."""

@@ -8,12 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from towns import write_town
 
 from mapdb.analysis import SampleConfig, pictures
 from mapdb.analysis.measures import column_medians
 from mapdb.analysis.run import analyze, analyze_scenarios
-from mapdb.mapfile.writer import write_map
-from mapdb.objects import Objects
 
 
 def test_column_medians_are_numpys() -> None:
@@ -40,12 +39,7 @@ def test_statistics_median_is_numpys_for_the_cells_floats() -> None:
 
 @pytest.fixture(scope="module")
 def town(tmp_path_factory) -> Path:
-    rng = np.random.default_rng(4)
-    x = 500_000.0 + rng.uniform(0, 400, 400)
-    y = 5_000_000.0 + rng.uniform(0, 300, 400)
-    path = tmp_path_factory.mktemp("cheaper") / "town.mapdb"
-    write_map(path, Objects.from_names(x, y, ["building"] * x.size, crs="EPSG:32631"))
-    return path
+    return write_town(tmp_path_factory.mktemp("cheaper") / "town.mapdb", 400, 4, 400.0, 300.0)
 
 
 def _small_figure(path: Path, once: bool) -> bytes:

@@ -9,25 +9,18 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 from click.testing import CliRunner
 from mapdb_cli.main import cli
+from towns import write_town
 
 from mapdb.analysis.cputime import PHASES, CpuPhases
-from mapdb.mapfile.writer import write_map
-from mapdb.objects import Objects
 
 
 @pytest.fixture(scope="module")
 def town(tmp_path_factory) -> Path:
     """An irregular town of 300 buildings on 500 m x 300 m (UTM 31N): some cells to simulate, some empty."""
-    rng = np.random.default_rng(3)
-    x = 500_000.0 + rng.uniform(0, 300, 300)
-    y = 5_000_000.0 + rng.uniform(0, 300, 300)
-    path = tmp_path_factory.mktemp("cputime") / "town.mapdb"
-    write_map(path, Objects.from_names(x, y, ["building"] * x.size, crs="EPSG:32631"))
-    return path
+    return write_town(tmp_path_factory.mktemp("cputime") / "town.mapdb", 300, 3, 300.0, 300.0)
 
 
 def test_phases_are_measured_and_add_up_to_at_most_the_process_cpu(town: Path, tmp_path: Path) -> None:

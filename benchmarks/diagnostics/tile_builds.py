@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _baseline import cached_maps, import_baseline  # noqa: E402
+from _baseline import extract_maps, import_baseline  # noqa: E402
 from matcher_core import CACHE, DATA, EXTRACTS, gauge_ms, p95, simulated  # noqa: E402
 
 
@@ -77,10 +77,7 @@ def main() -> None:
     from mapdb.mapfile.reader import open_map
     from mapdb.match.quads import QuadIndex
 
-    names = [n for n in args.maps.split(",") if n]
-    if not all((DATA / EXTRACTS[n]).exists() for n in names):
-        sys.exit(f"skipped: the extracts are not all in {DATA}")
-    maps = cached_maps({n: EXTRACTS[n] for n in names}, DATA, CACHE)
+    maps = extract_maps([n for n in args.maps.split(",") if n], EXTRACTS, DATA, CACHE)
     with tempfile.TemporaryDirectory() as tmp:
         old = import_baseline(args.baseline, Path(tmp), "localize.localizer")
         old_quads = import_baseline(args.baseline, Path(tmp), "match.quads")
@@ -90,7 +87,7 @@ def main() -> None:
                                                   old_reader.open_map)}
         print(f"a tile's first build (query_bbox and QuadIndex), fastest of {args.repeats} a tile, ms; load average "
               f"{os.getloadavg()[0]:.1f}, gauge {gauge_ms():.1f} ms:")
-        for name in names:
+        for name in maps:
             tiles = first_visits(maps[name], args.n, args.seed)
             opened = {label: opener(maps[name]) for label, (_, opener) in versions.items()}
             for m in opened.values():

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _baseline import cached_maps, import_baseline  # noqa: E402
+from _baseline import extract_maps, import_baseline  # noqa: E402
 from matcher_core import CACHE, DATA, EXTRACTS, p95  # noqa: E402
 
 
@@ -87,16 +87,13 @@ def main() -> None:
     args = parser.parse_args()
     from mapdb.match import _kernel
 
-    names = [n for n in args.maps.split(",") if n]
-    if not all((DATA / EXTRACTS[n]).exists() for n in names):
-        sys.exit(f"skipped: the extracts are not all in {DATA}")
-    maps = cached_maps({n: EXTRACTS[n] for n in names}, DATA, CACHE)
+    maps = extract_maps([n for n in args.maps.split(",") if n], EXTRACTS, DATA, CACHE)
     with tempfile.TemporaryDirectory() as tmp:
         kernels = {"this tree": _kernel, f"baseline {args.baseline}": import_baseline(args.baseline, Path(tmp),
                                                                                      "match._kernel")}
         print(f"a tile's kernel calls, fastest of {args.repeats} runs a tile, ms (map_quads | quads_build):")
         keep: list = []
-        for name in names:
+        for name in maps:
             ms: dict[str, tuple[list[float], list[float]]] = {label: ([], []) for label in kernels}
             usage = {label: [0.0, 0.0, 0.0] for label in kernels}
             same = True
