@@ -20,10 +20,10 @@ import statistics
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _baseline import extract_maps  # noqa: E402
+from glue_stages import _clocked  # noqa: E402
 from matcher_core import CACHE, DATA, EXTRACTS, simulated  # noqa: E402
 
 import mapdb.localize.localizer as localizer_module  # noqa: E402
@@ -31,20 +31,6 @@ import mapdb.match.fast as fast  # noqa: E402
 from mapdb.mapfile.reader import open_map  # noqa: E402
 
 SPENT: collections.Counter = collections.Counter()
-
-
-def timed(owner: Any, name: str, stage: str) -> None:
-    """Replace ``owner.name`` by a wrapper adding its calls' wall time to ``SPENT[stage]``."""
-    function = getattr(owner, name)
-
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        start = time.perf_counter()
-        try:
-            return function(*args, **kwargs)
-        finally:
-            SPENT[stage] += time.perf_counter() - start
-
-    setattr(owner, name, wrapper)
 
 
 def main() -> None:
@@ -56,7 +42,7 @@ def main() -> None:
         (localizer_module, "_checked", "reading the document"), (localizer_module, "ok_record", "the answer's record"),
         (localizer_module.Localizer, "fast_indexes", "indexes (a prior's tiles)"),
     ]:
-        timed(owner, function, stage)
+        setattr(owner, function, _clocked(getattr(owner, function), stage, SPENT))
     path = extract_maps([name], EXTRACTS, DATA, CACHE)[name]
     images = simulated(path, n, 3)
     without = [{k: v for k, v in image.items() if k != "prior"} for image in images]
