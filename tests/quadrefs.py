@@ -10,7 +10,8 @@ from itertools import combinations
 import numpy as np
 
 from mapdb._scipy import quick_tree
-from mapdb.match.quads import _PACKABLE, nearest_others
+from mapdb.match.nearest import nearest_others
+from mapdb.match.quads import _PACKABLE
 
 SORT4 = ((0, 1), (2, 3), (0, 2), (1, 3), (1, 2))  # a sorting network of four
 

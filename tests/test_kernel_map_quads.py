@@ -14,6 +14,7 @@ from quadrefs import SORT4, first_rows
 from mapdb._scipy import quick_tree
 from mapdb.mapfile.reader import open_map
 from mapdb.match import _kernel
+from mapdb.match.nearest import nearest_others
 from mapdb.match.quads import (
     _PACKABLE,
     LABEL_GAP,
@@ -23,7 +24,6 @@ from mapdb.match.quads import (
     QuadIndex,
     canonical_quads,
     label_keys,
-    nearest_others,
     neighbour_quads,
 )
 from mapdb.objects import Objects

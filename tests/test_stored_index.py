@@ -22,7 +22,8 @@ from mapdb.match.index import build as index_build
 from mapdb.match.index import generate as index_generate
 from mapdb.match.index.layout import QUAD_NEIGHBOURS, QUAD_TRIPLES
 from mapdb.match.index.stored import StoredQuadIndex, build_index, index_path, open_index
-from mapdb.match.quads import QuadIndex, canonical_quads, label_keys, nearest_others, neighbour_quads
+from mapdb.match.nearest import nearest_others
+from mapdb.match.quads import QuadIndex, canonical_quads, label_keys, neighbour_quads
 from mapdb.objects import Objects
 
 LABELS = ("building", "road_intersection", "park")

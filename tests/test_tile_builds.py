@@ -1,4 +1,4 @@
-"""A prior's tile build: its objects (MetaMap.query_bbox) and its anchors' nearest others (quads.decided_nearest), each
+"""A prior's tile build: its objects (MetaMap.query_bbox) and its anchors' nearest others (decided_nearest), each
 against the code it replaced, kept here verbatim as the reference."""
 
 from __future__ import annotations

@@ -34,7 +34,8 @@ from lost_in_space_index import _image_arrays, _images  # noqa: E402
 
 from mapdb._scipy import cKDTree  # noqa: E402
 from mapdb.mapfile.reader import open_map  # noqa: E402
-from mapdb.match.quads import nearest_others, neighbour_quads  # noqa: E402
+from mapdb.match.nearest import nearest_others  # noqa: E402
+from mapdb.match.quads import neighbour_quads  # noqa: E402
 
 CACHE = Path(tempfile.gettempdir()) / "mapdb-diagnostics"
 FOUR = list(itertools.combinations(range(4), 3))

@@ -91,9 +91,9 @@ class _Recent:
         return value
 
     def get(self, key: Any, factory: Callable[[], Any]) -> Any:
-        if key in self.entries:
-            self.entries.move_to_end(key)
-            return self.entries[key]
+        value = self.recent(key)  # else factory()'s value (never None), kept
+        if value is not None:
+            return value
         value = factory()
         self.entries[key] = value
         self.held += self.size(value)

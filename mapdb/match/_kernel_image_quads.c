@@ -157,7 +157,7 @@ static PyObject *quads_keys(PyObject *self, PyObject *args)
 
 /* The ``k`` nearest other points of each of ``n`` points ``xy`` (n x 2) into ``nn`` (n x k): the k + 1 nearest
  * (squared distances as a KD-tree sums them, equal ones in point order), the point itself dropped (the last of them
- * when another point sits on it and it is not among them: quads.nearest_others); only for the points whose ``wanted`` is not negative. */
+ * when another point sits on it and it is not among them: nearest.nearest_others); only for the points whose ``wanted`` is not negative. */
 static void quads_nearest(const double *xy, Py_ssize_t n, Py_ssize_t k, const int64_t *wanted, int64_t *nn)
 {
     Keyed near[65];  /* the k + 1 nearest so far, in order (k <= 64) */

@@ -14,7 +14,7 @@ import numpy as np
 from .._scipy import cKDTree, quick_tree
 from ._kernel import objects_build, objects_knn
 
-__all__ = ["decided_nearest", "nearest_others"]
+__all__ = ["decided_nearest", "decided_nearest_xy", "nearest_others"]
 
 
 def nearest_others(tree: cKDTree, xy: np.ndarray, ids: np.ndarray, k: int, workers: int = 1) -> np.ndarray:
@@ -58,11 +58,11 @@ def decided_nearest(xy: np.ndarray, ids: np.ndarray, k: int) -> np.ndarray:
     [[1, 4], [0, 2], [1, 0], [2, 1], [0, 1]]
     """
     xy = np.asarray(xy, np.float64)
-    return _decided_nearest(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), ids, k)
+    return decided_nearest_xy(np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]), ids, k)
 
 
-def _decided_nearest(x: np.ndarray, y: np.ndarray, ids: np.ndarray, k: int, z: np.ndarray | None = None
-                     ) -> np.ndarray:
+def decided_nearest_xy(x: np.ndarray, y: np.ndarray, ids: np.ndarray, k: int, z: np.ndarray | None = None
+                       ) -> np.ndarray:
     """:func:`decided_nearest` of points ``x, y`` (C-contiguous float64; ``z``, if given, them as complex)."""
     n, m = len(x), min(k + 2, len(x))
     if not 0 < k < n:

@@ -15,10 +15,10 @@ import numpy as np
 
 from ..objects import Objects
 from ._kernel import map_canonical, map_quads, quads_build, quads_lookup
-from .nearest import _decided_nearest, decided_nearest, nearest_others
+from .nearest import decided_nearest_xy
 
-__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "decided_nearest", "label_keys",
-           "lookup_parts", "mergeable_parts", "near_only", "nearest_others", "neighbour_quads"]
+__all__ = ["LABEL_GAP", "POSITION_WEIGHT", "QuadIndex", "QuadTree", "canonical_quads", "label_keys", "lookup_parts",
+           "mergeable_parts", "near_only", "neighbour_quads"]
 
 # The label key is a fifth tree coordinate, spaced far beyond any lookup radius so that a lookup never
 # crosses from one label combination to another.
@@ -66,14 +66,14 @@ def neighbour_quads(xy: np.ndarray, neighbours: int, *, anchors: np.ndarray | No
 def _anchor_neighbours(x: np.ndarray, y: np.ndarray, neighbours: int, anchors: np.ndarray | None,
                        z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray] | None:
     """Each anchor's ``neighbours`` nearest others among points ``x, y`` (cKDTree's, whose order among equal distances
-    decides which quads exist: :func:`decided_nearest`) and the anchors' ids, as int64; None when there are no quads
+    decides which quads exist: :mod:`.nearest`) and the anchors' ids, as int64; None when there are no quads
     (fewer than three neighbours, no anchor).  ``z``: the points as complex numbers, if at hand."""
     n = len(x)
     k = min(neighbours, n - 1)
     anchor_ids = np.arange(n) if anchors is None else np.flatnonzero(anchors)
     if k < 3 or not anchor_ids.size:
         return None
-    nn = _decided_nearest(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), anchor_ids, k, z)
+    nn = decided_nearest_xy(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64), anchor_ids, k, z)
     return nn, np.ascontiguousarray(anchor_ids, np.int64)
 
 

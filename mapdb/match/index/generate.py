@@ -14,7 +14,8 @@ import numpy as np
 
 from ..._scipy import cKDTree
 from ...labels import BLOCK_LABEL
-from ..quads import canonical_quads, label_keys, nearest_others
+from ..nearest import nearest_others
+from ..quads import canonical_quads, label_keys
 from .layout import CELL_LADDER, cell_keys, cells_of, triples
 
 __all__ = ["RECORD", "SHARED", "block_free_world", "cell_for", "choose_cells", "chunk_quads", "chunk_records",
@@ -33,7 +34,7 @@ SHARED: dict[str, Any] = {}
 def neighbour_table(xy: np.ndarray, k: int, workers: int) -> np.ndarray:
     """Each object's ``k`` nearest other objects (uint32 ids, nearest first), as neighbour_quads finds them.
 
-    The same cKDTree over the same points and the same search (:func:`~mapdb.match.quads.nearest_others`)
+    The same cKDTree over the same points and the same search (:func:`~mapdb.match.nearest.nearest_others`)
     as :func:`~mapdb.match.quads.neighbour_quads`, so the quads built from this table are that function's
     (``tests/test_stored_index.py`` checks it); queried in chunks to bound memory.
     """
