@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 from contextlib import ExitStack
@@ -14,7 +13,7 @@ from mapdb.detections.images import read_image_documents
 from mapdb.mapfile.reader import open_map
 from mapdb.navigation.navigator import Navigator, NavigatorOptions
 from mapdb.navigation.track import TrackRecord, line_path, plot_track, track_geojson, track_line_geojson
-from mapdb.outputs import atomic_open, atomic_path, dumps_strict
+from mapdb.outputs import atomic_open, atomic_path, dumps_strict, json_line
 
 from .evaluate import parse_plot
 from .options import (
@@ -218,8 +217,8 @@ def navigate(map_file, flight_file, output, geojson_file, plot_file, initial, in
 def _line(record: TrackRecord, where: str) -> str:
     """The record's JSON line; a record that cannot be written becomes one that says so (the stream goes on)."""
     try:
-        return json.dumps(record.to_json(), separators=(",", ":"), allow_nan=False)
+        return json_line(record.to_json())
     except (ValueError, TypeError, OverflowError) as exc:
         fallback = {"id": None, "time_s": None, "status": "skipped",
                     "notes": [f"{where}: the frame's record could not be written ({type(exc).__name__})"]}
-        return json.dumps(fallback, separators=(",", ":"))
+        return json_line(fallback)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 import warnings
 from typing import Any
@@ -11,7 +10,7 @@ import click
 
 from mapdb.detections.masks import DEFAULT_MIN_AREA_PX
 from mapdb.errors import MapdbError
-from mapdb.outputs import atomic_open
+from mapdb.outputs import atomic_open, json_line
 
 from .options import (
     check_paths,
@@ -39,7 +38,7 @@ def parse_attitude(ctx: click.Context | None, param: click.Parameter | None, val
 
 
 def _write(out: Any, doc: dict[str, Any]) -> int:
-    out.write(json.dumps(doc, separators=(",", ":"), allow_nan=False) + "\n")
+    out.write(json_line(doc) + "\n")
     return len(doc["objects"])
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import stat
 import sys
@@ -17,7 +16,7 @@ from mapdb.localize.georef import FeatureWriter
 from mapdb.localize.localizer import METHODS
 from mapdb.mapfile.reader import open_map
 from mapdb.match.fast import FastOptions
-from mapdb.outputs import atomic_open
+from mapdb.outputs import atomic_open, json_line
 
 from .options import (
     TerminalProgress,
@@ -213,7 +212,7 @@ def query(map_file, images_file, output, method, prior, prior_crs, heading, min_
             for record in localize_documents(documents, m, method, prior_arg, options=options):
                 if erase:
                     erase()
-                out.write(json.dumps(record.to_json(), separators=(",", ":"), allow_nan=False) + "\n")
+                out.write(json_line(record.to_json()) + "\n")
                 if streaming:
                     out.flush()  # the answer reaches a reader on a pipe before the next line is read
                 for writer in writers:

@@ -45,6 +45,7 @@ __all__ = [
     "check_outputs",
     "creation_time",
     "dumps_strict",
+    "json_line",
     "json_safe",
     "output_errors",
     "pid_alive",
@@ -502,6 +503,24 @@ def json_safe(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
+
+
+def json_line(value: Any) -> str:
+    """``value`` as compact JSON (no spaces; ``NaN`` or ``Infinity`` refused with ValueError): one line of a stream.
+
+    The same text as ``json.dumps(value, separators=(",", ":"), allow_nan=False)``, from one encoder made once:
+    ``json.dumps`` with options other than its defaults builds an encoder every call (3-4 microseconds of each
+    answer a ``mapdb query`` stream writes).
+
+    Examples
+    --------
+    >>> json_line({"id": "a", "xy": [1.5, 2]})
+    '{"id":"a","xy":[1.5,2]}'
+    """
+    return _COMPACT(value)
+
+
+_COMPACT = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
 def dumps_strict(value: Any, **kwargs: Any) -> str:
