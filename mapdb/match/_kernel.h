@@ -131,6 +131,7 @@ extern PyMethodDef stored_methods[];  /* _kernel_stored.c: the stored quad index
 extern PyMethodDef qdecode_methods[];  /* _kernel_qdecode.c: the stored index's packed blocks decoded */
 extern PyMethodDef qcheck_methods[];  /* _kernel_qcheck.c: the stored index's blocks checked (CRC-32) */
 extern PyMethodDef screen_methods[];  /* _kernel_screen.c: the screen's neighbours of image objects */
+extern PyMethodDef places_methods[];  /* _kernel_places.c: a round's distinct places */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
+from ._kernel import places_distinct
 from .arrays import all_distinct
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, fit_errors, residual_sigmas
@@ -81,16 +82,22 @@ def residual_sigma(dist: np.ndarray) -> float:
 
 
 def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: int) -> list[int]:
-    """Greedy non-maximum suppression: indices (in ``order``) at least ``separation`` apart."""
-    chosen: list[int] = []
-    # Python numbers: the same values as numpy's scalars, at a fraction of their cost in a loop.
-    places, apart = np.asarray(b).tolist(), np.asarray(separation).tolist()
-    for i in np.asarray(order).tolist():
-        if all(abs(places[i] - places[j]) > max(apart[i], apart[j]) for j in chosen):
-            chosen.append(int(i))
-            if len(chosen) >= limit:
-                break
-    return chosen
+    """Greedy non-maximum suppression: indices (in ``order``) at least ``separation`` apart.
+
+    Each index of ``order`` in turn is kept when ``|b[i] - b[j]| > max(separation[i], separation[j])`` for every
+    ``j`` kept before it, until ``limit`` are kept; one call of the compiled kernel (``places_distinct``: the Python
+    loop over Python numbers it replaced, comparison for comparison).
+
+    Examples
+    --------
+    >>> distinct(np.array([0, 1, 10, 10.5]), np.array([1, 0, 3, 2]), np.full(4, 2.0), 3)
+    [1, 3]
+    """
+    b = np.ascontiguousarray(np.ravel(b), np.complex128)
+    order = np.ascontiguousarray(np.ravel(order), np.int64)
+    out = np.empty(min(order.size, max(int(limit), 0)), np.int64)
+    kept = places_distinct(b, order, np.ascontiguousarray(np.ravel(separation), np.float64), max(int(limit), 0), out)
+    return out[:kept].tolist()
 
 
 def polish(

@@ -23,10 +23,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._kernel import screen_knn
+from ._kernel import objects_knn, screen_knn, verify_decision, verify_refine, verify_screen
 from .evidence.areas import points_floor
 from .evidence.image import ImageEvidence
+from .evidence.points import GATE_SIGMAS
 from .hypotheses import Hypotheses, pose_votes, prioritise
+from .mapobjects.object_index import FusedArrays
+from .nfa import LOG10_FLOOR, log10_trials
 from .options import FastOptions
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct
 from .verify import ObjectIndex, decision_nfa, refine, screen
@@ -88,6 +91,9 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
     (``votes``: :func:`pose_votes`, computed here if None and needed)."""
     if len(hyps) > opts.max_verified:
         hyps = hyps.take(prioritise(hyps.a, hyps.b, diag_px, opts.max_verified, votes))
+    fused = index.fused()
+    if fused is not None and _points_only(evidence) and len(hyps) and z.size > 4:
+        return _screened_fused(hyps, z, img_label, index, fused, screen_of, diag_px, log10_tests, opts)
     # Screen: the shortlist ...
     hyps = hyps.take(screen(hyps.a, hyps.b, hyps.img_ids, screen_of, z, img_label, index, log10_tests,
                             opts.shortlist))
@@ -121,3 +127,54 @@ def _screened(hyps: Hypotheses, votes: np.ndarray | None, z: np.ndarray, img_lab
         nfa = points_floor(nfa, points)
     a, b, _, inlier, mid, dist = refine(a, b, z, img_label, index, density, log10_tests, 2, evidence, near=near)
     return candidates(a, b, nfa, inlier, mid, dist, z, points)
+
+
+def _points_only(evidence: ImageEvidence | None) -> bool:
+    """Whether the decision and the refinement read point residuals alone (no areas, blob errors or terrain)."""
+    return evidence is None or (evidence.areas is None and evidence.errors is None and evidence.terrain is None)
+
+
+def _screened_fused(hyps: Hypotheses, z: np.ndarray, img_label: np.ndarray, index: ObjectIndex, f: FusedArrays,
+                    screen_of: np.ndarray, diag_px: float, log10_tests: float, opts: FastOptions) -> list[Candidate]:
+    """:func:`_screened` on point residuals over an in-memory index (``f``: :meth:`ObjectIndex.fused`) with more than
+    four image objects: the kernel calls :func:`screen`, :meth:`ObjectIndex.neighbours`, :func:`decision_nfa` (twice)
+    and :func:`refine` make there, with the same arguments, each array converted once.
+
+    The usual analysis image is one round; its screen cost 0.5 ms, two thirds of it the Python and numpy calls
+    between these five kernel calls (each wrapper converting, checking and looking up the same arrays again)."""
+    zc, lab, n = np.ascontiguousarray(z, np.complex128), np.ascontiguousarray(img_label, np.int64), z.size
+    objects = np.ascontiguousarray(screen_of[hyps.img_ids[:, 0]], np.int64)
+    if objects.shape[1] <= 4:
+        nfa = np.full(len(hyps), np.inf)
+    else:
+        nfa = np.empty(len(hyps))
+        verify_screen(*f.tree, np.ascontiguousarray(hyps.a, np.complex128), np.ascontiguousarray(hyps.b, np.complex128),
+                      zc, objects, lab, f.reach, f.density, f.half_gap, 4,
+                      log10_tests + log10_trials(objects.shape[1] - 4), LOG10_FLOOR, nfa)
+    keep = nfa.argsort(kind="stable")[:opts.shortlist]
+    a, b, ids, map_z = hyps.a[keep], hyps.b[keep], hyps.img_ids[keep], hyps.map_z[keep]
+    # One query of the shortlist's projections serves both decisions and the refinement's first association.
+    h, k = keep.size, max(1 + map_z.shape[1], opts.density_neighbours)
+    near_d, near_i = np.empty((h * n, k)), np.empty((h * n, k), np.int64)
+    objects_knn(*f.tree, (a[:, None] * z[None, :] + b[:, None]).ravel(), lab[None, :].repeat(h, axis=0).ravel(),
+                float(f.half_gap), f.n, near_d, near_i)
+    offset = log10_tests + log10_trials(n - 4)
+    ids, map_z = np.ascontiguousarray(ids, np.int64), np.ascontiguousarray(map_z, np.complex128)
+    nfa = np.empty(h)
+    verify_decision(near_d, near_i, 1 + map_z.shape[1], f.z, map_z, ids, zc, lab, f.reach, f.density_2d, f.counts, 0,
+                    f.kd_floor, 4, offset, LOG10_FLOOR, nfa)
+    chosen = distinct(b, nfa.argsort(kind="stable"), np.abs(a) * diag_px * PLACE_FRACTION, opts.refine_candidates)
+    a, b, ids, map_z = a[chosen], b[chosen], ids[chosen], map_z[chosen]
+    near_d, near_i = near_d.reshape(h, n, k)[chosen].reshape(-1, k), near_i.reshape(h, n, k)[chosen].reshape(-1, k)
+    # The decision with the label densities around each place, on the hypotheses as they came from their quads.
+    density = index.local_density(b, opts.density_radius_factor * np.abs(a) * diag_px / 2.0)
+    reach, c = index.label_reach(density), len(chosen)
+    nfa = np.empty(c)
+    verify_decision(near_d, near_i, 1 + map_z.shape[1], f.z, map_z, ids, zc, lab, reach, density, f.counts,
+                    opts.density_neighbours, f.kd_floor, 4, offset, LOG10_FLOOR, nfa)
+    # The refinement (a and b are this function's own arrays, taken above: the kernel refits them in place).
+    a, b = np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128)
+    inlier, mid, dist = np.empty((c, n), bool), np.empty((c, n), np.int64), np.empty((c, n))
+    verify_refine(*f.tree, a, b, zc, lab, f.z, reach, density, f.half_gap, 2, near_d, near_i, offset, LOG10_FLOOR,
+                  GATE_SIGMAS, np.empty(c), inlier, mid, dist)
+    return candidates(a, b, nfa, inlier, mid, dist, z)

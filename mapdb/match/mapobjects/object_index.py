@@ -9,6 +9,7 @@ same answers for a big map file read page by page.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -20,7 +21,7 @@ from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
 from .kd_forest import Forest
 from .label_trees import LabelTrees
 
-__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "Neighbours", "ObjectIndex"]
+__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "FusedArrays", "Neighbours", "ObjectIndex"]
 
 # Normalised residual beyond which an object counts as unmatched (a random point would be that close
 # with probability 1 - e^-3 = 95%): also the search bound of the nearest-neighbour queries.
@@ -44,6 +45,24 @@ def _flat_labels(img_label: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     if img_label.ndim == 1 and len(shape) == 2 and img_label.size == shape[1]:
         return img_label[None, :].repeat(shape[0], axis=0).ravel()
     return np.broadcast_to(img_label, shape).ravel()
+
+
+class FusedArrays(NamedTuple):
+    """What the compiled kernel's fused queries read of an in-memory :class:`ObjectIndex`, in the types they take,
+    made once (:meth:`ObjectIndex.fused`): a round's screen passes them to several kernel calls, each of which
+    would otherwise convert and look them up again."""
+
+    tree: tuple[np.ndarray, ...]  # the LabelTrees' five arrays
+    n: int  # objects (the index a missing neighbour gets)
+    z: np.ndarray  # positions, complex128
+    counts: np.ndarray  # objects a label, int64
+    density: np.ndarray  # the region's densities (L,)
+    density_2d: np.ndarray  # the same, (1, L)
+    reach: np.ndarray  # each label's reach under them (ObjectIndex.label_reach)
+    present: np.ndarray  # the labels with objects
+    bounds: np.ndarray  # (minx, miny, maxx, maxy)
+    half_gap: float  # the longest search bound
+    kd_floor: float  # the density of a label absent from the map (1 / area)
 
 
 class Neighbours:
@@ -136,6 +155,7 @@ class ObjectIndex:
         # (:mod:`mapdb.match.evidence.terrain`), which keeps its tree in ``terrain``.
         self.elevation = objects.elevation
         self.terrain: object | None = None
+        self._fused: tuple[tuple[object, ...], FusedArrays] | None = None  # (made from, arrays): see ``fused``
 
     def __len__(self) -> int:
         return int(self.z.size)
@@ -166,6 +186,22 @@ class ObjectIndex:
         answers through its own methods)."""
         tree = self.tree
         return tree if isinstance(tree, LabelTrees) and type(self).nearest is ObjectIndex.nearest else None
+
+    def fused(self) -> FusedArrays | None:
+        """The arrays the kernel's fused queries read (:class:`FusedArrays`) when :meth:`fused_tree` is a tree, else
+        None; made once, and again if the index's tree, positions or densities were replaced."""
+        tree = self.fused_tree()
+        if tree is None:
+            return None
+        source = (tree, self.z, self.counts, self.density)
+        made = getattr(self, "_fused", None)  # an index pickled before it had one has none
+        if made is None or any(x is not y for x, y in zip(made[0], source, strict=True)):
+            self._fused = source, FusedArrays(
+                tree._tree(), len(tree), np.ascontiguousarray(self.z, np.complex128),
+                np.ascontiguousarray(self.counts, np.int64), self.density,
+                np.ascontiguousarray(np.atleast_2d(self.density), np.float64), self._label_reach(),
+                np.flatnonzero(self.counts), self._bounds, 0.5 * self.gap, 1.0 / self.area)
+        return self._fused[1]
 
     def _trees(self) -> list[tuple[np.ndarray, ...]]:
         """The arrays of each :class:`LabelTrees` holding the objects (none without objects)."""
