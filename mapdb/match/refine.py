@@ -20,7 +20,7 @@ from .evidence.points import GATE_SIGMAS, fit_errors, residual_sigmas
 from .evidence.relief import ReliefFit
 from .mapobjects.object_index import ObjectIndex
 
-__all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "merged_one_by_one", "polish",
+__all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "distinct_rows", "merge_candidates", "merged_one_by_one", "polish",
            "pose_shift"]
 
 # Two answers closer than this fraction of the footprint's diagonal are one place.
@@ -57,23 +57,26 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
     log10 NFA without areas, when it has them)."""
     inlier = np.ascontiguousarray(inlier, bool)
     counts = inlier.sum(axis=1)
-    keep = (np.isfinite(a) & (counts >= 3)).nonzero()[0]
+    ok = np.isfinite(a) & (counts >= 3)
+    keep = ok.nonzero()[0]
     if not keep.size:
         return []
+    if keep.size < ok.size:  # (usually every row is kept: no copies then)
+        a, b, nfa, inlier, mid, dist, counts = (a[keep], b[keep], nfa[keep], inlier[keep], mid[keep], dist[keep],
+                                                counts[keep])
+        nfa_points = None if nfa_points is None else nfa_points[keep]
     # Every row's error model in one kernel call (the residual sigma and the prediction variance factor of each
     # row's inliers: fit_errors), every row's pairs sliced from one array: no numpy call a candidate.
-    kept = inlier[keep]
-    sigma, variance = fit_errors(z, dist[keep], kept)
-    rows, cols = np.nonzero(kept)
-    pairs = _paired(cols, mid[keep[rows], cols])
-    ends = counts[keep].cumsum().tolist()
-    points = None if nfa_points is None else nfa_points[keep].tolist()
+    sigma, variance = fit_errors(z, dist, inlier)
+    rows, cols = inlier.nonzero()
+    pairs = _paired(cols, mid[rows, cols])
+    ends = counts.cumsum().tolist()
+    points = [None] * keep.size if nfa_points is None else nfa_points.tolist()
     return [Candidate(a=a_j, b=b_j, log10_nfa=nfa_j, inliers=end - start, sigma_axis_m=sigma_j,
-                      variance_factor=variance_j, pairs=pairs[start:end],
-                      log10_nfa_points=None if points is None else points[j])
-            for j, (a_j, b_j, nfa_j, sigma_j, variance_j, start, end) in enumerate(zip(
-                a[keep].tolist(), b[keep].tolist(), nfa[keep].tolist(), sigma.tolist(), variance.tolist(),
-                [0, *ends[:-1]], ends, strict=True))]
+                      variance_factor=variance_j, pairs=pairs[start:end], log10_nfa_points=points_j)
+            for a_j, b_j, nfa_j, sigma_j, variance_j, start, end, points_j in zip(
+                a.tolist(), b.tolist(), nfa.tolist(), sigma.tolist(), variance.tolist(), [0, *ends[:-1]], ends, points,
+                strict=True)]
 
 
 def residual_sigma(dist: np.ndarray) -> float:
@@ -93,11 +96,17 @@ def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: in
     >>> distinct(np.array([0, 1, 10, 10.5]), np.array([1, 0, 3, 2]), np.full(4, 2.0), 3)
     [1, 3]
     """
+    return distinct_rows(b, order, separation, limit).tolist()
+
+
+def distinct_rows(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: int) -> np.ndarray:
+    """:func:`distinct` as an array (int64), to index with."""
     b = np.ascontiguousarray(np.ravel(b), np.complex128)
     order = np.ascontiguousarray(np.ravel(order), np.int64)
-    out = np.empty(min(order.size, max(int(limit), 0)), np.int64)
-    kept = places_distinct(b, order, np.ascontiguousarray(np.ravel(separation), np.float64), max(int(limit), 0), out)
-    return out[:kept].tolist()
+    limit = max(int(limit), 0)
+    out = np.empty(min(order.size, limit), np.int64)
+    kept = places_distinct(b, order, np.ascontiguousarray(np.ravel(separation), np.float64), limit, out)
+    return out[:kept]
 
 
 def polish(

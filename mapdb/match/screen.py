@@ -23,7 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._kernel import objects_knn, screen_knn, verify_decision, verify_refine, verify_screen
+from ._kernel import objects_density, objects_knn, screen_knn, verify_decision, verify_refine, verify_screen
 from .evidence.areas import points_floor
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS
@@ -31,7 +31,7 @@ from .hypotheses import Hypotheses, pose_votes, prioritise
 from .mapobjects.object_index import FusedArrays
 from .nfa import LOG10_FLOOR, log10_trials
 from .options import FastOptions
-from .refine import PLACE_FRACTION, Candidate, candidates, distinct
+from .refine import PLACE_FRACTION, Candidate, candidates, distinct, distinct_rows
 from .verify import ObjectIndex, decision_nfa, refine, screen
 
 __all__ = ["screen_neighbours", "screen_round"]
@@ -163,17 +163,21 @@ def _screened_fused(hyps: Hypotheses, z: np.ndarray, img_label: np.ndarray, inde
     nfa = np.empty(h)
     verify_decision(near_d, near_i, 1 + map_z.shape[1], f.z, map_z, ids, zc, lab, f.reach, f.density_2d, f.counts, 0,
                     f.kd_floor, 4, offset, LOG10_FLOOR, nfa)
-    chosen = distinct(b, nfa.argsort(kind="stable"), np.abs(a) * diag_px * PLACE_FRACTION, opts.refine_candidates)
+    chosen = distinct_rows(b, nfa.argsort(kind="stable"), np.abs(a) * diag_px * PLACE_FRACTION,
+                           opts.refine_candidates)
     a, b, ids, map_z = a[chosen], b[chosen], ids[chosen], map_z[chosen]
     near_d, near_i = near_d.reshape(h, n, k)[chosen].reshape(-1, k), near_i.reshape(h, n, k)[chosen].reshape(-1, k)
-    # The decision with the label densities around each place, on the hypotheses as they came from their quads.
-    density = index.local_density(b, opts.density_radius_factor * np.abs(a) * diag_px / 2.0)
-    reach, c = index.label_reach(density), len(chosen)
+    # The decision with the label densities around each place, on the hypotheses as they came from their quads
+    # (:meth:`ObjectIndex.local_density`'s kernel call).  a and b are this function's own arrays, taken above:
+    # the refinement's kernel refits them in place.
+    a, b, c = np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128), chosen.size
+    density = np.empty((c, f.n_labels))
+    objects_density(f.trees, b, opts.density_radius_factor * np.abs(a) * diag_px / 2.0, f.disc, f.bounds, f.present,
+                    f.half_gap, density)
+    reach = index.label_reach(density)
     nfa = np.empty(c)
     verify_decision(near_d, near_i, 1 + map_z.shape[1], f.z, map_z, ids, zc, lab, reach, density, f.counts,
                     opts.density_neighbours, f.kd_floor, 4, offset, LOG10_FLOOR, nfa)
-    # The refinement (a and b are this function's own arrays, taken above: the kernel refits them in place).
-    a, b = np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128)
     inlier, mid, dist = np.empty((c, n), bool), np.empty((c, n), np.int64), np.empty((c, n))
     verify_refine(*f.tree, a, b, zc, lab, f.z, reach, density, f.half_gap, 2, near_d, near_i, offset, LOG10_FLOOR,
                   GATE_SIGMAS, np.empty(c), inlier, mid, dist)

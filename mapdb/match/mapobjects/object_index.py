@@ -60,6 +60,9 @@ class FusedArrays(NamedTuple):
     density_2d: np.ndarray  # the same, (1, L)
     reach: np.ndarray  # each label's reach under them (ObjectIndex.label_reach)
     present: np.ndarray  # the labels with objects
+    n_labels: int
+    trees: list[tuple[np.ndarray, ...]]  # [tree]: what the density kernel reads
+    disc: np.ndarray  # the unit disc's sample the density kernel measures a disc's share inside the bounds with
     bounds: np.ndarray  # (minx, miny, maxx, maxy)
     half_gap: float  # the longest search bound
     kd_floor: float  # the density of a label absent from the map (1 / area)
@@ -200,7 +203,8 @@ class ObjectIndex:
                 tree._tree(), len(tree), np.ascontiguousarray(self.z, np.complex128),
                 np.ascontiguousarray(self.counts, np.int64), self.density,
                 np.ascontiguousarray(np.atleast_2d(self.density), np.float64), self._label_reach(),
-                np.flatnonzero(self.counts), self._bounds, 0.5 * self.gap, 1.0 / self.area)
+                np.flatnonzero(self.counts), len(self.labels), [tree._tree()], _DISC, self._bounds, 0.5 * self.gap,
+                1.0 / self.area)
         return self._fused[1]
 
     def _trees(self) -> list[tuple[np.ndarray, ...]]:
@@ -285,17 +289,16 @@ class ObjectIndex:
         ``GLOBAL_REACH_M``: a sparse label's mean density would send the search kilometres away, where a
         "match" means nothing (and a map read page by page would read all of it).  On 400 Andorra images
         the answers are bit-identical with and without the cap."""
-        if np.ndim(density) > 1:
-            return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))[labels]
-        if density is self.density:  # the region's: the same reaches for every image, computed once
-            return self._label_reach()[labels]
-        return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
+        return self.label_reach(density)[labels]
 
     def label_reach(self, density: np.ndarray) -> np.ndarray:
-        """Each label's search reach under ``density`` (``(L,)`` or ``(H, L)``): :meth:`_reach` of every label."""
-        if density is self.density:
+        """Each label's search reach under ``density`` (``(L,)`` or ``(H, L)``: the least dense row's): :meth:`_reach`
+        of every label."""
+        if density is self.density:  # the region's: the same reaches for every image, computed once
             return self._label_reach()
-        return self._reach(density, np.arange(len(self.labels)))
+        if np.ndim(density) > 1:
+            return np.sqrt(U_MAX / (math.pi * np.asarray(density).min(axis=0)))
+        return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)
 
     def _label_reach(self) -> np.ndarray:
         """Each label's reach under the region's densities (``_reach``), made once."""
