@@ -23,7 +23,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._kernel import objects_density, objects_knn, screen_knn, verify_decision, verify_refine, verify_screen
+from ._kernel import (objects_density, objects_knn, places_chosen, places_shortlist, screen_knn, verify_decision,
+                      verify_refine, verify_screen)
 from .evidence.areas import points_floor
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS
@@ -31,7 +32,7 @@ from .hypotheses import Hypotheses, pose_votes, prioritise
 from .mapobjects.object_index import FusedArrays
 from .nfa import LOG10_FLOOR, log10_trials
 from .options import FastOptions
-from .refine import PLACE_FRACTION, Candidate, candidates, distinct, distinct_rows
+from .refine import PLACE_FRACTION, Candidate, candidates, distinct
 from .verify import ObjectIndex, decision_nfa, refine, screen
 
 __all__ = ["screen_neighbours", "screen_round"]
@@ -151,32 +152,36 @@ def _screened_fused(hyps: Hypotheses, z: np.ndarray, img_label: np.ndarray, inde
         verify_screen(*f.tree, np.ascontiguousarray(hyps.a, np.complex128), np.ascontiguousarray(hyps.b, np.complex128),
                       zc, objects, lab, f.reach, f.density, f.half_gap, 4,
                       log10_tests + log10_trials(objects.shape[1] - 4), LOG10_FLOOR, nfa)
-    keep = nfa.argsort(kind="stable")[:opts.shortlist]
-    a, b, ids, map_z = hyps.a[keep], hyps.b[keep], hyps.img_ids[keep], hyps.map_z[keep]
+    # The shortlist, its projections and their labels (places_shortlist: argsort, row takes, a z + b, repeat).
+    h, q = min(opts.shortlist, len(hyps)), hyps.map_z.shape[1]
+    a, b, ids, map_z = np.empty(h, np.complex128), np.empty(h, np.complex128), np.empty((h, q), np.int64), np.empty(
+        (h, q), np.complex128)
+    w, w_label = np.empty(h * n, np.complex128), np.empty(h * n, np.int64)
+    places_shortlist(nfa, np.ascontiguousarray(hyps.a, np.complex128), np.ascontiguousarray(hyps.b, np.complex128),
+                     np.ascontiguousarray(hyps.img_ids, np.int64), np.ascontiguousarray(hyps.map_z, np.complex128), zc,
+                     lab, h, a, b, ids, map_z, w, w_label)
     # One query of the shortlist's projections serves both decisions and the refinement's first association.
-    h, k = keep.size, max(1 + map_z.shape[1], opts.density_neighbours)
+    k = max(1 + q, opts.density_neighbours)
     near_d, near_i = np.empty((h * n, k)), np.empty((h * n, k), np.int64)
-    objects_knn(*f.tree, (a[:, None] * z[None, :] + b[:, None]).ravel(), lab[None, :].repeat(h, axis=0).ravel(),
-                float(f.half_gap), f.n, near_d, near_i)
+    objects_knn(*f.tree, w, w_label, float(f.half_gap), f.n, near_d, near_i)
     offset = log10_tests + log10_trials(n - 4)
-    ids, map_z = np.ascontiguousarray(ids, np.int64), np.ascontiguousarray(map_z, np.complex128)
     nfa = np.empty(h)
-    verify_decision(near_d, near_i, 1 + map_z.shape[1], f.z, map_z, ids, zc, lab, f.reach, f.density_2d, f.counts, 0,
-                    f.kd_floor, 4, offset, LOG10_FLOOR, nfa)
-    chosen = distinct_rows(b, nfa.argsort(kind="stable"), np.abs(a) * diag_px * PLACE_FRACTION,
-                           opts.refine_candidates)
-    a, b, ids, map_z = a[chosen], b[chosen], ids[chosen], map_z[chosen]
-    near_d, near_i = near_d.reshape(h, n, k)[chosen].reshape(-1, k), near_i.reshape(h, n, k)[chosen].reshape(-1, k)
-    # The decision with the label densities around each place, on the hypotheses as they came from their quads
-    # (:meth:`ObjectIndex.local_density`'s kernel call).  a and b are this function's own arrays, taken above:
-    # the refinement's kernel refits them in place.
-    a, b, c = np.ascontiguousarray(a, np.complex128), np.ascontiguousarray(b, np.complex128), chosen.size
+    verify_decision(near_d, near_i, 1 + q, f.z, map_z, ids, zc, lab, f.reach, f.density_2d, f.counts, 0, f.kd_floor,
+                    4, offset, LOG10_FLOOR, nfa)
+    # The distinct places, their rows and their density discs (places_chosen: argsort, distinct, row takes, radii).
+    # a and b are this function's own arrays: the refinement's kernel refits them in place.
+    m = min(opts.refine_candidates, h)
+    outs = (np.empty(m, np.complex128), np.empty(m, np.complex128), np.empty((m, q), np.int64),
+            np.empty((m, q), np.complex128), np.empty((m * n, k)), np.empty((m * n, k), np.int64), np.empty(m))
+    c = places_chosen(nfa, a, b, ids, map_z, near_d, near_i, n, diag_px, PLACE_FRACTION, opts.density_radius_factor,
+                      m, *outs)
+    a, b, ids, map_z, radius = outs[0][:c], outs[1][:c], outs[2][:c], outs[3][:c], outs[6][:c]
+    near_d, near_i = outs[4][:c * n], outs[5][:c * n]
     density = np.empty((c, f.n_labels))
-    objects_density(f.trees, b, opts.density_radius_factor * np.abs(a) * diag_px / 2.0, f.disc, f.bounds, f.present,
-                    f.half_gap, density)
+    objects_density(f.trees, b, radius, f.disc, f.bounds, f.present, f.half_gap, density)
     reach = index.label_reach(density)
     nfa = np.empty(c)
-    verify_decision(near_d, near_i, 1 + map_z.shape[1], f.z, map_z, ids, zc, lab, reach, density, f.counts,
+    verify_decision(near_d, near_i, 1 + q, f.z, map_z, ids, zc, lab, reach, density, f.counts,
                     opts.density_neighbours, f.kd_floor, 4, offset, LOG10_FLOOR, nfa)
     inlier, mid, dist = np.empty((c, n), bool), np.empty((c, n), np.int64), np.empty((c, n))
     verify_refine(*f.tree, a, b, zc, lab, f.z, reach, density, f.half_gap, 2, near_d, near_i, offset, LOG10_FLOOR,
