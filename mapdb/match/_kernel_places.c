@@ -9,6 +9,9 @@
  * products, row takes, repeat, reshape) cost 50-60 microseconds a round on an analysis image, for a few hundred
  * floating point operations; each value is computed as numpy computed it (cabs_np, cmul), in the same order.
  *
+ * places_pairs: refine.candidates' rows (a finite pose and three inliers at least) and their (image, map) pairs in
+ * row order, one call for the nine numpy calls that found them.
+ *
  * Distinct places:
  *
  * The hypotheses are read in the order given (best first); one is kept when its place b lies farther than the
@@ -266,7 +269,65 @@ static PyObject *places_chosen(PyObject *self, PyObject *args)
     return c < 0 ? NULL : PyLong_FromSsize_t(c);
 }
 
+/* The kept rows of h poses (a: re, im pairs) over n objects: written to keep, each one's end in pairs to ends and
+ * its pairs (image index, mid) to pairs; how many rows were kept. */
+static Py_ssize_t places_pairs_rows(const double *a, const unsigned char *inlier, const int64_t *mid, Py_ssize_t h,
+                                    Py_ssize_t n, int64_t *keep, int64_t *ends, int64_t *pairs)
+{
+    Py_ssize_t kept = 0, end = 0;
+    for (Py_ssize_t r = 0; r < h; r++) {
+        Py_ssize_t count = 0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            count += inlier[r * n + i] != 0;
+        }
+        if (!(isfinite(a[2 * r]) && isfinite(a[2 * r + 1])) || count < 3) {
+            continue;
+        }
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (inlier[r * n + i]) {
+                pairs[2 * end] = i;
+                pairs[2 * end + 1] = mid[r * n + i];
+                end++;
+            }
+        }
+        keep[kept] = r;
+        ends[kept++] = end;
+    }
+    return kept;
+}
+
+static PyObject *places_pairs(PyObject *self, PyObject *args)
+{
+    static const char *names[6] = {"a", "inlier", "mid", "out_keep", "out_ends", "out_pairs"};
+    static const char kinds[6] = {'Z', '?', 'q', 'q', 'q', 'q'};
+    static const int dims[6] = {1, 2, 2, 1, 1, 2};
+    PyObject *o[6];
+    Arr a[6] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOOOOO:places_pairs", &o[0], &o[1], &o[2], &o[3], &o[4], &o[5])) {
+        return NULL;
+    }
+    for (int j = 0; j < 6; j++) {
+        if (arr_take(o[j], &a[j], names[j], kinds[j], dims[j], j >= 3, 0)) {
+            arr_release(a, 6);
+            return NULL;
+        }
+    }
+    Py_ssize_t h = arr_dim(&a[0], 0), n = arr_dim(&a[1], 1);
+    if (arr_check_shape(&a[1], "inlier", h, n) || arr_check_shape(&a[2], "mid", h, n)
+        || arr_check_shape(&a[3], "out_keep", h, 0) || arr_check_shape(&a[4], "out_ends", h, 0)
+        || arr_check_shape(&a[5], "out_pairs", h * n, 2)) {
+        arr_release(a, 6);
+        return NULL;
+    }
+    Py_ssize_t kept = places_pairs_rows(D(a[0]), B(a[1]), Q(a[2]), h, n, Q(a[3]), Q(a[4]), Q(a[5]));
+    arr_release(a, 6);
+    return PyLong_FromSsize_t(kept);
+}
+
 PyMethodDef places_methods[] = {
+    {"places_pairs", places_pairs, METH_VARARGS,
+     "places_pairs(a, inlier, mid, out_keep, out_ends, out_pairs) -> kept: the rows with a finite a and three "
+     "inliers at least, each one's end in out_pairs and its (image index, mid) pairs, in row order."},
     {"places_chosen", places_chosen, METH_VARARGS,
      "places_chosen(nfa, a, b, ids, map_z, near_d, near_i, n, diag_px, fraction, factor, limit, out_a, out_b, "
      "out_ids, out_map_z, out_near_d, out_near_i, out_radius) -> c: the c distinct places (distinct of the stable "

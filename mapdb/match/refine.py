@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
-from ._kernel import places_distinct
+from ._kernel import places_distinct, places_pairs
 from .arrays import all_distinct
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, fit_errors, residual_sigmas
@@ -56,27 +56,27 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
     """Refined hypotheses with at least three inliers as :class:`Candidate` s (``nfa_points``: their decision's
     log10 NFA without areas, when it has them)."""
     inlier = np.ascontiguousarray(inlier, bool)
-    counts = inlier.sum(axis=1)
-    ok = np.isfinite(a) & (counts >= 3)
-    keep = ok.nonzero()[0]
-    if not keep.size:
+    h, n = inlier.shape
+    # The kept rows and their pairs in one kernel call (places_pairs: the rows with a finite pose and three inliers
+    # at least, each row's pairs sliced from one array), every row's error model in another (the residual sigma and
+    # the prediction variance factor of each row's inliers: fit_errors): no numpy call a candidate.
+    keep, ends, pairs = np.empty(h, np.int64), np.empty(h, np.int64), np.empty((h * n, 2), np.int64)
+    kept = places_pairs(np.ascontiguousarray(a, np.complex128), inlier, np.ascontiguousarray(mid, np.int64), keep, ends,
+                        pairs)
+    if not kept:
         return []
-    if keep.size < ok.size:  # (usually every row is kept: no copies then)
-        a, b, nfa, inlier, mid, dist, counts = (a[keep], b[keep], nfa[keep], inlier[keep], mid[keep], dist[keep],
-                                                counts[keep])
+    if kept < h:  # (usually every row is kept: no copies then)
+        keep = keep[:kept]
+        a, b, nfa, inlier, dist = a[keep], b[keep], nfa[keep], inlier[keep], dist[keep]
         nfa_points = None if nfa_points is None else nfa_points[keep]
-    # Every row's error model in one kernel call (the residual sigma and the prediction variance factor of each
-    # row's inliers: fit_errors), every row's pairs sliced from one array: no numpy call a candidate.
     sigma, variance = fit_errors(z, dist, inlier)
-    rows, cols = inlier.nonzero()
-    pairs = _paired(cols, mid[rows, cols])
-    ends = counts.cumsum().tolist()
-    points = [None] * keep.size if nfa_points is None else nfa_points.tolist()
+    stops = ends[:kept].tolist()
+    points = [None] * kept if nfa_points is None else nfa_points.tolist()
     return [Candidate(a=a_j, b=b_j, log10_nfa=nfa_j, inliers=end - start, sigma_axis_m=sigma_j,
                       variance_factor=variance_j, pairs=pairs[start:end], log10_nfa_points=points_j)
             for a_j, b_j, nfa_j, sigma_j, variance_j, start, end, points_j in zip(
-                a.tolist(), b.tolist(), nfa.tolist(), sigma.tolist(), variance.tolist(), [0, *ends[:-1]], ends, points,
-                strict=True)]
+                a.tolist(), b.tolist(), nfa.tolist(), sigma.tolist(), variance.tolist(), [0, *stops[:-1]], stops,
+                points, strict=True)]
 
 
 def residual_sigma(dist: np.ndarray) -> float:
