@@ -36,12 +36,13 @@ static double places_abs(double re, double im)
     return hypot(re, im);
 }
 
-/* The kept rows of ``order`` (m of them, each in 0 .. h) written to out; how many. */
+/* The kept rows of ``order`` (m of them, each in 0 .. h) written to out; how many.  As the loop did, the limit is
+ * looked at once a row is kept: a limit below 1 keeps the first row (out holds min(m, max(limit, 1))). */
 static Py_ssize_t places_keep(const double *b, const double *sep, const int64_t *order, Py_ssize_t m,
                               Py_ssize_t limit, int64_t *out)
 {
     Py_ssize_t kept = 0;
-    for (Py_ssize_t p = 0; p < m && kept < limit; p++) {
+    for (Py_ssize_t p = 0; p < m; p++) {
         int64_t i = order[p];
         int apart = 1;
         for (Py_ssize_t q = 0; q < kept && apart; q++) {
@@ -51,9 +52,19 @@ static Py_ssize_t places_keep(const double *b, const double *sep, const int64_t 
         }
         if (apart) {
             out[kept++] = i;
+            if (kept >= limit) {
+                break;
+            }
         }
     }
     return kept;
+}
+
+/* How many rows places_keep may keep of m. */
+static Py_ssize_t places_room(Py_ssize_t m, Py_ssize_t limit)
+{
+    Py_ssize_t cap = limit < 1 ? 1 : limit;
+    return m < cap ? m : cap;
 }
 
 static PyObject *places_distinct(PyObject *self, PyObject *args)
@@ -74,8 +85,8 @@ static PyObject *places_distinct(PyObject *self, PyObject *args)
         arr_release(a, 4);
         return NULL;
     }
-    if (limit < 0 || arr_dim(&a[3], 0) < (limit < m ? limit : m)) {
-        PyErr_Format(PyExc_ValueError, "limit must be at least 0 and out hold min(limit, %zd) rows", m);
+    if (arr_dim(&a[3], 0) < places_room(m, limit)) {
+        PyErr_Format(PyExc_ValueError, "out must hold min(max(limit, 1), %zd) rows", m);
         arr_release(a, 4);
         return NULL;
     }
@@ -240,12 +251,12 @@ static PyObject *places_chosen(PyObject *self, PyObject *args)
         arr_release(a, 6);
         return NULL;
     }
-    Py_ssize_t h = arr_dim(&a[0], 0), k = arr_dim(&a[1], 1), m = limit < h ? limit : h;
-    if (n < 0 || limit < 0 || arr_check_shape(&a[1], "near_d", h * n, k) || arr_check_shape(&a[2], "near_i", h * n, k)
+    Py_ssize_t h = arr_dim(&a[0], 0), k = arr_dim(&a[1], 1), m = places_room(h, limit);
+    if (n < 0 || arr_check_shape(&a[1], "near_d", h * n, k) || arr_check_shape(&a[2], "near_i", h * n, k)
         || arr_check_shape(&a[3], "out_near_d", m * n, k) || arr_check_shape(&a[4], "out_near_i", m * n, k)
         || arr_check_shape(&a[5], "out_radius", m, 0) || places_take_rows(o, in, out, h, m, &q)) {
         if (!PyErr_Occurred()) {
-            PyErr_SetString(PyExc_ValueError, "n and limit must be at least 0");
+            PyErr_SetString(PyExc_ValueError, "n must be at least 0");
         }
         arr_release(a, 6);
         return NULL;
@@ -330,7 +341,8 @@ PyMethodDef places_methods[] = {
      "inliers at least, each one's end in out_pairs and its (image index, mid) pairs, in row order."},
     {"places_chosen", places_chosen, METH_VARARGS,
      "places_chosen(nfa, a, b, ids, map_z, near_d, near_i, n, diag_px, fraction, factor, limit, out_a, out_b, "
-     "out_ids, out_map_z, out_near_d, out_near_i, out_radius) -> c: the c distinct places (distinct of the stable "
+     "out_ids, out_map_z, out_near_d, out_near_i, out_radius) -> c: the c distinct places (outputs of "
+     "min(max(limit, 1), h) rows) (distinct of the stable "
      "argsort of nfa, separations |a| diag_px fraction), their rows, their neighbours' rows (n a hypothesis) and "
      "their density discs' radii factor |a| diag_px / 2."},
     {"places_shortlist", places_shortlist, METH_VARARGS,
@@ -339,6 +351,6 @@ PyMethodDef places_methods[] = {
      "and labels (m n, flat)."},
     {"places_distinct", places_distinct, METH_VARARGS,
      "places_distinct(b, order, separation, limit, out) -> kept: the rows of order (best first) whose place b lies "
-     "farther than the larger separation from every row kept before, at most limit, written to out."},
+     "farther than the larger separation from every row kept before, at most max(limit, 1), written to out."},
     {NULL, NULL, 0, NULL},
 };

@@ -20,7 +20,7 @@ from .evidence.points import GATE_SIGMAS, fit_errors, residual_sigmas
 from .evidence.relief import ReliefFit
 from .mapobjects.object_index import ObjectIndex
 
-__all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "distinct_rows", "merge_candidates", "merged_one_by_one", "polish",
+__all__ = ["PLACE_FRACTION", "Candidate", "candidates", "distinct", "merge_candidates", "merged_one_by_one", "polish",
            "pose_shift"]
 
 # Two answers closer than this fraction of the footprint's diagonal are one place.
@@ -96,17 +96,11 @@ def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: in
     >>> distinct(np.array([0, 1, 10, 10.5]), np.array([1, 0, 3, 2]), np.full(4, 2.0), 3)
     [1, 3]
     """
-    return distinct_rows(b, order, separation, limit).tolist()
-
-
-def distinct_rows(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: int) -> np.ndarray:
-    """:func:`distinct` as an array (int64), to index with."""
     b = np.ascontiguousarray(np.ravel(b), np.complex128)
     order = np.ascontiguousarray(np.ravel(order), np.int64)
-    limit = max(int(limit), 0)
-    out = np.empty(min(order.size, limit), np.int64)
-    kept = places_distinct(b, order, np.ascontiguousarray(np.ravel(separation), np.float64), limit, out)
-    return out[:kept]
+    out = np.empty(min(order.size, max(int(limit), 1)), np.int64)  # the first row is kept whatever the limit
+    kept = places_distinct(b, order, np.ascontiguousarray(np.ravel(separation), np.float64), int(limit), out)
+    return out[:kept].tolist()
 
 
 def polish(

@@ -23,8 +23,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._kernel import (objects_density, objects_knn, places_chosen, places_shortlist, screen_knn, verify_decision,
-                      verify_refine, verify_screen)
+from ._kernel import (
+    objects_density,
+    objects_knn,
+    places_chosen,
+    places_shortlist,
+    screen_knn,
+    verify_decision,
+    verify_refine,
+    verify_screen,
+)
 from .evidence.areas import points_floor
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS
@@ -170,7 +178,7 @@ def _screened_fused(hyps: Hypotheses, z: np.ndarray, img_label: np.ndarray, inde
                     4, offset, LOG10_FLOOR, nfa)
     # The distinct places, their rows and their density discs (places_chosen: argsort, distinct, row takes, radii).
     # a and b are this function's own arrays: the refinement's kernel refits them in place.
-    m = min(opts.refine_candidates, h)
+    m = min(max(opts.refine_candidates, 1), h)  # distinct keeps the first place whatever the limit
     outs = (np.empty(m, np.complex128), np.empty(m, np.complex128), np.empty((m, q), np.int64),
             np.empty((m, q), np.complex128), np.empty((m * n, k)), np.empty((m * n, k), np.int64), np.empty(m))
     c = places_chosen(nfa, a, b, ids, map_z, near_d, near_i, n, diag_px, PLACE_FRACTION, opts.density_radius_factor,

@@ -52,7 +52,7 @@ class FusedArrays(NamedTuple):
     made once (:meth:`ObjectIndex.fused`): a round's screen passes them to several kernel calls, each of which
     would otherwise convert and look them up again."""
 
-    tree: tuple[np.ndarray, ...]  # the LabelTrees' five arrays
+    tree: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # the LabelTrees' five arrays
     n: int  # objects (the index a missing neighbour gets)
     z: np.ndarray  # positions, complex128
     counts: np.ndarray  # objects a label, int64
@@ -196,16 +196,16 @@ class ObjectIndex:
         tree = self.fused_tree()
         if tree is None:
             return None
-        source = (tree, self.z, self.counts, self.density)
         made = getattr(self, "_fused", None)  # an index pickled before it had one has none
-        if made is None or any(x is not y for x, y in zip(made[0], source, strict=True)):
-            self._fused = source, FusedArrays(
+        if made is None or made[0][0] is not tree or made[0][1] is not self.z or made[0][2] is not self.counts or (
+                made[0][3] is not self.density):
+            made = self._fused = (tree, self.z, self.counts, self.density), FusedArrays(
                 tree._tree(), len(tree), np.ascontiguousarray(self.z, np.complex128),
                 np.ascontiguousarray(self.counts, np.int64), self.density,
                 np.ascontiguousarray(np.atleast_2d(self.density), np.float64), self._label_reach(),
                 np.flatnonzero(self.counts), len(self.labels), [tree._tree()], _DISC, self._bounds, 0.5 * self.gap,
                 1.0 / self.area)
-        return self._fused[1]
+        return made[1]
 
     def _trees(self) -> list[tuple[np.ndarray, ...]]:
         """The arrays of each :class:`LabelTrees` holding the objects (none without objects)."""
