@@ -1,7 +1,8 @@
 """A round's places in the compiled kernel (mapdb/match/_kernel_places.c) against the numpy and Python code they
 replaced, kept here verbatim as the reference: the shortlist (``places_shortlist``), the distinct places
 (``places_chosen``, ``places_distinct`` through :func:`mapdb.match.refine.distinct`), the candidates' rows and pairs
-(``places_pairs`` through :func:`mapdb.match.refine.candidates`); and the fused round
+(``places_pairs`` through :func:`mapdb.match.refine.candidates`), the labels' reach under a round's densities
+(``places_reach`` through :meth:`~mapdb.match.mapobjects.object_index.ObjectIndex.label_reach`); and the fused round
 (:func:`mapdb.match.screen._screened_fused`) against the general one on the same hypotheses.
 
 Random inputs and the edges (ties, duplicate places, inf and NaN, one row, none); the answers must be identical, bit
@@ -16,11 +17,11 @@ import numpy as np
 import pytest
 
 from mapdb.match import screen as screen_module
-from mapdb.match._kernel import places_chosen, places_distinct, places_pairs, places_shortlist
+from mapdb.match._kernel import places_chosen, places_distinct, places_pairs, places_reach, places_shortlist
 from mapdb.match.evidence.image import ImageEvidence
 from mapdb.match.evidence.points import fit_errors
 from mapdb.match.hypotheses import Hypotheses
-from mapdb.match.mapobjects.object_index import Neighbours, ObjectIndex, _flat_labels
+from mapdb.match.mapobjects.object_index import U_MAX, Neighbours, ObjectIndex, _flat_labels
 from mapdb.match.options import FastOptions
 from mapdb.match.refine import PLACE_FRACTION, Candidate, _paired, candidates, distinct
 from mapdb.objects import Objects
@@ -194,6 +195,28 @@ def test_candidates_match_the_reference(seed):
                          ref_candidates(a, b, nfa, np.asfortranarray(inlier), mid.astype(np.int32), dist, z))
 
 
+def ref_label_reach(density):
+    # main at bc671ca, mapdb/match/mapobjects/object_index.py: ObjectIndex._reach of a 2-D density, every label
+    return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))
+
+
+def test_label_reach_matches_the_reference():
+    rng = np.random.default_rng(5)
+    index = ObjectIndex(Objects.from_names([0.0, 10.0, 20.0], [0.0, 0.0, 5.0], ["b", "b", "p"]))
+    for h in (1, 2, 4, 17):
+        density = rng.uniform(1e-7, 1e-2, (h, 2)) * rng.choice([1.0, 1e-3, 1e3], (h, 2))
+        density[rng.integers(0, h)] = density[0]  # ties
+        _same(index.label_reach(density), ref_label_reach(density))
+        if h > 1:
+            density[rng.integers(0, h), rng.integers(0, 2)] = rng.choice([np.nan, np.inf])
+            _same(index.label_reach(density), ref_label_reach(density))
+            _same(index.label_reach(np.asfortranarray(density)), ref_label_reach(density))
+    with pytest.raises(ValueError):
+        ref_label_reach(np.zeros((0, 2)))
+    with pytest.raises(ValueError):  # no rows: no minimum, as numpy said
+        index.label_reach(np.zeros((0, 2)))
+
+
 def test_places_kernel_refuses_wrong_calls():
     b, order, sep = np.zeros(3, complex), np.arange(3), np.ones(3)
     with pytest.raises(ValueError, match="order"):
@@ -234,6 +257,12 @@ def test_places_kernel_refuses_wrong_calls():
         places_chosen(*cargs, 3, *outs)  # outputs of 2 rows for 3
     with pytest.raises(TypeError):
         places_chosen(*cargs[:5], near_d.astype(np.float32), *cargs[6:], 2, *outs)
+    with pytest.raises(ValueError):
+        places_reach(np.ones((2, 3)), U_MAX, np.empty(2))
+    with pytest.raises(ValueError):
+        places_reach(np.ones(3), U_MAX, np.empty(3))
+    with pytest.raises(TypeError):
+        places_reach(np.ones((2, 3), np.float32), U_MAX, np.empty(3))
     with pytest.raises(ValueError):
         places_pairs(hyps.a, np.zeros((3, 5), bool), np.zeros((3, 4), np.int64), np.empty(3, np.int64),
                      np.empty(3, np.int64), np.empty((15, 2), np.int64))

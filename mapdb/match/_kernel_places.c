@@ -9,6 +9,9 @@
  * products, row takes, repeat, reshape) cost 50-60 microseconds a round on an analysis image, for a few hundred
  * floating point operations; each value is computed as numpy computed it (cabs_np, cmul), in the same order.
  *
+ * places_reach: each label's search reach under a round's places' densities (ObjectIndex.label_reach of an (H, L)
+ * density): sqrt(u_max / (pi min_r density[r, l])), numpy's column minimum (a NaN kept) and its operations in order.
+ *
  * places_pairs: refine.candidates' rows (a finite pose and three inliers at least) and their (image, map) pairs in
  * row order, one call for the nine numpy calls that found them.
  *
@@ -335,7 +338,45 @@ static PyObject *places_pairs(PyObject *self, PyObject *args)
     return PyLong_FromSsize_t(kept);
 }
 
+static PyObject *places_reach(PyObject *self, PyObject *args)
+{
+    PyObject *od, *oout;
+    double u_max;
+    Arr a[2] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OdO:places_reach", &od, &u_max, &oout)) {
+        return NULL;
+    }
+    if (arr_take(od, &a[0], "density", 'd', 2, 0, 0) || arr_take(oout, &a[1], "out", 'd', 1, 1, 0)) {
+        arr_release(a, 2);
+        return NULL;
+    }
+    Py_ssize_t h = arr_dim(&a[0], 0), nl = arr_dim(&a[0], 1);
+    if (arr_check_shape(&a[1], "out", nl, 0)) {
+        arr_release(a, 2);
+        return NULL;
+    }
+    if (h < 1 && nl > 0) {  /* numpy's min of no rows */
+        arr_release(a, 2);
+        PyErr_SetString(PyExc_ValueError, "density has no rows: no minimum");
+        return NULL;
+    }
+    const double *d = D(a[0]);
+    for (Py_ssize_t l = 0; l < nl; l++) {
+        double m = d[l];
+        for (Py_ssize_t r = 1; r < h; r++) {
+            double x = d[r * nl + l];
+            m = (m <= x || isnan(m)) ? m : x;  /* np.minimum: a NaN on either side is kept */
+        }
+        D(a[1])[l] = sqrt(u_max / (M_PI * m));
+    }
+    arr_release(a, 2);
+    Py_RETURN_NONE;
+}
+
 PyMethodDef places_methods[] = {
+    {"places_reach", places_reach, METH_VARARGS,
+     "places_reach(density, u_max, out): each label's reach sqrt(u_max / (pi min over rows of density)) (density: "
+     "(H, L), H >= 1)."},
     {"places_pairs", places_pairs, METH_VARARGS,
      "places_pairs(a, inlier, mid, out_keep, out_ends, out_pairs) -> kept: the rows with a finite a and three "
      "inliers at least, each one's end in out_pairs and its (image index, mid) pairs, in row order."},
