@@ -163,6 +163,13 @@ class ObjectIndex:
     def __len__(self) -> int:
         return int(self.z.size)
 
+    def __getstate__(self) -> dict[str, object]:
+        """The index's attributes to pickle, without its :meth:`fused` arrays (copies and views of what it holds,
+        made again on first use)."""
+        state = dict(self.__dict__)
+        state["_fused"] = None
+        return state
+
     def _bound(self, reach: float) -> float:
         return float(min(reach, 0.5 * self.gap))
 
