@@ -122,6 +122,7 @@ extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD
 extern PyMethodDef object_discs_methods[];  /* _kernel_object_discs.c: their discs and densities */
 extern PyMethodDef verify_methods[];  /* _kernel_verify.c: the verification's fused chains */
 extern PyMethodDef verify_refine_methods[];  /* _kernel_verify_refine.c: the refinement, fused */
+extern PyMethodDef places_methods[];  /* _kernel_places.c: a round's steps between its verification calls */
 /* Quad lookups (_kernel_quads.c). */
 extern PyMethodDef quads_methods[];
 extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */
@@ -131,7 +132,6 @@ extern PyMethodDef stored_methods[];  /* _kernel_stored.c: the stored quad index
 extern PyMethodDef qdecode_methods[];  /* _kernel_qdecode.c: the stored index's packed blocks decoded */
 extern PyMethodDef qcheck_methods[];  /* _kernel_qcheck.c: the stored index's blocks checked (CRC-32) */
 extern PyMethodDef screen_methods[];  /* _kernel_screen.c: the screen's neighbours of image objects */
-extern PyMethodDef places_methods[];  /* _kernel_places.c: a round's distinct places */
 
 #define D(a) ((double *)(a).view.buf)
 #define B(a) ((unsigned char *)(a).view.buf)

@@ -37,7 +37,7 @@ from .evidence.areas import points_floor
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS
 from .hypotheses import Hypotheses, pose_votes, prioritise
-from .mapobjects.object_index import FusedArrays
+from .mapobjects.fused_arrays import FusedArrays
 from .nfa import LOG10_FLOOR, log10_trials
 from .options import FastOptions
 from .refine import PLACE_FRACTION, Candidate, candidates, distinct

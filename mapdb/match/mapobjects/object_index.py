@@ -9,7 +9,6 @@ same answers for a big map file read page by page.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
@@ -18,10 +17,11 @@ from .._kernel import first_allowed, objects_density, places_reach, screen_near_
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
+from .fused_arrays import FusedArrays, fused_of
 from .kd_forest import Forest
 from .label_trees import LabelTrees
 
-__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "FusedArrays", "Neighbours", "ObjectIndex"]
+__all__ = ["AREA_NEIGHBOURS", "GLOBAL_REACH_M", "U_MAX", "Neighbours", "ObjectIndex"]
 
 # Normalised residual beyond which an object counts as unmatched (a random point would be that close
 # with probability 1 - e^-3 = 95%): also the search bound of the nearest-neighbour queries.
@@ -45,27 +45,6 @@ def _flat_labels(img_label: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
     if img_label.ndim == 1 and len(shape) == 2 and img_label.size == shape[1]:
         return img_label[None, :].repeat(shape[0], axis=0).ravel()
     return np.broadcast_to(img_label, shape).ravel()
-
-
-class FusedArrays(NamedTuple):
-    """What the compiled kernel's fused queries read of an in-memory :class:`ObjectIndex`, in the types they take,
-    made once (:meth:`ObjectIndex.fused`): a round's screen passes them to several kernel calls, each of which
-    would otherwise convert and look them up again."""
-
-    tree: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # the LabelTrees' five arrays
-    n: int  # objects (the index a missing neighbour gets)
-    z: np.ndarray  # positions, complex128
-    counts: np.ndarray  # objects a label, int64
-    density: np.ndarray  # the region's densities (L,)
-    density_2d: np.ndarray  # the same, (1, L)
-    reach: np.ndarray  # each label's reach under them (ObjectIndex.label_reach)
-    present: np.ndarray  # the labels with objects
-    n_labels: int
-    trees: list[tuple[np.ndarray, ...]]  # [tree]: what the density kernel reads
-    disc: np.ndarray  # the unit disc's sample the density kernel measures a disc's share inside the bounds with
-    bounds: np.ndarray  # (minx, miny, maxx, maxy)
-    half_gap: float  # the longest search bound
-    kd_floor: float  # the density of a label absent from the map (1 / area)
 
 
 class Neighbours:
@@ -158,17 +137,9 @@ class ObjectIndex:
         # (:mod:`mapdb.match.evidence.terrain`), which keeps its tree in ``terrain``.
         self.elevation = objects.elevation
         self.terrain: object | None = None
-        self._fused: tuple[tuple[object, ...], FusedArrays] | None = None  # (made from, arrays): see ``fused``
 
     def __len__(self) -> int:
         return int(self.z.size)
-
-    def __getstate__(self) -> dict[str, object]:
-        """The index's attributes to pickle, without its :meth:`fused` arrays (copies and views of what it holds,
-        made again on first use)."""
-        state = dict(self.__dict__)
-        state["_fused"] = None
-        return state
 
     def _bound(self, reach: float) -> float:
         return float(min(reach, 0.5 * self.gap))
@@ -198,21 +169,9 @@ class ObjectIndex:
         return tree if isinstance(tree, LabelTrees) and type(self).nearest is ObjectIndex.nearest else None
 
     def fused(self) -> FusedArrays | None:
-        """The arrays the kernel's fused queries read (:class:`FusedArrays`) when :meth:`fused_tree` is a tree, else
-        None; made once, and again if the index's tree, positions or densities were replaced."""
-        tree = self.fused_tree()
-        if tree is None:
-            return None
-        made = getattr(self, "_fused", None)  # an index pickled before it had one has none
-        if made is None or made[0][0] is not tree or made[0][1] is not self.z or made[0][2] is not self.counts or (
-                made[0][3] is not self.density):
-            made = self._fused = (tree, self.z, self.counts, self.density), FusedArrays(
-                tree._tree(), len(tree), np.ascontiguousarray(self.z, np.complex128),
-                np.ascontiguousarray(self.counts, np.int64), self.density,
-                np.ascontiguousarray(np.atleast_2d(self.density), np.float64), self._label_reach(),
-                np.flatnonzero(self.counts), len(self.labels), [tree._tree()], _DISC, self._bounds, 0.5 * self.gap,
-                1.0 / self.area)
-        return made[1]
+        """The arrays the kernel's fused queries read (:func:`~mapdb.match.mapobjects.fused_arrays.fused_of`) when
+        :meth:`fused_tree` is a tree, else None."""
+        return fused_of(self, _DISC)
 
     def _trees(self) -> list[tuple[np.ndarray, ...]]:
         """The arrays of each :class:`LabelTrees` holding the objects (none without objects)."""
@@ -303,11 +262,9 @@ class ObjectIndex:
         of every label."""
         if density is self.density:  # the region's: the same reaches for every image, computed once
             return self._label_reach()
-        if np.ndim(density) > 1:
-            # sqrt(U_MAX / (pi min over rows)): one call of the compiled kernel, not four of numpy's
-            density = np.ascontiguousarray(density, np.float64)
-            out = np.empty(density.shape[1])
-            places_reach(density, U_MAX, out)
+        if np.ndim(density) > 1:  # sqrt(U_MAX / (pi min over rows)): one kernel call, not four of numpy's
+            out = np.empty(np.shape(density)[1])
+            places_reach(np.ascontiguousarray(density, np.float64), U_MAX, out)
             return out
         return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)
 
