@@ -10,19 +10,34 @@ with it), not in it, so that it pickles as before.
 from __future__ import annotations
 
 import weakref
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple, Protocol
 
 import numpy as np
 
 from .label_trees import LabelTrees
 
-if TYPE_CHECKING:
-    from .object_index import ObjectIndex
-
 __all__ = ["FusedArrays", "fused_of"]
 
+
+class _Index(Protocol):
+    """What :func:`fused_of` reads of an :class:`~mapdb.match.mapobjects.object_index.ObjectIndex` (named so, not
+    imported: that module imports this one)."""
+
+    z: np.ndarray
+    counts: np.ndarray
+    density: np.ndarray
+    labels: tuple[str, ...]
+    bounds: tuple[float, ...]
+    gap: float
+    area: float
+
+    def fused_tree(self) -> LabelTrees | None: ...
+
+    def label_reach(self, density: np.ndarray) -> np.ndarray: ...
+
+
 # Each index's arrays, with what they were made from (compared by identity: a replaced array makes them again).
-_MADE: weakref.WeakKeyDictionary[ObjectIndex, tuple[tuple[object, ...], FusedArrays]] = weakref.WeakKeyDictionary()
+_MADE: weakref.WeakKeyDictionary[_Index, tuple[tuple[object, ...], FusedArrays]] = weakref.WeakKeyDictionary()
 
 
 class FusedArrays(NamedTuple):
@@ -44,7 +59,7 @@ class FusedArrays(NamedTuple):
     kd_floor: float  # the density of a label absent from the map (1 / area)
 
 
-def fused_of(index: ObjectIndex, disc: np.ndarray) -> FusedArrays | None:
+def fused_of(index: _Index, disc: np.ndarray) -> FusedArrays | None:
     """The :class:`FusedArrays` of ``index`` when it holds its objects in one tree that answers its queries
     (:meth:`~mapdb.match.mapobjects.object_index.ObjectIndex.fused_tree`), else None; ``disc``: the density kernel's
     sample of the unit disc."""
@@ -58,7 +73,7 @@ def fused_of(index: ObjectIndex, disc: np.ndarray) -> FusedArrays | None:
     return made[1]
 
 
-def _arrays(index: ObjectIndex, tree: LabelTrees, disc: np.ndarray) -> FusedArrays:
+def _arrays(index: _Index, tree: LabelTrees, disc: np.ndarray) -> FusedArrays:
     density = index.density
     return FusedArrays(tree._tree(), len(tree), np.ascontiguousarray(index.z, np.complex128),
                        np.ascontiguousarray(index.counts, np.int64), density,
