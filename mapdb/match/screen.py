@@ -16,10 +16,10 @@ A round's hypotheses (:class:`~mapdb.match.hypotheses.Hypotheses`) go through, i
 Hypotheses whose coarse pose another one shares (:func:`~mapdb.match.hypotheses.pose_votes`) go through first:
 a right place is found by several image quads, a chance hit of the index by one.
 
-On point residuals over an in-memory index (every image without areas, cut blobs or terrain) a round is seven
-kernel calls, the steps between the verification's calls in ``_kernel_places.c`` (the shortlist, the distinct
-places, the labels' reach, the candidates' pairs), each array converted once; otherwise the stages' functions run
-one by one, as above.
+On point residuals over an in-memory index (every image without areas, cut blobs or terrain) a round is eleven
+kernel calls back to back, the steps between the verification's calls among them (``_kernel_places.c``: the
+shortlist, the distinct places, the labels' reach, the candidates' pairs), each array converted once; otherwise the
+stages' functions run one by one, as above.
 """
 
 from __future__ import annotations
