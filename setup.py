@@ -16,7 +16,7 @@ setup(
                      "mapdb/match/_kernel_objects.c",
                      "mapdb/match/_kernel_object_discs.c",
                      "mapdb/match/_kernel_verify.c",
-                     "mapdb/match/_kernel_verify_refine.c",
+                     "mapdb/match/_kernel_verify_refine.c", "mapdb/match/_kernel_places.c",
                      "mapdb/match/_kernel_quads.c",
                      "mapdb/match/_kernel_quad_tree.c",
                      "mapdb/match/_kernel_image_quads.c",

@@ -427,7 +427,7 @@ PyMODINIT_FUNC PyInit__kernel(void)
         Py_DECREF(m);
         return NULL;
     }
-    if (PyModule_AddFunctions(m, verify_refine_methods) < 0) {
+    if (PyModule_AddFunctions(m, verify_refine_methods) < 0 || PyModule_AddFunctions(m, places_methods) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -122,6 +122,7 @@ extern PyMethodDef objects_methods[];  /* _kernel_objects.c: the map objects' KD
 extern PyMethodDef object_discs_methods[];  /* _kernel_object_discs.c: their discs and densities */
 extern PyMethodDef verify_methods[];  /* _kernel_verify.c: the verification's fused chains */
 extern PyMethodDef verify_refine_methods[];  /* _kernel_verify_refine.c: the refinement, fused */
+extern PyMethodDef places_methods[];  /* _kernel_places.c: a round's steps between its verification calls */
 /* Quad lookups (_kernel_quads.c). */
 extern PyMethodDef quads_methods[];
 extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */

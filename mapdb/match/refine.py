@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
+from ._kernel import places_distinct, places_pairs
 from .arrays import all_distinct
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, fit_errors, residual_sigmas
@@ -55,24 +56,27 @@ def candidates(a: np.ndarray, b: np.ndarray, nfa: np.ndarray, inlier: np.ndarray
     """Refined hypotheses with at least three inliers as :class:`Candidate` s (``nfa_points``: their decision's
     log10 NFA without areas, when it has them)."""
     inlier = np.ascontiguousarray(inlier, bool)
-    counts = inlier.sum(axis=1)
-    keep = (np.isfinite(a) & (counts >= 3)).nonzero()[0]
-    if not keep.size:
+    h, n = inlier.shape
+    # The kept rows and their pairs in one kernel call (places_pairs: the rows with a finite pose and three inliers
+    # at least, each row's pairs sliced from one array), every row's error model in another (the residual sigma and
+    # the prediction variance factor of each row's inliers: fit_errors): no numpy call a candidate.
+    keep, ends, pairs = np.empty(h, np.int64), np.empty(h, np.int64), np.empty((h * n, 2), np.int64)
+    kept = places_pairs(np.ascontiguousarray(a, np.complex128), inlier, np.ascontiguousarray(mid, np.int64), keep, ends,
+                        pairs)
+    if not kept:
         return []
-    # Every row's error model in one kernel call (the residual sigma and the prediction variance factor of each
-    # row's inliers: fit_errors), every row's pairs sliced from one array: no numpy call a candidate.
-    kept = inlier[keep]
-    sigma, variance = fit_errors(z, dist[keep], kept)
-    rows, cols = np.nonzero(kept)
-    pairs = _paired(cols, mid[keep[rows], cols])
-    ends = counts[keep].cumsum().tolist()
-    points = None if nfa_points is None else nfa_points[keep].tolist()
+    if kept < h:  # (usually every row is kept: no copies then)
+        keep = keep[:kept]
+        a, b, nfa, inlier, dist = a[keep], b[keep], nfa[keep], inlier[keep], dist[keep]
+        nfa_points = None if nfa_points is None else nfa_points[keep]
+    sigma, variance = fit_errors(z, dist, inlier)
+    stops = ends[:kept].tolist()
+    points = [None] * kept if nfa_points is None else nfa_points.tolist()
     return [Candidate(a=a_j, b=b_j, log10_nfa=nfa_j, inliers=end - start, sigma_axis_m=sigma_j,
-                      variance_factor=variance_j, pairs=pairs[start:end],
-                      log10_nfa_points=None if points is None else points[j])
-            for j, (a_j, b_j, nfa_j, sigma_j, variance_j, start, end) in enumerate(zip(
-                a[keep].tolist(), b[keep].tolist(), nfa[keep].tolist(), sigma.tolist(), variance.tolist(),
-                [0, *ends[:-1]], ends, strict=True))]
+                      variance_factor=variance_j, pairs=pairs[start:end], log10_nfa_points=points_j)
+            for a_j, b_j, nfa_j, sigma_j, variance_j, start, end, points_j in zip(
+                a.tolist(), b.tolist(), nfa.tolist(), sigma.tolist(), variance.tolist(), [0, *stops[:-1]], stops,
+                points, strict=True)]
 
 
 def residual_sigma(dist: np.ndarray) -> float:
@@ -81,16 +85,22 @@ def residual_sigma(dist: np.ndarray) -> float:
 
 
 def distinct(b: np.ndarray, order: np.ndarray, separation: np.ndarray, limit: int) -> list[int]:
-    """Greedy non-maximum suppression: indices (in ``order``) at least ``separation`` apart."""
-    chosen: list[int] = []
-    # Python numbers: the same values as numpy's scalars, at a fraction of their cost in a loop.
-    places, apart = np.asarray(b).tolist(), np.asarray(separation).tolist()
-    for i in np.asarray(order).tolist():
-        if all(abs(places[i] - places[j]) > max(apart[i], apart[j]) for j in chosen):
-            chosen.append(int(i))
-            if len(chosen) >= limit:
-                break
-    return chosen
+    """Greedy non-maximum suppression: indices (in ``order``) at least ``separation`` apart.
+
+    Each index of ``order`` in turn is kept when ``|b[i] - b[j]| > max(separation[i], separation[j])`` for every
+    ``j`` kept before it, until ``limit`` are kept; one call of the compiled kernel (``places_distinct``: the Python
+    loop over Python numbers it replaced, comparison for comparison).
+
+    Examples
+    --------
+    >>> distinct(np.array([0, 1, 10, 10.5]), np.array([1, 0, 3, 2]), np.full(4, 2.0), 3)
+    [1, 3]
+    """
+    b = np.ascontiguousarray(np.ravel(b), np.complex128)
+    order = np.ascontiguousarray(np.ravel(order), np.int64)
+    out = np.empty(min(order.size, max(int(limit), 1)), np.int64)  # the first row is kept whatever the limit
+    kept = places_distinct(b, order, np.ascontiguousarray(np.ravel(separation), np.float64), int(limit), out)
+    return out[:kept].tolist()
 
 
 def polish(

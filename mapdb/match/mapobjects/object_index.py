@@ -13,10 +13,11 @@ import math
 import numpy as np
 
 from ...objects import Objects
-from .._kernel import first_allowed, objects_density, screen_near_counts, verify_screen
+from .._kernel import first_allowed, objects_density, places_reach, screen_near_counts, verify_screen
 from ..arrays import sorted_unique
 from ..evidence.areas import compatible
 from ..nfa import LOG10_FLOOR, log10_nfa_curve, log10_trials
+from .fused_arrays import FusedArrays, fused_of
 from .kd_forest import Forest
 from .label_trees import LabelTrees
 
@@ -167,6 +168,11 @@ class ObjectIndex:
         tree = self.tree
         return tree if isinstance(tree, LabelTrees) and type(self).nearest is ObjectIndex.nearest else None
 
+    def fused(self) -> FusedArrays | None:
+        """The arrays the kernel's fused queries read (:func:`~mapdb.match.mapobjects.fused_arrays.fused_of`) when
+        :meth:`fused_tree` is a tree, else None."""
+        return fused_of(self, _DISC)
+
     def _trees(self) -> list[tuple[np.ndarray, ...]]:
         """The arrays of each :class:`LabelTrees` holding the objects (none without objects)."""
         tree = self.tree
@@ -249,17 +255,18 @@ class ObjectIndex:
         ``GLOBAL_REACH_M``: a sparse label's mean density would send the search kilometres away, where a
         "match" means nothing (and a map read page by page would read all of it).  On 400 Andorra images
         the answers are bit-identical with and without the cap."""
-        if np.ndim(density) > 1:
-            return np.sqrt(U_MAX / (math.pi * np.min(density, axis=0)))[labels]
-        if density is self.density:  # the region's: the same reaches for every image, computed once
-            return self._label_reach()[labels]
-        return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)[labels]
+        return self.label_reach(density)[labels]
 
     def label_reach(self, density: np.ndarray) -> np.ndarray:
-        """Each label's search reach under ``density`` (``(L,)`` or ``(H, L)``): :meth:`_reach` of every label."""
-        if density is self.density:
+        """Each label's search reach under ``density`` (``(L,)`` or ``(H, L)``: the least dense row's): :meth:`_reach`
+        of every label."""
+        if density is self.density:  # the region's: the same reaches for every image, computed once
             return self._label_reach()
-        return self._reach(density, np.arange(len(self.labels)))
+        if np.ndim(density) > 1:  # sqrt(U_MAX / (pi min over rows)): one kernel call, not four of numpy's
+            out = np.empty(np.shape(density)[1])
+            places_reach(np.ascontiguousarray(density, np.float64), U_MAX, out)
+            return out
+        return np.minimum(np.sqrt(U_MAX / (math.pi * np.asarray(density))), GLOBAL_REACH_M)
 
     def _label_reach(self) -> np.ndarray:
         """Each label's reach under the region's densities (``_reach``), made once."""
