@@ -364,6 +364,20 @@ static PyObject *quads_batches(PyObject *self, PyObject *args)
 
 /* ------------------------------------------------------------------ the poses a search may answer */
 
+int quads_pose_allowed(const double *a, const double *b, int with_prior, double cx, double cy, double reach,
+                       int with_scale, double lo, double hi)
+{
+    double scale = cabs_np(a[0], a[1]);
+    int yes = isfinite(a[0]) && isfinite(a[1]) && scale > 0.0;
+    if (with_prior) {
+        yes = yes && cabs_np(b[0] - cx, b[1] - cy) <= reach;
+    }
+    if (with_scale) {
+        yes = yes && scale >= lo && scale <= hi;
+    }
+    return yes;
+}
+
 /* hypotheses.allowed_poses: finite a != 0; with a prior, |b - centre| <= reach; with a scale range, lo <= |a| <= hi. */
 static PyObject *quads_allowed(PyObject *self, PyObject *args)
 {
@@ -384,15 +398,7 @@ static PyObject *quads_allowed(PyObject *self, PyObject *args)
     const double *av = D(a[0]), *bv = D(a[1]);
     unsigned char *ok = B(a[2]);
     for (Py_ssize_t i = 0; i < arr_dim(&a[0], 0); i++) {
-        double scale = cabs_np(av[2 * i], av[2 * i + 1]);
-        int yes = isfinite(av[2 * i]) && isfinite(av[2 * i + 1]) && scale > 0.0;
-        if (with_prior) {
-            yes = yes && cabs_np(bv[2 * i] - cx, bv[2 * i + 1] - cy) <= reach;
-        }
-        if (with_scale) {
-            yes = yes && scale >= lo && scale <= hi;
-        }
-        ok[i] = (unsigned char)yes;
+        ok[i] = (unsigned char)quads_pose_allowed(av + 2 * i, bv + 2 * i, with_prior, cx, cy, reach, with_scale, lo, hi);
     }
     arr_release(a, 3);
     Py_RETURN_NONE;

@@ -18,8 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._kernel import quads_allowed, quads_batches, quads_keys
-from .geometry import fit_similarity_complex
+from ._kernel import hits_hypotheses, quads_allowed, quads_batches, quads_keys
 from .options import FastOptions
 from .quads import QuadIndex, lookup_parts
 
@@ -64,10 +63,12 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     members = np.arange(z.size) if anchorable is None else np.flatnonzero(anchorable)
     quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members.astype(np.int64),
                                   int(opts.image_neighbours), int(opts.anchors_per_batch), int(opts.max_batches))
-    ends = np.cumsum(np.frombuffer(counts, np.int64))
-    if not ends.size:
-        return []
-    return np.split(np.frombuffer(quads, np.int64).reshape(-1, 4), ends[:-1])
+    # The rounds as slices (np.split's views, without its per-call overhead: a few rounds an image).
+    rows, out, at = np.frombuffer(quads, np.int64).reshape(-1, 4), [], 0
+    for count in np.frombuffer(counts, np.int64).tolist():
+        out.append(rows[at : at + count])
+        at += count
+    return out
 
 
 def round_hypotheses(
@@ -88,10 +89,17 @@ def round_hypotheses(
     ``sigma_px`` is one pixel error for every point or one per point of ``batch`` (see
     :func:`lookup_hypotheses`); ``weight`` (per image object), the points' weights in the fit (default equal).
     """
-    img_ids, map_z = lookup_hypotheses(z, img_label, batch, quads, opts, sigma_px)
-    a, b = fit_similarity_complex(z[img_ids], map_z, None if weight is None else weight[img_ids])
-    ok = allowed_poses(a, b, prior, scale_range)
-    return Hypotheses(a[ok], b[ok], img_ids[ok], map_z[ok])
+    key_ids, rows, map_z = _lookup_hits(z, img_label, batch, quads, opts, sigma_px)
+    # One kernel call (_kernel_hits.c): each hit's image ids, its similarity (geometry.fit_similarity_complex's
+    # arithmetic) and allowed_poses' filter.
+    centre = (0.0, 0.0, 0.0) if prior is None else (float(prior[0]), float(prior[1]), PRIOR_SLACK * prior[2])
+    lo, hi = (0.0, 0.0) if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
+    ids, points, a, b = hits_hypotheses(
+        np.ascontiguousarray(z, np.complex128), None if weight is None else np.ascontiguousarray(weight, np.float64),
+        key_ids, rows, map_z, prior is not None, *centre, scale_range is not None, lo, hi)
+    return Hypotheses(np.frombuffer(a, np.complex128), np.frombuffer(b, np.complex128),
+                      np.frombuffer(ids, np.int64).reshape(-1, 4),
+                      np.frombuffer(points, np.complex128).reshape(-1, 4))
 
 
 def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,
@@ -129,7 +137,21 @@ def lookup_hypotheses(
     """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex).
 
     ``sigma_px``: the pixel error of every point, or of each quad's points ``(m, 4)``."""
-    empty = np.zeros((0, 4), np.int64), np.zeros((0, 4), np.complex128)
+    key_ids, rows, map_z = _lookup_hits(z, img_label, quads, indexes, opts, sigma_px)
+    return key_ids[rows], map_z
+
+
+def _lookup_hits(
+    z: np.ndarray,
+    img_label: np.ndarray,
+    quads: np.ndarray,
+    indexes: Sequence[QuadIndex],
+    opts: FastOptions,
+    sigma_px: float | np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`lookup_hypotheses` before its gather: the image ids ``(k, 4)`` of each key looked up, each hit's key
+    row ``(H,)`` and its map points ``(H, 4)`` (int64 and complex128, contiguous)."""
+    empty = np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
     indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:
         return empty
@@ -142,13 +164,12 @@ def lookup_hypotheses(
     parts = _quad_parts(indexes)
     if parts is not None:  # in-memory indexes (a prior's tiles): one kernel call for all of them
         q_row, map_z = lookup_parts(parts, inv, labels, radius, opts.max_hits_per_quad)
-        return img_ids[q_row], map_z
-    found_img, found_map = [], []
-    for index in indexes:
-        q_row, map_z = index.lookup(inv, labels, radius, opts.max_hits_per_quad)
-        found_img.append(img_ids[q_row])
-        found_map.append(map_z)
-    return np.concatenate(found_img), np.concatenate(found_map)
+    else:
+        found = [index.lookup(inv, labels, radius, opts.max_hits_per_quad) for index in indexes]
+        q_row, map_z = ((found[0][0], found[0][1]) if len(found) == 1 else
+                        (np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])))
+    return (np.ascontiguousarray(img_ids, np.int64), np.ascontiguousarray(q_row, np.int64),
+            np.ascontiguousarray(map_z, np.complex128))
 
 
 def _quad_parts(indexes: Sequence) -> list[tuple[QuadIndex, tuple[complex, float] | None]] | None:
