@@ -105,6 +105,7 @@ static PyObject *hits_stored_lookup(PyObject *self, PyObject *args)
         return NULL;
     }
     StoredTables t;
+    memset(&t, 0, sizeof(t));  /* released below whichever check fails */
     Arr a[6] = {{{0}}};
     HitsKept h = {0};
     if (ask.k < 1 || ask.limit < 1) {
@@ -132,6 +133,7 @@ static PyObject *hits_points(PyObject *self, PyObject *args)
         return NULL;
     }
     StoredTables t;
+    memset(&t, 0, sizeof(t));
     Arr a = {{0}};
     if (!stored_take_tables(ot, &t) && !arr_take(oi, &a, "ids", 'q', 1, 0, 0)) {
         Py_ssize_t n = arr_dim(&a, 0);
@@ -163,7 +165,7 @@ typedef struct {
 } HitsPoses;
 
 /* Each hit's image ids, fitted similarity and whether it is allowed; the kept ones written compactly, their count
- * returned (-1 with IndexError set when a hit names a key row or an image object out of range). */
+ * returned (-1 with ValueError set when a hit names a key row or an image object out of range). */
 static Py_ssize_t hits_fit(Arr *a, const HitsPoses *ps, int64_t *ids_out, double *map_out, double **ab_out)
 {
     Py_ssize_t n = arr_dim(&a[0], 0), keys = arr_dim(&a[2], 0), h = arr_dim(&a[3], 0), kept = 0;
@@ -172,13 +174,13 @@ static Py_ssize_t hits_fit(Arr *a, const HitsPoses *ps, int64_t *ids_out, double
     double src[8], wt[4], buf[12], fit[4];
     for (Py_ssize_t i = 0; i < h; i++) {
         if (row[i] < 0 || row[i] >= keys) {
-            PyErr_SetString(PyExc_IndexError, "a hit's query row is out of range");
+            PyErr_SetString(PyExc_ValueError, "a hit's query row is out of range");
             return -1;
         }
         const int64_t *ids = key_ids + 4 * row[i];
         for (int j = 0; j < 4; j++) {
             if (ids[j] < 0 || ids[j] >= n) {
-                PyErr_SetString(PyExc_IndexError, "a quad's image object is out of range");
+                PyErr_SetString(PyExc_ValueError, "a quad's image object is out of range");
                 return -1;
             }
             src[2 * j] = z[2 * ids[j]], src[2 * j + 1] = z[2 * ids[j] + 1];

@@ -90,16 +90,24 @@ def round_hypotheses(
     :func:`lookup_hypotheses`); ``weight`` (per image object), the points' weights in the fit (default equal).
     """
     key_ids, rows, map_z = _lookup_hits(z, img_label, batch, quads, opts, sigma_px)
-    # One kernel call (_kernel_hits.c): each hit's image ids, its similarity (geometry.fit_similarity_complex's
-    # arithmetic) and allowed_poses' filter.
+    return _hypotheses_of_hits(z, weight, key_ids, rows, map_z, prior, scale_range)
+
+
+def _hypotheses_of_hits(z: np.ndarray, weight: np.ndarray | None, key_ids: np.ndarray, rows: np.ndarray,
+                        map_z: np.ndarray, prior: tuple[float, float, float] | None,
+                        scale_range: tuple[float, float] | None) -> Hypotheses:
+    """The hits (``rows`` of the keys' image ids ``key_ids``, their map points ``map_z``) made hypotheses: each
+    hit's image ids, its similarity fitted to the four points (:func:`~mapdb.match.geometry.fit_similarity_complex`'s
+    arithmetic, weighted by ``weight`` of the image objects) and those :func:`allowed_poses` lets through, in hit
+    order: one kernel call (``_kernel_hits.c``), not the gathers, fit and masks of numpy's."""
     centre = (0.0, 0.0, 0.0) if prior is None else (float(prior[0]), float(prior[1]), PRIOR_SLACK * prior[2])
     lo, hi = (0.0, 0.0) if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
     ids, points, a, b = hits_hypotheses(
         np.ascontiguousarray(z, np.complex128), None if weight is None else np.ascontiguousarray(weight, np.float64),
-        key_ids, rows, map_z, prior is not None, *centre, scale_range is not None, lo, hi)
+        np.ascontiguousarray(key_ids, np.int64), np.ascontiguousarray(rows, np.int64),
+        np.ascontiguousarray(map_z, np.complex128), prior is not None, *centre, scale_range is not None, lo, hi)
     return Hypotheses(np.frombuffer(a, np.complex128), np.frombuffer(b, np.complex128),
-                      np.frombuffer(ids, np.int64).reshape(-1, 4),
-                      np.frombuffer(points, np.complex128).reshape(-1, 4))
+                      np.frombuffer(ids, np.int64).reshape(-1, 4), np.frombuffer(points, np.complex128).reshape(-1, 4))
 
 
 def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,
