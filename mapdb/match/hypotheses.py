@@ -60,8 +60,8 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     centroid pulled inward, by up to half the hidden part, so a quad holding one predicts the others badly
     and its invariants miss the map's.  Such objects still count as evidence in verification.
     """
-    members = np.arange(z.size) if anchorable is None else np.flatnonzero(anchorable)
-    quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members.astype(np.int64),
+    members = np.arange(z.size, dtype=np.int64) if anchorable is None else np.flatnonzero(anchorable).astype(np.int64)
+    quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members,
                                   int(opts.image_neighbours), int(opts.anchors_per_batch), int(opts.max_batches))
     # The rounds as slices (np.split's views, without its per-call overhead: a few rounds an image).
     rows, out, at = np.frombuffer(quads, np.int64).reshape(-1, 4), [], 0
@@ -207,7 +207,7 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     ranked by a stable order (ties in pair order).
     """
     zq = np.ascontiguousarray(zq, np.complex128)
-    if np.ndim(sigma_px) == 0:
+    if isinstance(sigma_px, float | int) or np.ndim(sigma_px) == 0:  # (np.ndim's dispatch costs microseconds)
         one, sigma = float(sigma_px), None
     else:
         one, sigma = 0.0, np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape))
