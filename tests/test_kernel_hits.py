@@ -14,7 +14,7 @@ import storedrefs
 from mapdb.build.pipeline import build_map
 from mapdb.match import _kernel
 from mapdb.match.geometry import fit_similarity_complex
-from mapdb.match.hypotheses import _hypotheses_of_hits, allowed_poses, anchor_batches
+from mapdb.match.hypotheses import _hypotheses_of_hits, _quad_keys, allowed_poses, anchor_batches
 from mapdb.match.index.stored import StoredQuadIndex, build_index
 from mapdb.match.options import FastOptions
 
@@ -113,6 +113,36 @@ def test_anchor_batches_are_np_split(seed: int) -> None:
         got, want = anchor_batches(z, opts, anchorable), _reference_batches(z, opts, anchorable)
         assert len(got) == len(want)
         assert all(g.shape == w.shape and np.array_equal(g, w) for g, w in zip(got, want, strict=True))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_keys_ids_and_labels_are_the_numpy_gathers(seed: int) -> None:
+    """_lookup_hits' gathers before the kernel gave them, verbatim: ``quads[row[:, None], order]`` and
+    ``img_label[img_ids]``."""
+    rng = np.random.default_rng(seed)
+    n = [4, 5, 9, 20, 40, 60][seed]
+    z = rng.uniform(0, 800, n) + 1j * rng.uniform(0, 600, n)
+    z[1] = z[0] if seed % 2 else z[1]  # a duplicate point (a quad without a frame)
+    quads = np.concatenate([q for q in anchor_batches(z, FastOptions())] or [np.zeros((0, 4), np.int64)])
+    label = rng.integers(0, 5, n)
+    for sigma in (1.0, rng.uniform(0.5, 3.0, quads.shape)):
+        got = _quad_keys(z[quads], FastOptions(), sigma, quads, label)
+        want = _quad_keys(z[quads], FastOptions(), sigma)
+        if want is None:
+            assert got is None
+            continue
+        row, order = want[0], want[1]
+        img_ids = quads[row[:, None], order]
+        for g, w in zip(got, (*want, img_ids, label[img_ids]), strict=True):
+            assert g.shape == w.shape and np.array_equal(g, w)
+    one = (1.0, 3.0, 4.0, 0.3)
+    zq = np.ascontiguousarray(z[quads], np.complex128)
+    with pytest.raises(ValueError):  # the ids without the labels
+        _kernel.quads_keys(zq, None, *one, quads)
+    with pytest.raises(ValueError):  # an id the labels do not have
+        _kernel.quads_keys(zq, None, *one, quads, label[:1].copy())
+    with pytest.raises(TypeError):
+        _kernel.quads_keys(zq, None, *one, quads.astype(np.int32), label)
 
 
 @pytest.fixture(scope="module")

@@ -163,12 +163,11 @@ def _lookup_hits(
     indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:
         return empty
-    keys = _quad_keys(z[quads], opts, sigma_px)
+    # The keys with their image ids and labels (one array for every index: a prior's tiles share their query points).
+    keys = _quad_keys(z[quads], opts, sigma_px, quads, img_label)
     if keys is None:
         return empty
-    row, order, inv, radius = keys
-    img_ids = quads[row[:, None], order]
-    labels = img_label[img_ids]  # one array for every index: a prior's tiles share their query points
+    _, _, inv, radius, img_ids, labels = keys
     parts = _quad_parts(indexes)
     if parts is not None:  # in-memory indexes (a prior's tiles): one kernel call for all of them
         q_row, map_z = lookup_parts(parts, inv, labels, radius, opts.max_hits_per_quad)
@@ -176,8 +175,7 @@ def _lookup_hits(
         found = [index.lookup(inv, labels, radius, opts.max_hits_per_quad) for index in indexes]
         q_row, map_z = ((found[0][0], found[0][1]) if len(found) == 1 else
                         (np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])))
-    return (np.ascontiguousarray(img_ids, np.int64), np.ascontiguousarray(q_row, np.int64),
-            np.ascontiguousarray(map_z, np.complex128))
+    return img_ids, np.ascontiguousarray(q_row, np.int64), np.ascontiguousarray(map_z, np.complex128)
 
 
 def _quad_parts(indexes: Sequence) -> list[tuple[QuadIndex, tuple[complex, float] | None]] | None:
@@ -192,9 +190,12 @@ def _quad_parts(indexes: Sequence) -> list[tuple[QuadIndex, tuple[complex, float
     return parts
 
 
-def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) -> tuple[np.ndarray, ...] | None:
+def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray, quads: np.ndarray | None = None,
+               img_label: np.ndarray | None = None) -> tuple[np.ndarray, ...] | None:
     """Every frame and ordering of the quads ``zq`` (m, 4) worth looking up: quad rows, orderings (k, 4),
-    invariants (k, 4) and lookup radii (k,); None when there is none.
+    invariants (k, 4) and lookup radii (k,); None when there is none.  With the quads' image ids ``quads`` (m, 4)
+    and the image's labels ``img_label``, also each key's image ids ``quads[rows, orderings]`` and their labels
+    (k, 4), int64, from the same call.
 
     ``sigma_px`` is one pixel error for every point, or one per point ``(m, 4)`` (a cut blob's is wider).
     The longest pair decides a quad's frame; when the second longest is within ``FRAME_TIE_SIGMAS`` standard errors
@@ -211,12 +212,18 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
         one, sigma = float(sigma_px), None
     else:
         one, sigma = 0.0, np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape))
-    rows, orders, inv, radius = quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0),
-                                           float(opts.tolerance_factor), float(opts.max_invariant_radius))
-    if not rows:
+    with_ids = () if quads is None or img_label is None else (
+        np.ascontiguousarray(quads, np.int64), np.ascontiguousarray(img_label, np.int64))
+    out = quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0), float(opts.tolerance_factor),
+                     float(opts.max_invariant_radius), *with_ids)
+    if not out[0]:
         return None
-    return (np.frombuffer(rows, np.int64), np.frombuffer(orders, np.int64).reshape(-1, 4),
-            np.frombuffer(inv, np.float64).reshape(-1, 4), np.frombuffer(radius, np.float64))
+    rows, orders, inv, radius = (np.frombuffer(out[0], np.int64), np.frombuffer(out[1], np.int64).reshape(-1, 4),
+                                 np.frombuffer(out[2], np.float64).reshape(-1, 4), np.frombuffer(out[3], np.float64))
+    if not with_ids:
+        return rows, orders, inv, radius
+    return rows, orders, inv, radius, np.frombuffer(out[4], np.int64).reshape(-1, 4), np.frombuffer(
+        out[5], np.int64).reshape(-1, 4)
 
 
 def pose_votes(a: np.ndarray, b: np.ndarray, diag_px: float) -> np.ndarray:
