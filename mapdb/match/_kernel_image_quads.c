@@ -90,6 +90,34 @@ static void quads_ordering(const QuadsFrame *f, int w, int *order, double *t)
     }
 }
 
+/* The keys worth looking up of the frames (rows, orders, invariants, radii written): frame block, then ordering,
+ * then quad; their count. */
+static Py_ssize_t quads_keys_fill(const QuadsFrame *frames, Py_ssize_t block, Py_ssize_t h, double max_radius,
+                                  int64_t *r, int64_t *o, double *t, double *rad)
+{
+    Py_ssize_t n = 0;
+    for (int part = 0; part < 2; part++) {
+        Py_ssize_t lo = part ? block : 0, hi = part ? h : block;
+        for (int w = 0; w < 4; w++) {
+            for (Py_ssize_t i = lo; i < hi; i++) {
+                int order[4];
+                double tt[4], slack = frames[i].radius * 1.4142135623730951;
+                quads_ordering(&frames[i], w, order, tt);
+                if (!(tt[0] + tt[2] - 1.0 <= slack && tt[0] - tt[2] <= slack && frames[i].radius <= max_radius)) {
+                    continue;
+                }
+                r[n] = frames[i].row;
+                for (int j = 0; j < 4; j++) {
+                    o[4 * n + j] = order[j];
+                    t[4 * n + j] = tt[j];
+                }
+                rad[n++] = frames[i].radius;
+            }
+        }
+    }
+    return n;
+}
+
 /* With the quads' image ids and the image's labels (a[2], a[3]): each key's ids (its quad's in its order) and their
  * labels, 0; or -1 with ValueError set when a quad names an object the labels do not have. */
 static int quads_key_ids(const Arr *a, const int64_t *r, const int64_t *o, Py_ssize_t n, int64_t *ids, int64_t *labs)
@@ -159,28 +187,9 @@ static PyObject *quads_keys(PyObject *self, PyObject *args)
     inv = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 16 * h);
     radius = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 4 * h);
     if (rows && orders && inv && radius) {
-        int64_t *r = (int64_t *)PyByteArray_AS_STRING(rows), *o = (int64_t *)PyByteArray_AS_STRING(orders);
-        double *t = (double *)PyByteArray_AS_STRING(inv), *rad = (double *)PyByteArray_AS_STRING(radius);
-        Py_ssize_t n = 0;
-        for (int part = 0; part < 2; part++) {  /* frame block, then ordering, then quad */
-            Py_ssize_t lo = part ? block : 0, hi = part ? h : block;
-            for (int w = 0; w < 4; w++) {
-                for (Py_ssize_t i = lo; i < hi; i++) {
-                    int order[4];
-                    double tt[4], slack = frames[i].radius * 1.4142135623730951;
-                    quads_ordering(&frames[i], w, order, tt);
-                    if (!(tt[0] + tt[2] - 1.0 <= slack && tt[0] - tt[2] <= slack && frames[i].radius <= max_radius)) {
-                        continue;
-                    }
-                    r[n] = frames[i].row;
-                    for (int j = 0; j < 4; j++) {
-                        o[4 * n + j] = order[j];
-                        t[4 * n + j] = tt[j];
-                    }
-                    rad[n++] = frames[i].radius;
-                }
-            }
-        }
+        Py_ssize_t n = quads_keys_fill(frames, block, h, max_radius, (int64_t *)PyByteArray_AS_STRING(rows),
+                                       (int64_t *)PyByteArray_AS_STRING(orders), (double *)PyByteArray_AS_STRING(inv),
+                                       (double *)PyByteArray_AS_STRING(radius));
         if (PyByteArray_Resize(rows, sizeof(int64_t) * n) == 0 && PyByteArray_Resize(orders, sizeof(int64_t) * 4 * n) == 0
             && PyByteArray_Resize(inv, sizeof(double) * 4 * n) == 0 && PyByteArray_Resize(radius, sizeof(double) * n) == 0) {
             out = a[2].held ? quads_keys_ids(a, rows, orders, inv, radius, n) : PyTuple_Pack(4, rows, orders, inv, radius);
