@@ -23,7 +23,8 @@ setup(
                      "mapdb/match/_kernel_map_quads.c",
                      "mapdb/match/_kernel_stored.c", "mapdb/match/_kernel_stored_resolve.c",
                      "mapdb/match/_kernel_qdecode.c", "mapdb/match/_kernel_qcheck.c",
-                     "mapdb/match/_kernel_screen.c"],
+                     "mapdb/match/_kernel_screen.c",
+                     "mapdb/match/_kernel_hits.c"],
             depends=["mapdb/match/_kernel.h", "mapdb/match/_kernel_objects.h", "mapdb/match/_kernel_quads.h",
                      "mapdb/match/_kernel_stored.h"],
             # No fused multiply-adds: the kernel's sums and products round as numpy's do.

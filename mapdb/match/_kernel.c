@@ -447,7 +447,7 @@ PyMODINIT_FUNC PyInit__kernel(void)
         Py_DECREF(m);
         return NULL;
     }
-    if (PyModule_AddFunctions(m, stored_methods) < 0) {
+    if (PyModule_AddFunctions(m, stored_methods) < 0 || PyModule_AddFunctions(m, hits_methods) < 0) {
         Py_DECREF(m);
         return NULL;
     }

@@ -129,6 +129,7 @@ extern PyMethodDef quad_tree_methods[];  /* _kernel_quad_tree.c */
 extern PyMethodDef image_quads_methods[];  /* _kernel_image_quads.c */
 extern PyMethodDef map_quads_methods[];  /* _kernel_map_quads.c: a map tile's quads and tree points */
 extern PyMethodDef stored_methods[];  /* _kernel_stored.c: the stored quad index's lookup */
+extern PyMethodDef hits_methods[];  /* _kernel_hits.c: an image's lookups made hypotheses in few calls */
 extern PyMethodDef qdecode_methods[];  /* _kernel_qdecode.c: the stored index's packed blocks decoded */
 extern PyMethodDef qcheck_methods[];  /* _kernel_qcheck.c: the stored index's blocks checked (CRC-32) */
 extern PyMethodDef screen_methods[];  /* _kernel_screen.c: the screen's neighbours of image objects */

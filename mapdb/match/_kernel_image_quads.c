@@ -90,24 +90,94 @@ static void quads_ordering(const QuadsFrame *f, int w, int *order, double *t)
     }
 }
 
+/* The keys worth looking up of the frames (rows, orders, invariants, radii written): frame block, then ordering,
+ * then quad; their count. */
+static Py_ssize_t quads_keys_fill(const QuadsFrame *frames, Py_ssize_t block, Py_ssize_t h, double max_radius,
+                                  int64_t *r, int64_t *o, double *t, double *rad)
+{
+    Py_ssize_t n = 0;
+    for (int part = 0; part < 2; part++) {
+        Py_ssize_t lo = part ? block : 0, hi = part ? h : block;
+        for (int w = 0; w < 4; w++) {
+            for (Py_ssize_t i = lo; i < hi; i++) {
+                int order[4];
+                double tt[4], slack = frames[i].radius * 1.4142135623730951;
+                quads_ordering(&frames[i], w, order, tt);
+                if (!(tt[0] + tt[2] - 1.0 <= slack && tt[0] - tt[2] <= slack && frames[i].radius <= max_radius)) {
+                    continue;
+                }
+                r[n] = frames[i].row;
+                for (int j = 0; j < 4; j++) {
+                    o[4 * n + j] = order[j];
+                    t[4 * n + j] = tt[j];
+                }
+                rad[n++] = frames[i].radius;
+            }
+        }
+    }
+    return n;
+}
+
+/* With the quads' image ids and the image's labels (a[2], a[3]): each key's ids (its quad's in its order) and their
+ * labels, 0; or -1 with ValueError set when a quad names an object the labels do not have. */
+static int quads_key_ids(const Arr *a, const int64_t *r, const int64_t *o, Py_ssize_t n, int64_t *ids, int64_t *labs)
+{
+    const int64_t *quads = Q(a[2]), *label = Q(a[3]);
+    Py_ssize_t n_labels = arr_dim(&a[3], 0);
+    for (Py_ssize_t i = 0; i < 4 * n; i++) {
+        int64_t id = quads[4 * r[i / 4] + o[i]];
+        if (id < 0 || id >= n_labels) {
+            PyErr_SetString(PyExc_ValueError, "a quad names an image object out of range");
+            return -1;
+        }
+        ids[i] = id;
+        labs[i] = label[id];
+    }
+    return 0;
+}
+
+/* quads_keys' answer with the keys' ids and labels (quads_key_ids) after its four. */
+static PyObject *quads_keys_ids(const Arr *a, PyObject *rows, PyObject *orders, PyObject *inv, PyObject *radius,
+                                Py_ssize_t n)
+{
+    PyObject *ids = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * n);
+    PyObject *labs = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(int64_t) * 4 * n), *out = NULL;
+    if (ids && labs
+        && !quads_key_ids(a, (const int64_t *)PyByteArray_AS_STRING(rows), (const int64_t *)PyByteArray_AS_STRING(orders),
+                          n, (int64_t *)PyByteArray_AS_STRING(ids), (int64_t *)PyByteArray_AS_STRING(labs))) {
+        out = PyTuple_Pack(6, rows, orders, inv, radius, ids, labs);
+    }
+    Py_XDECREF(ids);
+    Py_XDECREF(labs);
+    return out;
+}
+
 static PyObject *quads_keys(PyObject *self, PyObject *args)
 {
-    PyObject *ozq, *osigma;
+    PyObject *ozq, *osigma, *oquads = Py_None, *olabel = Py_None;
     double one, tie_factor, factor, max_radius;
-    Arr a[2] = {{{0}}};
-    if (!PyArg_ParseTuple(args, "OOdddd:quads_keys", &ozq, &osigma, &one, &tie_factor, &factor, &max_radius)) {
+    Arr a[4] = {{{0}}};
+    if (!PyArg_ParseTuple(args, "OOdddd|OO:quads_keys", &ozq, &osigma, &one, &tie_factor, &factor, &max_radius, &oquads,
+                          &olabel)) {
         return NULL;
     }
     if (arr_take(ozq, &a[0], "zq", 'Z', 2, 0, 0) || arr_take(osigma, &a[1], "sigma", 'd', 2, 0, 1)
-        || arr_check_shape(&a[0], "zq", arr_dim(&a[0], 0), 4) || arr_check_shape(&a[1], "sigma", arr_dim(&a[0], 0), 4)) {
-        arr_release(a, 2);
+        || arr_check_shape(&a[0], "zq", arr_dim(&a[0], 0), 4) || arr_check_shape(&a[1], "sigma", arr_dim(&a[0], 0), 4)
+        || arr_take(oquads, &a[2], "quads", 'q', 2, 0, 1) || arr_take(olabel, &a[3], "labels", 'q', 1, 0, 1)
+        || arr_check_shape(&a[2], "quads", arr_dim(&a[0], 0), 4)) {
+        arr_release(a, 4);
+        return NULL;
+    }
+    if (a[2].held != a[3].held) {
+        PyErr_SetString(PyExc_ValueError, "quads and labels come together");
+        arr_release(a, 4);
         return NULL;
     }
     Py_ssize_t m = arr_dim(&a[0], 0);
     QuadsFrame *frames = malloc(sizeof(QuadsFrame) * (size_t)(2 * m + 1));
     PyObject *rows = NULL, *orders = NULL, *inv = NULL, *radius = NULL, *out = NULL;
     if (!frames) {
-        arr_release(a, 2);
+        arr_release(a, 4);
         return PyErr_NoMemory();
     }
     Py_ssize_t block = 0;
@@ -117,31 +187,12 @@ static PyObject *quads_keys(PyObject *self, PyObject *args)
     inv = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 16 * h);
     radius = PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)sizeof(double) * 4 * h);
     if (rows && orders && inv && radius) {
-        int64_t *r = (int64_t *)PyByteArray_AS_STRING(rows), *o = (int64_t *)PyByteArray_AS_STRING(orders);
-        double *t = (double *)PyByteArray_AS_STRING(inv), *rad = (double *)PyByteArray_AS_STRING(radius);
-        Py_ssize_t n = 0;
-        for (int part = 0; part < 2; part++) {  /* frame block, then ordering, then quad */
-            Py_ssize_t lo = part ? block : 0, hi = part ? h : block;
-            for (int w = 0; w < 4; w++) {
-                for (Py_ssize_t i = lo; i < hi; i++) {
-                    int order[4];
-                    double tt[4], slack = frames[i].radius * 1.4142135623730951;
-                    quads_ordering(&frames[i], w, order, tt);
-                    if (!(tt[0] + tt[2] - 1.0 <= slack && tt[0] - tt[2] <= slack && frames[i].radius <= max_radius)) {
-                        continue;
-                    }
-                    r[n] = frames[i].row;
-                    for (int j = 0; j < 4; j++) {
-                        o[4 * n + j] = order[j];
-                        t[4 * n + j] = tt[j];
-                    }
-                    rad[n++] = frames[i].radius;
-                }
-            }
-        }
+        Py_ssize_t n = quads_keys_fill(frames, block, h, max_radius, (int64_t *)PyByteArray_AS_STRING(rows),
+                                       (int64_t *)PyByteArray_AS_STRING(orders), (double *)PyByteArray_AS_STRING(inv),
+                                       (double *)PyByteArray_AS_STRING(radius));
         if (PyByteArray_Resize(rows, sizeof(int64_t) * n) == 0 && PyByteArray_Resize(orders, sizeof(int64_t) * 4 * n) == 0
             && PyByteArray_Resize(inv, sizeof(double) * 4 * n) == 0 && PyByteArray_Resize(radius, sizeof(double) * n) == 0) {
-            out = PyTuple_Pack(4, rows, orders, inv, radius);
+            out = a[2].held ? quads_keys_ids(a, rows, orders, inv, radius, n) : PyTuple_Pack(4, rows, orders, inv, radius);
         }
     }
     Py_XDECREF(rows);
@@ -149,7 +200,7 @@ static PyObject *quads_keys(PyObject *self, PyObject *args)
     Py_XDECREF(inv);
     Py_XDECREF(radius);
     free(frames);
-    arr_release(a, 2);
+    arr_release(a, 4);
     return out;
 }
 
@@ -364,6 +415,20 @@ static PyObject *quads_batches(PyObject *self, PyObject *args)
 
 /* ------------------------------------------------------------------ the poses a search may answer */
 
+int quads_pose_allowed(const double *a, const double *b, int with_prior, double cx, double cy, double reach,
+                       int with_scale, double lo, double hi)
+{
+    double scale = cabs_np(a[0], a[1]);
+    int yes = isfinite(a[0]) && isfinite(a[1]) && scale > 0.0;
+    if (with_prior) {
+        yes = yes && cabs_np(b[0] - cx, b[1] - cy) <= reach;
+    }
+    if (with_scale) {
+        yes = yes && scale >= lo && scale <= hi;
+    }
+    return yes;
+}
+
 /* hypotheses.allowed_poses: finite a != 0; with a prior, |b - centre| <= reach; with a scale range, lo <= |a| <= hi. */
 static PyObject *quads_allowed(PyObject *self, PyObject *args)
 {
@@ -384,15 +449,7 @@ static PyObject *quads_allowed(PyObject *self, PyObject *args)
     const double *av = D(a[0]), *bv = D(a[1]);
     unsigned char *ok = B(a[2]);
     for (Py_ssize_t i = 0; i < arr_dim(&a[0], 0); i++) {
-        double scale = cabs_np(av[2 * i], av[2 * i + 1]);
-        int yes = isfinite(av[2 * i]) && isfinite(av[2 * i + 1]) && scale > 0.0;
-        if (with_prior) {
-            yes = yes && cabs_np(bv[2 * i] - cx, bv[2 * i + 1] - cy) <= reach;
-        }
-        if (with_scale) {
-            yes = yes && scale >= lo && scale <= hi;
-        }
-        ok[i] = (unsigned char)yes;
+        ok[i] = (unsigned char)quads_pose_allowed(av + 2 * i, bv + 2 * i, with_prior, cx, cy, reach, with_scale, lo, hi);
     }
     arr_release(a, 3);
     Py_RETURN_NONE;
@@ -400,8 +457,9 @@ static PyObject *quads_allowed(PyObject *self, PyObject *args)
 
 PyMethodDef image_quads_methods[] = {
     {"quads_keys", quads_keys, METH_VARARGS,
-     "quads_keys(zq, sigma, one, tie_factor, factor, max_radius): every frame and ordering of image quads worth "
-     "looking up (hypotheses._quad_keys): quad rows, orders (h, 4), invariants (h, 4), radii, as bytearrays."},
+     "quads_keys(zq, sigma, one, tie_factor, factor, max_radius[, quads, labels]): every frame and ordering of image "
+     "quads worth looking up (hypotheses._quad_keys): quad rows, orders (h, 4), invariants (h, 4), radii, and with the "
+     "quads' image ids and the image's labels each key's ids (h, 4) and labels (h, 4), as bytearrays."},
     {"quads_batches", quads_batches, METH_VARARGS,
      "quads_batches(z, members, neighbours, per_batch, max_batches): the image's quads in rounds "
      "(hypotheses.anchor_batches): sorted object ids (q, 4) and each round's count, as bytearrays of int64."},

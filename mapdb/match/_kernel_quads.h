@@ -126,4 +126,9 @@ static inline void quads_scratch_release(QuadsScratch *s, void *p)
     }
 }
 
+/* hypotheses.allowed_poses of one similarity a, b (re, im pairs): finite a != 0; with a prior, |b - (cx, cy)| <=
+ * reach; with a scale range, lo <= |a| <= hi (_kernel_image_quads.c). */
+int quads_pose_allowed(const double *a, const double *b, int with_prior, double cx, double cy, double reach,
+                       int with_scale, double lo, double hi);
+
 #endif

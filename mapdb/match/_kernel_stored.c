@@ -20,12 +20,6 @@
 #define STORED_AUDITED 16   /* stored.AUDITED */
 
 typedef struct {
-    const double *q, *r, *cell;
-    const int64_t *lk;
-    Py_ssize_t m, k, limit;
-} StoredAsk;
-
-typedef struct {
     int64_t row, start, count;
     uint64_t key;
     float rel[4];
@@ -435,7 +429,7 @@ static int stored_pieces(const StoredTables *t, const StoredAsk *a, const Stored
 
 /* (2, code) on corruption; (1, pages, ranges, neighbours' objects, coordinates' objects) when something needs
  * checking first; else (0, rows, ids, distances) as bytes. */
-static PyObject *stored_answer(int rc, const StoredNeeds *nd, const StoredBest *b)
+static PyObject *stored_answer(int rc, const StoredNeeds *nd, const StoredBest *b, const int64_t *row_of)
 {
     if (rc == -1) {
         return NULL;
@@ -454,7 +448,7 @@ static PyObject *stored_answer(int rc, const StoredNeeds *nd, const StoredBest *
         return NULL;
     }
     for (Py_ssize_t i = 0; i < b->n_out; i++) {
-        ((int64_t *)PyBytes_AS_STRING(rows))[i] = b->out[i].row;
+        ((int64_t *)PyBytes_AS_STRING(rows))[i] = row_of ? row_of[b->out[i].row] : b->out[i].row;
         memcpy(PyBytes_AS_STRING(ids) + 32 * i, b->out[i].ids, 32);
         ((double *)PyBytes_AS_STRING(dist))[i] = b->out[i].dist;
     }
@@ -489,28 +483,34 @@ static PyObject *stored_lookup(PyObject *self, PyObject *args)
     }
     StoredTables t;
     Arr a[4] = {{{0}}};
-    if (stored_take_tables(ot, &t) || stored_take_ask(o, a, &ask)) {
-        arr_release(t.a, STORED_TABLES), arr_release(a, 4);
-        return NULL;
+    PyObject *out = NULL;
+    if (!stored_take_tables(ot, &t) && !stored_take_ask(o, a, &ask)) {
+        out = stored_run(&t, &ask, NULL);
     }
+    arr_release(t.a, STORED_TABLES), arr_release(a, 4);
+    return out;
+}
+
+/* The lookup of ``ask``'s rows on the tables (_kernel_stored.h); ``row_of`` (or NULL) renames the answer's rows. */
+PyObject *stored_run(const StoredTables *t, const StoredAsk *ask, const int64_t *row_of)
+{
     StoredNeeds nd = {{0}};
     StoredCells cs = {0};
-    StoredBest b = {.k = ask.k, .row = -1};
-    uint8_t *asked = calloc((size_t)t.n_pages + 1, 1);
+    StoredBest b = {.k = ask->k, .row = -1};
+    uint8_t *asked = calloc((size_t)t->n_pages + 1, 1);
     int rc = asked ? 0 : (PyErr_NoMemory(), -1);
-    for (Py_ssize_t i = 0; i < ask.m && !rc; i++) {
-        rc = stored_row_cells(&t, &ask, i, &cs, &nd, asked);
+    for (Py_ssize_t i = 0; i < ask->m && !rc; i++) {
+        rc = stored_row_cells(t, ask, i, &cs, &nd, asked);
     }
     if (!rc && !nd.pages.n && !nd.ranges.n) {
         int incomplete = 0;
-        rc = qcheck_quads(&t, &nd.quads);
-        rc = rc ? rc : stored_pieces(&t, &ask, &cs, &nd, &b, &incomplete);
+        rc = qcheck_quads(t, &nd.quads);
+        rc = rc ? rc : stored_pieces(t, ask, &cs, &nd, &b, &incomplete);
         rc = rc ? rc : stored_flush(&b);
     }
-    PyObject *out = stored_answer(rc, &nd, &b);
+    PyObject *out = stored_answer(rc, &nd, &b, row_of);
     free(asked), free(cs.v), free(b.buf), free(b.out);
     stored_needs_free(&nd);
-    arr_release(t.a, STORED_TABLES), arr_release(a, 4);
     return out;
 }
 

@@ -64,6 +64,14 @@ typedef struct {
     double quantum;
 } StoredTables;
 
+/* A lookup's query rows: invariants (m, 4), radii already clamped to their cells, cell sides, label keys; k hits a
+ * row at most, about ``limit`` candidates handled at once. */
+typedef struct {
+    const double *q, *r, *cell;
+    const int64_t *lk;
+    Py_ssize_t m, k, limit;
+} StoredAsk;
+
 /* A growable int64 list. */
 typedef struct {
     int64_t *v;
@@ -93,6 +101,10 @@ int stored_resolve_one(const StoredTables *t, int64_t anchor, int64_t triple, St
 int stored_filed(const StoredTables *t, const double *inv, uint64_t key, const uint8_t *sub, double cell);
 /* The tables from Python's tuple; 0, or -1 with TypeError / ValueError set (release with arr_release). */
 int stored_take_tables(PyObject *tables, StoredTables *t);
+
+/* The lookup of ``ask`` (_kernel_stored.c): (0, rows, ids, distances) as bytes, the rows renamed by ``row_of`` when
+ * not NULL; (1, needs ...) or (2, code) as stored_lookup answers; NULL with an error set. */
+PyObject *stored_run(const StoredTables *t, const StoredAsk *ask, const int64_t *row_of);
 
 /* _kernel_qcheck.c: zlib's CRC-32 of ``n`` bytes continued from ``crc``; the blocks ``first..last`` of ``raw``
  * (``nbytes`` long, 4 KiB blocks) not yet ``checked`` checked against ``crcs`` and marked: -1, or the first that fails. */

@@ -18,8 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._kernel import quads_allowed, quads_batches, quads_keys
-from .geometry import fit_similarity_complex
+from ._kernel import hits_hypotheses, quads_allowed, quads_batches, quads_keys
 from .options import FastOptions
 from .quads import QuadIndex, lookup_parts
 
@@ -61,13 +60,15 @@ def anchor_batches(z: np.ndarray, opts: FastOptions, anchorable: np.ndarray | No
     centroid pulled inward, by up to half the hidden part, so a quad holding one predicts the others badly
     and its invariants miss the map's.  Such objects still count as evidence in verification.
     """
-    members = np.arange(z.size) if anchorable is None else np.flatnonzero(anchorable)
-    quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members.astype(np.int64),
+    members = np.arange(z.size, dtype=np.int64) if anchorable is None else np.flatnonzero(anchorable).astype(np.int64)
+    quads, counts = quads_batches(np.ascontiguousarray(z, np.complex128), members,
                                   int(opts.image_neighbours), int(opts.anchors_per_batch), int(opts.max_batches))
-    ends = np.cumsum(np.frombuffer(counts, np.int64))
-    if not ends.size:
-        return []
-    return np.split(np.frombuffer(quads, np.int64).reshape(-1, 4), ends[:-1])
+    # The rounds as slices (np.split's views, without its per-call overhead: a few rounds an image).
+    rows, out, at = np.frombuffer(quads, np.int64).reshape(-1, 4), [], 0
+    for count in np.frombuffer(counts, np.int64).tolist():
+        out.append(rows[at : at + count])
+        at += count
+    return out
 
 
 def round_hypotheses(
@@ -88,10 +89,25 @@ def round_hypotheses(
     ``sigma_px`` is one pixel error for every point or one per point of ``batch`` (see
     :func:`lookup_hypotheses`); ``weight`` (per image object), the points' weights in the fit (default equal).
     """
-    img_ids, map_z = lookup_hypotheses(z, img_label, batch, quads, opts, sigma_px)
-    a, b = fit_similarity_complex(z[img_ids], map_z, None if weight is None else weight[img_ids])
-    ok = allowed_poses(a, b, prior, scale_range)
-    return Hypotheses(a[ok], b[ok], img_ids[ok], map_z[ok])
+    key_ids, rows, map_z = _lookup_hits(z, img_label, batch, quads, opts, sigma_px)
+    return _hypotheses_of_hits(z, weight, key_ids, rows, map_z, prior, scale_range)
+
+
+def _hypotheses_of_hits(z: np.ndarray, weight: np.ndarray | None, key_ids: np.ndarray, rows: np.ndarray,
+                        map_z: np.ndarray, prior: tuple[float, float, float] | None,
+                        scale_range: tuple[float, float] | None) -> Hypotheses:
+    """The hits (``rows`` of the keys' image ids ``key_ids``, their map points ``map_z``) made hypotheses: each
+    hit's image ids, its similarity fitted to the four points (:func:`~mapdb.match.geometry.fit_similarity_complex`'s
+    arithmetic, weighted by ``weight`` of the image objects) and those :func:`allowed_poses` lets through, in hit
+    order: one kernel call (``_kernel_hits.c``), not the gathers, fit and masks of numpy's."""
+    centre = (0.0, 0.0, 0.0) if prior is None else (float(prior[0]), float(prior[1]), PRIOR_SLACK * prior[2])
+    lo, hi = (0.0, 0.0) if scale_range is None else (float(scale_range[0]), float(scale_range[1]))
+    ids, points, a, b = hits_hypotheses(
+        np.ascontiguousarray(z, np.complex128), None if weight is None else np.ascontiguousarray(weight, np.float64),
+        np.ascontiguousarray(key_ids, np.int64), np.ascontiguousarray(rows, np.int64),
+        np.ascontiguousarray(map_z, np.complex128), prior is not None, *centre, scale_range is not None, lo, hi)
+    return Hypotheses(np.frombuffer(a, np.complex128), np.frombuffer(b, np.complex128),
+                      np.frombuffer(ids, np.int64).reshape(-1, 4), np.frombuffer(points, np.complex128).reshape(-1, 4))
 
 
 def allowed_poses(a: np.ndarray, b: np.ndarray, prior: tuple[float, float, float] | None,
@@ -129,26 +145,37 @@ def lookup_hypotheses(
     """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex).
 
     ``sigma_px``: the pixel error of every point, or of each quad's points ``(m, 4)``."""
-    empty = np.zeros((0, 4), np.int64), np.zeros((0, 4), np.complex128)
+    key_ids, rows, map_z = _lookup_hits(z, img_label, quads, indexes, opts, sigma_px)
+    return key_ids[rows], map_z
+
+
+def _lookup_hits(
+    z: np.ndarray,
+    img_label: np.ndarray,
+    quads: np.ndarray,
+    indexes: Sequence[QuadIndex],
+    opts: FastOptions,
+    sigma_px: float | np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`lookup_hypotheses` before its gather: the image ids ``(k, 4)`` of each key looked up, each hit's key
+    row ``(H,)`` and its map points ``(H, 4)`` (int64 and complex128, contiguous)."""
+    empty = np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
     indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:
         return empty
-    keys = _quad_keys(z[quads], opts, sigma_px)
+    # The keys with their image ids and labels (one array for every index: a prior's tiles share their query points).
+    keys = _quad_keys(z[quads], opts, sigma_px, quads, img_label)
     if keys is None:
         return empty
-    row, order, inv, radius = keys
-    img_ids = quads[row[:, None], order]
-    labels = img_label[img_ids]  # one array for every index: a prior's tiles share their query points
+    _, _, inv, radius, img_ids, labels = keys
     parts = _quad_parts(indexes)
     if parts is not None:  # in-memory indexes (a prior's tiles): one kernel call for all of them
         q_row, map_z = lookup_parts(parts, inv, labels, radius, opts.max_hits_per_quad)
-        return img_ids[q_row], map_z
-    found_img, found_map = [], []
-    for index in indexes:
-        q_row, map_z = index.lookup(inv, labels, radius, opts.max_hits_per_quad)
-        found_img.append(img_ids[q_row])
-        found_map.append(map_z)
-    return np.concatenate(found_img), np.concatenate(found_map)
+    else:
+        found = [index.lookup(inv, labels, radius, opts.max_hits_per_quad) for index in indexes]
+        q_row, map_z = ((found[0][0], found[0][1]) if len(found) == 1 else
+                        (np.concatenate([f[0] for f in found]), np.concatenate([f[1] for f in found])))
+    return img_ids, np.ascontiguousarray(q_row, np.int64), np.ascontiguousarray(map_z, np.complex128)
 
 
 def _quad_parts(indexes: Sequence) -> list[tuple[QuadIndex, tuple[complex, float] | None]] | None:
@@ -163,9 +190,12 @@ def _quad_parts(indexes: Sequence) -> list[tuple[QuadIndex, tuple[complex, float
     return parts
 
 
-def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) -> tuple[np.ndarray, ...] | None:
+def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray, quads: np.ndarray | None = None,
+               img_label: np.ndarray | None = None) -> tuple[np.ndarray, ...] | None:
     """Every frame and ordering of the quads ``zq`` (m, 4) worth looking up: quad rows, orderings (k, 4),
-    invariants (k, 4) and lookup radii (k,); None when there is none.
+    invariants (k, 4) and lookup radii (k,); None when there is none.  With the quads' image ids ``quads`` (m, 4)
+    and the image's labels ``img_label``, also each key's image ids ``quads[rows, orderings]`` and their labels
+    (k, 4), int64, from the same call.
 
     ``sigma_px`` is one pixel error for every point, or one per point ``(m, 4)`` (a cut blob's is wider).
     The longest pair decides a quad's frame; when the second longest is within ``FRAME_TIE_SIGMAS`` standard errors
@@ -178,16 +208,22 @@ def _quad_keys(zq: np.ndarray, opts: FastOptions, sigma_px: float | np.ndarray) 
     ranked by a stable order (ties in pair order).
     """
     zq = np.ascontiguousarray(zq, np.complex128)
-    if np.ndim(sigma_px) == 0:
+    if isinstance(sigma_px, float | int) or np.ndim(sigma_px) == 0:  # (np.ndim's dispatch costs microseconds)
         one, sigma = float(sigma_px), None
     else:
         one, sigma = 0.0, np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_px, np.float64), zq.shape))
-    rows, orders, inv, radius = quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0),
-                                           float(opts.tolerance_factor), float(opts.max_invariant_radius))
-    if not rows:
+    with_ids = () if quads is None or img_label is None else (
+        np.ascontiguousarray(quads, np.int64), np.ascontiguousarray(img_label, np.int64))
+    out = quads_keys(zq, sigma, one, FRAME_TIE_SIGMAS * math.sqrt(2.0), float(opts.tolerance_factor),
+                     float(opts.max_invariant_radius), *with_ids)
+    if not out[0]:
         return None
-    return (np.frombuffer(rows, np.int64), np.frombuffer(orders, np.int64).reshape(-1, 4),
-            np.frombuffer(inv, np.float64).reshape(-1, 4), np.frombuffer(radius, np.float64))
+    rows, orders, inv, radius = (np.frombuffer(out[0], np.int64), np.frombuffer(out[1], np.int64).reshape(-1, 4),
+                                 np.frombuffer(out[2], np.float64).reshape(-1, 4), np.frombuffer(out[3], np.float64))
+    if not with_ids:
+        return rows, orders, inv, radius
+    return rows, orders, inv, radius, np.frombuffer(out[4], np.int64).reshape(-1, 4), np.frombuffer(
+        out[5], np.int64).reshape(-1, 4)
 
 
 def pose_votes(a: np.ndarray, b: np.ndarray, diag_px: float) -> np.ndarray:

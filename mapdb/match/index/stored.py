@@ -45,7 +45,7 @@ import numpy as np
 
 from ...errors import MapdbIOError, MapFormatError, open_regular, reading
 from ...mapfile.reader import MetaMap
-from .._kernel import stored_lookup, stored_resolve
+from .._kernel import hits_points, hits_stored_lookup, stored_resolve
 from ..arrays import sorted_unique
 from ..quads import label_keys
 from .binding import PageBoxes, check_filed, check_identity, check_positions, map_identity, mismatch
@@ -103,6 +103,7 @@ class StoredQuadIndex:
         self._tables: tuple[object, ...] = ()  # the arrays the kernel's lookup reads (_kernel_tables)
         self._boxes: PageBoxes | None = None  # the map's page boxes, once bound to it (check_map)
         self._audited: set[int] = set()  # label combinations whose first cell was checked (_audit)
+        self._audited_at = np.zeros(0, bool)  # the same, by position in the combinations (the kernel reads it)
         with reading(where, "quad index"):
             f = open_regular(self.path, where, "quad index")  # closed below once mapped and the small sections read
         try:
@@ -139,6 +140,8 @@ class StoredQuadIndex:
         self.quad_neighbours, self._sub_bits, self._triple_bits = c.quad_neighbours, c.sub_bits, c.triple_bits
         self._triples = triples(c.quad_neighbours) if c.quad_neighbours >= 3 else np.zeros((0, 3), np.int64)
         self._combo_keys, self._combo_cell = header_combos(h["combos"], c.quads, len(self.labels), where)
+        self._combo_cell = np.ascontiguousarray(self._combo_cell)  # a column of the header's table: the kernel's
+        self._audited_at = np.zeros(self._combo_keys.size, bool)
         shapes = section_shapes(c)
         total_blocks = check_sections(h["sections"], shapes, int(h["_header_offset"]), where)
         self._sections, fence = map_sections(self._mmap, fd, h, shapes, total_blocks, where)
@@ -237,7 +240,11 @@ class StoredQuadIndex:
     def coordinates(self, ids: np.ndarray) -> np.ndarray:
         """Map positions (complex ``x + iy``, map metres, as ``MetaMap.all()`` gives them) of object ids."""
         ids = np.asarray(ids, np.int64)
-        if ids.size and (ids.min() < 0 or ids.max() >= self.n_objects):
+        # One kernel call (_kernel_hits.c) where the ids' blocks are decoded (those of a lookup's hits are).
+        got = hits_points(self._tables, np.ascontiguousarray(ids.reshape(-1))) if self._tables else (1,)
+        if got[0] == 0:
+            return np.frombuffer(got[1], np.complex128).reshape(ids.shape)
+        if got[0] == 2 or (ids.size and (ids.min() < 0 or ids.max() >= self.n_objects)):
             raise IndexError(f"object ids must be in [0, {self.n_objects})")
         c = self._coords.rows(ids.reshape(-1))
         x = (c[:, 0] + self.origin[0]) * self.quantum
@@ -275,29 +282,24 @@ class StoredQuadIndex:
         MapFormatError
             If a block read is corrupt or the file's ranges and ids are inconsistent.
         """
-        inv = np.asarray(invariants, np.float64).reshape(-1, 4)
-        labels = np.asarray(labels, np.int64).reshape(-1, 4)
+        inv = np.ascontiguousarray(np.asarray(invariants, np.float64).reshape(-1, 4))
+        labels = np.ascontiguousarray(np.asarray(labels, np.int64).reshape(-1, 4))
         m = len(inv)
-        radius = np.broadcast_to(np.asarray(radius, np.float64), (m,))
+        radius = np.asarray(radius, np.float64)
+        radius = np.full(m, radius) if radius.ndim == 0 else np.ascontiguousarray(radius)
         if len(labels) != m:
             raise ValueError(f"{m} invariant rows but {len(labels)} label rows")
+        if radius.shape != (m,):  # one radius for all, say (ValueError if it cannot be)
+            radius = np.ascontiguousarray(np.broadcast_to(radius, (m,)))
         empty = (np.zeros(0, np.int64), np.zeros((0, 4), np.int64)) + ((np.zeros(0),) if return_distance else ())
         if m == 0 or k <= 0 or self.n_quads == 0:
             return empty
-        pos, present = self._combo(labels)
-        present &= np.isfinite(inv).all(axis=1) & np.isfinite(radius) & (radius >= 0)
-        present &= ((labels >= 0) & (labels < len(self.labels))).all(axis=1)
-        rows = np.flatnonzero(present)
-        if not rows.size:
-            return empty
-        cell = self._combo_cell[pos[rows]]
-        lk = self._combo_keys[pos[rows]]
-        if not self._audited.issuperset(lk.tolist()):  # a set: an np.isin a lookup cost 30 us
-            self._audit(lk)
-        # The kernel's (_kernel_stored.c): cells, directory, bounds, resolving, filing checks and the best k.
-        row, ids, dist = self._kernel(stored_lookup, inv[rows], np.minimum(radius[rows], cell), cell, lk, int(k),
-                                      LOOKUP_CANDIDATES)
-        row = rows[np.frombuffer(row, np.int64)]
+        # One kernel call (_kernel_hits.c, then _kernel_stored.c's lookup): the rows with known label combinations,
+        # finite invariants and radii, their radii clamped to their cells, then cells, directory, bounds, resolving,
+        # filing checks and the best k, the hits' rows the query's.
+        row, ids, dist = self._kernel(hits_stored_lookup, inv, labels, radius, self._combo_keys, self._combo_cell,
+                                      len(self.labels), self._audited_at, int(k), LOOKUP_CANDIDATES)
+        row = np.frombuffer(row, np.int64).copy()
         ids = np.frombuffer(ids, np.int64).reshape(-1, 4).copy()
         return (row, ids, np.frombuffer(dist, np.float64).copy()) if return_distance else (row, ids)
 
@@ -305,10 +307,13 @@ class StoredQuadIndex:
         """A kernel call on this index's tables: where it reaches a directory page, neighbour block or coordinate
         block not checked yet, those are decoded and checked here (the checks and their errors are Python's) and
         the call made again.  The quads blocks it reaches the kernel checksums itself and goes on."""
-        for _ in range(8):  # a round checks what the previous reached: pages, quads, neighbours (and coordinates)
+        for _ in range(9):  # a round checks what the previous reached: pages, quads, neighbours (and coordinates)
             out = call(self._tables, *args)
             if out[0] == 0:
                 return tuple(out[1:])
+            if out[0] == 3:  # (hits_stored_lookup) label combinations not audited yet: audit them, then ask again
+                self._audit(np.frombuffer(out[1], np.int64))
+                continue
             if out[0] == 2:
                 raise self._corruption(int(out[1]))
             # The quads blocks the lookup reaches it checks itself (_kernel_qcheck.c): it asks for no quad ranges.
@@ -339,6 +344,7 @@ class StoredQuadIndex:
         # sorted_unique, not np.unique: it imports numpy.ma (0.05 s of a first answer), see mapdb.match.arrays.
         new = np.array([key for key in sorted_unique(lk).tolist() if key not in self._audited], lk.dtype)
         if not new.size:
+            self._audited_at[np.searchsorted(self._combo_keys, lk)] = True
             return
         at = self._directory.first_cells(new)
         start = self._directory.start[at]
@@ -347,6 +353,7 @@ class StoredQuadIndex:
         check_filed(inv, self._directory.key[at], records[2], self._combo_cell[np.searchsorted(self._combo_keys, new)],
                     self._bits, self._sub_bits, self.where)
         self._audited.update(new.tolist())
+        self._audited_at[np.searchsorted(self._combo_keys, lk)] = True
 
     def _records(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Anchors, triple numbers and positions inside their cells of the quads at ``positions``."""
