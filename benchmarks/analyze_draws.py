@@ -105,7 +105,7 @@ def time_images(blocks, base_sim, order: int) -> tuple[float, float, int, int]:
                                      ((i + 0.5) * new_ctx.cell_m, (j + 0.5) * new_ctx.cell_m),
                                      np.hypot(0.5, 0.5) * new_ctx.cell_m)
             ready = np.flatnonzero(views.seen.sum(axis=1) >= MIN_VISIBLE)[:4]
-            jobs += [(p, int(s), i, j, views.near[views.seen[s]]) for s in ready]
+            jobs += [(p, int(s), i, j, views.shown(int(s))) for s in ready]
         docs: list[list[dict]] = [[], []]
         for who in ([0, 1] if (k + order) % 2 == 0 else [1, 0]):
             start = time.process_time()
@@ -118,7 +118,7 @@ def time_images(blocks, base_sim, order: int) -> tuple[float, float, int, int]:
                                    draws.positioned(p, s, CONFIG.seed, i, j), pixel_std=CONFIG.pixel_std,
                                    label_counts=old_ctx.label_counts, image_id=f"{i},{j},{s}")
                 else:
-                    doc = draws.cell_image(new_ctx.objects, shown, pose, new_ctx.camera,
+                    doc = draws.cell_image(new_ctx.objects, *shown, pose, new_ctx.camera,
                                            draws.positioned(p, s, CONFIG.seed, i, j, new_ctx.generator),
                                            new_ctx.detector, None, f"{i},{j},{s}")
                 docs[who].append(doc)

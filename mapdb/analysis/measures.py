@@ -388,7 +388,7 @@ def _measure_cell(ctx: _Context, i: int, j: int, poses: Poses, out: CellMeasures
         run += 1
         pose = poses.pose(s)
         generator = positioned(poses, s, cfg.seed, i, j, ctx.generator)
-        error, lost = _localize(ctx, views.near[views.seen[s]], pose, generator, f"{i},{j},{s}")
+        error, lost = _localize(ctx, views.shown(s), pose, generator, f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
@@ -460,15 +460,16 @@ def _inferred(hint: np.ndarray, ready: int, cfg: SampleConfig, out: CellMeasures
     return True
 
 
-def _localize(ctx: _Context, shown: np.ndarray, pose: Pose, generator: np.random.Generator,
-              image_id: str) -> tuple[float | None, Answer]:
-    """Simulate the image (``shown``: the objects it shows), localize it: the error of an accepted answer (None
-    if rejected), and the answer of the search without a prior (the one ambiguity is read from)."""
+def _localize(ctx: _Context, shown: tuple[np.ndarray, np.ndarray, np.ndarray], pose: Pose,
+              generator: np.random.Generator, image_id: str) -> tuple[float | None, Answer]:
+    """Simulate the image (``shown``: the objects it shows and their pixels, :meth:`~.draws.Views.shown`), localize
+    it: the error of an accepted answer (None if rejected), and the answer of the search without a prior (the one
+    ambiguity is read from)."""
     cfg = ctx.config
     # An image is localized only when it shows MIN_VISIBLE analysed objects, so the map holds some: the detector
     # exists (it is None only for a map without any).
     assert ctx.detector is not None
-    image = cell_image(ctx.objects, shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
+    image = cell_image(ctx.objects, *shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
     # Brief answers: the position, score and candidates are all a cell's measures read.
     answer = ctx.localizer.localize(image, brief=True)
     lost = answer

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .._scipy import cKDTree
-from ..camera import Camera, Pose, project_to_image
+from ..camera import Camera, Pose, in_image, project_to_image
 from ..errors import EmptyMapError
 from ..labels import BLOCK_LABEL
 from ..objects import Objects
@@ -49,6 +49,7 @@ __all__ = [
     "simulate_image_at",
     "simulate_images",
     "visible_objects",
+    "visible_of",
     "sparse_images",
 ]
 
@@ -356,7 +357,12 @@ def visible_objects(objects: Objects, pose: Pose, camera: Camera) -> tuple[np.nd
     (True, True)
     """
     u, v = project_to_image(objects.x, objects.y, pose, camera)
-    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    if BLOCK_LABEL in objects.labels:
-        seen &= objects.label != objects.labels.index(BLOCK_LABEL)
-    return u, v, seen
+    return u, v, visible_of(objects.label, objects.labels, in_image(u, v, camera))
+
+
+def visible_of(label: np.ndarray, labels: Sequence[str], inside: np.ndarray) -> np.ndarray:
+    """Which objects (their label codes ``label`` in ``labels``) an image shows, of those ``inside`` it: all but
+    blocks (a camera sees the buildings of a block, never the block: :func:`place_camera`)."""
+    if BLOCK_LABEL in labels:
+        return inside & (label != labels.index(BLOCK_LABEL))
+    return inside
