@@ -220,25 +220,26 @@ def project_points(
     return _body_to_pixels(frd, camera)
 
 
-def project_to_images(x: np.ndarray, y: np.ndarray, cam_x: np.ndarray, cam_y: np.ndarray, altitude: float,
-                      rotations: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels (cameras, points) of ground points ``(x, y, 0)`` from several cameras at one ``altitude``, at
-    ``(cam_x, cam_y)`` with attitudes ``rotations`` (:func:`rotations_body_to_ned`): each row
-    :func:`project_to_image`'s numbers for that camera, bit for bit, whichever points are projected with it
-    (the stacked product is BLAS's product of each camera's matrix, column by column).
+def project_to_images(east: np.ndarray, north: np.ndarray, altitude: float, rotations: np.ndarray,
+                      camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (cameras, points) of ground points seen from several cameras at one ``altitude`` with attitudes
+    ``rotations`` (:func:`rotations_body_to_ned`), the points given by their offsets (cameras, points) from each
+    camera, ``east = x - cam_x`` and ``north = y - cam_y``: each row :func:`project_to_image`'s numbers for that
+    camera, bit for bit, whichever points are projected with it (the stacked product is BLAS's product of each
+    camera's matrix, column by column).
 
     Examples
     --------
     >>> cam = Camera(640, 480, 45.0)
-    >>> x, y = np.array([3.0, -40.0, 25.0]), np.array([10.0, 7.0, -30.0])
-    >>> u, v = project_to_images(x, y, np.array([0.0, 5.0]), np.array([1.0, 2.0]), 120.0,
+    >>> x, y, cx, cy = np.array([3.0, -40.0, 25.0]), np.array([10.0, 7.0, -30.0]), np.array([0.0, 5.0]), np.array([1.0, 2.0])
+    >>> u, v = project_to_images(x - cx[:, None], y - cy[:, None], 120.0,
     ...                          rotations_body_to_ned([10.0, 250.0], [0.5, 1.0], [-1.0, 0.2]), cam)
     >>> one = project_to_image(x[1:], y[1:], Pose(5.0, 2.0, 120.0, 250.0, 0.2, 1.0), cam)
     >>> bool((u[1, 1:] == one[0]).all() and (v[1, 1:] == one[1]).all())
     True
     """
-    ned = np.stack([y[None, :] - cam_y[:, None], x[None, :] - cam_x[:, None],
-                    np.full((cam_x.size, x.size), float(altitude))], axis=1)
+    ned = np.empty((east.shape[0], 3, east.shape[1]))
+    ned[:, 0], ned[:, 1], ned[:, 2] = north, east, altitude
     return _body_to_pixels(rotations.transpose(0, 2, 1) @ ned, camera)
 
 

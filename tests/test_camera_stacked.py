@@ -59,7 +59,8 @@ def test_pixels_are_each_cameras_whichever_points_go_with_them(tilt: float) -> N
         yaw, pitch, roll = _attitudes(rng, n, tilt)
         x, y = rng.uniform(-300.0, 400.0, m), rng.uniform(-300.0, 400.0, m)
         x[:n], y[:n] = cx, cy  # points right under a camera
-        u, v = project_to_images(x, y, cx, cy, 150.0, rotations_body_to_ned(yaw, pitch, roll), camera)
+        u, v = project_to_images(x - cx[:, None], y - cy[:, None], 150.0, rotations_body_to_ned(yaw, pitch, roll),
+                                 camera)
         assert u.shape == v.shape == (n, m)
         for s in range(n):
             pose = Pose(float(cx[s]), float(cy[s]), 150.0, float(yaw[s]), float(roll[s]), float(pitch[s]))
@@ -68,7 +69,7 @@ def test_pixels_are_each_cameras_whichever_points_go_with_them(tilt: float) -> N
                 one = project_to_image(x[points], y[points], pose, camera)
                 assert np.array_equal(u[s, points], one[0], equal_nan=True)
                 assert np.array_equal(v[s, points], one[1], equal_nan=True)
-    none = project_to_images(np.zeros(0), np.zeros(0), cx, cy, 150.0, rotations_body_to_ned(yaw, pitch, roll), camera)
+    none = project_to_images(np.zeros((n, 0)), np.zeros((n, 0)), 150.0, rotations_body_to_ned(yaw, pitch, roll), camera)
     assert none[0].shape == (n, 0)
 
 

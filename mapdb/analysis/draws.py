@@ -36,7 +36,7 @@ from ..detections.images import MAX_OBJECTS, ImageObjects, Prior
 from ..simulation.detector import Detector, detect, label_mix
 from ..simulation.documents import add_hints, image_document
 from ..simulation.poses import Shot
-from ..simulation.simulate import visible_of
+from ..simulation.simulate import detectable
 
 __all__ = ["MARGIN_M", "Poses", "Views", "cell_image", "cell_poses", "cell_views", "detector_of", "pcg_states",
            "positioned", "sample_generator"]
@@ -181,17 +181,20 @@ def _restated(generator: np.random.Generator, state: tuple[int, int]) -> np.rand
 @dataclass
 class Views:
     """What a cell's images show: ``near`` (indices into the objects, sorted) within reach of any of them,
-    ``seen`` (images, near): whether each image shows each, and ``u``, ``v`` (images, near): their pixels in each
-    image (:func:`~mapdb.camera.project_to_image`'s numbers)."""
+    ``seen`` (images, near): whether each image shows each, ``u``, ``v`` (images, near): their pixels in each
+    image (:func:`~mapdb.camera.project_to_image`'s numbers), and ``detectable`` (near): which of them a detector
+    can report (None: all; :func:`~mapdb.simulation.simulate.detectable`)."""
 
     near: np.ndarray
     seen: np.ndarray
     u: np.ndarray
     v: np.ndarray
+    detectable: np.ndarray | None = None
 
     def shown(self, s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Image ``s``'s objects (sorted indices into the objects) and their pixels."""
-        seen = self.seen[s]
+        """The objects image ``s`` shows that a detector can report (sorted indices into the objects), and their
+        pixels: what :func:`cell_image` takes."""
+        seen = self.seen[s] if self.detectable is None else self.seen[s] & self.detectable
         return self.near[seen], self.u[s, seen], self.v[s, seen]
 
 
@@ -200,21 +203,23 @@ def cell_views(objects: Any, tree: Any, poses: Poses, camera: Camera, reach: flo
     """Which objects each of a cell's images shows: those within ``reach`` of its camera that project inside
     it.  ``tree`` indexes ``objects``; every camera is within ``radius`` of ``centre``."""
     n = poses.x.size
-    if tree is None:
+    near = np.zeros(0, np.int64) if tree is None else \
+        np.sort(np.asarray(tree.query_ball_point(centre, radius + reach + 1.0), np.int64))
+    if not near.size:
         none = np.zeros((n, 0))
-        return Views(np.zeros(0, np.int64), np.zeros((n, 0), bool), none, none)
-    near = np.sort(np.asarray(tree.query_ball_point(centre, radius + reach + 1.0), np.int64))
+        return Views(near, np.zeros((n, 0), bool), none, none)
     ox, oy = objects.x[near], objects.y[near]
-    u, v = project_to_images(ox, oy, poses.x, poses.y, poses.altitude, poses.rotations, camera)
-    dist = np.hypot(ox[None, :] - poses.x[:, None], oy[None, :] - poses.y[:, None])
-    inside = in_image(u, v, camera)
-    seen = (dist <= reach) & inside
-    # The tree's distance test (the per-image way) may round differently from this one at the reach itself.
-    for s in np.flatnonzero((np.abs(dist - reach) < MARGIN_M).any(axis=1)).tolist():
-        own = np.searchsorted(near, np.asarray(tree.query_ball_point((poses.x[s], poses.y[s]), reach), np.int64))
-        seen[s] = False
-        seen[s, own] = inside[s, own]
-    return Views(near, seen, u, v)
+    dx, dy = ox - poses.x[:, None], oy - poses.y[:, None]
+    u, v = project_to_images(dx, dy, poses.altitude, poses.rotations, camera)
+    dist = np.hypot(dx, dy)
+    seen = (dist <= reach) & in_image(u, v, camera)
+    if np.abs(dist - reach).min() < MARGIN_M:
+        # The tree's distance test (the per-image way) may round differently from this one at the reach itself.
+        for s in np.flatnonzero((np.abs(dist - reach) < MARGIN_M).any(axis=1)).tolist():
+            own = np.searchsorted(near, np.asarray(tree.query_ball_point((poses.x[s], poses.y[s]), reach), np.int64))
+            seen[s] = False
+            seen[s, own] = in_image(u[s, own], v[s, own], camera)
+    return Views(near, seen, u, v, detectable(objects.label[near], objects.labels))
 
 
 def cell_image(objects: Any, shown: np.ndarray, u: np.ndarray, v: np.ndarray, pose: Pose, camera: Camera,
@@ -222,9 +227,9 @@ def cell_image(objects: Any, shown: np.ndarray, u: np.ndarray, v: np.ndarray, po
                image_id: str) -> ImageObjects | dict[str, Any]:
     """The image a sample is localized from (``generator`` where its pose's draws left it):
     :func:`~mapdb.simulation.simulate.simulate_image_at` of the objects it shows (``shown``, sorted indices into
-    ``objects``, and their pixels ``u``, ``v``: :meth:`Views.shown`), without its truth, as the
-    :class:`~mapdb.detections.images.ImageObjects` that :func:`~mapdb.detections.images.parse_image` makes of that
-    document.
+    ``objects`` of those a detector can report, and their pixels ``u``, ``v``: :meth:`Views.shown`), without its
+    truth, as the :class:`~mapdb.detections.images.ImageObjects` that :func:`~mapdb.detections.images.parse_image`
+    makes of that document.
 
     Only the objects shown are detected (the simulator projects all those within reach): a point's pixels do
     not depend on the other points projected with it, and the objects not shown draw nothing.  The arrays pass
@@ -233,8 +238,7 @@ def cell_image(objects: Any, shown: np.ndarray, u: np.ndarray, v: np.ndarray, po
     An image of more than ``MAX_OBJECTS`` objects, which the parser refuses, is its document, so that the
     localizer refuses it as before.
     """
-    seen = visible_of(objects.label[shown], objects.labels, np.ones(shown.size, bool))
-    _, u, v, label_names = detect(generator, objects, shown[seen], u[seen], v[seen], camera, detector)
+    _, u, v, label_names = detect(generator, objects, shown, u, v, camera, detector)
     hints: dict[str, Any] = {}
     shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
     add_hints(generator, hints, shot, pose.x, pose.y, prior, False, False)

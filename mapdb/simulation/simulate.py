@@ -43,13 +43,13 @@ __all__ = [
     "PAPER_ORIGIN",
     "USABLE_OBJECTS",
     "check_simulate_args",
+    "detectable",
     "objects_of_map",
     "paper_density",
     "paper_map",
     "simulate_image_at",
     "simulate_images",
     "visible_objects",
-    "visible_of",
     "sparse_images",
 ]
 
@@ -357,12 +357,12 @@ def visible_objects(objects: Objects, pose: Pose, camera: Camera) -> tuple[np.nd
     (True, True)
     """
     u, v = project_to_image(objects.x, objects.y, pose, camera)
-    return u, v, visible_of(objects.label, objects.labels, in_image(u, v, camera))
+    seen = in_image(u, v, camera)
+    shown = detectable(objects.label, objects.labels)
+    return u, v, seen if shown is None else seen & shown
 
 
-def visible_of(label: np.ndarray, labels: Sequence[str], inside: np.ndarray) -> np.ndarray:
-    """Which objects (their label codes ``label`` in ``labels``) an image shows, of those ``inside`` it: all but
-    blocks (a camera sees the buildings of a block, never the block: :func:`place_camera`)."""
-    if BLOCK_LABEL in labels:
-        return inside & (label != labels.index(BLOCK_LABEL))
-    return inside
+def detectable(label: np.ndarray, labels: Sequence[str]) -> np.ndarray | None:
+    """Which objects (their label codes ``label`` in ``labels``) a camera can show: all but blocks (it sees the
+    buildings of a block, never the block: :func:`place_camera`); None when every one can (no blocks)."""
+    return label != labels.index(BLOCK_LABEL) if BLOCK_LABEL in labels else None
