@@ -231,7 +231,8 @@ def project_to_images(east: np.ndarray, north: np.ndarray, altitude: float, rota
     Examples
     --------
     >>> cam = Camera(640, 480, 45.0)
-    >>> x, y, cx, cy = np.array([3.0, -40.0, 25.0]), np.array([10.0, 7.0, -30.0]), np.array([0.0, 5.0]), np.array([1.0, 2.0])
+    >>> x, y = np.array([3.0, -40.0, 25.0]), np.array([10.0, 7.0, -30.0])
+    >>> cx, cy = np.array([0.0, 5.0]), np.array([1.0, 2.0])
     >>> u, v = project_to_images(x - cx[:, None], y - cy[:, None], 120.0,
     ...                          rotations_body_to_ned([10.0, 250.0], [0.5, 1.0], [-1.0, 0.2]), cam)
     >>> one = project_to_image(x[1:], y[1:], Pose(5.0, 2.0, 120.0, 250.0, 0.2, 1.0), cam)
