@@ -84,8 +84,9 @@ def test_views_are_each_images_own(monkeypatch, margin: float) -> None:
     cells = np.array([[i, j] for i in range(4) for j in range(4)])
     shown = 0
     for (i, j), poses in zip(cells.tolist(), draws.cell_poses(0, cells, 16, CELL_M, 150.0, 3.0), strict=True):
-        views = draws.cell_views(objects, tree, poses, cfg.camera, cfg.reach_m, ((i + 0.5) * CELL_M,
-                                 (j + 0.5) * CELL_M), 0.5 * np.hypot(CELL_M, CELL_M))
+        near = draws.near_cells(tree, np.array([[(i + 0.5) * CELL_M, (j + 0.5) * CELL_M]]),
+                                0.5 * np.hypot(CELL_M, CELL_M), cfg.reach_m)[0]
+        views = draws.cell_views(objects, tree, near, poses, cfg.camera, cfg.reach_m)
         for s in range(16):
             want = _one_view(objects, tree, poses.pose(s), cfg.camera, cfg.reach_m)
             assert np.array_equal(views.near[views.seen[s]], want)

@@ -38,8 +38,8 @@ from ..simulation.documents import add_hints, image_document
 from ..simulation.poses import Shot
 from ..simulation.simulate import detectable
 
-__all__ = ["MARGIN_M", "Poses", "Views", "cell_image", "cell_poses", "cell_views", "detector_of", "pcg_states",
-           "positioned", "sample_generator"]
+__all__ = ["MARGIN_M", "Poses", "Views", "cell_image", "cell_poses", "cell_views", "detector_of", "near_cells",
+           "pcg_states", "positioned", "sample_generator"]
 
 # How close (metres) to an image's reach an object must come for the rounding of its distance (the tree's against
 # numpy's) to matter: that image's objects within reach are then the tree's, as one image's are.
@@ -198,13 +198,22 @@ class Views:
         return self.near[seen], self.u[s, seen], self.v[s, seen]
 
 
-def cell_views(objects: Any, tree: Any, poses: Poses, camera: Camera, reach: float, centre: tuple[float, float],
-               radius: float) -> Views:
+def near_cells(tree: Any, centres: np.ndarray, radius: float, reach: float) -> list[np.ndarray]:
+    """For each cell (its centre a row of ``centres``, its cameras within ``radius`` of it), the objects its images
+    can show: sorted indices of those within ``radius + reach`` (and a metre) of its centre, found in one query of
+    ``tree`` (None: no objects)."""
+    if tree is None:
+        return [np.zeros(0, np.int64) for _ in range(len(centres))]
+    found = tree.query_ball_point(np.asarray(centres, np.float64).reshape(-1, 2), radius + reach + 1.0,
+                                  return_sorted=True)
+    return [np.asarray(one, np.int64) for one in found]
+
+
+def cell_views(objects: Any, tree: Any, near: np.ndarray, poses: Poses, camera: Camera, reach: float) -> Views:
     """Which objects each of a cell's images shows: those within ``reach`` of its camera that project inside
-    it.  ``tree`` indexes ``objects``; every camera is within ``radius`` of ``centre``."""
+    it.  ``tree`` indexes ``objects``; ``near`` (sorted indices into them) holds every object within reach of
+    any of its cameras (:func:`near_cells`)."""
     n = poses.x.size
-    near = np.zeros(0, np.int64) if tree is None else \
-        np.sort(np.asarray(tree.query_ball_point(centre, radius + reach + 1.0), np.int64))
     if not near.size:
         none = np.zeros((n, 0))
         return Views(near, np.zeros((n, 0), bool), none, none)
