@@ -149,17 +149,15 @@ def cell_poses(seed: int, cells: np.ndarray, samples: int, cell_m: float, altitu
     n = len(cells)
     keys = np.column_stack([np.repeat(_natural(cells[:, 0]), samples), np.repeat(_natural(cells[:, 1]), samples),
                             np.tile(np.arange(samples), n)])
-    raw = np.zeros((n * samples, 3), np.uint64)
-    normal = np.zeros((n * samples, 2))
     states: list[tuple[int, int]] | None = None
     if seed < 2**32 and (keys < 2**32).all():
-        shared = np.random.Generator(np.random.PCG64(0))
         states = pcg_states(np.column_stack([np.full(len(keys), seed), keys]))
-        for k, state in enumerate(states):
-            raw[k], normal[k] = _draw(_restated(shared, state))
+        raws, normals = _draws_from(states)
     else:  # words of 2**32 or more: SeedSequence's own (longer) mixing
-        for k, row in enumerate(keys.tolist()):
-            raw[k], normal[k] = _draw(np.random.default_rng([seed, *row]))
+        drawn = [_draw(np.random.default_rng([seed, *row])) for row in keys.tolist()]
+        raws, normals = [d[0] for d in drawn], [d[1] for d in drawn]
+    raw = np.array(raws, np.uint64).reshape(-1, 3)
+    normal = np.array(normals, np.float64).reshape(-1, 2)
     unit = (raw >> np.uint64(11)) * _TO_UNIT
     x = (np.repeat(cells[:, 0], samples) + unit[:, 0]) * cell_m
     y = (np.repeat(cells[:, 1], samples) + unit[:, 1]) * cell_m
@@ -169,6 +167,23 @@ def cell_poses(seed: int, cells: np.ndarray, samples: int, cell_m: float, altitu
     return [Poses(x[c], y[c], heading[c], tilt[c, 0], tilt[c, 1], rotations[c], float(altitude),
                   None if states is None else states[c])
             for c in (slice(k * samples, (k + 1) * samples) for k in range(n))]
+
+
+def _draws_from(states: list[tuple[int, int]]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Each state's pose draws (:func:`_draw`), one generator set to each in turn (through one state record, whose
+    numbers are replaced: the setter copies them)."""
+    generator = np.random.Generator(np.random.PCG64(0))
+    bits = generator.bit_generator
+    pcg = {"state": 0, "inc": 0}
+    record = {"bit_generator": "PCG64", "state": pcg, "has_uint32": 0, "uinteger": 0}
+    raw, normal = bits.random_raw, generator.standard_normal
+    raws, normals = [], []
+    for state, inc in states:
+        pcg["state"], pcg["inc"] = state, inc
+        bits.state = record
+        raws.append(raw(3))
+        normals.append(normal(2))
+    return raws, normals
 
 
 def _restated(generator: np.random.Generator, state: tuple[int, int]) -> np.random.Generator:
