@@ -264,23 +264,25 @@ def cell_image(objects: Any, shown: np.ndarray, u: np.ndarray, v: np.ndarray, po
     """
     _, u, v, label_names = detect(generator, objects, shown, u, v, camera, detector)
     hints: dict[str, Any] = {}
-    shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
-    add_hints(generator, hints, shot, pose.x, pose.y, prior, False, False)
+    if prior is not None:  # the only hint an analysis gives (add_hints draws nothing for the others)
+        shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
+        add_hints(generator, hints, shot, pose.x, pose.y, prior, False, False)
     if u.size > MAX_OBJECTS:
         return {**image_document(image_id, camera, label_names, u, v), **hints}
     disc = hints.get("prior")
-    # The parser's types: float64 pixels, labels as Python strings in an object array, floats for the rest.
+    # The parser's types: float64 pixels, labels as Python strings in an object array (the map's and the detector's
+    # names are, detector_of), floats for the rest.
     return ImageObjects(id=image_id, width=float(camera.width), height=float(camera.height),
-                        x=np.asarray(u, np.float64), y=np.asarray(v, np.float64),
-                        names=np.array([str(name) for name in label_names], dtype=object),
+                        x=np.asarray(u, np.float64), y=np.asarray(v, np.float64), names=label_names,
                         prior=None if disc is None else Prior(float(disc["x"]), float(disc["y"]), disc["radius"]),
                         fov_deg=float(camera.fov_deg))
 
 
 def detector_of(label_counts: dict[str, int], pixel_std: float, miss_rate: float, spurious_rate: float,
                 label_noise: float) -> Detector:
-    """The detector every image of an analysis uses (its label mix that of ``label_counts``, not empty)."""
-    names, mix = label_mix(label_counts)
+    """The detector every image of an analysis uses (its label mix that of ``label_counts``, not empty; the names as
+    Python strings, as an image document's labels are parsed)."""
+    names, mix = label_mix({str(name): count for name, count in label_counts.items()})
     return Detector(pixel_std, miss_rate, spurious_rate, label_noise, names, mix)
 
 

@@ -371,6 +371,8 @@ def _context(m: Any, localizer: Any, config: SampleConfig, cell_m: float, cells:
     reach = config.reach_m
     lo, hi = cells.min(axis=0) * cell_m - reach, (cells.max(axis=0) + 1) * cell_m + reach
     objects = m.query_bbox(lo[0], lo[1], hi[0], hi[1], labels=None if names is None else list(names))
+    if not all(type(name) is str for name in objects.labels):  # an image's labels are Python strings (cell_image)
+        objects = dataclasses.replace(objects, labels=tuple(str(name) for name in objects.labels))
     tree = cKDTree(np.column_stack([objects.x, objects.y])) if len(objects) else None
     return _Context(config, cell_m, localizer, objects, tree, codes, label_counts)
 
@@ -395,9 +397,9 @@ def _measure_cell(ctx: _Context, i: int, j: int, near: np.ndarray, poses: Poses,
     views = cell_views(ctx.objects, ctx.tree, near, poses, ctx.camera, ctx.reach)
     # Objects of each analysed label each image shows (a label's column; the labels of the objects near).
     labels = ctx.objects.label[views.near]
-    visible = views.seen.astype(np.int64) @ (labels[:, None] == ctx.codes[None, :]).astype(np.int64)
+    visible = views.seen @ (labels[:, None] == ctx.codes[None, :]).astype(np.int64)
     ready = np.flatnonzero(views.seen.sum(axis=1) >= MIN_VISIBLE).tolist()
-    middle = column_medians(np.column_stack([visible.sum(axis=1), visible]))
+    middle = column_medians(np.concatenate([visible.sum(axis=1, keepdims=True), visible], axis=1))
     out.visible[row] = middle[0]
     out.per_label[row] = middle[1:]
     out.images[row] = cfg.samples

@@ -56,11 +56,13 @@ def detect(
     u, v = u + noise[0], v + noise[1]
     # A detector reports positions inside its image: noise that pushes an object out drops it.  The misses are drawn
     # whatever their rate (the draws after them stay where they are); a rate of 0 misses none.
-    kept = in_image(u, v, camera)
     missed = rng.random(u.size)
-    if detector.miss_rate > 0:
-        kept &= missed >= detector.miss_rate
-    if not kept.all():
+    # Most images keep every object: four extremes (NaN fails them) decide that without the per-object test.
+    inside = u.size and u.min() >= 0 and u.max() < width and v.min() >= 0 and v.max() < height
+    if not inside or detector.miss_rate > 0:
+        kept = in_image(u, v, camera)
+        if detector.miss_rate > 0:
+            kept &= missed >= detector.miss_rate
         index, u, v = index[kept], u[kept], v[kept]
     label_names = _names(objects.labels)[objects.label[index]]
 
