@@ -210,7 +210,7 @@ class Views:
         """The objects image ``s`` shows that a detector can report (sorted indices into the objects), and their
         pixels: what :func:`cell_image` takes."""
         seen = self.seen[s] if self.detectable is None else self.seen[s] & self.detectable
-        return self.near[seen], self.u[s, seen], self.v[s, seen]
+        return self.near[seen], self.u[s][seen], self.v[s][seen]  # a row, then its mask: numpy's quicker path
 
 
 def near_cells(tree: Any, centres: np.ndarray, radius: float, reach: float) -> list[np.ndarray]:
