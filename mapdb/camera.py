@@ -159,13 +159,13 @@ def rotations_body_to_ned(yaw_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll
 
 def _body_to_pixels(frd: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame vectors (..., 3, n) -> pixels (..., n); NaN for points not in front of the camera."""
-    f = camera.focal_px
-    front, right, down = frd[..., 0, :], frd[..., 1, :], frd[..., 2, :]
+    down = frd[..., 2, :]
     with np.errstate(divide="ignore", invalid="ignore"):
         d = np.where(down > 0.0, down, np.nan)
-        u = camera.width / 2.0 + f * right / d
-        v = camera.height / 2.0 - f * front / d
-    return u, v
+        # f * front / d and f * right / d, the two rows in one product and one quotient.
+        scaled = camera.focal_px * frd[..., :2, :]
+        scaled /= d[..., None, :]
+    return camera.width / 2.0 + scaled[..., 1, :], camera.height / 2.0 - scaled[..., 0, :]
 
 
 def _pixels_to_body(u: npt.ArrayLike, v: npt.ArrayLike, camera: Camera) -> np.ndarray:
