@@ -81,9 +81,10 @@ def time_draws(blocks, base, order: int) -> tuple[float, float, int, int]:
             else:
                 poses = draws.cell_poses(CONFIG.seed, cells, CONFIG.samples, new_ctx.cell_m, CONFIG.altitude,
                                          CONFIG.attitude_std)
-                new = [draws.cell_views(new_ctx.objects, new_ctx.tree, p, new_ctx.camera, new_ctx.reach,
-                                        ((i + 0.5) * new_ctx.cell_m, (j + 0.5) * new_ctx.cell_m),
-                                        np.hypot(0.5, 0.5) * new_ctx.cell_m) for p, (i, j) in zip(poses, cells)]
+                near = draws.near_cells(new_ctx.tree, (cells + 0.5) * new_ctx.cell_m,
+                                        np.hypot(0.5, 0.5) * new_ctx.cell_m, new_ctx.reach)
+                new = [draws.cell_views(new_ctx.objects, new_ctx.tree, k, p, new_ctx.camera, new_ctx.reach)
+                       for p, k in zip(poses, near)]
             spent[who] += time.process_time() - start
         for drawn, views in zip(old, new, strict=True):
             for s, (_, _, near, seen) in enumerate(drawn):
@@ -100,12 +101,12 @@ def time_images(blocks, base_sim, order: int) -> tuple[float, float, int, int]:
         poses = draws.cell_poses(CONFIG.seed, cells, CONFIG.samples, new_ctx.cell_m, CONFIG.altitude,
                                  CONFIG.attitude_std)
         jobs = []
-        for p, (i, j) in zip(poses, cells.tolist()):
-            views = draws.cell_views(new_ctx.objects, new_ctx.tree, p, new_ctx.camera, new_ctx.reach,
-                                     ((i + 0.5) * new_ctx.cell_m, (j + 0.5) * new_ctx.cell_m),
-                                     np.hypot(0.5, 0.5) * new_ctx.cell_m)
+        near = draws.near_cells(new_ctx.tree, (cells + 0.5) * new_ctx.cell_m, np.hypot(0.5, 0.5) * new_ctx.cell_m,
+                                new_ctx.reach)
+        for p, (i, j), k in zip(poses, cells.tolist(), near):
+            views = draws.cell_views(new_ctx.objects, new_ctx.tree, k, p, new_ctx.camera, new_ctx.reach)
             ready = np.flatnonzero(views.seen.sum(axis=1) >= MIN_VISIBLE)[:4]
-            jobs += [(p, int(s), i, j, views.near[views.seen[s]]) for s in ready]
+            jobs += [(p, int(s), i, j, views.shown(int(s))) for s in ready]
         docs: list[list[dict]] = [[], []]
         for who in ([0, 1] if (k + order) % 2 == 0 else [1, 0]):
             start = time.process_time()
@@ -118,7 +119,7 @@ def time_images(blocks, base_sim, order: int) -> tuple[float, float, int, int]:
                                    draws.positioned(p, s, CONFIG.seed, i, j), pixel_std=CONFIG.pixel_std,
                                    label_counts=old_ctx.label_counts, image_id=f"{i},{j},{s}")
                 else:
-                    doc = draws.cell_image(new_ctx.objects, shown, pose, new_ctx.camera,
+                    doc = draws.cell_image(new_ctx.objects, *shown, pose, new_ctx.camera,
                                            draws.positioned(p, s, CONFIG.seed, i, j, new_ctx.generator),
                                            new_ctx.detector, None, f"{i},{j},{s}")
                 docs[who].append(doc)

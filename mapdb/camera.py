@@ -70,9 +70,12 @@ __all__ = [
     "image_to_ground",
     "level_pixels",
     "nadir_pixel",
+    "in_image",
     "project_points",
     "project_to_image",
+    "project_to_images",
     "rotation_body_to_ned",
+    "rotations_body_to_ned",
 ]
 
 
@@ -131,14 +134,38 @@ def rotation_body_to_ned(yaw_deg: float = 0.0, pitch_deg: float = 0.0, roll_deg:
     return rz @ ry @ rx
 
 
+def rotations_body_to_ned(yaw_deg: npt.ArrayLike, pitch_deg: npt.ArrayLike, roll_deg: npt.ArrayLike) -> np.ndarray:
+    """(n, 3, 3): :func:`rotation_body_to_ned` of each of ``n`` attitudes, the same numbers.
+
+    The same products, one 3 x 3 matrix at a time (numpy's stacked ``@`` calls BLAS once a matrix, with the
+    strides of one matrix), of the same cosines and sines (numpy's ``cos``, ``sin`` and ``radians`` give
+    ``math``'s numbers: ``tests/test_camera_stacked.py``); the written-out product would differ in the last bit
+    where the compiled product fuses a multiply and an add.
+
+    Examples
+    --------
+    >>> r = rotations_body_to_ned([30.0, 200.0], [1.0, -2.0], [0.5, 3.0])
+    >>> r.shape, bool((r[1] == rotation_body_to_ned(200.0, -2.0, 3.0)).all())
+    ((2, 3, 3), True)
+    """
+    yaw, pitch, roll = (np.radians(np.asarray(a, np.float64).reshape(-1)) for a in (yaw_deg, pitch_deg, roll_deg))
+    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    zero, one = np.zeros(cy.size), np.ones(cy.size)
+    rz = np.stack([cy, -sy, zero, sy, cy, zero, zero, zero, one], axis=1).reshape(-1, 3, 3)
+    ry = np.stack([cp, zero, sp, zero, one, zero, -sp, zero, cp], axis=1).reshape(-1, 3, 3)
+    rx = np.stack([one, zero, zero, zero, cr, -sr, zero, sr, cr], axis=1).reshape(-1, 3, 3)
+    return rz @ ry @ rx
+
+
 def _body_to_pixels(frd: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
-    """Body-frame vectors (3, n) -> pixels; NaN for points not in front of the camera."""
-    f = camera.focal_px
+    """Body-frame vectors (..., 3, n) -> pixels (..., n); NaN for points not in front of the camera."""
+    down = frd[..., 2, :]
     with np.errstate(divide="ignore", invalid="ignore"):
-        d = np.where(frd[2] > 0.0, frd[2], np.nan)
-        u = camera.width / 2.0 + f * frd[1] / d
-        v = camera.height / 2.0 - f * frd[0] / d
-    return u, v
+        d = np.where(down > 0.0, down, np.nan)
+        # f * front / d and f * right / d, the two rows in one product and one quotient.
+        scaled = camera.focal_px * frd[..., :2, :]
+        scaled /= d[..., None, :]
+    return camera.width / 2.0 + scaled[..., 1, :], camera.height / 2.0 - scaled[..., 0, :]
 
 
 def _pixels_to_body(u: npt.ArrayLike, v: npt.ArrayLike, camera: Camera) -> np.ndarray:
@@ -191,6 +218,41 @@ def project_points(
     ned = np.stack([ys - pose.y, xs - pose.x, pose.altitude - zs])
     frd = rotation_body_to_ned(pose.yaw_deg, pose.pitch_deg, pose.roll_deg).T @ ned
     return _body_to_pixels(frd, camera)
+
+
+def project_to_images(east: np.ndarray, north: np.ndarray, altitude: float, rotations: np.ndarray,
+                      camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (cameras, points) of ground points seen from several cameras at one ``altitude`` with attitudes
+    ``rotations`` (:func:`rotations_body_to_ned`), the points given by their offsets (cameras, points) from each
+    camera, ``east = x - cam_x`` and ``north = y - cam_y``: each row :func:`project_to_image`'s numbers for that
+    camera, bit for bit, whichever points are projected with it (the stacked product is BLAS's product of each
+    camera's matrix, column by column).
+
+    Examples
+    --------
+    >>> cam = Camera(640, 480, 45.0)
+    >>> x, y = np.array([3.0, -40.0, 25.0]), np.array([10.0, 7.0, -30.0])
+    >>> cx, cy = np.array([0.0, 5.0]), np.array([1.0, 2.0])
+    >>> u, v = project_to_images(x - cx[:, None], y - cy[:, None], 120.0,
+    ...                          rotations_body_to_ned([10.0, 250.0], [0.5, 1.0], [-1.0, 0.2]), cam)
+    >>> one = project_to_image(x[1:], y[1:], Pose(5.0, 2.0, 120.0, 250.0, 0.2, 1.0), cam)
+    >>> bool((u[1, 1:] == one[0]).all() and (v[1, 1:] == one[1]).all())
+    True
+    """
+    ned = np.empty((east.shape[0], 3, east.shape[1]))
+    ned[:, 0], ned[:, 1], ned[:, 2] = north, east, altitude
+    return _body_to_pixels(rotations.transpose(0, 2, 1) @ ned, camera)
+
+
+def in_image(u: np.ndarray, v: np.ndarray, camera: Camera) -> np.ndarray:
+    """Whether pixels lie inside the image: ``0 <= u < width`` and ``0 <= v < height`` (False for NaN).
+
+    Examples
+    --------
+    >>> in_image(np.array([0.0, 640.0, np.nan, 10.0]), np.array([0.0, 5.0, 5.0, 479.5]), Camera()).tolist()
+    [True, False, False, True]
+    """
+    return (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
 
 
 def image_to_ground(

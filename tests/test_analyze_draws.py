@@ -68,20 +68,31 @@ def _one_view(objects: Objects, tree, pose: Pose, camera: Camera, reach: float) 
     return near[np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)]
 
 
-@pytest.mark.parametrize("margin", [draws.MARGIN_PX, 1e6])  # 1e6: every image the per-image way
+def _one_image(objects: Objects, tree, pose: Pose, camera: Camera, reach: float) -> tuple[np.ndarray, ...]:
+    """An image's objects a detector can report (blocks left out, as the simulator does) and their pixels."""
+    shown = _one_view(objects, tree, pose, camera, reach)
+    shown = shown[objects.label[shown] != objects.labels.index("building_block")]
+    return (shown, *project_to_image(objects.x[shown], objects.y[shown], pose, camera))
+
+
+@pytest.mark.parametrize("margin", [draws.MARGIN_M, 1e6])  # 1e6: every image's objects within reach the tree's
 def test_views_are_each_images_own(monkeypatch, margin: float) -> None:
-    monkeypatch.setattr(draws, "MARGIN_PX", margin)
+    monkeypatch.setattr(draws, "MARGIN_M", margin)
     objects = _world()
     tree = cKDTree(np.column_stack([objects.x, objects.y]))
     cfg = SampleConfig(attitude_std=3.0)  # tilted views: objects far from the nadir come into view
     cells = np.array([[i, j] for i in range(4) for j in range(4)])
     shown = 0
     for (i, j), poses in zip(cells.tolist(), draws.cell_poses(0, cells, 16, CELL_M, 150.0, 3.0), strict=True):
-        views = draws.cell_views(objects, tree, poses, cfg.camera, cfg.reach_m, ((i + 0.5) * CELL_M,
-                                 (j + 0.5) * CELL_M), 0.5 * np.hypot(CELL_M, CELL_M))
+        near = draws.near_cells(tree, np.array([[(i + 0.5) * CELL_M, (j + 0.5) * CELL_M]]),
+                                0.5 * np.hypot(CELL_M, CELL_M), cfg.reach_m)[0]
+        views = draws.cell_views(objects, tree, near, poses, cfg.camera, cfg.reach_m)
         for s in range(16):
             want = _one_view(objects, tree, poses.pose(s), cfg.camera, cfg.reach_m)
             assert np.array_equal(views.near[views.seen[s]], want)
+            # the objects and pixels the image is made of are one image's, bit for bit (blocks left out)
+            got, one = views.shown(s), _one_image(objects, tree, poses.pose(s), cfg.camera, cfg.reach_m)
+            assert all(np.array_equal(a, b) for a, b in zip(got, one, strict=True))
             shown += want.size
     assert shown > 16 * 16 * 10  # images that show objects were compared, not empty ones
 
@@ -108,9 +119,8 @@ def test_a_localized_image_is_the_simulators(monkeypatch, prior: float | None) -
     cell = draws.cell_poses(5, np.array([[1, 2]]), 16, CELL_M, 150.0, 0.5)[0]
     for s in range(16):
         pose = cell.pose(s)
-        shown = _one_view(objects, tree, pose, cfg.camera, cfg.reach_m)
-        got = draws.cell_image(objects, shown, pose, cfg.camera, draws.positioned(cell, s, 5, 1, 2), detector,
-                               cfg.prior, f"1,2,{s}")
+        got = draws.cell_image(objects, *_one_image(objects, tree, pose, cfg.camera, cfg.reach_m), pose, cfg.camera,
+                               draws.positioned(cell, s, 5, 1, 2), detector, cfg.prior, f"1,2,{s}")
         near = np.sort(np.asarray(tree.query_ball_point((pose.x, pose.y), cfg.reach_m), np.int64))
         want = simulate_image_at(objects.take(near), pose, cfg.camera, _one_pose(5, 1, 2, s, 0.5)[1],
                                  pixel_std=cfg.pixel_std, miss_rate=cfg.miss_rate, spurious_rate=cfg.spurious_rate,
@@ -123,7 +133,7 @@ def test_a_localized_image_is_the_simulators(monkeypatch, prior: float | None) -
     # An image of more objects than the parser takes stays a document, which the localizer refuses as before.
     monkeypatch.setattr(draws, "MAX_OBJECTS", 3)
     pose = cell.pose(0)
-    got = draws.cell_image(objects, _one_view(objects, tree, pose, cfg.camera, cfg.reach_m), pose, cfg.camera,
+    got = draws.cell_image(objects, *_one_image(objects, tree, pose, cfg.camera, cfg.reach_m), pose, cfg.camera,
                            draws.positioned(cell, 0, 5, 1, 2), detector, cfg.prior, "1,2,0")
     near = np.sort(np.asarray(tree.query_ball_point((pose.x, pose.y), cfg.reach_m), np.int64))
     want = simulate_image_at(objects.take(near), pose, cfg.camera, _one_pose(5, 1, 2, 0, 0.5)[1],

@@ -72,8 +72,9 @@ def test_answers_footprint_is_the_cameras(paper: MemoryMap, tilted: bool) -> Non
         assert Answer.from_json(record).to_json() == record
 
 
-def test_a_brief_answer_is_the_full_one_without_the_ground(paper: MemoryMap) -> None:
-    """Localizer.localize(brief=True) (the analysis's answers): the same answer, without lon/lat and georef."""
+def test_a_brief_answer_is_the_full_ones_position_score_and_candidates(paper: MemoryMap) -> None:
+    """Localizer.localize(brief=True) (the analysis's answers): the full answer's position, score, inliers and
+    candidates (and what the search adds), nothing else derived from the pose."""
     from mapdb.localize import Localizer
 
     images = simulate_images(paper, 4, pixel_std=1.0, yaw="random", seed=3, attitude_std=5.0, with_attitude=True)
@@ -82,11 +83,13 @@ def test_a_brief_answer_is_the_full_one_without_the_ground(paper: MemoryMap) -> 
     for image in images:
         full, brief = localizer.localize(image), localizer.localize(image, brief=True)
         ground = ("lon", "lat", "width", "height", "transform", "transform_error_m", "footprint", "footprint_lonlat")
+        derived = ("heading_deg", "scale_m_per_px", "sigma_m", "expected_false_alarms", "altitude_m")
         if full.ok:
-            assert all(getattr(full, name) is not None for name in ground)
-        assert all(getattr(brief, name) is None for name in ground)
-        assert dataclasses.replace(full, time_ms=0.0, **dict.fromkeys(ground)) == \
-            dataclasses.replace(brief, time_ms=0.0)
+            assert all(getattr(full, name) is not None for name in ground + derived)
+            assert all(getattr(brief, name) is None for name in ground + derived)
+            assert dataclasses.replace(full, time_ms=0.0, **dict.fromkeys(ground + derived)) == brief
+        else:
+            assert dataclasses.replace(full, time_ms=0.0) == dataclasses.replace(brief, time_ms=0.0)
     assert sum(localizer.localize(image).ok for image in images) == 4
 
 

@@ -12,17 +12,16 @@ detector's errors and the prior's offset.  This module draws exactly those numbe
   ``random`` and ``uniform`` are ``(r >> 11) * 2**-53`` and ``low + range * that``), roll and pitch from its
   ``standard_normal``.
 * **The views** (:func:`cell_views`): the objects within reach of any of the cell's images are found in one
-  query, and projected into all its images in one stacked product.  An object that lands within
-  :data:`MARGIN_PX` of an image's edge, or within :data:`MARGIN_M` of an image's reach, is at a place where
-  rounding could decide: that image's view is then computed as one image's is
-  (:func:`~mapdb.camera.project_to_image` of the objects the tree finds within reach), so that which objects an
-  image shows is always what that per-image computation gives.
-* **The image** of a sample that is localized (:func:`cell_image`): the objects it shows projected by
-  :func:`~mapdb.camera.project_to_image`, then the detector and the prior, with the generator where its pose
-  left it: :func:`~mapdb.simulation.simulate.simulate_image_at`'s document, without its ``truth`` (the
-  localizer does not read it), handed over as the arrays
-  :func:`~mapdb.detections.images.parse_image` would make of it (:class:`~mapdb.detections.images.ImageObjects`:
-  no document written and parsed again, the same numbers).
+  query, and projected into all its images in one stacked product whose pixels are
+  :func:`~mapdb.camera.project_to_image`'s, bit for bit (:func:`~mapdb.camera.project_to_images`).  An object
+  within :data:`MARGIN_M` of an image's reach is at a place where the rounding of its distance could decide: that
+  image's objects within reach are then those the tree finds, as one image's are, so that which objects an image
+  shows is always what the per-image computation gives.
+* **The image** of a sample that is localized (:func:`cell_image`): the objects it shows, at the pixels of its view,
+  then the detector and the prior, with the generator where its pose left it:
+  :func:`~mapdb.simulation.simulate.simulate_image_at`'s document, without its ``truth`` (the localizer does not
+  read it), handed over as the arrays :func:`~mapdb.detections.images.parse_image` would make of it
+  (:class:`~mapdb.detections.images.ImageObjects`: no document written and parsed again, the same numbers).
 """
 
 from __future__ import annotations
@@ -32,19 +31,18 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import Camera, Pose, project_to_image
+from ..camera import Camera, Pose, in_image, project_to_images, rotations_body_to_ned
 from ..detections.images import MAX_OBJECTS, ImageObjects, Prior
 from ..simulation.detector import Detector, detect, label_mix
 from ..simulation.documents import add_hints, image_document
 from ..simulation.poses import Shot
-from ..simulation.simulate import visible_objects
+from ..simulation.simulate import detectable
 
-__all__ = ["MARGIN_M", "MARGIN_PX", "Poses", "Views", "cell_image", "cell_poses", "cell_views", "detector_of",
-           "image_view", "pcg_states", "positioned", "sample_generator"]
+__all__ = ["MARGIN_M", "Poses", "Views", "cell_image", "cell_poses", "cell_views", "detector_of", "near_cells",
+           "pcg_states", "positioned", "sample_generator"]
 
-# How close (pixels) to an image's edge, and (metres) to its reach, an object must come for the stacked
-# projection's rounding (1e-12 px) to matter: such an image is computed the per-image way.
-MARGIN_PX = 1e-6
+# How close (metres) to an image's reach an object must come for the rounding of its distance (the tree's against
+# numpy's) to matter: that image's objects within reach are then the tree's, as one image's are.
 MARGIN_M = 1e-6
 
 # numpy's SeedSequence (bit_generator.pyx) and PCG64 (pcg64.h) constants.
@@ -129,6 +127,7 @@ class Poses:
     heading: np.ndarray
     roll: np.ndarray
     pitch: np.ndarray
+    rotations: np.ndarray  # (images, 3, 3): each image's rotation_body_to_ned (made for a task's images at once)
     altitude: float
     states: list[tuple[int, int]] | None = None  # each image's PCG64 (state, inc) before its draws, if hashed here
 
@@ -150,25 +149,41 @@ def cell_poses(seed: int, cells: np.ndarray, samples: int, cell_m: float, altitu
     n = len(cells)
     keys = np.column_stack([np.repeat(_natural(cells[:, 0]), samples), np.repeat(_natural(cells[:, 1]), samples),
                             np.tile(np.arange(samples), n)])
-    raw = np.zeros((n * samples, 3), np.uint64)
-    normal = np.zeros((n * samples, 2))
     states: list[tuple[int, int]] | None = None
     if seed < 2**32 and (keys < 2**32).all():
-        shared = np.random.Generator(np.random.PCG64(0))
         states = pcg_states(np.column_stack([np.full(len(keys), seed), keys]))
-        for k, state in enumerate(states):
-            raw[k], normal[k] = _draw(_restated(shared, state))
+        raws, normals = _draws_from(states)
     else:  # words of 2**32 or more: SeedSequence's own (longer) mixing
-        for k, row in enumerate(keys.tolist()):
-            raw[k], normal[k] = _draw(np.random.default_rng([seed, *row]))
+        drawn = [_draw(np.random.default_rng([seed, *row])) for row in keys.tolist()]
+        raws, normals = [d[0] for d in drawn], [d[1] for d in drawn]
+    raw = np.array(raws, np.uint64).reshape(-1, 3)
+    normal = np.array(normals, np.float64).reshape(-1, 2)
     unit = (raw >> np.uint64(11)) * _TO_UNIT
     x = (np.repeat(cells[:, 0], samples) + unit[:, 0]) * cell_m
     y = (np.repeat(cells[:, 1], samples) + unit[:, 1]) * cell_m
     heading = 0.0 + 360.0 * unit[:, 2]
     tilt = attitude_std * normal
-    return [Poses(x[c], y[c], heading[c], tilt[c, 0], tilt[c, 1], float(altitude),
+    rotations = rotations_body_to_ned(heading, tilt[:, 1], tilt[:, 0])
+    return [Poses(x[c], y[c], heading[c], tilt[c, 0], tilt[c, 1], rotations[c], float(altitude),
                   None if states is None else states[c])
             for c in (slice(k * samples, (k + 1) * samples) for k in range(n))]
+
+
+def _draws_from(states: list[tuple[int, int]]) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Each state's pose draws (:func:`_draw`), one generator set to each in turn (through one state record, whose
+    numbers are replaced: the setter copies them)."""
+    generator = np.random.Generator(np.random.PCG64(0))
+    bits = generator.bit_generator
+    pcg = {"state": 0, "inc": 0}
+    record = {"bit_generator": "PCG64", "state": pcg, "has_uint32": 0, "uinteger": 0}
+    raw, normal = bits.random_raw, generator.standard_normal
+    raws, normals = [], []
+    for state, inc in states:
+        pcg["state"], pcg["inc"] = state, inc
+        bits.state = record
+        raws.append(raw(3))
+        normals.append(normal(2))
+    return raws, normals
 
 
 def _restated(generator: np.random.Generator, state: tuple[int, int]) -> np.random.Generator:
@@ -180,102 +195,94 @@ def _restated(generator: np.random.Generator, state: tuple[int, int]) -> np.rand
 
 @dataclass
 class Views:
-    """What a cell's images show: ``near`` (indices into the objects, sorted) within reach of any of them, and
-    ``seen`` (images, near): whether each image shows each."""
+    """What a cell's images show: ``near`` (indices into the objects, sorted) within reach of any of them,
+    ``seen`` (images, near): whether each image shows each, ``u``, ``v`` (images, near): their pixels in each
+    image (:func:`~mapdb.camera.project_to_image`'s numbers), and ``detectable`` (near): which of them a detector
+    can report (None: all; :func:`~mapdb.simulation.simulate.detectable`)."""
 
     near: np.ndarray
     seen: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    detectable: np.ndarray | None = None
+
+    def shown(self, s: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The objects image ``s`` shows that a detector can report (sorted indices into the objects), and their
+        pixels: what :func:`cell_image` takes."""
+        seen = self.seen[s] if self.detectable is None else self.seen[s] & self.detectable
+        return self.near[seen], self.u[s][seen], self.v[s][seen]  # a row, then its mask: numpy's quicker path
 
 
-def _rotations(poses: Poses) -> np.ndarray:
-    """(images, 3, 3): each image's ``rotation_body_to_ned(...).T`` (body frame from NED)."""
-    cy, sy = np.cos(np.radians(poses.heading)), np.sin(np.radians(poses.heading))
-    cp, sp = np.cos(np.radians(poses.pitch)), np.sin(np.radians(poses.pitch))
-    cr, sr = np.cos(np.radians(poses.roll)), np.sin(np.radians(poses.roll))
-    # Rz(yaw) @ Ry(pitch) @ Rx(roll), written out (camera.rotation_body_to_ned), then transposed.
-    r = np.empty((cy.size, 3, 3))
-    r[:, 0, 0], r[:, 1, 0], r[:, 2, 0] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
-    r[:, 0, 1], r[:, 1, 1], r[:, 2, 1] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
-    r[:, 0, 2], r[:, 1, 2], r[:, 2, 2] = -sp, cp * sr, cp * cr
-    return r
-
-
-def cell_views(objects: Any, tree: Any, poses: Poses, camera: Camera, reach: float, centre: tuple[float, float],
-               radius: float) -> Views:
-    """Which objects each of a cell's images shows: those within ``reach`` of its camera that project inside
-    it.  ``tree`` indexes ``objects``; every camera is within ``radius`` of ``centre``."""
-    n = poses.x.size
+def near_cells(tree: Any, centres: np.ndarray, radius: float, reach: float) -> list[np.ndarray]:
+    """For each cell (its centre a row of ``centres``, its cameras within ``radius`` of it), the objects its images
+    can show: sorted indices of those within ``radius + reach`` (and a metre) of its centre, found in one query of
+    ``tree`` (None: no objects)."""
     if tree is None:
-        return Views(np.zeros(0, np.int64), np.zeros((n, 0), bool))
-    near = np.sort(np.asarray(tree.query_ball_point(centre, radius + reach + 1.0), np.int64))
+        return [np.zeros(0, np.int64) for _ in range(len(centres))]
+    found = tree.query_ball_point(np.asarray(centres, np.float64).reshape(-1, 2), radius + reach + 1.0,
+                                  return_sorted=True)
+    return [np.asarray(one, np.int64) for one in found]
+
+
+def cell_views(objects: Any, tree: Any, near: np.ndarray, poses: Poses, camera: Camera, reach: float) -> Views:
+    """Which objects each of a cell's images shows: those within ``reach`` of its camera that project inside
+    it.  ``tree`` indexes ``objects``; ``near`` (sorted indices into them) holds every object within reach of
+    any of its cameras (:func:`near_cells`)."""
+    n = poses.x.size
+    if not near.size:
+        none = np.zeros((n, 0))
+        return Views(near, np.zeros((n, 0), bool), none, none)
     ox, oy = objects.x[near], objects.y[near]
-    dx, dy = ox[None, :] - poses.x[:, None], oy[None, :] - poses.y[:, None]
-    ned = np.stack([dy, dx, np.full(dx.shape, poses.altitude)], axis=1)
-    frd = _rotations(poses) @ ned
-    f = camera.focal_px
-    with np.errstate(divide="ignore", invalid="ignore"):
-        d = np.where(frd[:, 2] > 0.0, frd[:, 2], np.nan)
-        u = camera.width / 2.0 + f * frd[:, 1] / d
-        v = camera.height / 2.0 - f * frd[:, 0] / d
+    dx, dy = ox - poses.x[:, None], oy - poses.y[:, None]
+    u, v = project_to_images(dx, dy, poses.altitude, poses.rotations, camera)
     dist = np.hypot(dx, dy)
-    within = dist <= reach
-    seen = within & np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    close = (np.abs(dist - reach) < MARGIN_M) | within & (np.abs(frd[:, 2]) < MARGIN_M)
-    with np.errstate(invalid="ignore"):
-        for edge, value in ((0.0, u), (camera.width, u), (0.0, v), (camera.height, v)):
-            close |= within & (np.abs(value - edge) < MARGIN_PX)
-    for s in np.flatnonzero(close.any(axis=1)).tolist():  # rounding could decide: the per-image way
-        own, _, _, shown = image_view(objects, tree, poses.pose(s), camera, reach)
-        seen[s] = False
-        seen[s, np.searchsorted(near, own[shown])] = True
-    return Views(near, seen)
+    seen = (dist <= reach) & in_image(u, v, camera)
+    if np.abs(dist - reach).min() < MARGIN_M:
+        # The tree's distance test (the per-image way) may round differently from this one at the reach itself.
+        for s in np.flatnonzero((np.abs(dist - reach) < MARGIN_M).any(axis=1)).tolist():
+            own = np.searchsorted(near, np.asarray(tree.query_ball_point((poses.x[s], poses.y[s]), reach), np.int64))
+            seen[s] = False
+            seen[s, own] = in_image(u[s, own], v[s, own], camera)
+    return Views(near, seen, u, v, detectable(objects.label[near], objects.labels))
 
 
-def image_view(objects: Any, tree: Any, pose: Pose, camera: Camera,
-               reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """One image's objects within reach (sorted indices), their pixels, and which of them it shows: the
-    per-image way."""
-    near = np.sort(np.asarray(tree.query_ball_point((pose.x, pose.y), reach), np.int64))
-    u, v = project_to_image(objects.x[near], objects.y[near], pose, camera)
-    return near, u, v, np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-
-
-def cell_image(objects: Any, shown: np.ndarray, pose: Pose, camera: Camera, generator: np.random.Generator,
-               detector: Detector, prior: float | None, image_id: str) -> ImageObjects | dict[str, Any]:
+def cell_image(objects: Any, shown: np.ndarray, u: np.ndarray, v: np.ndarray, pose: Pose, camera: Camera,
+               generator: np.random.Generator, detector: Detector, prior: float | None,
+               image_id: str) -> ImageObjects | dict[str, Any]:
     """The image a sample is localized from (``generator`` where its pose's draws left it):
     :func:`~mapdb.simulation.simulate.simulate_image_at` of the objects it shows (``shown``, sorted indices into
-    ``objects``, from :func:`cell_views`), without its truth, as the :class:`~mapdb.detections.images.ImageObjects`
-    that :func:`~mapdb.detections.images.parse_image` makes of that document.
+    ``objects`` of those a detector can report, and their pixels ``u``, ``v``: :meth:`Views.shown`), without its
+    truth, as the :class:`~mapdb.detections.images.ImageObjects` that :func:`~mapdb.detections.images.parse_image`
+    makes of that document.
 
-    Only the objects shown are projected (the simulator projects all those within reach): a point's pixels do
+    Only the objects shown are detected (the simulator projects all those within reach): a point's pixels do
     not depend on the other points projected with it, and the objects not shown draw nothing.  The arrays pass
     every check of the parser: the detector keeps pixels inside the image (``0 <= u < width``), the camera and the
     prior are the configuration's (checked in range), and the prior's centre lies within its radius of the map.
     An image of more than ``MAX_OBJECTS`` objects, which the parser refuses, is its document, so that the
     localizer refuses it as before.
     """
-    local = objects.take(shown)
-    u, v, seen = visible_objects(local, pose, camera)
-    index = np.flatnonzero(seen).astype(np.int64)
-    index, u, v, label_names = detect(generator, local, index, u[seen], v[seen], camera, detector)
+    _, u, v, label_names = detect(generator, objects, shown, u, v, camera, detector)
     hints: dict[str, Any] = {}
-    shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
-    add_hints(generator, hints, shot, pose.x, pose.y, prior, False, False)
+    if prior is not None:  # the only hint an analysis gives (add_hints draws nothing for the others)
+        shot = Shot(pose.altitude, camera, pose.yaw_deg, pose.roll_deg, pose.pitch_deg)
+        add_hints(generator, hints, shot, pose.x, pose.y, prior, False, False)
     if u.size > MAX_OBJECTS:
         return {**image_document(image_id, camera, label_names, u, v), **hints}
     disc = hints.get("prior")
-    # The parser's types: float64 pixels, labels as Python strings in an object array, floats for the rest.
+    # The parser's types: float64 pixels, labels as Python strings in an object array (the map's and the detector's
+    # names are, detector_of), floats for the rest.
     return ImageObjects(id=image_id, width=float(camera.width), height=float(camera.height),
-                        x=np.asarray(u, np.float64), y=np.asarray(v, np.float64),
-                        names=np.array([str(name) for name in label_names], dtype=object),
+                        x=np.asarray(u, np.float64), y=np.asarray(v, np.float64), names=label_names,
                         prior=None if disc is None else Prior(float(disc["x"]), float(disc["y"]), disc["radius"]),
                         fov_deg=float(camera.fov_deg))
 
 
 def detector_of(label_counts: dict[str, int], pixel_std: float, miss_rate: float, spurious_rate: float,
                 label_noise: float) -> Detector:
-    """The detector every image of an analysis uses (its label mix that of ``label_counts``, not empty)."""
-    names, mix = label_mix(label_counts)
+    """The detector every image of an analysis uses (its label mix that of ``label_counts``, not empty; the names as
+    Python strings, as an image document's labels are parsed)."""
+    names, mix = label_mix({str(name): count for name, count in label_counts.items()})
     return Detector(pixel_std, miss_rate, spurious_rate, label_noise, names, mix)
 
 

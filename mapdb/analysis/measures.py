@@ -46,6 +46,7 @@ import os
 import statistics
 import time
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -54,7 +55,7 @@ from ..answers import Answer
 from ..camera import Camera, Pose
 from ..detections.images import ImageObjects
 from ..evaluation.evaluate import DEFAULT_FP_THRESHOLD_M
-from .draws import Poses, cell_image, cell_poses, cell_views, detector_of, positioned
+from .draws import Poses, cell_image, cell_poses, cell_views, detector_of, near_cells, positioned
 
 __all__ = ["DECISION_LEVEL", "HINT_COLUMNS", "MIN_VISIBLE", "Z95", "CellMeasures", "SampleConfig", "ambiguity",
            "column_medians", "inferred_interval", "measure_cells", "open_for_cells", "wilson_interval", "wilson_width"]
@@ -288,13 +289,18 @@ class _Context:
     generator: Any = None      # a generator each localized image's draws are set into, in turn (one a task)
 
     def __post_init__(self) -> None:
-        cfg = self.config
-        self.camera, self.reach, self.separation, self.stop_width = (cfg.camera, cfg.reach_m, cfg.separation_m,
-                                                                     cfg.stop_width)
+        self.camera, self.reach, self.separation, self.stop_width, self.detector = _derived(
+            self.config, tuple(self.label_counts.items()))
         self.generator = np.random.Generator(np.random.PCG64(0))
-        if self.label_counts:
-            self.detector = detector_of(self.label_counts, cfg.pixel_std, cfg.miss_rate, cfg.spurious_rate,
-                                        cfg.label_noise)
+
+
+@lru_cache(maxsize=8)
+def _derived(cfg: SampleConfig, label_counts: tuple[tuple[str, int], ...]) -> tuple[Camera, float, float, float, Any]:
+    """The configuration's derived values a task's cells share: its camera, reach, separation, stop width and
+    detector (None when no analysed label has objects); once a configuration, not once a block of cells."""
+    detector = detector_of(dict(label_counts), cfg.pixel_std, cfg.miss_rate, cfg.spurious_rate,
+                           cfg.label_noise) if label_counts else None
+    return cfg.camera, cfg.reach_m, cfg.separation_m, cfg.stop_width, detector
 
 
 def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.ndarray,
@@ -325,26 +331,48 @@ def measure_cells(map_path: str, config: SampleConfig, cell_m: float, cells: np.
     label_counts = {k: counts[k] for k in names if counts.get(k)}
     # Every image's pose of every cell of the task, drawn at once.
     poses = cell_poses(config.seed, cells, config.samples, cell_m, config.altitude, config.attitude_std)
-    blocks = cells // _READ_BLOCK
-    for block in np.unique(blocks, axis=0):
-        rows = np.flatnonzero((blocks == block).all(axis=1))
-        ctx = _context(m, localizer, config, cell_m, cells[rows], names, codes, label_counts)
-        for row in rows.tolist():
+    # Labels None: every label with objects is analysed, and the map's own are all of them (no filter to run).
+    read = None if config.labels is None else names
+    for rows in _read_groups(cells):
+        ctx = _context(m, localizer, config, cell_m, cells[rows], read, codes, label_counts)
+        centres = (cells[rows] + 0.5) * cell_m
+        for row, near in zip(rows.tolist(), near_cells(ctx.tree, centres, _cell_radius(cell_m), ctx.reach),
+                             strict=True):
             hint = None if hints is None else hints[row]
-            _measure_cell(ctx, int(cells[row, 0]), int(cells[row, 1]), poses[row], out, row, hint)
+            _measure_cell(ctx, int(cells[row, 0]), int(cells[row, 1]), near, poses[row], out, row, hint)
     out.seconds = time.perf_counter() - start
     out.cpu_s = time.thread_time() - cpu
     return out
 
 
+def _read_groups(cells: np.ndarray) -> list[np.ndarray]:
+    """The rows of the cells whose objects are read from the map together: all of them when they fit in a
+    ``_READ_BLOCK`` square (a task's block), else those of each square of the absolute grid (the warm-up's cells,
+    spread over the map).  Which objects a cell's images show, and in which order, does not depend on the box
+    read around it (a box's objects are in the map's order, a larger box's the same ones with others between)."""
+    if (cells.max(axis=0) - cells.min(axis=0) < _READ_BLOCK).all():
+        return [np.arange(len(cells))]
+    blocks = cells // _READ_BLOCK
+    return [np.flatnonzero((blocks == block).all(axis=1)) for block in np.unique(blocks, axis=0)]
+
+
+def _cell_radius(cell_m: float) -> float:
+    """How far from its cell's centre a camera can be (half the cell's diagonal)."""
+    half = 0.5 * cell_m
+    return math.hypot(half, half)
+
+
 def _context(m: Any, localizer: Any, config: SampleConfig, cell_m: float, cells: np.ndarray,
-             names: tuple[str, ...], codes: np.ndarray, label_counts: dict[str, int]) -> _Context:
-    """The analysed objects an image from these cells can show (their box and an image's reach around it)."""
+             names: tuple[str, ...] | None, codes: np.ndarray, label_counts: dict[str, int]) -> _Context:
+    """The analysed objects an image from these cells can show (their box and an image's reach around it; ``names``
+    None: the map's objects of every label)."""
     from .._scipy import cKDTree
 
     reach = config.reach_m
     lo, hi = cells.min(axis=0) * cell_m - reach, (cells.max(axis=0) + 1) * cell_m + reach
-    objects = m.query_bbox(lo[0], lo[1], hi[0], hi[1], labels=list(names))
+    objects = m.query_bbox(lo[0], lo[1], hi[0], hi[1], labels=None if names is None else list(names))
+    if not all(type(name) is str for name in objects.labels):  # an image's labels are Python strings (cell_image)
+        objects = dataclasses.replace(objects, labels=tuple(str(name) for name in objects.labels))
     tree = cKDTree(np.column_stack([objects.x, objects.y])) if len(objects) else None
     return _Context(config, cell_m, localizer, objects, tree, codes, label_counts)
 
@@ -360,19 +388,18 @@ def _known(successes: int, false: int, run: int, ready: int, drawn: int, width: 
     return scale * wilson_width(successes, run) <= width and scale * wilson_width(false, run) <= width
 
 
-def _measure_cell(ctx: _Context, i: int, j: int, poses: Poses, out: CellMeasures, row: int,
+def _measure_cell(ctx: _Context, i: int, j: int, near: np.ndarray, poses: Poses, out: CellMeasures, row: int,
                   hint: np.ndarray | None) -> None:
     """Sample one cell (every localizable image, or until the sequential rule stops it, or none where its
-    ``hint`` lets it be inferred) and write its measures into row ``row`` of ``out``."""
+    ``hint`` lets it be inferred) and write its measures into row ``row`` of ``out``.  ``near``: the objects
+    within reach of the cell (:func:`~mapdb.analysis.draws.near_cells`)."""
     cfg = ctx.config
-    half = 0.5 * ctx.cell_m
-    views = cell_views(ctx.objects, ctx.tree, poses, ctx.camera, ctx.reach,
-                       ((i + 0.5) * ctx.cell_m, (j + 0.5) * ctx.cell_m), math.hypot(half, half))
+    views = cell_views(ctx.objects, ctx.tree, near, poses, ctx.camera, ctx.reach)
     # Objects of each analysed label each image shows (a label's column; the labels of the objects near).
     labels = ctx.objects.label[views.near]
-    visible = views.seen.astype(np.int64) @ (labels[:, None] == ctx.codes[None, :]).astype(np.int64)
+    visible = views.seen @ (labels[:, None] == ctx.codes[None, :]).astype(np.int64)
     ready = np.flatnonzero(views.seen.sum(axis=1) >= MIN_VISIBLE).tolist()
-    middle = column_medians(np.column_stack([visible.sum(axis=1), visible]))
+    middle = column_medians(np.concatenate([visible.sum(axis=1, keepdims=True), visible], axis=1))
     out.visible[row] = middle[0]
     out.per_label[row] = middle[1:]
     out.images[row] = cfg.samples
@@ -388,7 +415,7 @@ def _measure_cell(ctx: _Context, i: int, j: int, poses: Poses, out: CellMeasures
         run += 1
         pose = poses.pose(s)
         generator = positioned(poses, s, cfg.seed, i, j, ctx.generator)
-        error, lost = _localize(ctx, views.near[views.seen[s]], pose, generator, f"{i},{j},{s}")
+        error, lost = _localize(ctx, views.shown(s), pose, generator, f"{i},{j},{s}")
         if error is not None and error <= cfg.fp_threshold:
             correct.append(error)
         elif error is not None:
@@ -460,15 +487,16 @@ def _inferred(hint: np.ndarray, ready: int, cfg: SampleConfig, out: CellMeasures
     return True
 
 
-def _localize(ctx: _Context, shown: np.ndarray, pose: Pose, generator: np.random.Generator,
-              image_id: str) -> tuple[float | None, Answer]:
-    """Simulate the image (``shown``: the objects it shows), localize it: the error of an accepted answer (None
-    if rejected), and the answer of the search without a prior (the one ambiguity is read from)."""
+def _localize(ctx: _Context, shown: tuple[np.ndarray, np.ndarray, np.ndarray], pose: Pose,
+              generator: np.random.Generator, image_id: str) -> tuple[float | None, Answer]:
+    """Simulate the image (``shown``: the objects it shows and their pixels, :meth:`~.draws.Views.shown`), localize
+    it: the error of an accepted answer (None if rejected), and the answer of the search without a prior (the one
+    ambiguity is read from)."""
     cfg = ctx.config
     # An image is localized only when it shows MIN_VISIBLE analysed objects, so the map holds some: the detector
     # exists (it is None only for a map without any).
     assert ctx.detector is not None
-    image = cell_image(ctx.objects, shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
+    image = cell_image(ctx.objects, *shown, pose, ctx.camera, generator, ctx.detector, cfg.prior, image_id)
     # Brief answers: the position, score and candidates are all a cell's measures read.
     answer = ctx.localizer.localize(image, brief=True)
     lost = answer

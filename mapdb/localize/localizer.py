@@ -246,9 +246,9 @@ class Localizer:
 
         ``image`` as :class:`~mapdb.detections.images.ImageObjects` is taken as checked (what
         :func:`~mapdb.detections.images.parse_image` returns; a caller making its own, as the analysis does from
-        simulated arrays, vouches for the same ranges).  ``brief``: an accepted answer without where the image
-        lies on the ground (no ``lon``, ``lat``, ``width``, ``height``, ``transform``, ``footprint``), for callers
-        that read only the position, score and candidates; every other field is the same.
+        simulated arrays, vouches for the same ranges).  ``brief``: an accepted answer with only its position,
+        score, inliers, candidates and what the search adds (:func:`~mapdb.localize.records.ok_record`), for
+        callers that read no more (the analysis); a rejected answer is the same.
         """
         if prior is None and pose is not None:
             prior = pose.disc
@@ -550,7 +550,7 @@ def _answer(localizer: Localizer, image: dict[str, Any] | ImageObjects, prior: t
     except RejectionError as rejection:
         return rejected(image_id, rejection.reason, start, rejection.candidates, **{**rejection.extra, **skipped})
     return ok_record(image_id, localizer.map.crs, found, focal_px, levelled, start, None if brief else im,
-                     lonlat=not brief)
+                     lonlat=not brief, brief=brief)
 
 
 def _checked(image: dict[str, Any] | ImageObjects, crs: str, prior: tuple[float, float, float] | None,

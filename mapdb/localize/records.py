@@ -135,9 +135,18 @@ def _located(crs: str, a: complex, b: complex, image: ImageObjects, levelled: bo
 
 
 def ok_record(image_id: Any, crs: str, pose: FoundPose, focal_px: float | None, levelled: bool,
-               start: float, image: ImageObjects | None = None, *, lonlat: bool = True) -> Answer:
+               start: float, image: ImageObjects | None = None, *, lonlat: bool = True, brief: bool = False) -> Answer:
     """The answer of a localized image (module docs); where it lies on the ground when ``image`` is given, its
-    ``lon`` and ``lat`` unless ``lonlat`` is False (a caller that reads neither spares PROJ's transform)."""
+    ``lon`` and ``lat`` unless ``lonlat`` is False (a caller that reads neither spares PROJ's transform).
+
+    ``brief``: only the position, score, inliers, candidates and what the search adds (``hypotheses``, ``path``,
+    ``notes``): no ``lon``, ``lat`` or ground, and nothing else derived from the pose (``heading_deg``,
+    ``scale_m_per_px``, ``sigma_m``, ``expected_false_alarms``, ``altitude_m``) nor ``time_ms``; for a caller
+    that reads no more (the analysis, thousands of answers a cell block)."""
+    if brief:
+        return Answer(id=image_id, status="ok", x=rounded(pose.b.real, 3), y=rounded(pose.b.imag, 3), crs=crs or None,
+                      inliers=int(pose.inliers), score=pose.score, levelled=levelled, candidates=pose.candidates,
+                      **pose.extra)
     a, b = pose.a, pose.b
     if image is not None:
         fields, (lon, lat) = _located(crs, a, b, image, levelled)

@@ -9,10 +9,11 @@ the map objects in one image.  Spurious and confused labels are drawn from the m
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
-from ..camera import Camera
+from ..camera import Camera, in_image
 from ..objects import Objects
 
 __all__ = ["Detector", "confuse_labels", "detect", "label_mix"]
@@ -53,10 +54,17 @@ def detect(
     n_visible = index.size
     noise = detector.pixel_std * rng.standard_normal((2, u.size))
     u, v = u + noise[0], v + noise[1]
-    # A detector reports positions inside its image: noise that pushes an object out drops it.
-    kept = (u >= 0) & (u < width) & (v >= 0) & (v < height) & (rng.random(u.size) >= detector.miss_rate)
-    index, u, v = index[kept], u[kept], v[kept]
-    label_names = np.asarray(objects.labels, dtype=object)[objects.label[index]]
+    # A detector reports positions inside its image: noise that pushes an object out drops it.  The misses are drawn
+    # whatever their rate (the draws after them stay where they are); a rate of 0 misses none.
+    missed = rng.random(u.size)
+    # Most images keep every object: four extremes (NaN fails them) decide that without the per-object test.
+    inside = u.size and u.min() >= 0 and u.max() < width and v.min() >= 0 and v.max() < height
+    if not inside or detector.miss_rate > 0:
+        kept = in_image(u, v, camera)
+        if detector.miss_rate > 0:
+            kept &= missed >= detector.miss_rate
+        index, u, v = index[kept], u[kept], v[kept]
+    label_names = _names(objects.labels)[objects.label[index]]
 
     names, mix = detector.names, detector.mix
     n_spurious = int(rng.poisson(detector.spurious_rate * n_visible)) if detector.spurious_rate > 0 else 0
@@ -70,6 +78,13 @@ def detect(
     confuse_labels(rng, label_names, detector)
     order = rng.permutation(index.size)
     return index[order], u[order], v[order], label_names[order]
+
+
+@lru_cache(maxsize=16)
+def _names(labels: tuple[str, ...]) -> np.ndarray:
+    """A label table as an object array (indexed by code), made once a table, not once an image (never written:
+    indexing it copies)."""
+    return np.asarray(labels, dtype=object)
 
 
 def confuse_labels(rng: np.random.Generator, label_names: np.ndarray, detector: Detector) -> None:

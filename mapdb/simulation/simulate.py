@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .._scipy import cKDTree
-from ..camera import Camera, Pose, project_to_image
+from ..camera import Camera, Pose, in_image, project_to_image
 from ..errors import EmptyMapError
 from ..labels import BLOCK_LABEL
 from ..objects import Objects
@@ -43,6 +43,7 @@ __all__ = [
     "PAPER_ORIGIN",
     "USABLE_OBJECTS",
     "check_simulate_args",
+    "detectable",
     "objects_of_map",
     "paper_density",
     "paper_map",
@@ -356,7 +357,12 @@ def visible_objects(objects: Objects, pose: Pose, camera: Camera) -> tuple[np.nd
     (True, True)
     """
     u, v = project_to_image(objects.x, objects.y, pose, camera)
-    seen = np.isfinite(u) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-    if BLOCK_LABEL in objects.labels:
-        seen &= objects.label != objects.labels.index(BLOCK_LABEL)
-    return u, v, seen
+    seen = in_image(u, v, camera)
+    shown = detectable(objects.label, objects.labels)
+    return u, v, seen if shown is None else seen & shown
+
+
+def detectable(label: np.ndarray, labels: Sequence[str]) -> np.ndarray | None:
+    """Which objects (their label codes ``label`` in ``labels``) a camera can show: all but blocks (it sees the
+    buildings of a block, never the block: :func:`place_camera`); None when every one can (no blocks)."""
+    return label != labels.index(BLOCK_LABEL) if BLOCK_LABEL in labels else None
