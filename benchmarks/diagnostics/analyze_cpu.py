@@ -10,7 +10,10 @@ Each run is its own process (``SOURCE_DATE_EPOCH=1700000000``), its CPU the user
 the baseline runs from a copy of its ``mapdb`` and CLI first on ``PYTHONPATH`` (``_baseline.cli_tree``).  The table
 gives each version's median, its runs and the ratio; the last column says whether the two wrote the same
 ``analysis.tif`` bytes, the same rows in every table of ``cells.gpkg`` and the same ``summary.json`` apart from its
-timings (``seconds``, ``estimate_s``, the CPU by phase ``cpu``).
+timings (``seconds``, ``estimate_s``, the CPU by phase ``cpu``).  Beside the whole run, the cells phase
+(``summary.json``'s ``cpu.cells_s``: the simulated cells' images drawn, localized and recorded, what the country
+projection counts), whose change a whole run's start-up and picture (3-5 s on Monaco) can hide; "-" for a version
+that does not account its phases.
 """
 
 from __future__ import annotations
@@ -92,6 +95,7 @@ def main() -> int:
             mapdb("build", "-q", data / EXTRACTS[name], "-o", maps[name])
             mapdb("index", maps[name])
     cpu: dict[tuple[str, str], list[float]] = {(m, v): [] for m in maps for v in envs}
+    cells: dict[tuple[str, str], list[float]] = {(m, v): [] for m in maps for v in envs}
     start_load = os.getloadavg()[0]
     for k in range(args.rounds):
         for name, path in maps.items():
@@ -99,18 +103,28 @@ def main() -> int:
                 out = work / f"{name}-{version}"
                 shutil.rmtree(out, ignore_errors=True)
                 cpu[(name, version)].append(cpu_of(["analyze", path, "-o", out, "-q"], envs[version]))
+                phases = json.loads((out / "summary.json").read_text()).get("cpu") or {}
+                if "cells_s" in phases:
+                    cells[(name, version)].append(phases["cells_s"])
     print(f"mapdb analyze MAP -o OUT, {args.rounds} rounds, order reversed every round; load average "
           f"{start_load:.1f} at the start, {os.getloadavg()[0]:.1f} at the end")
     print(f"| map | {args.baseline} CPU (s), median | tree CPU (s), median | tree / {args.baseline} | "
-          f"{args.baseline} runs | tree runs | outputs the same |")
-    print("|---|---|---|---|---|---|---|")
+          f"{args.baseline} runs | tree runs | cells phase (s), {args.baseline} / tree / ratio | outputs the same |")
+    print("|---|---|---|---|---|---|---|---|")
     for name in maps:
         base, tree = (cpu[(name, v)] for v in envs)
         same = same_outputs(work / f"{name}-{args.baseline}", work / f"{name}-tree")
         print(f"| {name} | {statistics.median(base):.2f} | {statistics.median(tree):.2f} | "
               f"{statistics.median(tree) / statistics.median(base):.3f} | {', '.join(f'{c:.2f}' for c in base)} | "
-              f"{', '.join(f'{c:.2f}' for c in tree)} | {'yes' if same else 'NO'} |")
+              f"{', '.join(f'{c:.2f}' for c in tree)} | {_cells_column(*(cells[(name, v)] for v in envs))} | "
+              f"{'yes' if same else 'NO'} |")
     return 0
+
+
+def _cells_column(base: list[float], tree: list[float]) -> str:
+    """The cells phase's medians and their ratio, "-" for a version that does not account its phases."""
+    b, t = (f"{statistics.median(c):.3f}" if c else "-" for c in (base, tree))
+    return f"{b} / {t} / {statistics.median(tree) / statistics.median(base):.3f}" if base and tree else f"{b} / {t}"
 
 
 if __name__ == "__main__":
