@@ -93,6 +93,8 @@ def find_rivals(
     """
     a = np.array([c.a for c in others], np.complex128)
     b = np.array([c.b for c in others], np.complex128)
+    # Which runner-ups are another place than the winner's (the places kept from the hits are, by _places).
+    apart = _elsewhere(a, b, best, diag_px)
     sigma_px = max(opts.pixel_sigmas[0], best.sigma_axis_m / max(abs(best.a), 1e-12))
     hit_a, hit_b = _shifted(best, index, opts.tolerance_factor * math.sqrt(2.0) * sigma_px * abs(best.a))
     allowed = allowed_poses(hit_a, hit_b, prior, scale_range)
@@ -104,12 +106,14 @@ def find_rivals(
             hit_a, hit_b = np.concatenate([hit_a, found.a]), np.concatenate([hit_b, found.b])
     if hit_a.size:  # (no repeats, no look-up: the runner-ups alone)
         keep = _places(hit_a, hit_b, best, diag_px)
-        a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
+        if keep.size:
+            a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
+            apart = np.concatenate([apart, np.ones(keep.size, bool)])
     if not a.size:
         return []
     need = max(4.0, SCREEN_SHARE * best.inliers)
     near = _near_counts(a, b, best, z, img_label, index, opts, math.ceil(need))
-    ok = _elsewhere(a, b, best, diag_px) & (near >= need)
+    ok = apart & (near >= need)
     # The places where most objects land near a map object of their label are refitted first.
     keep = np.flatnonzero(ok)[np.argsort(-near[ok], kind="stable")][: opts.ambiguity_places]
     if not keep.size:
