@@ -199,7 +199,10 @@ def match_fast(
     # as the search refined it.)
     rivals = find_rivals(best, rest, z, img_label, objects, quads, diag_px, opts, math.log10(max(n_tests, 1)),
                          prior, scale_range, evidence.terrain)
-    rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates]
+    if rivals:
+        rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates]
+    # (else ``best, *rest`` is a prefix of the search's merged pool, sorted and one a place: merging it again keeps
+    # it as it is)
     rejected = ambiguous(best, rest, opts, n_tests, rounds)
     if rejected is not None:
         return _said(rejected, path)
