@@ -91,10 +91,13 @@ def find_rivals(
         :data:`~mapdb.match.refine.PLACE_FRACTION` of the footprint's diagonal), with ``log10_nfa`` = the
         winner's plus how much worse the place's fit is under the common density (never better).
     """
-    a = np.array([c.a for c in others], np.complex128)
-    b = np.array([c.b for c in others], np.complex128)
-    # Which runner-ups are another place than the winner's (the places kept from the hits are, by _places).
-    apart = _elsewhere(a, b, best, diag_px)
+    # The places compared: the runner-ups, then the hits' places, with which are another place than the winner's
+    # (the hits' are, by _places); put together once at the end (often one part, or none, comes).
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    if others:
+        a = np.array([c.a for c in others], np.complex128)
+        b = np.array([c.b for c in others], np.complex128)
+        parts.append((a, b, _elsewhere(a, b, best, diag_px)))
     sigma_px = max(opts.pixel_sigmas[0], best.sigma_axis_m / max(abs(best.a), 1e-12))
     hit_a, hit_b = _shifted(best, index, opts.tolerance_factor * math.sqrt(2.0) * sigma_px * abs(best.a))
     allowed = allowed_poses(hit_a, hit_b, prior, scale_range)
@@ -107,10 +110,10 @@ def find_rivals(
     if hit_a.size:  # (no repeats, no look-up: the runner-ups alone)
         keep = _places(hit_a, hit_b, best, diag_px)
         if keep.size:
-            a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
-            apart = np.concatenate([apart, np.ones(keep.size, bool)])
-    if not a.size:
+            parts.append((hit_a[keep], hit_b[keep], np.ones(keep.size, bool)))
+    if not parts:
         return []
+    a, b, apart = parts[0] if len(parts) == 1 else (np.concatenate(v) for v in zip(*parts, strict=True))
     need = max(4.0, SCREEN_SHARE * best.inliers)
     near = _near_counts(a, b, best, z, img_label, index, opts, math.ceil(need))
     ok = apart & (near >= need)
