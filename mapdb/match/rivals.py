@@ -181,11 +181,13 @@ def _places(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np
     away = np.flatnonzero(_elsewhere(a, b, best, diag_px) & np.isfinite(b))
     if not away.size:
         return np.zeros(0, np.int64)
+    if away.size < a.size:
+        a, b = a[away], b[away]
     # One number per cell of a place's width and twelfth of a turn (a lattice repeats itself turned too).
-    # (np.angle's arctan2 called directly, b[away] taken once: the same numbers in fewer calls.)
-    turned, moved = a[away] / best.a, b[away]
+    # (np.angle's arctan2 called directly: the same numbers in fewer calls.)
+    turned = a / best.a
     turn = np.floor(np.arctan2(turned.imag, turned.real) / (np.pi / 6.0))
-    cell = (np.floor(moved.real / separation) * 2.0**24 + np.floor(moved.imag / separation)) * 16.0 + turn
+    cell = (np.floor(b.real / separation) * 2.0**24 + np.floor(b.imag / separation)) * 16.0 + turn
     # Each cell's first hypothesis, in order: a dict of a few dozen Python numbers, not np.unique's sort (its
     # first indices, sorted, are these; NaN cells are one cell there, the key None here).
     first: dict[float | None, int] = {}
