@@ -10,9 +10,10 @@ and whether the two versions' outputs are identical (a digest of every field, ar
 ``glue_stages.py``'s clocks inside whole runs, the stages here see identical inputs, so small differences show
 through the load.
 
-Run from the repository root::
+With ``--analyze`` also the calls of one ``mapdb analyze`` run of each map (a copy indexed in ``--workdir``): the
+cells' images, the ones issue 31's country projection counts.  Run from the repository root::
 
-    python benchmarks/diagnostics/final_stages.py --maps monaco,andorra --baseline main
+    python benchmarks/diagnostics/final_stages.py --maps monaco,andorra,liechtenstein --baseline main --analyze
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import copy
 import hashlib
 import importlib
 import os
+import shutil
 import statistics
 import sys
 import time
@@ -63,9 +65,10 @@ def digest(obj: Any) -> str:
     return h.hexdigest()
 
 
-def record(path: Path, images: list[dict]) -> dict[str, list[tuple[tuple, dict]]]:
-    """Every call of the stages while this tree localizes ``images`` (the final fit's candidate copied: the caller
-    keeps no reference to it, but a copy keeps the replay honest should one change it)."""
+def record(path: Path, images: list[dict] | None, out: Path | None = None) -> dict[str, list[tuple[tuple, dict]]]:
+    """Every call of the stages while this tree localizes ``images`` (None: while ``mapdb analyze`` of the map, indexed,
+    writes into ``out``; the final fit's candidate copied: the caller keeps no reference to it, but a copy keeps the
+    replay honest should one change it)."""
     import mapdb.localize.localizer as localizer
     import mapdb.match.fast as fast
     from mapdb.mapfile.reader import open_map
@@ -83,9 +86,14 @@ def record(path: Path, images: list[dict]) -> dict[str, list[tuple[tuple, dict]]
     for name, owner in owners.items():
         setattr(owner, name, recorder(name, saved[name]))
     try:
-        loc = localizer.localizer_for(open_map(path))
-        for image in images:
-            loc.localize(image)
+        if images is None:
+            from mapdb_cli.main import cli
+
+            cli(["analyze", str(path), "-o", str(out), "--overwrite"], standalone_mode=False)
+        else:
+            loc = localizer.localizer_for(open_map(path))
+            for image in images:
+                loc.localize(image)
     finally:
         for name, owner in owners.items():
             setattr(owner, name, saved[name])
@@ -112,6 +120,8 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=100, help="images a map")
     parser.add_argument("--rounds", type=int, default=7, help="replays of each version (taking turns)")
     parser.add_argument("--baseline", default="main")
+    parser.add_argument("--analyze", action="store_true",
+                        help="also the calls of one `mapdb analyze` run of each map (its own images: the cells')")
     parser.add_argument("--workdir", default=os.path.join(CACHE, "final-stages"))
     args = parser.parse_args()
     work = Path(args.workdir)
@@ -126,11 +136,20 @@ def main() -> None:
     print(f"  {'map':14s} {'case':9s} {'stage':12s} {'calls':>5s} {'tree ms':>9s} {'base ms':>9s} {'ratio':>6s} same")
     for name in args.maps.split(","):
         path = extract_maps([name], EXTRACTS, DATA, Path(CACHE))[name]
-        for case in ("prior", "no prior"):
-            images = simulated(path, args.n, 3)
-            if case == "no prior":
-                images = [{k: v for k, v in im.items() if k != "prior"} for im in images]
-            calls = record(path, images)
+        for case in ("prior", "no prior", "analyze") if args.analyze else ("prior", "no prior"):
+            if case == "analyze":
+                # analyze reads the map's stored index: a copy indexed here, outside the shared cache
+                indexed = work / f"{name}.mapdb"
+                shutil.copyfile(path, indexed)
+                from mapdb_cli.main import cli
+
+                cli(["index", str(indexed)], standalone_mode=False)
+                calls = record(indexed, None, work / f"{name}-analysis")
+            else:
+                images = simulated(path, args.n, 3)
+                if case == "no prior":
+                    images = [{k: v for k, v in im.items() if k != "prior"} for im in images]
+                calls = record(path, images)
             for _, stage in STAGES:
                 tree_ms, base_ms, same = compare(calls[stage], ours[stage], theirs[stage], args.rounds)
                 print(f"  {name:14s} {case:9s} {stage:12s} {len(calls[stage]):5d} {tree_ms:9.4f} {base_ms:9.4f} "
