@@ -143,7 +143,7 @@ def main() -> None:
                 shutil.copyfile(path, indexed)
                 from mapdb_cli.main import cli
 
-                cli(["index", str(indexed)], standalone_mode=False)
+                cli(["index", str(indexed), "--overwrite"], standalone_mode=False)
                 calls = record(indexed, None, work / f"{name}-analysis")
             else:
                 images = simulated(path, args.n, 3)
