@@ -187,6 +187,22 @@ def test_shifted_matches_the_reference(seed):
             assert all(_same(g.real, w.real) and _same(g.imag, w.imag) for g, w in zip(got, want))
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_shifted_at_the_tolerance_boundary(seed):
+    # The kernel skips a pair by its squared distance before the exact test: pairs exactly at reach +- tolerance
+    # (a lattice's steps of 0, 1, sqrt 2, 2 ... spacings, tolerances landing on them) and off the plane must still
+    # be decided by the exact test, as the reference decides them.
+    rng = np.random.default_rng(seed)
+    for tolerance in (0.0, 10.0, 10.0 * math.sqrt(2.0) - 10.0, 20.0, 10.0 * math.sqrt(5.0) - 10.0, 1e300, -1.0):
+        best, index = _lattice_case(rng, 30, labels=1 + seed % 2)
+        if seed == 3:
+            index.z[4] = complex(math.inf, 0.0)
+        with np.errstate(invalid="ignore"):
+            got, want = _shifted(best, index, tolerance), ref_shifted(best, index, tolerance)
+        assert got[0].size == want[0].size
+        assert all(_same(g.real, w.real) and _same(g.imag, w.imag) for g, w in zip(got, want))
+
+
 def test_shifted_edges():
     rng = np.random.default_rng(3)
     best, index = _lattice_case(rng, 2)

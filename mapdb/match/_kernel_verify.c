@@ -107,13 +107,20 @@ static Py_ssize_t verify_shift_poses(const double *p, const int64_t *lab, Py_ssi
     double base_r = p[2 * i1] - p[2 * i0], base_i = p[2 * i1 + 1] - p[2 * i0 + 1];
     double reach = hypot(base_r, base_i);  /* abs() of a numpy complex scalar */
     double off_r = b0r - p[2 * i0], off_i = b0i - p[2 * i0 + 1];
+    double hi2 = (reach + tolerance) * (reach + tolerance) * (1.0 + 1e-9);
+    double lo2 = reach > tolerance ? (reach - tolerance) * (reach - tolerance) * (1.0 - 1e-9) : -1.0;
     for (Py_ssize_t j = 0; j < m; j++) {
         if (lab[j] != lab[i0]) {
             continue;
         }
         for (Py_ssize_t k = 0; k < m; k++) {
-            double sr = p[2 * k] - p[2 * j], si = p[2 * k + 1] - p[2 * j + 1];
-            if (!(fabs(cabs_np(sr, si) - reach) <= tolerance) || lab[k] != lab[i1]) {
+            /* the label first, then the squared distance against bounds a hair wider than the test's (a pair
+             * outside them fails it: only those near it, and NaN, take the exact test's square root) */
+            if (lab[k] != lab[i1]) {
+                continue;
+            }
+            double sr = p[2 * k] - p[2 * j], si = p[2 * k + 1] - p[2 * j + 1], d2 = sr * sr + si * si;
+            if (d2 > hi2 || d2 < lo2 || !(fabs(cabs_np(sr, si) - reach) <= tolerance)) {
                 continue;
             }
             double tr, ti, mr, mi;

@@ -194,12 +194,12 @@ def match_fast(
     if rejected is not None:
         return _said(rejected, path)
     best, rest = pool[0], pool[1 : 1 + opts.max_candidates]
-    # 4. Rivals: other places holding the winner's pattern, scored beside it.  They stand for the runner-ups'
-    # places too; a place keeps its better score.  (Before the final fit: rivals are compared with the winner
-    # as the search refined it.)
+    # 4. Rivals: other places holding the winner's pattern, scored beside it (before the final fit: compared with
+    # the winner as the search refined it).  They stand for the runner-ups' places too; a place keeps its better
+    # score.  With none, ``best, *rest`` is a prefix of the search's merged pool: merging it again keeps it.
     rivals = find_rivals(best, rest, z, img_label, objects, quads, diag_px, opts, math.log10(max(n_tests, 1)),
                          prior, scale_range, evidence.terrain)
-    rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates]
+    rest = merge_candidates([best, *rivals, *rest], diag_px)[1 : 1 + opts.max_candidates] if rivals else rest
     rejected = ambiguous(best, rest, opts, n_tests, rounds)
     if rejected is not None:
         return _said(rejected, path)

@@ -14,7 +14,6 @@ import numpy as np
 
 from .._scipy import csr_array, min_weight_full_bipartite_matching
 from ._kernel import places_distinct, places_pairs
-from .arrays import all_distinct
 from .evidence.image import ImageEvidence
 from .evidence.points import GATE_SIGMAS, fit_errors, residual_sigmas
 from .evidence.relief import ReliefFit
@@ -141,49 +140,31 @@ def polish(
     """
     evidence = evidence or ImageEvidence()
     a, b = cand.a, cand.b
-    w = _projected(evidence, a, b, z)  # the first association's projections too
+    flat = evidence.terrain is None  # (a z + b written out here: the same numbers as _projected's, one call fewer)
+    w = a * z + b if flat else _projected(evidence, a, b, z)  # the first association's projections too
     farthest = float(np.abs(w[cand.pairs[:, 0]] - index.z[cand.pairs[:, 1]]).max())
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
     fit: ReliefFit | None = None
+    fitted: tuple[list[int], list[int]] | None = None  # the last fit's pairs as Python lists (compared cheaply)
     scale = abs(a)
     for it in range(iterations):
         if it:
-            w = _projected(evidence, a, b, z)
+            w = a * z + b if flat else _projected(evidence, a, b, z)
         rows, cols, costs = index.within(w, img_label, gate, 3)
         if not rows.size:
             return cand
-        if all_distinct(rows) and all_distinct(cols):
+        # all_distinct of rows and cols on lists made once: their lists also say whether the pairs are the last fit's.
+        listed = rows.tolist(), cols.tolist()
+        if len(set(listed[0])) == len(listed[0]) and len(set(listed[1])) == len(listed[1]):
             found = _paired(rows, cols)  # no image or map object has a rival: nothing to assign
-            if fit is not None and _same(pairs, found):
-                break  # the pairs of the last fit: fitting them again gives it again
-            pairs = found
-            scale = abs(a)  # the scale cut blobs are placed at, the jackknife's too
-            fit = evidence.fit(z, index, pairs, scale, b)
-            if fit is None:
-                return cand
-            a, b = fit.a, fit.b
-            continue
-        img_u, img_inv = np.unique(rows, return_inverse=True)
-        map_u, map_inv = np.unique(cols, return_inverse=True)
-        big = 1e6 * (gate * gate + 1.0)
-        cost = np.full((img_u.size, map_u.size), big)
-        cost[img_inv, map_inv] = costs
-        # Every pair is an edge (non-pairs at a prohibitive cost), so a full matching always exists; this is
-        # linear_sum_assignment without importing scipy.optimize (a tenth of a second at start-up).
-        # Costs are shifted by one so that no pair (a zero distance) reads as a missing edge; every full
-        # matching has the same number of pairs, so the shift changes none.
-        edges = csr_array(cost + 1.0)
-        if img_u.size <= map_u.size:
-            r_opt, c_opt = np.arange(img_u.size), min_weight_full_bipartite_matching(edges)[1]
         else:
-            r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
-        good = cost[r_opt, c_opt] < big
-        assigned = _paired(img_u[r_opt[good]], map_u[c_opt[good]])
-        if fit is not None and _same(pairs, assigned):
-            break
-        pairs = assigned
-        scale = abs(a)
+            found = _assigned(rows, cols, costs, gate)
+            listed = found[:, 0].tolist(), found[:, 1].tolist()
+        if fitted is not None and listed == fitted:
+            break  # the pairs of the last fit: fitting them again gives it again
+        pairs, fitted = found, listed
+        scale = abs(a)  # the scale cut blobs are placed at, the jackknife's too
         fit = evidence.fit(z, index, pairs, scale, b)
         if fit is None:
             return cand
@@ -195,17 +176,33 @@ def polish(
                      variance_factor=variance, pairs=pairs, log10_nfa_points=cand.log10_nfa_points)
 
 
+def _assigned(rows: np.ndarray, cols: np.ndarray, costs: np.ndarray, gate: float) -> np.ndarray:
+    """The pairs ``(k, 2)`` of image objects ``rows`` and map objects ``cols`` (each pair's squared distance in
+    ``costs``, all within ``gate``) minimising the total squared distance, one map object an image object."""
+    img_u, img_inv = np.unique(rows, return_inverse=True)
+    map_u, map_inv = np.unique(cols, return_inverse=True)
+    big = 1e6 * (gate * gate + 1.0)
+    cost = np.full((img_u.size, map_u.size), big)
+    cost[img_inv, map_inv] = costs
+    # Every pair is an edge (non-pairs at a prohibitive cost), so a full matching always exists; this is
+    # linear_sum_assignment without importing scipy.optimize (a tenth of a second at start-up).
+    # Costs are shifted by one so that no pair (a zero distance) reads as a missing edge; every full
+    # matching has the same number of pairs, so the shift changes none.
+    edges = csr_array(cost + 1.0)
+    if img_u.size <= map_u.size:
+        r_opt, c_opt = np.arange(img_u.size), min_weight_full_bipartite_matching(edges)[1]
+    else:
+        r_opt, c_opt = min_weight_full_bipartite_matching(edges.T.tocsr())[1], np.arange(map_u.size)
+    good = cost[r_opt, c_opt] < big
+    return _paired(img_u[r_opt[good]], map_u[c_opt[good]])
+
+
 def _paired(image_ids: np.ndarray, map_ids: np.ndarray) -> np.ndarray:
     """Pairs ``(k, 2)`` (int64) of image and map ids: ``np.column_stack`` of them (integer arrays) in half its calls."""
     pairs = np.empty((image_ids.size, 2), np.int64)
     pairs[:, 0] = image_ids
     pairs[:, 1] = map_ids
     return pairs
-
-
-def _same(pairs: np.ndarray, other: np.ndarray) -> bool:
-    """Whether two pair tables are equal (``np.array_equal`` of integer arrays, without its conversions)."""
-    return pairs.shape == other.shape and bool((pairs == other).all())
 
 
 def _projected(evidence: ImageEvidence, a: complex, b: complex, z: np.ndarray) -> np.ndarray:

@@ -91,8 +91,13 @@ def find_rivals(
         :data:`~mapdb.match.refine.PLACE_FRACTION` of the footprint's diagonal), with ``log10_nfa`` = the
         winner's plus how much worse the place's fit is under the common density (never better).
     """
-    a = np.array([c.a for c in others], np.complex128)
-    b = np.array([c.b for c in others], np.complex128)
+    # The places compared: the runner-ups, then the hits' places, with which are another place than the winner's
+    # (the hits' are, by _places); put together once at the end (often one part, or none, comes).
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    if others:
+        a = np.array([c.a for c in others], np.complex128)
+        b = np.array([c.b for c in others], np.complex128)
+        parts.append((a, b, _elsewhere(a, b, best, diag_px)))
     sigma_px = max(opts.pixel_sigmas[0], best.sigma_axis_m / max(abs(best.a), 1e-12))
     hit_a, hit_b = _shifted(best, index, opts.tolerance_factor * math.sqrt(2.0) * sigma_px * abs(best.a))
     allowed = allowed_poses(hit_a, hit_b, prior, scale_range)
@@ -104,12 +109,14 @@ def find_rivals(
             hit_a, hit_b = np.concatenate([hit_a, found.a]), np.concatenate([hit_b, found.b])
     if hit_a.size:  # (no repeats, no look-up: the runner-ups alone)
         keep = _places(hit_a, hit_b, best, diag_px)
-        a, b = np.concatenate([a, hit_a[keep]]), np.concatenate([b, hit_b[keep]])
-    if not a.size:
+        if keep.size:
+            parts.append((hit_a[keep], hit_b[keep], np.ones(keep.size, bool)))
+    if not parts:
         return []
+    a, b, apart = parts[0] if len(parts) == 1 else (np.concatenate(v) for v in zip(*parts, strict=True))
     need = max(4.0, SCREEN_SHARE * best.inliers)
     near = _near_counts(a, b, best, z, img_label, index, opts, math.ceil(need))
-    ok = _elsewhere(a, b, best, diag_px) & (near >= need)
+    ok = apart & (near >= need)
     # The places where most objects land near a map object of their label are refitted first.
     keep = np.flatnonzero(ok)[np.argsort(-near[ok], kind="stable")][: opts.ambiguity_places]
     if not keep.size:
@@ -174,9 +181,13 @@ def _places(a: np.ndarray, b: np.ndarray, best: Candidate, diag_px: float) -> np
     away = np.flatnonzero(_elsewhere(a, b, best, diag_px) & np.isfinite(b))
     if not away.size:
         return np.zeros(0, np.int64)
+    if away.size < a.size:
+        a, b = a[away], b[away]
     # One number per cell of a place's width and twelfth of a turn (a lattice repeats itself turned too).
-    turn = np.floor(np.angle(a[away] / best.a) / (np.pi / 6.0))
-    cell = (np.floor(b[away].real / separation) * 2.0**24 + np.floor(b[away].imag / separation)) * 16.0 + turn
+    # (np.angle's arctan2 called directly: the same numbers in fewer calls.)
+    turned = a / best.a
+    turn = np.floor(np.arctan2(turned.imag, turned.real) / (np.pi / 6.0))
+    cell = (np.floor(b.real / separation) * 2.0**24 + np.floor(b.imag / separation)) * 16.0 + turn
     # Each cell's first hypothesis, in order: a dict of a few dozen Python numbers, not np.unique's sort (its
     # first indices, sorted, are these; NaN cells are one cell there, the key None here).
     first: dict[float | None, int] = {}

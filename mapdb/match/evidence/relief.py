@@ -39,8 +39,8 @@ import math
 
 import numpy as np
 
-from ..geometry import fit_similarity_complex
-from .points import fit_errors
+from .._kernel import fit_similarity as _fit_similarity
+from .._kernel import verify_errors as _verify_errors
 
 __all__ = ["RELIEF_ITERATIONS", "ReliefFit", "fit_with_relief", "leave_one_out_sigma", "radial_excess"]
 
@@ -106,23 +106,31 @@ def fit_with_relief(src: np.ndarray, dst: np.ndarray) -> ReliefFit | None:
     >>> true = (0.5 * src + (100 + 50j)) + 0.01 * (rng.standard_normal(30) + 1j * rng.standard_normal(30))
     >>> seen = true + 0.5 * src * rng.uniform(0, 0.06, 30) * (src.real > 0)  # relief on one side only
     >>> fit = fit_with_relief(src, seen)
+    >>> from mapdb.match.geometry import fit_similarity_complex
     >>> plain = fit_similarity_complex(src, seen)[1]
     >>> bool(abs(fit.b - (100 + 50j)) < abs(plain - (100 + 50j)) / 3), fit.kappa > 0
     (True, True)
     >>> fit_with_relief(np.array([1 + 1j]), np.array([2 + 2j])) is None
     True
     """
-    src = np.asarray(src, np.complex128)
-    dst = np.asarray(dst, np.complex128)
-    if src.size < 3:
+    src = np.ascontiguousarray(src, np.complex128)
+    dst = np.ascontiguousarray(dst, np.complex128)
+    n = src.size
+    if n < 3:
         return None
-    a, b = (complex(v) for v in fit_similarity_complex(src, dst))
+    # The kernels of fit_similarity_complex and fit_errors called on one row directly (their wrappers' shape
+    # handling is most of an image's final fit): the same numbers.
+    out = np.empty(2, np.complex128)
+    _fit_similarity(src.reshape(1, n), dst.reshape(1, n), np.ones((1, n)), out[:1], out[1:])
+    a, b = out.tolist()
     if not math.isfinite(abs(a)) or a == 0:
         return None
     rho, tau, excess = radial_excess(src, dst, a, b)
     if not excess:
-        sigma, variance = fit_errors(src, np.hypot(rho, tau)[None, :], np.ones((1, src.size), bool))
-        return ReliefFit(a, b, float(sigma[0]), float(variance[0]), 0.0)
+        errors = np.empty(2)
+        _verify_errors(src, np.hypot(rho, tau).reshape(1, n), np.ones((1, n), bool), errors[:1], errors[1:])
+        sigma, variance = errors.tolist()
+        return ReliefFit(a, b, sigma, variance, 0.0)
     kappa = 0.0
     for _ in range(RELIEF_ITERATIONS):
         reach2 = np.abs(a * src) ** 2
