@@ -185,14 +185,15 @@ def _localize_times(map_path: Path, images: list[dict], baseline: tuple[str, Pat
         # Point images only (``masks=False``): the view with blocks folded in, which mask images need, would build
         # an in-memory quad index of the whole map (a world of 1M objects: over 20 GB, killed by the kernel).
         _, quads = locs["tree"].whole_map_indexes(masks=False)
-        locs["tree"].whole_map_ready()  # a big map's whole object index, built in the background, serves the timing
+        # a big map's whole object index, built in the background, serves the timing
+        locs["tree"].whole_map_ready(masks=False)
         index_s = time.perf_counter() - start
         if not isinstance(quads, StoredQuads):
             raise RuntimeError(f"{map_path}: the localizer does not use a stored index")
         for name in list(locs)[1:]:
-            whole = locs[name].whole_map_indexes
-            whole(**({"masks": False} if "masks" in inspect.signature(whole).parameters else {}))
-            getattr(locs[name], "whole_map_ready", lambda: None)()
+            for method in ("whole_map_indexes", "whole_map_ready"):  # as far as that revision has them
+                whole = getattr(locs[name], method, lambda: None)
+                whole(**({"masks": False} if "masks" in inspect.signature(whole).parameters else {}))
         passes = {name: [] for name in locs}
         cpu = {name: [] for name in locs}
         answers: dict[str, list] = {name: [] for name in locs}

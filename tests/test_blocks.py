@@ -228,6 +228,7 @@ def test_point_images_only_leave_the_folded_view_until_a_mask_image_comes() -> N
     eager_objects, _ = eager.whole_map_indexes()
     assert sorted(lazy._views) == [False] and sorted(eager._views) == [False, True]
     assert np.array_equal(lazy_objects.counts, eager_objects.counts)
+    assert lazy.whole_map_ready(1.0, masks=False) and sorted(lazy._views) == [False]  # readying builds no fold
     image = simulate_images(town, 1, altitude=150.0, fov_deg=60.0, yaw="random", min_objects=10, seed=1)[0]
     for o in image["objects"]:
         o["area_px"] = 400.0  # mask blobs: matched in the folded view

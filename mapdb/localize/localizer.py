@@ -314,13 +314,18 @@ class Localizer:
             self._whole_objects = WholeMapObjects(self.map)
         return self._whole_objects.index(lost_in_space)
 
-    def whole_map_ready(self, timeout: float | None = None) -> bool:
+    def whole_map_ready(self, timeout: float | None = None, masks: bool = True) -> bool:
         """Build the whole map's object index now (in the background for a big map file) and wait up to
         ``timeout`` seconds for it: True once lost-in-space answers use it.  A long-running process that
-        expects many lost-in-space images calls it at start-up; the answers are the same either way."""
+        expects many lost-in-space images calls it at start-up; the answers are the same either way.
+
+        ``masks`` as in :meth:`whole_map_indexes`: False (images that are points) leaves a map with blocks'
+        folded view until an image with building areas comes; that view has no stored index, so readying it
+        builds its quad index in memory (a world of 1M objects: over 20 GB)."""
         if self._has_blocks:
-            return all([self._view(fold).whole_map_ready(timeout) for fold in ((True, False) if self.blocks
-                                                                                else (False,))])
+            self._whole_views = self._whole_views or not masks
+            folds = (True, False) if self.blocks and masks else (False,)
+            return all([self._view(fold).whole_map_ready(timeout) for fold in folds])
         self.whole_map_indexes()
         assert self._whole_objects is not None
         self._whole_objects.start()
