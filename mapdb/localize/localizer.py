@@ -287,21 +287,21 @@ class Localizer:
         for a big map file, read page by page where the answers need them until the whole index, built in
         the background from the second answer on, is ready (:class:`WholeMapObjects`); the same answers.
 
-        A map with blocks is searched through its views: theirs are built (both when blocks are used) and the
-        view without blocks' returned.  ``masks`` False (a caller whose images are points, as the analysis's):
-        the view with blocks folded in, which only images with building areas are matched in, is left until such
-        an image first comes, and its whole-map indexes are then built at once (its answers the same either way;
-        for Andorra its quads of two worlds cost 1.2 s of start-up).
+        A map with blocks is searched through its views (:meth:`_views_for`), the view without blocks' returned;
+        ``masks`` False (images that are points, as the analysis's) leaves the folded view, which only images with
+        building areas are matched in, until one comes (the same answers; Andorra's folded quads: 1.2 s).
         """
         if self._has_blocks:
-            self._whole_views = self._whole_views or not masks
-            folds = (True, False) if self.blocks and masks else (False,)
-            views = [self._view(fold) for fold in folds]
-            return [view.whole_map_indexes() for view in views][-1]
+            return [view.whole_map_indexes() for view in self._views_for(masks)][-1]
         if self._whole_quads is None:
             stored = self._stored_index()
             self._whole_quads = StoredQuads(stored) if stored is not None else self._quad_index(self._quad_objects())
         return self._objects(lost_in_space=True), self._whole_quads
+
+    def _views_for(self, masks: bool) -> list[Localizer]:
+        """A map with blocks' views: both if blocks are used and ``masks``, else the one without (see above)."""
+        self._whole_views = self._whole_views or not masks
+        return [self._view(fold) for fold in ((True, False) if self.blocks and masks else (False,))]
 
     def _objects(self, lost_in_space: bool) -> ObjectIndex:
         """The whole map's object index (read page by page for a big map file), for one answer.
@@ -317,15 +317,10 @@ class Localizer:
     def whole_map_ready(self, timeout: float | None = None, masks: bool = True) -> bool:
         """Build the whole map's object index now (in the background for a big map file) and wait up to
         ``timeout`` seconds for it: True once lost-in-space answers use it.  A long-running process that
-        expects many lost-in-space images calls it at start-up; the answers are the same either way.
-
-        ``masks`` as in :meth:`whole_map_indexes`: False (images that are points) leaves a map with blocks'
-        folded view until an image with building areas comes; that view has no stored index, so readying it
-        builds its quad index in memory (a world of 1M objects: over 20 GB)."""
+        expects many lost-in-space images calls it at start-up; the answers are the same either way.  ``masks``
+        as in :meth:`whole_map_indexes` (the folded view has no stored index: a world of 1M objects, 20 GB)."""
         if self._has_blocks:
-            self._whole_views = self._whole_views or not masks
-            folds = (True, False) if self.blocks and masks else (False,)
-            return all([self._view(fold).whole_map_ready(timeout) for fold in folds])
+            return all([view.whole_map_ready(timeout) for view in self._views_for(masks)])
         self.whole_map_indexes()
         assert self._whole_objects is not None
         self._whole_objects.start()
