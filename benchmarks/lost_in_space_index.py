@@ -80,7 +80,7 @@ IMAGE_NEIGHBOURS = 5
 
 def image_queries(z: np.ndarray, label: np.ndarray, neighbours: int = IMAGE_NEIGHBOURS,
                   sigma_px: float = SIGMA_PX) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Lookups of an image's quads as ``mapdb.match.hypotheses.lookup_hypotheses`` forms them.
+    """Lookups of an image's quads as ``mapdb.match.hypotheses.round_hypotheses`` forms them.
 
     Each image quad (every object with triples of its ``neighbours`` nearest) is looked up in its
     longest pair's frame and, when the second longest is within noise of it, in that one too; in each

@@ -81,7 +81,7 @@ def test_the_kernel_marks_the_quads_blocks_it_checks(small: Path) -> None:
     with StoredQuadIndex(index_path(small)) as ix:
         quads = ix._sections["quads"]
         assert quads.crcs.size > 1 and not quads.checked.any()
-        ix._audited = set(range(1 << 20))  # no audit: every quads block read is the kernel's
+        ix._audited_at[:] = True  # no audit: every quads block read is the kernel's
         ix.lookup(inv, labels, 1e-6, 4)
         marked = np.flatnonzero(quads.checked)
         assert marked.size > 1
@@ -109,7 +109,7 @@ def test_a_corrupt_quads_block_the_kernel_reaches_fails_with_pythons_message(sma
     target = tmp_path / "copy.qidx"
     _corrupt_block(small, target, last)
     with StoredQuadIndex(target) as ix:
-        ix._audited = set(range(1 << 20))  # the kernel, not the audit, reads the block first
+        ix._audited_at[:] = True  # the kernel, not the audit, reads the block first
         with pytest.raises(MapFormatError) as exc:
             ix.lookup(inv, labels, 1e-6, 4)
         assert str(exc.value) == f"{target}: quads block {last} checksum mismatch (file is corrupt)"

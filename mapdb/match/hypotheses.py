@@ -23,7 +23,7 @@ from .options import FastOptions
 from .quads import QuadIndex, lookup_parts
 
 __all__ = [
-    "Hypotheses", "allowed_poses", "anchor_batches", "lookup_hypotheses", "pose_votes", "prioritise",
+    "Hypotheses", "allowed_poses", "anchor_batches", "pose_votes", "prioritise",
     "round_hypotheses",
 ]
 
@@ -87,7 +87,7 @@ def round_hypotheses(
     Hypotheses whose image centre falls outside the prior (with a little slack: a quad's estimate of the
     centre is noisier than the final answer) or whose scale is outside ``scale_range`` are dropped.
     ``sigma_px`` is one pixel error for every point or one per point of ``batch`` (see
-    :func:`lookup_hypotheses`); ``weight`` (per image object), the points' weights in the fit (default equal).
+    :func:`_lookup_hits`); ``weight`` (per image object), the points' weights in the fit (default equal).
     """
     key_ids, rows, map_z = _lookup_hits(z, img_label, batch, quads, opts, sigma_px)
     return _hypotheses_of_hits(z, weight, key_ids, rows, map_z, prior, scale_range)
@@ -134,21 +134,6 @@ POSE_BIN_DEGREES = 10.0
 FRAME_TIE_SIGMAS = 3.0
 
 
-def lookup_hypotheses(
-    z: np.ndarray,
-    img_label: np.ndarray,
-    quads: np.ndarray,
-    indexes: Sequence[QuadIndex],
-    opts: FastOptions,
-    sigma_px: float | np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Look image quads up: correspondences ``(H, 4)``, image ids and the map points (complex).
-
-    ``sigma_px``: the pixel error of every point, or of each quad's points ``(m, 4)``."""
-    key_ids, rows, map_z = _lookup_hits(z, img_label, quads, indexes, opts, sigma_px)
-    return key_ids[rows], map_z
-
-
 def _lookup_hits(
     z: np.ndarray,
     img_label: np.ndarray,
@@ -157,8 +142,10 @@ def _lookup_hits(
     opts: FastOptions,
     sigma_px: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`lookup_hypotheses` before its gather: the image ids ``(k, 4)`` of each key looked up, each hit's key
-    row ``(H,)`` and its map points ``(H, 4)`` (int64 and complex128, contiguous)."""
+    """Look image quads up: the image ids ``(k, 4)`` of each key looked up, each hit's key row ``(H,)`` (its image
+    ids ``key_ids[rows]``) and its map points ``(H, 4)`` (int64 and complex128, contiguous).
+
+    ``sigma_px``: the pixel error of every point, or of each quad's points ``(m, 4)``."""
     empty = np.zeros((0, 4), np.int64), np.zeros(0, np.int64), np.zeros((0, 4), np.complex128)
     indexes = [ix for ix in indexes if ix.n_quads]
     if not len(quads) or not indexes:

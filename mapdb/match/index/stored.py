@@ -102,8 +102,9 @@ class StoredQuadIndex:
         where = str(self.path)
         self._tables: tuple[object, ...] = ()  # the arrays the kernel's lookup reads (_kernel_tables)
         self._boxes: PageBoxes | None = None  # the map's page boxes, once bound to it (check_map)
-        self._audited: set[int] = set()  # label combinations whose first cell was checked (_audit)
-        self._audited_at = np.zeros(0, bool)  # the same, by position in the combinations (the kernel reads it)
+        # Label combinations whose first cell was checked (_audit), by position in the combinations (the kernel
+        # reads it).
+        self._audited_at = np.zeros(0, bool)
         with reading(where, "quad index"):
             f = open_regular(self.path, where, "quad index")  # closed below once mapped and the small sections read
         try:
@@ -342,18 +343,15 @@ class StoredQuadIndex:
         it is filed there (``check_filed``): a forged cell side would make lookups of the combination miss
         every cell, finding nothing to check and nothing to answer with."""
         # sorted_unique, not np.unique: it imports numpy.ma (0.05 s of a first answer), see mapdb.match.arrays.
-        new = np.array([key for key in sorted_unique(lk).tolist() if key not in self._audited], lk.dtype)
-        if not new.size:
-            self._audited_at[np.searchsorted(self._combo_keys, lk)] = True
-            return
-        at = self._directory.first_cells(new)
-        start = self._directory.start[at]
-        records = self._records(start)
-        _, inv = self._resolve(records[0], records[1])
-        check_filed(inv, self._directory.key[at], records[2], self._combo_cell[np.searchsorted(self._combo_keys, new)],
-                    self._bits, self._sub_bits, self.where)
-        self._audited.update(new.tolist())
-        self._audited_at[np.searchsorted(self._combo_keys, lk)] = True
+        combos = np.searchsorted(self._combo_keys, sorted_unique(lk))
+        new = combos[~self._audited_at[combos]]
+        if new.size:
+            at = self._directory.first_cells(self._combo_keys[new])
+            records = self._records(self._directory.start[at])
+            _, inv = self._resolve(records[0], records[1])
+            check_filed(inv, self._directory.key[at], records[2], self._combo_cell[new], self._bits, self._sub_bits,
+                        self.where)
+        self._audited_at[combos] = True
 
     def _records(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Anchors, triple numbers and positions inside their cells of the quads at ``positions``."""
