@@ -23,11 +23,10 @@ import tempfile
 import time
 from pathlib import Path
 from types import ModuleType
-from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _baseline import cached_maps, import_baseline  # noqa: E402
+from _baseline import cached_maps, clocked, import_baseline  # noqa: E402
 from matcher_core import CACHE, DATA, EXTRACTS, gauge_ms, simulated  # noqa: E402
 
 # (module under the package, function): the stages timed.
@@ -51,27 +50,16 @@ def _wrap(package: str, totals: collections.Counter) -> None:
         if module is None or not hasattr(module, attr):
             continue
         original = getattr(module, attr)
-        clocked = _clocked(original, attr, totals)
+        timed = clocked(original, attr, totals)
         for m in modules:
             if getattr(m, attr, None) is original:
-                setattr(m, attr, clocked)
+                setattr(m, attr, timed)
     index_module = sys.modules.get(f"{package}.match.mapobjects.object_index")
     if index_module is not None:
         cls = index_module.ObjectIndex
         for attr in QUERIES:
             if hasattr(cls, attr):
-                setattr(cls, attr, _clocked(getattr(cls, attr), f"ObjectIndex.{attr}", totals))
-
-
-def _clocked(function: Any, label: str, totals: collections.Counter) -> Any:
-    def clocked(*args: Any, **kwargs: Any) -> Any:
-        start = time.perf_counter()
-        try:
-            return function(*args, **kwargs)
-        finally:
-            totals[label] += time.perf_counter() - start
-
-    return clocked
+                setattr(cls, attr, clocked(getattr(cls, attr), f"ObjectIndex.{attr}", totals))
 
 
 def main() -> None:

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _baseline import cli_tree  # noqa: E402
+from _baseline import cli_tree, clocked  # noqa: E402
 
 STAGES = ("lookup", "anchor_batches", "screen", "final fit", "match_fast")
 
@@ -42,19 +42,10 @@ def child(map_path: str, out: str) -> None:
 
     spent: collections.Counter = collections.Counter()
 
-    def clocked(function, label):  # type: ignore[no-untyped-def]
-        def run(*args, **kwargs):  # type: ignore[no-untyped-def]
-            start = time.process_time()
-            try:
-                return function(*args, **kwargs)
-            finally:
-                spent[label] += time.process_time() - start
-        return run
-
     for owner, name, label in [(fast, "round_hypotheses", "lookup"), (fast, "anchor_batches", "anchor_batches"),
                                (fast, "screen_round", "screen"), (fast, "polish", "final fit"),
                                (localizer, "match_fast", "match_fast")]:
-        setattr(owner, name, clocked(getattr(owner, name), label))
+        setattr(owner, name, clocked(getattr(owner, name), label, spent, time.process_time))
     from mapdb_cli.main import cli
 
     log = io.StringIO()

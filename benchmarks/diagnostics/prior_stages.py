@@ -24,8 +24,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from _baseline import extract_maps  # noqa: E402
-from glue_stages import _clocked  # noqa: E402
+from _baseline import clocked, extract_maps  # noqa: E402
 from matcher_core import CACHE, DATA, EXTRACTS, simulated  # noqa: E402
 
 import mapdb.localize.localizer as localizer_module  # noqa: E402
@@ -45,7 +44,7 @@ def main() -> None:
         (localizer_module, "_checked", "reading the document"), (localizer_module, "ok_record", "the answer's record"),
         (localizer_module.Localizer, "fast_indexes", TILES),
     ]:
-        setattr(owner, function, _clocked(getattr(owner, function), stage, SPENT))
+        setattr(owner, function, clocked(getattr(owner, function), stage, SPENT))
     path = extract_maps([name], EXTRACTS, DATA, CACHE)[name]
     images = simulated(path, n, 3)
     without = [{k: v for k, v in image.items() if k != "prior"} for image in images]

@@ -140,8 +140,7 @@ def polish(
     """
     evidence = evidence or ImageEvidence()
     a, b = cand.a, cand.b
-    flat = evidence.terrain is None  # (a z + b written out here: the same numbers as _projected's, one call fewer)
-    w = a * z + b if flat else _projected(evidence, a, b, z)  # the first association's projections too
+    w = _projected(evidence, a, b, z)  # the first association's projections too
     farthest = float(np.abs(w[cand.pairs[:, 0]] - index.z[cand.pairs[:, 1]]).max())
     gate = max(GATE_SIGMAS * cand.sigma_axis_m, farthest, 1e-9)
     pairs = cand.pairs
@@ -150,7 +149,7 @@ def polish(
     scale = abs(a)
     for it in range(iterations):
         if it:
-            w = a * z + b if flat else _projected(evidence, a, b, z)
+            w = _projected(evidence, a, b, z)
         rows, cols, costs = index.within(w, img_label, gate, 3)
         if not rows.size:
             return cand
